@@ -1,0 +1,32 @@
+"""gfjax: ground filtering of airborne LiDAR point clouds as JAX array code.
+
+```python
+import gfjax
+cloud = gfjax.read("tile.laz")
+result = gfjax.smrf.filter(cloud)
+gfjax.write(cloud.with_ground(result.ground), "out.laz")
+```
+Method packages (`gfjax.smrf`, `gfjax.dmf`, ...) are imported on first attribute access.
+"""
+from __future__ import annotations
+
+import importlib
+
+from gfjax.io.cloud import Cloud
+from gfjax.result import Result
+
+__version__ = "0.1.0"
+
+_LAZY = {"smrf", "dmf", "masf", "pmf", "csf", "sparsegf", "raster", "dtm", "metrics", "tune", "io", "methods"}
+_LAZY_FUNCS = {"read": "gfjax.io.las", "write": "gfjax.io.las"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return importlib.import_module(f"gfjax.{name}")
+    if name in _LAZY_FUNCS:
+        return getattr(importlib.import_module(_LAZY_FUNCS[name]), name)
+    raise AttributeError(f"module 'gfjax' has no attribute {name!r}")
+
+
+__all__ = ["Cloud", "Result", "__version__", "read", "write", *sorted(_LAZY)]

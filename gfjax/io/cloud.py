@@ -1,0 +1,137 @@
+"""`Cloud`: a LAS/LAZ point record kept whole on the host, plus the views the filters need.
+
+The full `laspy.LasData` is kept untouched (header, VLRs/EVLRs, every point dimension, extra
+bytes) so that writing it back changes nothing but the classification. Filters work on
+`xyz_m` (float64 metres, converted from the file's horizontal/vertical units) or on
+`local_xyz_m()` (float32 metres relative to an origin, what JAX code receives).
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from gfjax.io import asprs
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Cloud:
+    """A point cloud read from a LAS/LAZ file (or built in memory).
+
+    Attributes:
+      las: the complete laspy record; never modified in place.
+      path: the file it came from, or None.
+      horizontal_unit_m: metres per horizontal coordinate unit (1.0, 0.3048, 1200/3937).
+      vertical_unit_m: metres per vertical coordinate unit.
+    """
+
+    las: laspy.LasData
+    path: Path | None = None
+    horizontal_unit_m: float = 1.0
+    vertical_unit_m: float = 1.0
+
+    @property
+    def n_points(self) -> int:
+        return len(self.las.points)
+
+    @property
+    def name(self) -> str:
+        return str(self.path) if self.path is not None else "<memory>"
+
+    @property
+    def xyz(self) -> np.ndarray:
+        """Scaled coordinates in file units, float64, shape `(n, 3)`."""
+        return np.stack([np.asarray(self.las.x, dtype=np.float64),
+                         np.asarray(self.las.y, dtype=np.float64),
+                         np.asarray(self.las.z, dtype=np.float64)], axis=1)
+
+    @property
+    def xyz_m(self) -> np.ndarray:
+        """Coordinates in metres, float64, shape `(n, 3)` (file units times the unit factors)."""
+        xyz = self.xyz
+        if self.horizontal_unit_m != 1.0:
+            xyz[:, :2] *= self.horizontal_unit_m
+        if self.vertical_unit_m != 1.0:
+            xyz[:, 2] *= self.vertical_unit_m
+        return xyz
+
+    def local_xyz_m(self, origin_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Float32 metres relative to `origin_m` (default: the minimum corner), and the origin.
+
+        Returns:
+          `(local, origin)`: local float32 `(n, 3)` and origin float64 `(3,)`, metres.
+        """
+        xyz = self.xyz_m
+        if origin_m is None:
+            origin_m = xyz.min(axis=0) if len(xyz) else np.zeros(3)
+        return (xyz - origin_m).astype(np.float32), np.asarray(origin_m, dtype=np.float64)
+
+    @property
+    def classification(self) -> np.ndarray:
+        """ASPRS class per point, uint8 `(n,)`."""
+        return np.asarray(self.las.classification, dtype=np.uint8)
+
+    @property
+    def return_number(self) -> np.ndarray:
+        return np.asarray(self.las.return_number, dtype=np.uint8)
+
+    @property
+    def number_of_returns(self) -> np.ndarray:
+        return np.asarray(self.las.number_of_returns, dtype=np.uint8)
+
+    @property
+    def ignored(self) -> np.ndarray:
+        """Points every filter ignores (noise classes 7 and 18, withheld flag), bool `(n,)`."""
+        return asprs.ignored_mask(self.las)
+
+    def filter_mask(self, returns: str = "all") -> np.ndarray:
+        """Points a filter uses: not ignored, and last returns only when `returns == "last"`."""
+        use = ~self.ignored
+        if returns == "last":
+            use &= self.return_number >= self.number_of_returns
+        elif returns != "all":
+            raise ValueError(f"returns must be 'all' or 'last', got {returns!r}")
+        return use
+
+    def with_ground(self, ground: np.ndarray, *, reset_nonground: bool = False,
+                    used: np.ndarray | None = None) -> "Cloud":
+        """A copy whose classification says ground (2) / non-ground, per SPEC section 1.
+
+        Ground points get class 2. Non-ground points that were class 2 become 1; other
+        non-ground points keep their class unless `reset_nonground` (then all become 1).
+        Points outside `used` (default: not ignored) keep their class whatever `ground` says.
+        """
+        ground = np.asarray(ground, dtype=bool)
+        if ground.shape != (self.n_points,):
+            raise ValueError(f"{self.name}: ground must have shape ({self.n_points},), got {ground.shape}")
+        if used is None:
+            used = ~self.ignored
+        cls = self.classification.copy()
+        new = cls.copy()
+        new[ground & used] = asprs.GROUND
+        nonground = ~ground & used
+        if reset_nonground:
+            new[nonground] = asprs.UNCLASSIFIED
+        else:
+            new[nonground & (cls == asprs.GROUND)] = asprs.UNCLASSIFIED
+        las = laspy.LasData(header=self.las.header, points=self.las.points.copy())
+        if hasattr(self.las, "evlrs") and self.las.evlrs is not None:
+            las.evlrs = self.las.evlrs
+        las.classification = new
+        return dataclasses.replace(self, las=las)
+
+    @classmethod
+    def from_xyz(cls, xyz: np.ndarray, *, classification: np.ndarray | None = None,
+                 scale: float = 0.001, point_format: int = 6, version: str = "1.4") -> "Cloud":
+        """An in-memory cloud from float64 metres `(n, 3)` (tests, synthetic scenes)."""
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        header = laspy.LasHeader(point_format=point_format, version=version)
+        header.scales = np.array([scale] * 3)
+        header.offsets = np.floor(xyz.min(axis=0)) if len(xyz) else np.zeros(3)
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+        if classification is not None:
+            las.classification = np.asarray(classification, dtype=np.uint8)
+        return cls(las=las)
