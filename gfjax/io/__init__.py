@@ -1,4 +1,6 @@
-"""Reading and writing LAS/LAZ, units, ASPRS classes, tiles."""
+"""Reading and writing LAS/LAZ, CRS and units, ASPRS classes, tiles."""
 from gfjax.io.cloud import Cloud
+from gfjax.io.las import atomic_output, check_output, expand_inputs, read, read_header, write
+from gfjax.io.units import Units
 
-__all__ = ["Cloud"]
+__all__ = ["Cloud", "Units", "atomic_output", "check_output", "expand_inputs", "read", "read_header", "write"]

@@ -24,3 +24,50 @@ def ignored_mask(las: laspy.LasData) -> np.ndarray:
     if "withheld" in names:
         ignored |= np.asarray(las.withheld, dtype=bool)
     return ignored
+
+
+# ASPRS LAS 1.4 R15, table 17 (point formats 6-10); codes 0-12 as in LAS 1.2 table 5 except
+# where noted. Codes 23-63 are reserved and 64-255 user definable.
+CLASS_NAMES: dict[int, str] = {
+    0: "created, never classified",
+    1: "unclassified",
+    2: "ground",
+    3: "low vegetation",
+    4: "medium vegetation",
+    5: "high vegetation",
+    6: "building",
+    7: "low point (noise)",
+    8: "model key-point (LAS 1.2) / reserved",
+    9: "water",
+    10: "rail",
+    11: "road surface",
+    12: "overlap (LAS 1.2) / reserved",
+    13: "wire - guard (shield)",
+    14: "wire - conductor (phase)",
+    15: "transmission tower",
+    16: "wire-structure connector",
+    17: "bridge deck",
+    18: "high noise",
+    19: "overhead structure",
+    20: "ignored ground",
+    21: "snow",
+    22: "temporal exclusion",
+}
+
+
+def class_name(code: int) -> str:
+    """The ASPRS name of class `code` ("reserved" 23-63, "user defined" 64-255)."""
+    code = int(code)
+    if code in CLASS_NAMES:
+        return CLASS_NAMES[code]
+    if 23 <= code <= 63:
+        return "reserved"
+    if 64 <= code <= 255:
+        return "user defined"
+    raise ValueError(f"ASPRS class codes are 0-255, got {code}")
+
+
+def class_counts(las: laspy.LasData) -> dict[int, int]:
+    """Number of points per class code present in `las`, ascending by code."""
+    codes, counts = np.unique(np.asarray(las.classification, dtype=np.uint8), return_counts=True)
+    return {int(c): int(k) for c, k in zip(codes, counts)}

@@ -7,13 +7,18 @@ bytes) so that writing it back changes nothing but the classification. Filters w
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import laspy
 import numpy as np
 
 from gfjax.io import asprs
+
+if TYPE_CHECKING:
+    import pyproj
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -25,12 +30,17 @@ class Cloud:
       path: the file it came from, or None.
       horizontal_unit_m: metres per horizontal coordinate unit (1.0, 0.3048, 1200/3937).
       vertical_unit_m: metres per vertical coordinate unit.
+      crs: the file's coordinate reference system (`pyproj.CRS`), or None when it states none.
+      units_source: where the unit factors came from ("CRS", "--units ft", "no CRS in file:
+        metres assumed", ...), for `gfjax info` and logs.
     """
 
     las: laspy.LasData
     path: Path | None = None
     horizontal_unit_m: float = 1.0
     vertical_unit_m: float = 1.0
+    crs: pyproj.CRS | None = None
+    units_source: str = "in memory: metres"
 
     @property
     def n_points(self) -> int:
@@ -120,6 +130,25 @@ class Cloud:
         if hasattr(self.las, "evlrs") and self.las.evlrs is not None:
             las.evlrs = self.las.evlrs
         las.classification = new
+        return dataclasses.replace(self, las=las)
+
+    def with_extra_dim(self, name: str, values: np.ndarray, *, description: str = "") -> "Cloud":
+        """A copy with an extra-bytes dimension `name` set to `values` (shape `(n,)`).
+
+        The dtype of `values` becomes the dimension's type (e.g. uint32 `instance_id`). An
+        existing dimension of that name is overwritten in place of adding a second one. The
+        header is copied, so `self` is unchanged.
+        """
+        values = np.asarray(values)
+        if values.shape != (self.n_points,):
+            raise ValueError(f"{self.name}: {name} must have shape ({self.n_points},), got {values.shape}")
+        header = copy.deepcopy(self.las.header)
+        las = laspy.LasData(header=header, points=self.las.points.copy())
+        if hasattr(self.las, "evlrs") and self.las.evlrs is not None:
+            las.evlrs = self.las.evlrs
+        if name not in set(las.point_format.dimension_names):
+            las.add_extra_dim(laspy.ExtraBytesParams(name=name, type=values.dtype, description=description))
+        las[name] = values
         return dataclasses.replace(self, las=las)
 
     @classmethod

@@ -1,0 +1,248 @@
+"""Read and write LAS 1.2-1.4 / LAZ files without losing anything (SPEC section 1).
+
+`read` keeps the whole `laspy.LasData` (header, VLRs/EVLRs, scales/offsets, every point
+dimension incl. extra bytes) and adds the CRS and the unit factors. `write` is atomic: the
+file is written to a temporary name in the target folder, flushed to disk, then renamed over
+the target, so a reader never sees a half-written file and a failure leaves nothing behind.
+Every bad input raises `InputError` naming the file.
+"""
+from __future__ import annotations
+
+import contextlib
+import glob
+import os
+import secrets
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import laspy
+
+from gfjax.errors import InputError
+from gfjax.io import crs as crs_lib
+from gfjax.io import units as units_lib
+from gfjax.io.cloud import Cloud
+
+LAS_SUFFIXES = (".las", ".laz")
+# lazrs (Rust) for LAZ, multi-threaded when available; laszip is only used by the tests.
+LAZ_BACKENDS = (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs)
+_SIGNATURE = b"LASF"
+_GLOB_CHARS = frozenset("*?[")
+
+
+def _is_las_name(path: Path) -> bool:
+    return path.suffix.lower() in LAS_SUFFIXES
+
+
+def expand_inputs(patterns: Iterable[str | os.PathLike]) -> list[Path]:
+    """Input files from file names, folders and glob patterns.
+
+    A folder gives its `.las`/`.laz` files (not recursive); a glob (`*`, `?`, `[`, `**`) gives
+    the `.las`/`.laz` files it matches; a file name is taken as is. Folders and globs are sorted
+    by name; argument order is kept; a file named twice is kept once (first occurrence).
+
+    Raises:
+      InputError: no pattern, a name that does not exist, a folder or glob without LAS files.
+    """
+    found: list[Path] = []
+    for pattern in patterns:
+        text = os.fspath(pattern)
+        path = Path(text)
+        if path.is_dir():
+            files = sorted(p for p in path.iterdir() if p.is_file() and _is_las_name(p))
+            if not files:
+                raise InputError(f"{path}: folder holds no .las/.laz files")
+        elif path.exists():
+            files = [path]
+        elif _GLOB_CHARS & set(text):
+            files = sorted(Path(p) for p in glob.glob(text, recursive=True)
+                           if Path(p).is_file() and _is_las_name(Path(p)))
+            if not files:
+                raise InputError(f"{text}: no .las/.laz file matches")
+        else:
+            raise InputError(f"{text}: no such file or folder")
+        found.extend(files)
+    if not found:
+        raise InputError("no input files given")
+    unique: dict[str, Path] = {}
+    for path in found:
+        unique.setdefault(os.path.realpath(path), path)
+    return list(unique.values())
+
+
+def _check_readable(path: Path) -> None:
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, not a LAS/LAZ file")
+    try:
+        with open(path, "rb") as f:
+            signature = f.read(4)
+    except OSError as err:
+        raise InputError(f"{path}: cannot open ({err.strerror})") from None
+    if signature != _SIGNATURE:
+        raise InputError(f"{path}: not a LAS/LAZ file (signature {signature!r}, expected {_SIGNATURE!r})")
+
+
+def read_header(path: str | os.PathLike) -> laspy.LasHeader:
+    """The header of a LAS/LAZ file (no points read); checks it exists, is LAS and has points."""
+    path = Path(path)
+    _check_readable(path)
+    try:
+        with laspy.open(path, laz_backend=LAZ_BACKENDS, read_evlrs=False) as reader:
+            header = reader.header
+    except (laspy.errors.LaspyException, OSError, ValueError, EOFError) as err:
+        raise InputError(f"{path}: not a valid LAS/LAZ header ({err})") from None
+    if header.point_count == 0:
+        raise InputError(f"{path}: the file holds no points")
+    return header
+
+
+def _resolve_units(header: laspy.LasHeader, *, name: str, units: str | units_lib.Units | None):
+    override = units_lib.parse_units_option(units) if isinstance(units, str) else units
+    try:
+        crs = crs_lib.parse_crs(header, name=name)
+    except InputError:
+        if override is None:
+            raise
+        crs = None  # unreadable CRS, but the user stated the units
+    if override is not None:
+        return crs, override
+    horizontal_m, vertical_m = crs_lib.geokey_units_m(header)
+    return crs, units_lib.units_from_crs(crs, name=name, horizontal_unit_m=horizontal_m,
+                                         vertical_unit_m=vertical_m)
+
+
+def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None) -> Cloud:
+    """Read a LAS 1.2-1.4 or LAZ file whole, with its CRS and unit factors.
+
+    Args:
+      path: the file. LAZ is decompressed with lazrs.
+      units: `"m"`, `"ft"` or `"us-ft"` (or a `Units`) to override the units of the CRS; by
+        default they come from the CRS, and a file without a CRS is taken as metres.
+
+    Returns:
+      A `Cloud` whose `las` holds every header field, VLR/EVLR and point dimension.
+
+    Raises:
+      InputError: missing file, not LAS/LAZ, truncated or corrupt data, zero points, an
+        unreadable CRS (without `units`), a geographic CRS in degrees (without `units`).
+    """
+    path = Path(path)
+    read_header(path)
+    try:
+        with laspy.open(path, laz_backend=LAZ_BACKENDS) as reader:
+            compressed = reader.header.are_points_compressed
+            las = reader.read()
+    except (laspy.errors.LaspyException, RuntimeError, OSError, ValueError, EOFError) as err:
+        if compressed_name(path):
+            raise InputError(f"{path}: truncated or corrupt LAZ data (decompression failed: {err})") from None
+        raise InputError(f"{path}: cannot read LAS points ({err})") from None
+    expected = las.header.point_count
+    if len(las.points) != expected:
+        kind = "LAZ" if compressed else "LAS"
+        raise InputError(f"{path}: truncated {kind} file: header says {expected} points, "
+                         f"the file holds {len(las.points)}")
+    crs, units_found = _resolve_units(las.header, name=str(path), units=units)
+    return Cloud(las=las, path=path, horizontal_unit_m=units_found.horizontal_m,
+                 vertical_unit_m=units_found.vertical_m, crs=crs, units_source=units_found.source)
+
+
+def compressed_name(path: Path) -> bool:
+    """True when `path` holds compressed points (LAZ), judged from its header bits or suffix."""
+    try:
+        with laspy.open(path, laz_backend=LAZ_BACKENDS, read_evlrs=False) as reader:
+            return bool(reader.header.are_points_compressed)
+    except (laspy.errors.LaspyException, OSError, ValueError, EOFError):
+        return path.suffix.lower() == ".laz"
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_output(path: str | os.PathLike, *, force: bool = False,
+                 input_paths: Iterable[str | os.PathLike] = (),
+                 suffixes: tuple[str, ...] | None = LAS_SUFFIXES, option: str = "") -> Path:
+    """Check that `path` can be written, before any work is done; returns it as a `Path`.
+
+    Raises:
+      InputError: a wrong suffix, a folder that does not exist / is not a folder / is not
+        writable, `path` is a folder, or `path` is one of `input_paths` and not `force`.
+    """
+    out = Path(path)
+    where = f"{option} {out}" if option else str(out)
+    if suffixes is not None and out.suffix.lower() not in suffixes:
+        raise InputError(f"{where}: output must end in {' or '.join(suffixes)}")
+    folder = out.absolute().parent
+    if not folder.exists():
+        raise InputError(f"{where}: output folder {folder} does not exist")
+    if not folder.is_dir():
+        raise InputError(f"{where}: {folder} is not a folder")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InputError(f"{where}: output folder {folder} is not writable")
+    if out.is_dir():
+        raise InputError(f"{where}: is a folder, expected a file name")
+    if not force and any(_same_file(out, Path(p)) for p in input_paths):
+        raise InputError(f"{where}: is an input file; pass --force to overwrite it")
+    return out
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike, *, force: bool = False,
+                  input_paths: Iterable[str | os.PathLike] = (),
+                  suffixes: tuple[str, ...] | None = None, option: str = "") -> Iterator[Path]:
+    """Yield a temporary path beside `path`; on success fsync it and rename it onto `path`.
+
+    The temporary file (hidden, same folder, same suffix, mode 0666 less the umask) is removed
+    if the body raises, so a failed write leaves no file behind. Checks as `check_output`.
+    """
+    out = check_output(path, force=force, input_paths=input_paths, suffixes=suffixes, option=option)
+    tmp = out.with_name(f".{out.stem}.{secrets.token_hex(4)}.tmp{out.suffix}")
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        os.close(fd)
+        yield tmp
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, out)
+    except OSError as err:
+        raise InputError(f"{out}: cannot write ({err.strerror or err})") from None
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+    with contextlib.suppress(OSError):  # make the rename durable; not every file system can
+        dir_fd = os.open(out.absolute().parent, os.O_RDONLY)
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
+
+
+def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
+          input_paths: Iterable[str | os.PathLike] = ()) -> Path:
+    """Write `cloud.las` to `path` atomically; LAZ (lazrs) when the suffix is `.laz`.
+
+    Nothing but what `cloud.las` holds is written: the header, VLRs/EVLRs, scales/offsets and
+    every point dimension are those read. Refuses to overwrite `cloud.path` or any of
+    `input_paths` unless `force`.
+
+    Returns:
+      The path written.
+
+    Raises:
+      InputError: see `check_output`; or the file could not be written.
+    """
+    inputs = [*input_paths, *([cloud.path] if cloud.path is not None else [])]
+    with atomic_output(path, force=force, input_paths=inputs, suffixes=LAS_SUFFIXES) as tmp:
+        compress = Path(path).suffix.lower() == ".laz"
+        with open(tmp, "wb") as f:
+            cloud.las.write(f, do_compress=compress, laz_backend=LAZ_BACKENDS if compress else None)
+    return Path(path)
