@@ -1,0 +1,251 @@
+"""Buffered square tiles, padded into fixed-shape batches for `jax.vmap`, and the label merge.
+
+A cloud's metre coordinates are cut into square tile *cores* of `tile_size_m` on a lattice
+anchored at the minimum corner of the points used; each point belongs to exactly one core.
+A tile holds its core's points plus the points within `buffer_m` around it (its *window*),
+so a local method sees context across the seam; only the core points' labels are kept when
+merging (SPEC section 1, "Tiles").
+
+Windows are snapped to the raster lattice of `cell_m` anchored at the same corner, so a
+point falls in the same raster cell whichever tile holds it (the float32 local coordinates
+are clamped into their float64 cell), and they are clipped to the cloud's extent. For
+`vmap`, tiles are padded to a few *capacity buckets* (points) and *shape buckets* (raster
+rows/columns) and carry `valid` masks; the tile's own extent sits in the south-west corner
+of the padded raster (row 0 = north, docs/ARCHITECTURE.md).
+
+Host-side numpy (float64); JAX receives `TileBatch.xyz` (float32 local metres).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterator, Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["Tile", "TileBatch", "split", "capacity_bucket", "shape_bucket", "batches", "merge"]
+
+MIN_CAPACITY = 256
+SHAPE_QUANTUM_PX = 64
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Tile:
+    """One buffered tile.
+
+    Attributes:
+      key: `(col, row)` of the tile core in the tiling (row 0 = southernmost).
+      origin_m: float64 `(3,)`: the window's south-west corner (x, y) and the cloud's z
+        origin [m]; local coordinates are `xyz_m - origin_m`.
+      shape: raster `(h, w)` of the window at `cell_m` (its own extent, before padding).
+      index: int64 `(m,)` indices into the cloud of the window's points.
+      core: bool `(m,)` which of them lie in the tile core.
+      local_xyz: float32 `(m, 3)` local metres of those points, each clamped into the raster
+        cell its float64 coordinates fall in.
+      window_px: `(col, row)` of the window's south-west cell in the cloud's cell lattice
+        (rows counted from the south).
+      core_px: `(col0, row0, col1, row1)`: the core's cells `[col0, col1) x [row0, row1)` in
+        the same lattice, clipped to the cloud's extent.
+    """
+
+    key: tuple[int, int]
+    origin_m: np.ndarray
+    shape: tuple[int, int]
+    index: np.ndarray
+    core: np.ndarray
+    local_xyz: np.ndarray
+    window_px: tuple[int, int] = (0, 0)
+    core_px: tuple[int, int, int, int] = (0, 0, 0, 0)
+
+    @property
+    def n_points(self) -> int:
+        return int(self.index.shape[0])
+
+
+class TileBatch(NamedTuple):
+    """Tiles padded to one capacity and one raster shape, stacked for `jax.vmap`.
+
+    Attributes:
+      xyz: float32 `(b, cap, 3)` local metres (zeros on padding).
+      valid: bool `(b, cap)` real points.
+      hw: int32 `(b, 2)` each tile's own raster extent (rows, cols) inside `shape`.
+      shape: the padded raster `(h, w)` (static for jit).
+      tiles: the `b` tiles, in batch order.
+    """
+
+    xyz: np.ndarray
+    valid: np.ndarray
+    hw: np.ndarray
+    shape: tuple[int, int]
+    tiles: tuple[Tile, ...]
+
+
+def _check(tile_size_m: float, buffer_m: float, cell_m: float) -> None:
+    if not (math.isfinite(cell_m) and cell_m > 0):
+        raise ValueError(f"cell_m must be > 0, got {cell_m}")
+    if not (math.isfinite(tile_size_m) and tile_size_m >= cell_m):
+        raise ValueError(f"tile_size_m must be >= cell_m ({cell_m}), got {tile_size_m}")
+    if not (math.isfinite(buffer_m) and buffer_m >= 0):
+        raise ValueError(f"buffer_m must be >= 0, got {buffer_m}")
+
+
+def _clamp_into_cells(local: np.ndarray, cell: np.ndarray, cell_m: float) -> np.ndarray:
+    """Float32 coordinates that stay inside the cell `cell` (int) their float64 value is in."""
+    lo = (cell * cell_m).astype(np.float32)
+    hi = np.nextafter(((cell + 1) * cell_m).astype(np.float32), np.float32(-np.inf))
+    lo = np.where(np.floor(lo / np.float32(cell_m)) < cell, np.nextafter(lo, np.float32(np.inf)), lo)
+    return np.clip(local.astype(np.float32), lo, np.maximum(lo, hi))
+
+
+def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50.0,
+          cell_m: float = 1.0, use: np.ndarray | None = None) -> list[Tile]:
+    """Cut a cloud into buffered square tiles.
+
+    Args:
+      xyz_m: float64 `(n, 3)` coordinates [m].
+      tile_size_m: side of a tile core [m].
+      buffer_m: context kept around each core [m] (rounded out to whole cells).
+      cell_m: raster cell the windows snap to [m].
+      use: bool `(n,)` points to tile (default all); the others belong to no tile.
+
+    Returns:
+      Non-empty tiles in row-major order of their keys. Every used point is in exactly one
+      core; a tile's window holds the used points within `buffer_m` of its core.
+    """
+    _check(tile_size_m, buffer_m, cell_m)
+    xyz_m = np.asarray(xyz_m, dtype=np.float64)
+    if xyz_m.ndim != 2 or xyz_m.shape[1] != 3:
+        raise ValueError(f"xyz_m must have shape (n, 3), got {xyz_m.shape}")
+    use = np.ones(len(xyz_m), bool) if use is None else np.asarray(use, dtype=bool)
+    if use.shape != (len(xyz_m),):
+        raise ValueError(f"use must have shape ({len(xyz_m)},), got {use.shape}")
+    if not np.isfinite(xyz_m[use]).all():
+        raise ValueError("xyz_m holds non-finite coordinates")
+    used = np.flatnonzero(use)
+    if used.size == 0:
+        return []
+    pts = xyz_m[used]
+    origin = pts.min(axis=0)
+    rel = pts - origin                                            # float64, >= 0
+    cell = np.floor(rel[:, :2] / cell_m).astype(np.int64)        # global (col, row-from-south)
+    extent_px = cell.max(axis=0) + 1
+    core = np.floor(rel[:, :2] / tile_size_m).astype(np.int64)
+    n_tiles = core.max(axis=0) + 1
+    core_px = tile_size_m / cell_m
+    buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
+
+    by_core: dict[tuple[int, int], np.ndarray] = {}
+    order = np.lexsort((core[:, 1], core[:, 0]))            # by col, then row: as np.unique
+    keys, starts = np.unique(core[order], axis=0, return_index=True)
+    for key, chunk in zip(keys, np.split(order, starts[1:])):
+        by_core[(int(key[0]), int(key[1]))] = chunk
+    reach = max(1, math.ceil(buffer_m / tile_size_m))            # neighbour cores a buffer reaches
+
+    tiles = []
+    for (ti, tj) in sorted(by_core, key=lambda k: (k[1], k[0])):
+        k = np.array([ti, tj])
+        candidates = np.concatenate([by_core.get((ti + di, tj + dj), np.empty(0, np.int64))
+                                     for dj in range(-reach, reach + 1) for di in range(-reach, reach + 1)])
+        candidates.sort()
+        core_lo = np.floor(k * core_px).astype(np.int64)
+        core_hi = np.minimum(np.ceil((k + 1) * core_px).astype(np.int64), extent_px)
+        lo = np.maximum(core_lo - buffer_px, 0)
+        hi = np.minimum(core_hi + buffer_px, extent_px)
+        c = cell[candidates]
+        members = candidates[np.all((c >= lo[None, :]) & (c < hi[None, :]), axis=1)]
+        in_core = np.all(core[members] == k[None, :], axis=1)
+        local_cell = cell[members] - lo[None, :]
+        shift = np.concatenate([lo * cell_m, [0.0]])
+        local = rel[members] - shift[None, :]
+        local32 = local.astype(np.float32)
+        local32[:, :2] = _clamp_into_cells(local[:, :2], local_cell, cell_m)
+        shape = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))
+        tiles.append(Tile(key=(ti, tj), origin_m=origin + shift, shape=shape, index=used[members],
+                          core=in_core, local_xyz=local32, window_px=(int(lo[0]), int(lo[1])),
+                          core_px=(int(core_lo[0]), int(core_lo[1]), int(core_hi[0]), int(core_hi[1]))))
+    return tiles
+
+
+def capacity_bucket(n: int, *, minimum: int = MIN_CAPACITY) -> int:
+    """Smallest of `minimum * {1, 1.5} * 2^k` holding `n` points (few shapes ever compile)."""
+    size = minimum
+    while True:
+        if n <= size:
+            return size
+        if n <= size * 3 // 2:
+            return size * 3 // 2
+        size *= 2
+
+
+def shape_bucket(shape: tuple[int, int], *, quantum_px: int = SHAPE_QUANTUM_PX) -> tuple[int, int]:
+    """Raster shape rounded up to a multiple of `quantum_px` rows and columns."""
+    return tuple(int(-(-s // quantum_px) * quantum_px) for s in shape)
+
+
+def _pad(tiles: Sequence[Tile], capacity: int, shape: tuple[int, int]) -> TileBatch:
+    b = len(tiles)
+    xyz = np.zeros((b, capacity, 3), np.float32)
+    valid = np.zeros((b, capacity), bool)
+    hw = np.zeros((b, 2), np.int32)
+    for i, tile in enumerate(tiles):
+        if tile.n_points > capacity or tile.shape[0] > shape[0] or tile.shape[1] > shape[1]:
+            raise ValueError(f"tile {tile.key} ({tile.n_points} points, {tile.shape}) does not fit "
+                             f"capacity {capacity} / shape {shape}")
+        xyz[i, :tile.n_points] = tile.local_xyz
+        valid[i, :tile.n_points] = True
+        hw[i] = tile.shape
+    return TileBatch(xyz=xyz, valid=valid, hw=hw, shape=tuple(shape), tiles=tuple(tiles))
+
+
+def batches(tiles: Sequence[Tile], *, max_batch: int = 8, capacity: int | None = None,
+            shape: tuple[int, int] | None = None, quantum_px: int = SHAPE_QUANTUM_PX) -> Iterator[TileBatch]:
+    """Group tiles by shape bucket, and pad each group into batches of similar point counts
+    (capacity = the bucket of the largest tile in the batch).
+
+    Args:
+      tiles: from `split`.
+      max_batch: most tiles per batch (bounds memory).
+      capacity: force one point capacity (default: the bucket of each tile).
+      shape: force one raster shape (default: each tile's shape bucket).
+      quantum_px: shape bucket step in cells.
+
+    Yields:
+      `TileBatch`es; every tile appears in exactly one.
+    """
+    if max_batch < 1:
+        raise ValueError(f"max_batch must be >= 1, got {max_batch}")
+    groups: dict[tuple[int, int], list[Tile]] = {}
+    for tile in tiles:
+        key = tuple(shape) if shape is not None else shape_bucket(tile.shape, quantum_px=quantum_px)
+        groups.setdefault(key, []).append(tile)
+    for group_shape, members in sorted(groups.items()):
+        members = sorted(members, key=lambda t: t.n_points)
+        for start in range(0, len(members), max_batch):
+            chunk = members[start:start + max_batch]
+            cap = capacity if capacity is not None else capacity_bucket(chunk[-1].n_points)
+            yield _pad(chunk, cap, group_shape)
+
+
+def merge(n_points: int, tiles: Sequence[Tile], labels: Sequence[np.ndarray], *,
+          fill: bool = False) -> np.ndarray:
+    """Per-point labels of the whole cloud from per-tile labels, core points only.
+
+    Args:
+      n_points: size of the cloud.
+      tiles: the tiles of `split`.
+      labels: per tile, an array whose first `tile.n_points` entries label the tile's points
+        (padded arrays are fine).
+      fill: the value of points in no tile (not used).
+
+    Returns:
+      `(n_points,)` array of the labels' dtype.
+    """
+    if len(tiles) != len(labels):
+        raise ValueError(f"got {len(labels)} label arrays for {len(tiles)} tiles")
+    dtype = np.asarray(labels[0]).dtype if labels else np.bool_
+    out = np.full(n_points, fill, dtype=dtype)
+    for tile, lab in zip(tiles, labels):
+        lab = np.asarray(lab)[:tile.n_points]
+        out[tile.index[tile.core]] = lab[tile.core]
+    return out

@@ -1,0 +1,14 @@
+"""SMRF, the simple morphological filter (Pingel, Clarke & McBride 2013), as JAX raster stages.
+
+```python
+import gfjax
+result = gfjax.smrf.filter(gfjax.read("tile.laz"))          # defaults of PDAL filters.smrf
+result = gfjax.smrf.filter(cloud, config=gfjax.smrf.Config(window_m=12.0),
+                           params=gfjax.smrf.Params(slope=0.2))
+```
+"""
+from gfjax.smrf.config import PRESETS, Config, Params
+from gfjax.smrf.filter import SMRFDiagnostics, filter
+from gfjax.smrf.stages import Diagnostics
+
+__all__ = ["filter", "Config", "Params", "PRESETS", "Diagnostics", "SMRFDiagnostics"]

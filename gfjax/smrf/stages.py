@@ -1,0 +1,206 @@
+"""SMRF raster stages for one tile, pure JAX (Pingel, Clarke & McBride 2013).
+
+Every function takes one tile (no batch axis) and is correct under `jax.vmap`. A tile raster
+of static shape `(h, w)` may be padded beyond the tile's own extent `hw = (h_data, w_data)`
+(a traced int32 pair, so tiles of different extents share one compiled shape): the data
+occupy the south-west corner, rows `h - h_data .. h - 1` and columns `0 .. w_data - 1`
+(row 0 = north, docs/ARCHITECTURE.md). That corner is the `domain`; the morphology ignores
+cells outside it, exactly as if the raster ended at the domain's edge.
+
+The thresholds are isolated in `is_object` and `is_ground_point`, so `gfjax.tune` can swap
+them for relaxed (sigmoid) versions.
+"""
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from gfjax._types import XY, Heights, Mask, PointMask, Points, Raster
+from gfjax.raster.fill import inpaint_harmonic, inpaint_nearest
+from gfjax.raster.grid import sample_bilinear
+from gfjax.raster.morphology import opening
+from gfjax.raster.rasterize import rasterize
+from gfjax.smrf.config import Config, Params
+
+__all__ = [
+    "Diagnostics", "domain_mask", "is_object", "is_ground_point", "progressive_filter",
+    "low_outliers", "inpaint", "gradient_magnitude", "replicate_edges", "classify_tile",
+    "classify_batch",
+]
+
+
+class Diagnostics(NamedTuple):
+    """Intermediate rasters of one tile, each `(h, w)` (row 0 = north), for plots.
+
+    Attributes:
+      zimin: minimum z per cell, empty cells inpainted [m] (Sec. 2.1, "ZImin").
+      empty: cells that held no point.
+      low_outliers: cells marked by the low-outlier filter on -ZImin (Sec. 2.1).
+      object_cells: cells the progressive opening marked as objects (Sec. 2.2).
+      zipro: provisional ground surface, ZImin without empty, low-outlier and object cells,
+        inpainted [m] (Sec. 2.3, "ZIpro").
+      slope: gradient magnitude of ZIpro, rise over run [-] (Sec. 2.4).
+      domain: cells inside the tile's own extent (False on padding).
+    """
+
+    zimin: Raster
+    empty: Mask
+    low_outliers: Mask
+    object_cells: Mask
+    zipro: Raster
+    slope: Raster
+    domain: Mask
+
+
+def domain_mask(hw: Int[Array, "2"], shape: tuple[int, int]) -> Mask:
+    """Cells of a `shape` raster inside a data extent of `hw = (rows, cols)` anchored at the
+    south-west corner (rows `h - hw[0] ..`, columns `.. hw[1] - 1`). bool `(h, w)`."""
+    h, w = shape
+    rows = jnp.arange(h, dtype=jnp.int32) >= h - hw[0]
+    cols = jnp.arange(w, dtype=jnp.int32) < hw[1]
+    return rows[:, None] & cols[None, :]
+
+
+def is_object(surface: Raster, opened: Raster, threshold_m: Float[Array, ""]) -> Mask:
+    """The progressive filter's test: a cell is an object when the opening lowered it by more
+    than `threshold_m` (= slope * r * cell, Pingel et al. 2013, Eq. 2). bool `(h, w)`."""
+    return (surface - opened) > threshold_m
+
+
+def is_ground_point(dz_m: Heights, slope: Heights, params: Params) -> PointMask:
+    """The final point test (Sec. 2.4): ground iff `|z - ZIpro| <= threshold + scalar * slope`.
+
+    Args:
+      dz_m: point height minus ZIpro at the point (bilinear), shape `(n,)` [m].
+      slope: local ZIpro slope at the point, rise over run, shape `(n,)`.
+    """
+    return jnp.abs(dz_m) <= params.threshold_m + params.scalar * slope
+
+
+def progressive_filter(surface: Raster, domain: Mask, slope: Float[Array, ""], *,
+                       cell_m: float, max_radius_px: int) -> Mask:
+    """Pingel et al. (2013, Sec. 2.2): open the surface with disks of radius r = 1..max_radius_px
+    cells, each opening applied to the previous opened surface (incremental); a cell whose
+    height drops by more than `slope * r * cell_m` at step r is an object.
+
+    Args:
+      surface: a gap-free surface `(h, w)` [m] (ZImin, or -ZImin for low outliers).
+      domain: cells of the tile; others are ignored by the opening and never objects.
+      slope: tolerated slope, rise over run (traced).
+      cell_m, max_radius_px: static.
+
+    Returns:
+      Object cells, bool `(h, w)`.
+    """
+    objects = jnp.zeros(surface.shape, dtype=jnp.bool_)
+    cell = jnp.asarray(cell_m, surface.dtype)
+    for radius_px in range(1, max_radius_px + 1):
+        opened = opening(surface, domain, radius_px=radius_px, footprint="disk")
+        opened = jnp.where(domain, opened, surface)
+        threshold_m = slope * jnp.asarray(radius_px, surface.dtype) * cell
+        objects = objects | (domain & is_object(surface, opened, threshold_m))
+        surface = opened
+    return objects
+
+
+def low_outliers(zimin: Raster, domain: Mask, *, config: Config) -> Mask:
+    """Low-outlier cells (Sec. 2.1): the progressive filter applied to -ZImin with slope
+    `config.low_outlier_slope` and a window of `config.low_outlier_radius_px` cells, i.e. cells
+    more than `slope * r * cell` below the opening of the inverted surface. bool `(h, w)`."""
+    slope = jnp.asarray(config.low_outlier_slope, zimin.dtype)
+    return progressive_filter(-zimin, domain, slope, cell_m=config.cell_m,
+                              max_radius_px=config.low_outlier_radius_px)
+
+
+def inpaint(z: Raster, known: Mask, *, config: Config) -> Raster:
+    """Fill the cells `~known` from the known ones (Sec. 2.1/2.3): harmonic (Laplace) fill or
+    nearest known cell, per `config.inpaint`. Returns a finite `(h, w)` raster [m] (zeros when
+    nothing is known)."""
+    z = jnp.where(known, z, 0.0).astype(z.dtype)
+    if config.inpaint == "nearest":
+        filled = inpaint_nearest(z, known)
+    else:
+        filled = inpaint_harmonic(z, known, max_iter=config.inpaint_max_iter, tol_m=config.inpaint_tol_m)
+    return jnp.where(jnp.any(known), filled, jnp.zeros_like(z))
+
+
+def gradient_magnitude(z: Raster, domain: Mask, *, cell_m: float) -> Raster:
+    """Slope of a surface, `sqrt(dz/dx^2 + dz/dy^2)` (rise over run), per cell `(h, w)`.
+
+    Central differences inside the domain and one-sided differences at its edges, as
+    `numpy.gradient(z, cell_m)` on the domain alone; 0 along an axis of one cell.
+    """
+    def axis_derivative(axis: int) -> Raster:
+        zp = jnp.pad(z, [(1, 1) if a == axis else (0, 0) for a in range(2)], mode="edge")
+        dp = jnp.pad(domain, [(1, 1) if a == axis else (0, 0) for a in range(2)])
+        n = z.shape[axis]
+        lo = jax.lax.slice_in_dim(zp, 0, n, axis=axis)
+        hi = jax.lax.slice_in_dim(zp, 2, n + 2, axis=axis)
+        lo_in = jax.lax.slice_in_dim(dp, 0, n, axis=axis)
+        hi_in = jax.lax.slice_in_dim(dp, 2, n + 2, axis=axis)
+        lo = jnp.where(lo_in, lo, z)
+        hi = jnp.where(hi_in, hi, z)
+        run = (lo_in.astype(z.dtype) + hi_in.astype(z.dtype)) * jnp.asarray(cell_m, z.dtype)
+        return jnp.where(run > 0, (hi - lo) / jnp.where(run > 0, run, 1), 0)
+
+    gy, gx = axis_derivative(0), axis_derivative(1)
+    return jnp.sqrt(gx * gx + gy * gy)
+
+
+def replicate_edges(z: Raster, hw: Int[Array, "2"]) -> Raster:
+    """Copy the domain's northern row and eastern column over the padding, so that bilinear
+    sampling near the domain edge clamps there as it would at the raster's own edge."""
+    h, w = z.shape
+    rows = jnp.maximum(jnp.arange(h, dtype=jnp.int32), h - hw[0])
+    cols = jnp.minimum(jnp.arange(w, dtype=jnp.int32), jnp.maximum(hw[1] - 1, 0))
+    return z[rows[:, None], cols[None, :]]
+
+
+@functools.partial(jax.jit, static_argnames=("config", "shape"))
+def classify_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], params: Params, *,
+                  config: Config, shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
+    """SMRF on one tile (Pingel et al. 2013, Sec. 2.1-2.4).
+
+    Args:
+      xyz: tile-local coordinates, float32 `(n, 3)` [m], x/y relative to the raster's
+        south-west corner. Padding rows are ignored through `valid`.
+      valid: points to classify, bool `(n,)`.
+      hw: int32 `(2,)` rows and columns of the tile's own extent inside `shape`.
+      params: traced thresholds.
+      config: static settings; shape: static raster `(h, w)` (a padding bucket).
+
+    Returns:
+      `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and the tile's `Diagnostics`.
+    """
+    domain = domain_mask(hw, shape)
+    xy, z = xyz[:, :2], xyz[:, 2]
+    cells = rasterize(xy, z, valid, cell_m=config.cell_m, shape=shape)
+    filled = cells.valid & domain
+    # 1. ZImin: lowest point per cell, empty cells inpainted.
+    zimin = inpaint(cells.z_min, filled, config=config)
+    # 2. Low outliers: progressive filter on -ZImin, slope 5, one-cell window.
+    low = low_outliers(zimin, domain, config=config)
+    # 3. Progressive opening r = 1..ceil(window / cell) with threshold slope * r * cell.
+    objects = progressive_filter(zimin, domain, params.slope, cell_m=config.cell_m,
+                                 max_radius_px=config.max_radius_px)
+    # 4. ZIpro: ZImin without empty, low-outlier and object cells, inpainted.
+    zipro = inpaint(zimin, filled & ~low & ~objects, config=config)
+    slope = gradient_magnitude(zipro, domain, cell_m=config.cell_m)
+    # 5. Points within threshold + scalar * slope of ZIpro (bilinear) are ground.
+    surface_at = sample_bilinear(replicate_edges(zipro, hw), xy, cell_m=config.cell_m)
+    slope_at = sample_bilinear(replicate_edges(slope, hw), xy, cell_m=config.cell_m)
+    ground = valid & is_ground_point(z - surface_at, slope_at, params)
+    return ground, Diagnostics(zimin=zimin, empty=domain & ~cells.valid, low_outliers=low,
+                               object_cells=objects, zipro=zipro, slope=slope, domain=domain)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "shape"))
+def classify_batch(xyz: Float[Array, "b n 3"], valid: Bool[Array, "b n"], hw: Int[Array, "b 2"],
+                   params: Params, *, config: Config, shape: tuple[int, int]):
+    """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared)."""
+    fn = functools.partial(classify_tile.__wrapped__, config=config, shape=shape)
+    return jax.vmap(fn, in_axes=(0, 0, 0, None))(xyz, valid, hw, params)
