@@ -1,0 +1,29 @@
+"""SparseGF (Qin et al. 2026): the array functions that define what its network sees.
+
+- `partition`: cylinders of radius R_oo = 150 m on a 50 m grid, padded to capacity buckets.
+- `compress`: convex-mirror context compression, Eqs. 1-3 (pure JAX, vmap over patches).
+- `hag_targets`: height above the labelled ground's TIN, quantised into six bins (Sec. 3.3).
+- `height_aware_loss`: (1 - lambda) CE_cls + lambda weighted CE_hag, Eqs. 4-5.
+- `soft_vote`: mean ground probability over overlapping central regions, Algorithm 1.
+
+```python
+part = partition(xyz_m)
+for batch in part.batches:
+    local = jnp.asarray(batch.local_xyz(xyz_m))                        # (b, cap, 3) float32
+    out = jax.vmap(lambda p, v: compress(p, jnp.zeros(2, jnp.float32), valid=v))(local, batch.valid)
+```
+The network, training and `filter` come later (SPEC section 5).
+"""
+from gfjax.sparsegf.compress import CENTRAL_TOL_M, R_IN_M, R_OC_M, R_OO_M, Compressed, compress, compression_ratio
+from gfjax.sparsegf.hag import HAG_BIN_EDGES_M, N_HAG_BINS, HagTargets, ground_surface, hag_bins, hag_targets
+from gfjax.sparsegf.loss import HAG_WEIGHTS, LAMBDA, HeightAwareLoss, height_aware_loss
+from gfjax.sparsegf.partition import STEP_M, Partition, PartitionConfig, PatchBatch, capacity_bucket, partition
+from gfjax.sparsegf.vote import UNCOVERED, Vote, soft_vote
+
+__all__ = [
+    "CENTRAL_TOL_M", "R_IN_M", "R_OC_M", "R_OO_M", "STEP_M", "HAG_BIN_EDGES_M", "N_HAG_BINS",
+    "HAG_WEIGHTS", "LAMBDA", "UNCOVERED",
+    "Compressed", "HagTargets", "HeightAwareLoss", "Partition", "PartitionConfig", "PatchBatch", "Vote",
+    "capacity_bucket", "compress", "compression_ratio", "ground_surface", "hag_bins", "hag_targets",
+    "height_aware_loss", "partition", "soft_vote",
+]

@@ -1,0 +1,193 @@
+"""Cylindrical partition of a cloud into SparseGF patches (Qin et al. 2026, Sec. 2 and 3.3).
+
+The cloud is cut by a "sliding cylindrical window": vertical cylinders of radius
+R_oo = 150 m whose axes stand on a square grid with a 50 m step. The grid is the set of
+centres of 50 m cells tiling the cloud's x-y bounding box (centred on it), so every point
+lies in one *home* cell and is at most `step * sqrt(2) / 2 = 25 * sqrt(2) m = R_in` from its
+home centre: the central regions (radius R_in, Sec. 3.3) cover every point at least once,
+points on the cloud's edge and clouds smaller than one cell included. A point near a cell
+corner or edge is central in up to four patches; `soft_vote` merges their predictions.
+
+Host code (numpy; runs once per cloud, outside jit). Points are bucketed by home cell, and
+each cylinder gathers the buckets its disc can reach and keeps the points within R_oo
+(distances in float64). Patches whose central region is empty are dropped. Patches are
+padded to a few capacity buckets (`2**j` and `1.5 * 2**j`) with a `valid` mask and
+grouped by capacity, so one batch of each capacity runs under `jax.vmap` and only a
+handful of shapes ever compile (the jax-md pattern: allocate outside jit, compute inside).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from gfjax.errors import InputError
+from gfjax.sparsegf.compress import CENTRAL_TOL_M, R_IN_M, R_OO_M
+
+STEP_M = 50.0            # grid step of the patch centres [m] (Sec. 3.3)
+MIN_CAPACITY = 256       # the smallest capacity bucket [points]
+
+
+@dataclasses.dataclass(frozen=True)
+class PartitionConfig:
+    """Static geometry of the partition [m].
+
+    `r_in_m` must be at least `step_m * sqrt(2) / 2` (the half diagonal of a grid cell),
+    or the central regions would not cover the cloud; the paper uses equality.
+    """
+
+    step_m: float = STEP_M
+    r_oo_m: float = R_OO_M
+    r_in_m: float = R_IN_M
+    min_capacity: int = MIN_CAPACITY
+
+    def __post_init__(self):
+        if not self.step_m > 0:
+            raise InputError(f"partition: step_m must be > 0, got {self.step_m}")
+        if self.r_in_m + CENTRAL_TOL_M < self.step_m * math.sqrt(2.0) / 2.0:
+            raise InputError(f"partition: r_in_m={self.r_in_m} leaves gaps between central regions "
+                             f"of a {self.step_m} m grid; need >= {self.step_m * math.sqrt(2) / 2:.4f}")
+        if not self.r_oo_m >= self.r_in_m:
+            raise InputError(f"partition: r_oo_m must be >= r_in_m, got {self.r_oo_m} < {self.r_in_m}")
+        if self.min_capacity < 1:
+            raise InputError(f"partition: min_capacity must be >= 1, got {self.min_capacity}")
+
+
+class PatchBatch(NamedTuple):
+    """Patches of one capacity, padded, ready for `jax.vmap`.
+
+    Attributes:
+      patch_id: `(b,)` int32, row of each patch in `Partition.centers_m`.
+      center_m: `(b, 2)` float64, the cylinder axes, in the frame of the partitioned xyz [m].
+      index: `(b, capacity)` int32, the cloud's point indices in each cylinder, in
+        increasing order, then `-1` padding.
+      valid: `(b, capacity)` bool, `index >= 0`.
+    """
+
+    patch_id: np.ndarray
+    center_m: np.ndarray
+    index: np.ndarray
+    valid: np.ndarray
+
+    @property
+    def capacity(self) -> int:
+        return int(self.index.shape[1])
+
+    def local_xyz(self, xyz_m: np.ndarray) -> np.ndarray:
+        """Patch-frame coordinates `(b, capacity, 3)`, float32 metres.
+
+        `x, y` are relative to each patch's axis (so `compress(..., center=(0, 0))`), computed
+        in float64 before the cast; `z` is `xyz_m`'s z, cast to float32. Padding rows are 0.
+        """
+        xyz_m = np.asarray(xyz_m)
+        safe = np.where(self.valid, self.index, 0)
+        out = np.empty(self.index.shape + (3,), dtype=np.float32)
+        out[..., :2] = xyz_m[safe, :2].astype(np.float64) - self.center_m[:, None, :]
+        out[..., 2] = xyz_m[safe, 2]
+        out[~self.valid] = 0.0
+        return out
+
+
+class Partition(NamedTuple):
+    """A cloud cut into overlapping cylinders.
+
+    Attributes:
+      centers_m: `(p, 2)` float64 patch axes in the input frame [m], row = `patch_id`.
+      n_points: `(p,)` int64, points in each cylinder (`r <= r_oo_m`).
+      batches: one `PatchBatch` per capacity bucket, increasing capacity.
+      config: the geometry used.
+    """
+
+    centers_m: np.ndarray
+    n_points: np.ndarray
+    batches: tuple[PatchBatch, ...]
+    config: PartitionConfig
+
+
+def capacity_bucket(n: int, *, min_capacity: int = MIN_CAPACITY) -> int:
+    """The smallest of `min_capacity`, `2**j`, `1.5 * 2**j` (j >= 1) that is >= n."""
+    if n <= max(min_capacity, 2):
+        return max(min_capacity, n)
+    j = max(1, math.ceil(math.log2(n)) - 1)          # 2**j < n <= 2**(j + 1)
+    return 3 * 2 ** (j - 1) if 3 * 2 ** (j - 1) >= n else 2 ** (j + 1)
+
+
+def grid_centers(xy_min: np.ndarray, xy_max: np.ndarray, step_m: float) -> tuple[np.ndarray, tuple[int, int], np.ndarray]:
+    """Cell centres of a `step_m` grid centred on the box `[xy_min, xy_max]`.
+
+    Returns:
+      `(centers (ny * nx, 2) float64, (ny, nx), origin (2,))`: row-major over `(iy, ix)`;
+      cell `(iy, ix)` spans `origin + [ix, ix + 1] * step_m` in x (likewise y).
+    """
+    extent = np.maximum(xy_max - xy_min, 0.0)
+    shape = np.maximum(np.ceil(extent / step_m).astype(np.int64), 1)
+    origin = xy_min - (shape * step_m - extent) / 2.0
+    nx, ny = int(shape[0]), int(shape[1])
+    cx = origin[0] + (np.arange(nx) + 0.5) * step_m
+    cy = origin[1] + (np.arange(ny) + 0.5) * step_m
+    centers = np.stack(np.meshgrid(cx, cy, indexing="xy"), axis=-1).reshape(-1, 2)
+    return centers, (ny, nx), origin
+
+
+def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None) -> Partition:
+    """Cut a cloud into cylinders of radius `r_oo_m` on a `step_m` grid of axes.
+
+    Args:
+      xyz_m: points `(n, 3)` (or `(n, 2)`), metres; float64 absolute or float32 local.
+      config: geometry (defaults: 50 m step, R_oo = 150 m, R_in = 25 sqrt(2) m).
+
+    Returns:
+      A `Partition`. Every point is within `r_in_m` of at least one kept axis. An empty
+      cloud gives no patches.
+    """
+    config = config or PartitionConfig()
+    xyz_m = np.asarray(xyz_m)
+    if xyz_m.ndim != 2 or xyz_m.shape[1] not in (2, 3):
+        raise InputError(f"partition: xyz_m must have shape (n, 3), got {xyz_m.shape}")
+    xy = xyz_m[:, :2].astype(np.float64)
+    if not np.all(np.isfinite(xy)):
+        raise InputError("partition: xyz_m has non-finite x or y")
+    if len(xy) == 0:
+        return Partition(np.zeros((0, 2)), np.zeros(0, np.int64), (), config)
+
+    step = config.step_m
+    centers, (ny, nx), origin = grid_centers(xy.min(axis=0), xy.max(axis=0), step)
+    cell_ix = np.clip(np.floor((xy - origin) / step).astype(np.int64), 0, [nx - 1, ny - 1])
+    home = cell_ix[:, 1] * nx + cell_ix[:, 0]                  # home cell per point
+    order = np.argsort(home, kind="stable")                    # points grouped by cell
+    starts = np.searchsorted(home[order], np.arange(nx * ny + 1))
+
+    reach = math.floor(config.r_oo_m / step + 0.5)             # cells a disc can touch, per axis
+    offsets = np.arange(-reach, reach + 1)
+    # nearest distance from a cell's centre to the cells at these offsets [m]
+    gap = np.maximum(np.abs(offsets) - 0.5, 0.0) * step
+    near = np.hypot(gap[:, None], gap[None, :]) <= config.r_oo_m   # (dy, dx)
+
+    r_oo_sq, r_in_sq = config.r_oo_m ** 2, (config.r_in_m + CENTRAL_TOL_M) ** 2
+    kept, members = [], []
+    for cell in range(nx * ny):
+        iy, ix = divmod(cell, nx)
+        cells = [(iy + dy) * nx + (ix + dx)
+                 for a, dy in enumerate(offsets) for b, dx in enumerate(offsets)
+                 if near[a, b] and 0 <= iy + dy < ny and 0 <= ix + dx < nx]
+        cand = np.concatenate([order[starts[c]:starts[c + 1]] for c in cells])
+        d = xy[cand] - centers[cell]
+        r_sq = np.einsum("ij,ij->i", d, d)
+        if not np.any(r_sq <= r_in_sq):
+            continue                                           # nothing to classify here
+        kept.append(cell)
+        members.append(np.sort(cand[r_sq <= r_oo_sq]).astype(np.int32))
+
+    n_points = np.array([len(m) for m in members], dtype=np.int64)
+    caps = np.array([capacity_bucket(int(n), min_capacity=config.min_capacity) for n in n_points])
+    batches = []
+    for cap in np.unique(caps):
+        ids = np.flatnonzero(caps == cap)
+        index = np.full((len(ids), int(cap)), -1, dtype=np.int32)
+        for row, pid in enumerate(ids):
+            index[row, :n_points[pid]] = members[pid]
+        batches.append(PatchBatch(patch_id=ids.astype(np.int32), center_m=centers[kept][ids],
+                                  index=index, valid=index >= 0))
+    return Partition(centers_m=centers[kept], n_points=n_points, batches=tuple(batches), config=config)
