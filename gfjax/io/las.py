@@ -25,6 +25,13 @@ from gfjax.io.cloud import Cloud
 LAS_SUFFIXES = (".las", ".laz")
 # lazrs (Rust) for LAZ, multi-threaded when available; laszip is only used by the tests.
 LAZ_BACKENDS = (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs)
+# lazrs 0.8.2 compresses the wave-packet fields of point formats 9/10 lossily (wavepacket
+# offset/size/location and x_t/y_t/z_t change; tests/io/test_las.py keeps the evidence), so
+# these two are compressed by LASzip when the `laszip` package is installed, and refused
+# otherwise. LASzip then stamps its own `generating_software` and leaves the optional min/max
+# statistics of the Extra Bytes VLR unset; every point byte is kept. (lazrs writes formats 4/5
+# losslessly, but with a WAVEPACKET13 item version that LASzip 3.5 does not read.)
+LOSSY_WITH_LAZRS = frozenset({9, 10})
 _SIGNATURE = b"LASF"
 _GLOB_CHARS = frozenset("*?[")
 
@@ -136,7 +143,7 @@ def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None)
     except (laspy.errors.LaspyException, RuntimeError, OSError, ValueError, EOFError) as err:
         if compressed_name(path):
             raise InputError(f"{path}: truncated or corrupt LAZ data (decompression failed: {err})") from None
-        raise InputError(f"{path}: cannot read LAS points ({err})") from None
+        raise InputError(f"{path}: truncated or corrupt LAS data ({err})") from None
     expected = las.header.point_count
     if len(las.points) != expected:
         kind = "LAZ" if compressed else "LAS"
@@ -241,8 +248,18 @@ def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
       InputError: see `check_output`; or the file could not be written.
     """
     inputs = [*input_paths, *([cloud.path] if cloud.path is not None else [])]
+    compress = Path(path).suffix.lower() == ".laz"
+    backends = _compressors(cloud.las.point_format.id, Path(path)) if compress else None
     with atomic_output(path, force=force, input_paths=inputs, suffixes=LAS_SUFFIXES) as tmp:
-        compress = Path(path).suffix.lower() == ".laz"
         with open(tmp, "wb") as f:
-            cloud.las.write(f, do_compress=compress, laz_backend=LAZ_BACKENDS if compress else None)
+            cloud.las.write(f, do_compress=compress, laz_backend=backends)
     return Path(path)
+
+
+def _compressors(point_format_id: int, out: Path) -> tuple[laspy.LazBackend, ...]:
+    if point_format_id not in LOSSY_WITH_LAZRS:
+        return LAZ_BACKENDS
+    if laspy.LazBackend.Laszip.is_available():
+        return (laspy.LazBackend.Laszip,)
+    raise InputError(f"{out}: point format {point_format_id} (wave packets) cannot be written as LAZ "
+                     "without loss by lazrs; install the laszip package or write .las")
