@@ -1,0 +1,107 @@
+"""GeoTIFF output of a DTM (rasterio), and the CRS of a cloud in rasterio's terms.
+
+The raster is written in the cloud's own CRS and units: coordinates are never converted, so a
+feet file gives a GeoTIFF in feet. Writes are atomic: a temporary file in the target folder,
+renamed over the target only when complete, so a failed run never leaves a partial file.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pyproj.exceptions
+import rasterio
+import rasterio.crs
+import rasterio.errors
+from rasterio.transform import Affine
+
+from gfjax.errors import InputError
+
+NODATA = -9999.0
+TILE_PX = 256                  # GeoTIFF block size; rasters larger than this are tiled
+
+
+def cloud_rasterio_crs(cloud) -> rasterio.crs.CRS | None:
+    """The CRS of `cloud` as a `rasterio.crs.CRS`, or None when the file states none.
+
+    Uses `cloud.crs` (a `pyproj.CRS`) when the cloud carries one, else the LAS header's WKT
+    VLR or GeoTIFF keys through `laspy.LasHeader.parse_crs`. A compound CRS that GDAL
+    cannot take is reduced to its horizontal part.
+    # TODO(io): delegate to gfjax.io.crs.rasterio_crs once Cloud carries its CRS.
+
+    Raises:
+      InputError: the file holds CRS records that cannot be parsed (names the file).
+    """
+    crs = getattr(cloud, "crs", None)
+    if crs is None:
+        try:
+            crs = cloud.las.header.parse_crs(prefer_wkt=True)
+        except (pyproj.exceptions.CRSError, ValueError, UnicodeDecodeError) as err:
+            raise InputError(f"{cloud.name}: cannot parse the CRS stored in the file ({err})") from None
+    if crs is None:
+        return None
+    try:
+        return rasterio.crs.CRS.from_wkt(crs.to_wkt())
+    except rasterio.errors.CRSError:
+        if crs.is_compound:
+            return rasterio.crs.CRS.from_wkt(crs.sub_crs_list[0].to_wkt())
+        raise InputError(f"{cloud.name}: GDAL does not accept the file's CRS {crs.name!r}") from None
+
+
+def _check_target(path: Path) -> None:
+    folder = path.parent
+    if not folder.is_dir():
+        raise InputError(f"{path}: output folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise InputError(f"{path}: output folder {folder} is not writable")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a file name")
+
+
+@contextlib.contextmanager
+def atomic_path(path, suffix: str):
+    """Yield a temporary path beside `path`; on success rename it onto `path`, else delete it."""
+    path = Path(path)
+    _check_target(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def write_geotiff(path, z: np.ndarray, *, transform: Affine, crs: rasterio.crs.CRS | None,
+                  nodata: float = NODATA) -> None:
+    """Write one float32 band, deflate-compressed (floating-point predictor), atomically.
+
+    Args:
+      path: target `.tif`; its folder must exist.
+      z: elevations `(h, w)`, row 0 north; `nodata` where no value.
+      transform: pixel -> CRS affine transform (north-up: `e < 0`).
+      crs: rasterio CRS, or None (the file then has none).
+      nodata: stored as the band's nodata value.
+
+    Rasters larger than 256 cells on a side are tiled in 256 x 256 blocks.
+    """
+    z = np.asarray(z)
+    if z.ndim != 2 or z.size == 0:
+        raise ValueError(f"z must be a non-empty (h, w) raster, got shape {z.shape}")
+    h, w = z.shape
+    profile = dict(driver="GTiff", height=h, width=w, count=1, dtype="float32", crs=crs,
+                   transform=transform, nodata=nodata, compress="deflate", predictor=3,
+                   BIGTIFF="IF_SAFER")
+    if max(h, w) > TILE_PX:
+        profile.update(tiled=True, blockxsize=TILE_PX, blockysize=TILE_PX)
+    with atomic_path(path, ".tif") as tmp:
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(z.astype(np.float32), 1)
+
+
+__all__ = ["NODATA", "cloud_rasterio_crs", "write_geotiff", "atomic_path"]
