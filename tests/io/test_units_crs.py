@@ -1,0 +1,140 @@
+"""CRS and unit factors of LAS files: real samples, compound CRSs, GeoTIFF keys, overrides."""
+from __future__ import annotations
+
+import laspy
+import numpy as np
+import pyproj
+import pytest
+from conftest import shared_file
+from laspy.vlrs.geotiff import GeoKeyEntryStruct
+from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
+
+from gfjax.errors import InputError
+from gfjax.io import crs as crs_lib
+from gfjax.io import las as las_io
+from gfjax.io import units
+
+US_FT = 1200.0 / 3937.0
+
+
+def _las_file(path, *, crs=None, version="1.4", point_format=6, vlrs=()):
+    header = laspy.LasHeader(point_format=point_format, version=version)
+    if crs is not None:
+        header.add_crs(crs)
+    for vlr in vlrs:
+        header.vlrs.append(vlr)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = [1.0, 2.0], [3.0, 4.0], [5.0, 6.0]
+    las.write(path)
+    return path
+
+
+def _add_geokey(header: laspy.LasHeader, key_id: int, value: int) -> None:
+    directory = header.vlrs.get("GeoKeyDirectoryVlr")[0]
+    entry = GeoKeyEntryStruct()
+    entry.id, entry.tiff_tag_location, entry.count, entry.value_offset = key_id, 0, 1, value
+    directory.geo_keys.append(entry)
+    directory.geo_keys_header.number_of_keys += 1
+
+
+@pytest.mark.data
+def test_autzen_is_in_international_feet():
+    cloud = las_io.read(shared_file("pdal_autzen/autzen_trim.laz"))
+    assert (cloud.horizontal_unit_m, cloud.vertical_unit_m) == (0.3048, 0.3048)
+    assert "no vertical CRS" in cloud.units_source
+    np.testing.assert_array_equal(cloud.xyz_m, cloud.xyz * 0.3048)
+    assert crs_lib.rasterio_crs(cloud).linear_units == "foot"
+
+
+@pytest.mark.data
+def test_isprs_is_utm_32n_in_metres(isprs_sample):
+    cloud = las_io.read(isprs_sample("samp12"))
+    assert (cloud.horizontal_unit_m, cloud.vertical_unit_m) == (1.0, 1.0)
+    assert cloud.crs.to_epsg() == 32632
+    assert crs_lib.describe(cloud.crs) == "WGS 84 / UTM zone 32N (EPSG:32632)"
+    assert crs_lib.rasterio_crs(cloud).to_epsg() == 32632
+
+
+@pytest.mark.data
+def test_bcts_vertical_unit_from_geotiff_keys():
+    cloud = las_io.read(shared_file("lasR_bcts/bcts_1.laz"))  # EPSG:3005 + VerticalCSType 5713
+    assert (cloud.horizontal_unit_m, cloud.vertical_unit_m) == (1.0, 1.0)
+    assert "GeoTIFF" in cloud.units_source
+
+
+def test_compound_crs_feet_over_us_survey_feet(tmp_path):
+    crs = pyproj.CRS("EPSG:2994+6360")  # Oregon GIC Lambert (ft) + NAVD88 height (ftUS)
+    cloud = las_io.read(_las_file(tmp_path / "c.las", crs=crs))
+    assert cloud.horizontal_unit_m == 0.3048
+    assert cloud.vertical_unit_m == US_FT  # exactly 1200/3937, not pyproj's rounded value
+    assert cloud.units_source == "CRS (compound)"
+    np.testing.assert_allclose(cloud.xyz_m[:, 2], cloud.xyz[:, 2] * US_FT, rtol=1e-15)
+    assert crs_lib.rasterio_crs(cloud) is not None
+
+
+def test_vertical_units_geokey_differs_from_horizontal(tmp_path):
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.add_crs(pyproj.CRS.from_epsg(2994))
+    _add_geokey(header, crs_lib.VERTICAL_UNITS_KEY, 9003)  # US survey foot
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = [1.0], [2.0], [3.0]
+    las.write(tmp_path / "gk.las")
+    cloud = las_io.read(tmp_path / "gk.las")
+    assert (cloud.horizontal_unit_m, cloud.vertical_unit_m) == (0.3048, US_FT)
+
+
+def test_user_defined_projection_units_from_geokeys(tmp_path):
+    directory = GeoKeyDirectoryVlr()
+    for key_id, value in ((1024, 1), (3072, 32767), (3076, 9002)):  # user-defined PCS in feet
+        entry = GeoKeyEntryStruct()
+        entry.id, entry.tiff_tag_location, entry.count, entry.value_offset = key_id, 0, 1, value
+        directory.geo_keys.append(entry)
+    directory.geo_keys_header.number_of_keys = 3
+    cloud = las_io.read(_las_file(tmp_path / "u.las", version="1.2", point_format=1, vlrs=[directory]))
+    assert cloud.crs is None
+    assert (cloud.horizontal_unit_m, cloud.vertical_unit_m) == (0.3048, 0.3048)
+
+
+def test_no_crs_defaults_to_metres_and_says_so(tmp_path):
+    cloud = las_io.read(_las_file(tmp_path / "n.las"))
+    assert cloud.crs is None and crs_lib.crs_wkt(cloud) is None and crs_lib.rasterio_crs(cloud) is None
+    assert (cloud.horizontal_unit_m, cloud.vertical_unit_m) == (1.0, 1.0)
+    assert cloud.units_source == "no CRS in file: metres assumed"
+
+
+@pytest.mark.parametrize("option,factor", [("m", 1.0), ("ft", 0.3048), ("us-ft", US_FT)])
+def test_units_option_overrides_the_crs(tmp_path, option, factor):
+    path = _las_file(tmp_path / "o.las", crs=pyproj.CRS.from_epsg(32632))
+    cloud = las_io.read(path, units=option)
+    assert (cloud.horizontal_unit_m, cloud.vertical_unit_m) == (factor, factor)
+    assert cloud.units_source == f"--units {option}"
+    assert cloud.crs.to_epsg() == 32632
+
+
+def test_unknown_units_option(tmp_path):
+    with pytest.raises(InputError, match="--units: unknown unit 'yards'; choose from m, ft, us-ft"):
+        las_io.read(_las_file(tmp_path / "o.las"), units="yards")
+
+
+def test_geographic_crs_needs_units(tmp_path):
+    path = _las_file(tmp_path / "g.las", crs=pyproj.CRS.from_epsg(4326))
+    with pytest.raises(InputError, match=r"g\.las: the CRS 'WGS 84' is geographic \(degrees\)"):
+        las_io.read(path)
+    assert las_io.read(path, units="m").horizontal_unit_m == 1.0
+
+
+def test_unparsable_wkt(tmp_path):
+    path = _las_file(tmp_path / "w.las", vlrs=[WktCoordinateSystemVlr('PROJCS["broken')])
+    with pytest.raises(InputError, match=r"w\.las: cannot parse the CRS stored in the file"):
+        las_io.read(path)
+    cloud = las_io.read(path, units="ft")
+    assert cloud.crs is None and cloud.horizontal_unit_m == 0.3048
+
+
+def test_unit_helpers():
+    assert units.snap_factor(0.304800609601219) == US_FT
+    assert units.snap_factor(0.3048001) == 0.3048001  # 3e-7 apart: not snapped
+    assert [units.unit_name(f) for f in (1.0, 0.3048, 0.304800609601219, 0.2)] == [
+        "metre", "international foot", "US survey foot", "unit of 0.2 m"]
+    text = units.describe(units.Units(0.3048, US_FT, "CRS (compound)"))
+    assert text.startswith("horizontal international foot (0.3048 m), vertical US survey foot")
