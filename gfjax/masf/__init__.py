@@ -1,0 +1,13 @@
+"""MASF: multiscale filtering with a modified 3D alpha shape (Cao et al. 2024, Remote Sens. 16:1443).
+
+```python
+import gfjax
+result = gfjax.masf.filter(gfjax.read("tile.laz"))            # alpha_max 20 m, step 2 m, ST 0.05
+config, params = gfjax.methods.make_config_and_params(gfjax.masf, preset="paper-samp42")
+result = gfjax.masf.filter(cloud, config=config, params=params)
+```
+"""
+from gfjax.masf.config import PAPER_TABLE3, PRESETS, Config, Params
+from gfjax.masf.filter import MASFDiagnostics, classify_points, filter
+
+__all__ = ["filter", "classify_points", "Config", "Params", "PRESETS", "PAPER_TABLE3", "MASFDiagnostics"]

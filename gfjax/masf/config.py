@@ -1,0 +1,127 @@
+"""MASF static configuration, traced parameters and presets (Cao et al. 2024; SPEC section 4).
+
+`Config` holds what changes shapes or loop counts (grid, the alpha pyramid, outlier rules);
+`Params` holds the two thresholds that enter the TIN-densification distance test,
+`DT_k = st * alpha_k + ft_m` (Eq. 2) and the final `ft_m`. The densification runs on the host
+(scipy triangulations), so gradients through `Params` are zero there: tune them on a grid.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+__all__ = ["Config", "Params", "PRESETS", "PAPER_TABLE3"]
+
+
+def _f32(value) -> Float[Array, ""]:
+    return jnp.asarray(value, dtype=jnp.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Static MASF settings (hashable).
+
+    Attributes:
+      grid_m: preprocessing grid cell [m] (Sec. 2.1; 1 m "in most cases").
+      alpha_max_m: alpha of the first layer of the linear pyramid, Eq. 1 [m].
+      alpha_step_m: decrement between layers, Eq. 1 [m].
+      alpha_min_m: smallest alpha; None means `2 * grid_m` (Sec. 2.3) [m].
+      alpha_top_m: optional alpha of an extra top layer above `alpha_max_m` (the paper's samp42
+        uses 90 m, then 20 m downward in 9 m steps) [m]; None = no extra layer.
+      outlier_gap_m: extended local minimum: walking up a cell's points sorted by z, a gap to
+        the next point larger than this marks the lower point an outlier (our choice) [m].
+      neighbour_drop_m: a potential ground point more than this below the lowest potential
+        ground point of its occupied neighbour cells (3x3, else 5x5) is a low outlier (R) [m].
+      empty_tol_m: tolerance of the empty-sphere test along the dual Voronoi edge [m].
+    """
+
+    grid_m: float = 1.0
+    alpha_max_m: float = 20.0
+    alpha_step_m: float = 2.0
+    alpha_min_m: float | None = None
+    alpha_top_m: float | None = None
+    outlier_gap_m: float = 1.0
+    neighbour_drop_m: float = 1.0
+    empty_tol_m: float = 1e-3
+
+    def __post_init__(self) -> None:
+        positive = ["grid_m", "alpha_max_m", "alpha_step_m", "outlier_gap_m", "neighbour_drop_m"]
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        if not (math.isfinite(self.empty_tol_m) and self.empty_tol_m >= 0):
+            raise ValueError(f"empty_tol_m must be finite and >= 0, got {self.empty_tol_m!r}")
+        if self.alpha_min_m is not None and not (math.isfinite(self.alpha_min_m) and self.alpha_min_m > 0):
+            raise ValueError(f"alpha_min_m must be finite and > 0, got {self.alpha_min_m!r}")
+        if self.alpha_max_m < self.min_alpha_m:
+            raise ValueError(f"alpha_max_m must be >= alpha_min_m ({self.min_alpha_m}), got {self.alpha_max_m!r}")
+        if self.alpha_top_m is not None and not (math.isfinite(self.alpha_top_m) and self.alpha_top_m > self.alpha_max_m):
+            raise ValueError(f"alpha_top_m must be finite and > alpha_max_m ({self.alpha_max_m}), got {self.alpha_top_m!r}")
+
+    @property
+    def min_alpha_m(self) -> float:
+        """alpha_min: `alpha_min_m`, or twice the grid cell (Sec. 2.3) [m]."""
+        return 2.0 * self.grid_m if self.alpha_min_m is None else float(self.alpha_min_m)
+
+    def alphas_m(self) -> np.ndarray:
+        """The pyramid, top first: `alpha_k = alpha_max - (k - 1) * alpha_step >= alpha_min` (Eq. 1).
+
+        Returns float64 `(L,)` [m], strictly decreasing; `alpha_top_m` first when set.
+        """
+        count = int(math.floor((self.alpha_max_m - self.min_alpha_m) / self.alpha_step_m + 1e-9)) + 1
+        alphas = self.alpha_max_m - self.alpha_step_m * np.arange(count, dtype=np.float64)
+        if self.alpha_top_m is not None:
+            alphas = np.concatenate([[float(self.alpha_top_m)], alphas])
+        return alphas
+
+
+class Params(eqx.Module):
+    """Traced MASF thresholds (float32 scalars).
+
+    Attributes:
+      st: slope threshold ST = tan(theta) of Eq. 2 [-].
+      ft_m: final threshold FT [m]: the offset of Eq. 2 and the last whole-cloud test.
+    """
+
+    st: Float[Array, ""] = eqx.field(default=0.05, converter=_f32)
+    ft_m: Float[Array, ""] = eqx.field(default=0.5, converter=_f32)
+
+    def check(self) -> None:
+        """Range checks on concrete values (outside jit): raises ValueError naming the key."""
+        for name in ("st", "ft_m"):
+            value = float(getattr(self, name))
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+
+
+# Cao et al. (2024), Table 3 (alpha_max [m], alpha_step [m], ST) for the 11 ISPRS samples we
+# have; FT 0.5 m and grid 1 m throughout. samp42's top layer uses alpha = 90 m (Sec. 3.3.1).
+PAPER_TABLE3: dict[str, tuple[float, float, float]] = {
+    "samp12": (25.0, 1.0, 0.05), "samp21": (20.0, 2.0, 0.05), "samp22": (25.0, 1.0, 0.10),
+    "samp24": (10.0, 1.0, 0.10), "samp31": (25.0, 2.0, 0.01), "samp41": (25.0, 2.0, 0.05),
+    "samp42": (20.0, 9.0, 0.10), "samp51": (25.0, 4.0, 0.05), "samp52": (20.0, 1.0, 0.05),
+    "samp54": (20.0, 9.0, 0.05), "samp71": (15.0, 2.0, 0.05),
+}
+
+
+def _paper_preset(sample: str) -> dict[str, float]:
+    alpha_max, step, st = PAPER_TABLE3[sample]
+    preset: dict[str, float] = {"alpha_max_m": alpha_max, "alpha_step_m": step, "st": st, "ft_m": 0.5}
+    if sample == "samp42":
+        preset["alpha_top_m"] = 90.0
+    return preset
+
+
+# SPEC section 4, fixed before measuring. Values in metres (st is rise over run).
+PRESETS: dict[str, dict[str, float]] = {
+    "flat": {"alpha_max_m": 25.0, "alpha_step_m": 2.0, "st": 0.02},
+    "urban": {"alpha_max_m": 25.0, "alpha_step_m": 1.0, "st": 0.05},
+    "steep": {"alpha_max_m": 10.0, "alpha_step_m": 1.0, "st": 0.15},
+    **{f"paper-{name}": _paper_preset(name) for name in PAPER_TABLE3},
+}

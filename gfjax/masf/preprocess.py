@@ -1,0 +1,109 @@
+"""MASF preprocessing: potential ground points by the extended local minimum (Cao et al. 2024,
+Sec. 2.1, citing Chen et al. 2013) plus a neighbourhood low-outlier test (SPEC section 4.1).
+
+Host numpy / scipy.ndimage: one sort of the points by (cell, z) and two small min filters.
+Grid convention of docs/ARCHITECTURE.md: local `x in [0, w * grid_m)`, `y in [0, h * grid_m)`,
+`row = h - 1 - floor(y / grid_m)` (row 0 = north), `col = floor(x / grid_m)`.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy import ndimage as ndi
+
+__all__ = ["Preprocessed", "grid_shape", "potential_ground"]
+
+
+class Preprocessed(NamedTuple):
+    """Potential ground points of a cloud, one per occupied cell at most.
+
+    Attributes:
+      index: int64 `(p,)`, indices into the local points of the potential ground points,
+        sorted by cell (row-major, row 0 = north).
+      row, col: int64 `(p,)`, their cells.
+      shape: `(h, w)` of the grid.
+      occupied: bool `(h, w)`, cells holding at least one point.
+      gap_outliers: int, points removed by the per-cell gap rule that were their cell's lowest.
+      neighbour_outliers: bool `(h, w)`, cells whose potential ground point the neighbourhood
+        test removed.
+    """
+
+    index: np.ndarray
+    row: np.ndarray
+    col: np.ndarray
+    shape: tuple[int, int]
+    occupied: np.ndarray
+    gap_outliers: int
+    neighbour_outliers: np.ndarray
+
+
+def grid_shape(xy_m: np.ndarray, *, grid_m: float) -> tuple[int, int]:
+    """`(h, w)` of the grid covering local `xy_m >= 0` (float64 `(n, 2)`, metres)."""
+    if len(xy_m) == 0:
+        return (1, 1)
+    top = np.floor(xy_m.max(axis=0) / grid_m).astype(np.int64) + 1
+    return int(top[1]), int(top[0])
+
+
+def _ring_footprint(radius_px: int) -> np.ndarray:
+    footprint = np.ones((2 * radius_px + 1, 2 * radius_px + 1), dtype=bool)
+    footprint[radius_px, radius_px] = False
+    return footprint
+
+
+def potential_ground(xyz_m: np.ndarray, *, grid_m: float, outlier_gap_m: float,
+                     neighbour_drop_m: float) -> Preprocessed:
+    """Select one potential ground point per occupied cell and drop low outliers.
+
+    Extended local minimum (Sec. 2.1): the points of a cell, sorted by z, are walked upwards;
+    a point whose gap to the next point of its cell exceeds `outlier_gap_m` is an outlier; the
+    first point that is not is the cell's potential ground point (the top point of a cell is
+    never an outlier, so every occupied cell has one). Then (R, SPEC 4.1): a potential ground
+    point more than `neighbour_drop_m` below the lowest potential ground point of its occupied
+    3x3 neighbour cells (5x5 where the 3x3 ring is empty) is a low outlier and is removed.
+
+    Args:
+      xyz_m: float64 `(n, 3)` local metres, `x, y >= 0` (subtract the minimum corner first).
+      grid_m: cell side [m]. outlier_gap_m, neighbour_drop_m: thresholds [m].
+
+    Returns:
+      A `Preprocessed`. The choice depends only on the coordinates, never on point order:
+      ties in z are broken by y then x.
+    """
+    shape = grid_shape(xyz_m[:, :2], grid_m=grid_m)
+    h, w = shape
+    occupied = np.zeros(shape, dtype=bool)
+    if len(xyz_m) == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return Preprocessed(empty, empty, empty, shape, occupied, 0, np.zeros(shape, dtype=bool))
+    col = np.floor(xyz_m[:, 0] / grid_m).astype(np.int64)
+    row = h - 1 - np.floor(xyz_m[:, 1] / grid_m).astype(np.int64)
+    cell = row * w + col
+    order = np.lexsort((xyz_m[:, 0], xyz_m[:, 1], xyz_m[:, 2], cell))
+    cell_sorted = cell[order]
+    z_sorted = xyz_m[order, 2]
+    same_next = np.zeros(len(order), dtype=bool)
+    same_next[:-1] = cell_sorted[1:] == cell_sorted[:-1]
+    gap = np.zeros(len(order))
+    gap[:-1] = z_sorted[1:] - z_sorted[:-1]
+    outlier = same_next & (gap > outlier_gap_m)
+    candidates = np.flatnonzero(~outlier)
+    cand_cell = cell_sorted[candidates]
+    first = np.ones(len(candidates), dtype=bool)
+    first[1:] = cand_cell[1:] != cand_cell[:-1]
+    chosen = order[candidates[first]]
+    lowest = np.ones(len(order), dtype=bool)
+    lowest[1:] = cell_sorted[1:] != cell_sorted[:-1]
+    gap_outliers = int(np.count_nonzero(outlier & lowest))
+
+    p_row, p_col = row[chosen], col[chosen]
+    occupied[p_row, p_col] = True
+    z_grid = np.full(shape, np.inf)
+    z_grid[p_row, p_col] = xyz_m[chosen, 2]
+    ring3 = ndi.minimum_filter(z_grid, footprint=_ring_footprint(1), mode="constant", cval=np.inf)
+    ring5 = ndi.minimum_filter(z_grid, footprint=_ring_footprint(2), mode="constant", cval=np.inf)
+    neighbour_min = np.where(np.isfinite(ring3), ring3, ring5)
+    low = occupied & np.isfinite(neighbour_min) & (z_grid < neighbour_min - neighbour_drop_m)
+    keep = ~low[p_row, p_col]
+    return Preprocessed(chosen[keep], p_row[keep], p_col[keep], shape, occupied, gap_outliers, low)
