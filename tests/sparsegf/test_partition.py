@@ -1,0 +1,162 @@
+"""Cylindrical partition: membership against brute force, capacity buckets, and coverage of
+every point by the central regions as `compress` computes them (float32, patch frame)."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gfjax.errors import InputError
+from gfjax.sparsegf import (CENTRAL_TOL_M, R_IN_M, R_OO_M, STEP_M, PartitionConfig, capacity_bucket, compress,
+                            partition, soft_vote)
+
+UTM = np.array([512_345.678, 5_403_210.987, 0.0])   # far from the origin: float64 input
+
+
+def grid_corner_cloud():
+    """A 100 m x 100 m box: points on its corners, edges and at the 4-way grid corner (50, 50),
+    which is exactly R_in from four patch axes and central only thanks to the tolerance."""
+    rng = np.random.default_rng(0)
+    edge = np.array([[0, 0], [100, 0], [0, 100], [100, 100], [50, 50], [50, 0], [0, 50], [100, 50],
+                     [50, 100], [25, 0], [0, 75], [100, 33.3], [49.999, 50.001]], dtype=np.float64)
+    inner = rng.uniform(0, 100, (300, 2))
+    xy = np.concatenate([edge, inner])
+    return np.concatenate([xy, rng.uniform(0, 30, (len(xy), 1))], axis=1) + UTM
+
+
+def l_shaped_cloud():
+    """An irregular footprint with empty grid cells (no patch is kept there)."""
+    rng = np.random.default_rng(1)
+    a = rng.uniform([0, 0], [420, 60], (3000, 2))
+    b = rng.uniform([0, 0], [60, 380], (2000, 2))
+    xy = np.concatenate([a, b])
+    return np.concatenate([xy, rng.uniform(100, 140, (len(xy), 1))], axis=1)
+
+
+CLOUDS = {
+    "grid_corners_utm": grid_corner_cloud,
+    "l_shape": l_shaped_cloud,
+    "smaller_than_a_cell": lambda: np.random.default_rng(2).uniform([5, 5, 0], [15, 12, 3], (50, 3)) + UTM,
+    "single_point": lambda: np.array([[3.0, 4.0, 5.0]]),
+    "line_along_x": lambda: np.stack([np.linspace(0, 333, 400), np.full(400, 7.0), np.zeros(400)], axis=1),
+}
+
+
+@pytest.fixture(scope="module")
+def compress_batch():
+    """One jitted vmapped compress in the patch frame (axis at the origin)."""
+    def one(p, v):
+        return compress(p, jnp.zeros(2, jnp.float32), valid=v).central
+    return jax.jit(jax.vmap(one))
+
+
+def brute_force_members(xy, center, radius):
+    d = xy - center
+    return np.flatnonzero(np.einsum("ij,ij->i", d, d) <= radius ** 2)
+
+
+@pytest.mark.parametrize("name", CLOUDS, ids=str)
+def test_membership_matches_brute_force(name):
+    xyz = CLOUDS[name]()
+    part = partition(xyz)
+    seen = set()
+    for batch in part.batches:
+        assert batch.capacity == capacity_bucket(batch.capacity)
+        np.testing.assert_array_equal(batch.valid, batch.index >= 0)
+        for row, pid in enumerate(batch.patch_id):
+            seen.add(int(pid))
+            np.testing.assert_array_equal(batch.center_m[row], part.centers_m[pid])
+            members = batch.index[row][batch.valid[row]]
+            assert np.all(batch.valid[row][:len(members)]), "padding must come last"
+            np.testing.assert_array_equal(members, brute_force_members(xyz[:, :2], part.centers_m[pid], R_OO_M))
+            assert len(members) == part.n_points[pid]
+            assert capacity_bucket(len(members)) == batch.capacity
+    assert seen == set(range(len(part.centers_m)))
+
+
+@pytest.mark.parametrize("name", CLOUDS, ids=str)
+def test_central_regions_cover_every_point(name, compress_batch):
+    xyz = CLOUDS[name]()
+    part = partition(xyz)
+    count = np.zeros(len(xyz), np.int64)
+    for batch in part.batches:
+        central = compress_batch(jnp.asarray(batch.local_xyz(xyz)), jnp.asarray(batch.valid))
+        vote = soft_vote(jnp.asarray(batch.index), jnp.ones(batch.index.shape, jnp.float32), len(xyz),
+                         mask=central)
+        count += np.asarray(vote.count)
+    assert count.min() >= 1, f"{np.sum(count == 0)} points in no central region"
+    # the same count in float64 from the kept axes
+    d = xyz[:, None, :2] - part.centers_m[None, :, :]
+    expected = np.sum(np.hypot(d[..., 0], d[..., 1]) <= R_IN_M + CENTRAL_TOL_M, axis=1)
+    np.testing.assert_array_equal(count, expected)
+    # every kept patch classifies something, and no axis has more than 4 neighbours' overlap
+    assert count.max() <= 4
+
+
+def test_grid_corner_point_is_central_in_four_patches(compress_batch):
+    xyz = grid_corner_cloud()
+    part = partition(xyz)
+    np.testing.assert_allclose(np.sort(part.centers_m[:, 0] - UTM[0]), [25, 25, 75, 75])
+    corner = 4                                              # (50, 50)
+    hits = 0
+    for batch in part.batches:
+        central = np.asarray(compress_batch(jnp.asarray(batch.local_xyz(xyz)), jnp.asarray(batch.valid)))
+        hits += int(np.sum(central & (batch.index == corner)))
+    assert hits == 4
+
+
+def test_small_cloud_is_one_patch_with_every_point_central():
+    xyz = CLOUDS["smaller_than_a_cell"]()
+    part = partition(xyz)
+    assert len(part.centers_m) == 1 and len(part.batches) == 1
+    np.testing.assert_allclose(part.centers_m[0], (xyz[:, :2].min(0) + xyz[:, :2].max(0)) / 2)
+    np.testing.assert_array_equal(part.batches[0].index[0, :len(xyz)], np.arange(len(xyz)))
+
+
+def test_empty_cells_are_dropped():
+    xyz = l_shaped_cloud()
+    part = partition(xyz)
+    nx, ny = int(np.ceil(420 / STEP_M)), int(np.ceil(380 / STEP_M))
+    assert len(part.centers_m) < nx * ny
+    d = xyz[None, :, :2] - part.centers_m[:, None, :]
+    assert np.all(np.any(np.hypot(d[..., 0], d[..., 1]) <= R_IN_M, axis=1))
+
+
+def test_local_xyz_is_relative_to_the_axis():
+    xyz = grid_corner_cloud()
+    batch = partition(xyz).batches[0]
+    local = batch.local_xyz(xyz)
+    assert local.dtype == np.float32 and local.shape == batch.index.shape + (3,)
+    v = batch.valid
+    expected = xyz[batch.index[v]] - np.concatenate([np.repeat(batch.center_m, v.sum(1), axis=0),
+                                                     np.zeros((v.sum(), 1))], axis=1)
+    np.testing.assert_allclose(local[v], expected, rtol=0, atol=1e-4)
+    assert np.all(local[~v] == 0)
+
+
+def test_capacity_buckets():
+    assert [capacity_bucket(n, min_capacity=4) for n in (1, 4, 5, 6, 7, 8, 9, 13, 24, 25)] == \
+        [4, 4, 6, 6, 8, 8, 12, 16, 24, 32]
+    for n in range(1, 5000, 37):
+        cap = capacity_bucket(n)
+        assert cap >= n and cap >= 256 and (cap <= 256 or cap < 1.5 * n)
+
+
+def test_empty_cloud_has_no_patches():
+    part = partition(np.zeros((0, 3)))
+    assert part.batches == () and part.centers_m.shape == (0, 2)
+
+
+@pytest.mark.parametrize("bad, match", [(np.zeros((4, 4)), "shape"),
+                                        (np.array([[0.0, np.nan, 1.0]]), "non-finite")])
+def test_bad_input_raises(bad, match):
+    with pytest.raises(InputError, match=match):
+        partition(bad)
+
+
+def test_config_that_leaves_gaps_raises():
+    with pytest.raises(InputError, match="gaps"):
+        PartitionConfig(step_m=60.0)
+    with pytest.raises(InputError, match="step_m"):
+        PartitionConfig(step_m=0.0)

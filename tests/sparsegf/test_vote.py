@@ -1,0 +1,100 @@
+"""Soft voting (Algorithm 1) against a literal Python loop; order, ties, uncovered points."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gfjax.sparsegf import UNCOVERED, soft_vote
+
+N_POINTS = 40
+SHAPE = (5, 24)   # 5 patches x 24 padded slots
+
+
+def algorithm_1(index, prob, n_points, mask):
+    """Algorithm 1 of the paper, literally (float64)."""
+    d, c = np.zeros(n_points), np.zeros(n_points, np.int64)
+    for i, p, m in zip(index.ravel(), prob.ravel(), mask.ravel()):
+        if m and 0 <= i < n_points:
+            d[i] += p
+            c[i] += 1
+    mean = np.where(c > 0, d / np.maximum(c, 1), 0.0)
+    label = np.where(c > 0, (mean > 0.5).astype(int), UNCOVERED)
+    return mean, c, label
+
+
+def random_votes(seed):
+    """Dyadic probabilities (k / 64): every sum is exact, so any order gives identical bits."""
+    rng = np.random.default_rng(seed)
+    index = rng.integers(-1, N_POINTS - 5, SHAPE).astype(np.int32)     # -1 padding; last 5 never voted
+    prob = (rng.integers(0, 65, SHAPE) / 64.0).astype(np.float32)
+    mask = rng.random(SHAPE) < 0.8
+    return index, prob, mask
+
+
+@pytest.fixture(scope="module")
+def vote_jit():
+    return jax.jit(soft_vote, static_argnames="n_points")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_matches_algorithm_1(seed, vote_jit):
+    index, prob, mask = random_votes(seed)
+    out = vote_jit(jnp.asarray(index), jnp.asarray(prob), n_points=N_POINTS, mask=jnp.asarray(mask))
+    mean, count, label = algorithm_1(index, prob, N_POINTS, mask)
+    np.testing.assert_allclose(np.asarray(out.prob_ground), mean, rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(out.count), count)
+    np.testing.assert_array_equal(np.asarray(out.label), label)
+    assert np.all(np.asarray(out.label)[-5:] == UNCOVERED) and np.all(np.asarray(out.count)[-5:] == 0)
+    eager = soft_vote(jnp.asarray(index), jnp.asarray(prob), N_POINTS, mask=jnp.asarray(mask))
+    for a, b in zip(out, eager):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_order_independent():
+    index, prob, mask = random_votes(3)
+    perm = np.random.default_rng(9).permutation(index.size)
+    a = soft_vote(jnp.asarray(index), jnp.asarray(prob), N_POINTS, mask=jnp.asarray(mask))
+    b = soft_vote(jnp.asarray(index.ravel()[perm].reshape(SHAPE)), jnp.asarray(prob.ravel()[perm].reshape(SHAPE)),
+                  N_POINTS, mask=jnp.asarray(mask.ravel()[perm].reshape(SHAPE)))
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def test_exact_ties_are_not_ground():
+    index = jnp.array([0, 1, 1, 2, 2, 2, 3, 3], jnp.int32)
+    prob = jnp.array([0.5, 0.25, 0.75, 0.25, 0.75, 0.5 + 2.0 ** -10, 0.5 + 2.0 ** -10, 0.5], jnp.float32)
+    out = soft_vote(index, prob, 5)
+    np.testing.assert_array_equal(np.asarray(out.prob_ground)[:2], [0.5, 0.5])
+    np.testing.assert_array_equal(np.asarray(out.label), [0, 0, 1, 1, UNCOVERED])
+    np.testing.assert_array_equal(np.asarray(out.count), [1, 2, 3, 2, 0])
+
+
+def test_masked_and_out_of_range_votes_are_ignored():
+    index = jnp.array([0, 0, 1, -1, 7, 2], jnp.int32)
+    prob = jnp.array([0.9, 0.0, 0.8, 1.0, 1.0, 0.2], jnp.float32)
+    mask = jnp.array([True, False, True, True, True, True])
+    out = soft_vote(index, prob, 3, mask=mask)
+    np.testing.assert_allclose(np.asarray(out.prob_ground), [0.9, 0.8, 0.2], rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(out.count), [1, 1, 1])
+    np.testing.assert_array_equal(np.asarray(out.label), [1, 1, 0])
+
+
+def test_vmap_matches_loop():
+    votes = [random_votes(s) for s in range(3)]
+    index, prob, mask = (jnp.asarray(np.stack(v)) for v in zip(*votes))
+    batched = jax.vmap(lambda i, p, m: soft_vote(i, p, N_POINTS, mask=m))(index, prob, mask)
+    for b in range(3):
+        one = soft_vote(index[b], prob[b], N_POINTS, mask=mask[b])
+        for x, y in zip(batched, one):
+            np.testing.assert_array_equal(np.asarray(x[b]), np.asarray(y))
+
+
+def test_bad_input_raises():
+    with pytest.raises(ValueError, match="same shape"):
+        soft_vote(jnp.zeros(3, jnp.int32), jnp.zeros(4, jnp.float32), 3)
+    with pytest.raises(ValueError, match="mask"):
+        soft_vote(jnp.zeros(3, jnp.int32), jnp.zeros(3, jnp.float32), 3, mask=jnp.zeros(2, bool))
+    with pytest.raises(ValueError, match="n_points"):
+        soft_vote(jnp.zeros(3, jnp.int32), jnp.zeros(3, jnp.float32), -1)
