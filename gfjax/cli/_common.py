@@ -1,0 +1,146 @@
+"""Options and checks shared by the subcommands: numbers, units, method selection, outputs."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from types import ModuleType
+from typing import Any, NamedTuple
+
+from gfjax.errors import InputError
+from gfjax.io.units import UNIT_CHOICES
+
+TIF_SUFFIXES = (".tif", ".tiff")
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (a cell size, a tile size) [m]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def nonnegative_float(text: str) -> float:
+    """argparse type: a finite number >= 0 (a buffer, a maximum edge) [m]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text}")
+    return value
+
+
+def add_units_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--units", choices=tuple(UNIT_CHOICES), default=None,
+                        help="coordinate units of the input, overriding its CRS "
+                             "(default: from the CRS; metres when the file has none)")
+
+
+def add_method_options(parser: argparse.ArgumentParser, *, method_help: str) -> None:
+    """--method, --preset, --set key=value (repeatable), --params params.json."""
+    from gfjax.methods import METHODS
+
+    parser.add_argument("--method", default=None, metavar="NAME",
+                        help=f"{method_help} ({', '.join(METHODS)})")
+    parser.add_argument("--preset", default=None, metavar="NAME", help="a named set of option values")
+    parser.add_argument("--set", dest="set_values", action="append", default=[], metavar="KEY=VALUE",
+                        help="override one Config/Params value in metres, e.g. --set cell_m=0.5 "
+                             "(repeatable; wins over --preset and --params)")
+    parser.add_argument("--params", default=None, metavar="PARAMS.json",
+                        help="fitted thresholds written by `gfjax tune`")
+
+
+def parse_set_values(items: Sequence[str]) -> dict[str, str]:
+    """`["cell_m=0.5", ...]` -> `{"cell_m": "0.5"}`; a later key wins."""
+    values: dict[str, str] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise InputError(f"--set {item!r}: expected KEY=VALUE, e.g. --set cell_m=0.5")
+        values[key.strip()] = value.strip()
+    return values
+
+
+def load_params_file(path: str | os.PathLike) -> dict[str, Any]:
+    """A params.json of `gfjax tune`: `{method, gfjax_version, units, values: {name: float}}`."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"--params {path}: no such file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"--params {path}: not a readable JSON file ({err})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("values"), dict):
+        raise InputError(f"--params {path}: expected a JSON object with a 'values' object")
+    if not isinstance(data.get("method"), str):
+        raise InputError(f"--params {path}: expected a 'method' name")
+    for key, value in data["values"].items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise InputError(f"--params {path}: value of {key!r} must be a finite number, got {value!r}")
+    return data
+
+
+class MethodSetup(NamedTuple):
+    """A method package and the Config/Params the options give it."""
+
+    name: str
+    module: ModuleType
+    config: Any
+    params: Any
+
+
+def method_setup(args: argparse.Namespace, *, extra_config: dict[str, Any] | None = None) -> MethodSetup:
+    """Resolve --method / --params / --preset / --set (and `extra_config` such as tile sizes).
+
+    The method is `--method`, else the params file's method, else `DEFAULT_METHOD`.
+    """
+    from gfjax import methods
+
+    params_file = load_params_file(args.params) if args.params else None
+    name = args.method or (params_file["method"] if params_file else methods.DEFAULT_METHOD)
+    if params_file and params_file["method"] != name:
+        raise InputError(f"--params {args.params}: fitted for method {params_file['method']!r}, "
+                         f"not {name!r}")
+    module = methods.get(name)
+    overrides: dict[str, Any] = dict(extra_config or {})
+    overrides.update(parse_set_values(args.set_values))
+    config, params = methods.make_config_and_params(
+        module, overrides, args.preset, values=params_file["values"] if params_file else None,
+        values_source=f"--params {args.params}")
+    return MethodSetup(name, module, config, params)
+
+
+def output_targets(inputs: Sequence[Path], output: str, *, option: str = "-o",
+                   suffixes: tuple[str, ...] | None = None, rename_suffix: str | None = None) -> list[Path]:
+    """One output path per input: `output` itself for one input, else `output/<input name>`.
+
+    `output` is taken as a folder when there are several inputs or when it is an existing
+    folder; the folder must exist. `rename_suffix` replaces the inputs' suffix (".tif" for
+    DTMs). Two inputs of the same name would overwrite each other: refused.
+    """
+    out = Path(output)
+    if len(inputs) > 1 or out.is_dir():
+        if not out.is_dir():
+            raise InputError(f"{option} {out}: {len(inputs)} inputs need an existing output folder")
+        targets = [out / (p.with_suffix(rename_suffix).name if rename_suffix else p.name) for p in inputs]
+    else:
+        targets = [out]
+    seen: dict[str, Path] = {}
+    for source, target in zip(inputs, targets):
+        key = os.path.realpath(target)
+        if key in seen:
+            raise InputError(f"{option} {target}: inputs {seen[key]} and {source} would both write it")
+        seen[key] = source
+    if suffixes is not None:
+        for target in targets:
+            if target.suffix.lower() not in suffixes:
+                raise InputError(f"{option} {target}: output must end in {' or '.join(suffixes)}")
+    return targets

@@ -1,0 +1,60 @@
+"""`gfjax dtm IN -o DTM.tif`: a DTM GeoTIFF (and hillshade PNG) from a file's ground points.
+
+Ground is class 2 (`--ground-class` to change it). Cells hold the mean ground elevation; empty
+cells are filled by TIN linear interpolation through triangles no longer than `--max-edge`;
+the rest is nodata (-9999). The GeoTIFF has the input's CRS and its vertical unit.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from gfjax.cli._common import TIF_SUFFIXES, add_units_option, nonnegative_float, positive_float
+from gfjax.errors import InputError
+from gfjax.io import las as las_io
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser("dtm", help="build a DTM GeoTIFF from a file's ground points (class 2)",
+                                   description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("input", metavar="IN", help="classified LAS/LAZ file")
+    parser.add_argument("-o", "--output", required=True, metavar="DTM.tif", help="GeoTIFF to write")
+    parser.add_argument("--cell", type=positive_float, default=1.0, metavar="M", help="cell size [m] (default 1)")
+    parser.add_argument("--max-edge", type=nonnegative_float, default=100.0, metavar="M",
+                        help="longest TIN edge that fills empty cells [m] (default 100)")
+    parser.add_argument("--hillshade", default=None, metavar="PNG", help="also write a hillshade PNG")
+    parser.add_argument("--ground-class", type=int, default=2, metavar="CODE",
+                        help="class code of ground points (default 2)")
+    add_units_option(parser)
+    parser.add_argument("--force", action="store_true", help="overwrite an input file")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    from gfjax import dtm as dtm_lib
+
+    if not 0 <= args.ground_class <= 255:
+        raise InputError(f"--ground-class: must be an ASPRS class code 0-255, got {args.ground_class}")
+    inputs = las_io.expand_inputs([args.input])
+    if len(inputs) != 1:
+        raise InputError(f"{args.input}: gfjax dtm takes one input file, got {len(inputs)}")
+    source = inputs[0]
+    las_io.read_header(source)
+    las_io.check_output(args.output, force=args.force, input_paths=inputs, suffixes=TIF_SUFFIXES, option="-o")
+    if args.hillshade:
+        las_io.check_output(args.hillshade, force=args.force, input_paths=inputs, suffixes=(".png",),
+                            option="--hillshade")
+    start = time.perf_counter()
+    cloud = las_io.read(source, units=args.units)
+    ground = cloud.classification == np.uint8(args.ground_class)
+    dtm = dtm_lib.build(cloud, ground, cell_m=args.cell, max_edge_m=args.max_edge)
+    dtm.to_geotiff(args.output)
+    if args.hillshade:
+        dtm.to_png(args.hillshade)
+    h, w = dtm.shape
+    filled = float(np.mean(dtm.valid)) * 100.0
+    print(f"{source} -> {args.output}: {h} x {w} cells of {args.cell:g} m, {filled:.1f} % with a value, "
+          f"{int(np.count_nonzero(ground)):,} ground points, {time.perf_counter() - start:.1f} s")
+    return 0

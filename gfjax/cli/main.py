@@ -1,0 +1,165 @@
+"""`gfjax` command line: one entry point, one module per subcommand (SPEC section 2).
+
+Each subcommand lives in `gfjax.cli.<name>` and provides
+
+- `add_parser(subparsers) -> argparse.ArgumentParser`: registers `<name>` and its options;
+- `run(args) -> int`: does the work; raises `InputError` for bad input.
+
+Only the module of the command being run is imported (subcommand modules keep heavy imports
+such as JAX inside `run`). Modules of `SUBCOMMANDS` that are not installed are left out,
+except `demo`, which then says it is not available.
+
+Exit codes: 0 success; 2 bad input or option, printed as one line
+`gfjax: error: <file or option>: <problem>` (no traceback, no output file left behind);
+1 internal error, with the traceback only under `--debug` or `GFJAX_DEBUG=1`.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import os
+import sys
+import traceback
+from collections.abc import Sequence
+from pathlib import Path
+from types import ModuleType
+
+from gfjax.errors import InputError
+
+# Subcommand module names, in help order, with their one-line help (shown without importing).
+SUBCOMMANDS: dict[str, str] = {
+    "info": "header, CRS, units and class counts of LAS/LAZ files",
+    "filter": "classify ground points, write LAS/LAZ (and a DTM)",
+    "dtm": "build a DTM GeoTIFF from a file's ground points (class 2)",
+    "eval": "score ground labels against reference labels",
+    "tune": "fit a method's thresholds against labelled files",
+    "train": "train the SparseGF model",
+    "bench": "compare the speed and accuracy of methods and peers",
+    "demo": "filter the embedded sample (no arguments, no network)",
+}
+ALWAYS_LISTED = ("demo",)
+CACHE_SIZE_BYTES = 1 << 30  # bound of the persistent JAX compilation cache
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are `InputError`s (one line, exit code 2)."""
+
+    def error(self, message: str):
+        message = message.removeprefix("argument ")
+        if message.startswith("the following arguments are required"):
+            message = f"{self.prog}: {message}"
+        raise InputError(message)
+
+
+def _module_present(name: str) -> bool:
+    return importlib.util.find_spec(f"gfjax.cli.{name}") is not None
+
+
+def _import_command(name: str) -> ModuleType | None:
+    try:
+        return importlib.import_module(f"gfjax.cli.{name}")
+    except ModuleNotFoundError as err:
+        if err.name == f"gfjax.cli.{name}":
+            return None
+        raise
+
+
+def _requested_command(argv: Sequence[str]) -> str | None:
+    for arg in argv:
+        if not arg.startswith("-"):
+            return arg
+    return None
+
+
+def build_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, ModuleType | None]:
+    """The parser, with full options for the requested command; and that command's module."""
+    from gfjax import __version__
+
+    parser = _Parser(prog="gfjax", description="Ground filtering of airborne LiDAR point clouds (JAX).")
+    parser.add_argument("--version", action="version", version=f"gfjax {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    requested = _requested_command(argv)
+    module = None
+    for name, summary in SUBCOMMANDS.items():
+        if name == requested:
+            module = _import_command(name)
+        if name == requested and module is not None:
+            sub = module.add_parser(subparsers) or subparsers.choices[name]
+            if not any("--debug" in action.option_strings for action in sub._actions):
+                sub.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                                 help="show tracebacks of errors")
+        elif name in ALWAYS_LISTED or _module_present(name):
+            subparsers.add_parser(name, help=summary, description=summary)
+    return parser, module
+
+
+def cache_folder() -> Path:
+    """`$XDG_CACHE_HOME/gfjax/jax`, by default `~/.cache/gfjax/jax`."""
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "gfjax" / "jax"
+
+
+def enable_compilation_cache() -> Path | None:
+    """Turn on JAX's persistent compilation cache in `cache_folder()` (before any compile).
+
+    Every compiled program is kept (`min_compile_time_secs = 0`), up to `CACHE_SIZE_BYTES`.
+    Settings the user made through `JAX_*` environment variables win. Returns the folder,
+    or None when it cannot be created (the cache then stays off).
+    """
+    folder = cache_folder()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    settings = {"jax_compilation_cache_dir": str(folder),
+                "jax_persistent_cache_min_compile_time_secs": 0,
+                "jax_persistent_cache_min_entry_size_bytes": 0,
+                "jax_compilation_cache_max_size": CACHE_SIZE_BYTES}
+    jax = sys.modules.get("jax")
+    for key, value in settings.items():
+        if key.upper() in os.environ:
+            continue
+        if jax is not None:
+            jax.config.update(key, value)
+        else:  # read by JAX when it is first imported; no JAX import for `gfjax info`
+            os.environ[key.upper()] = str(value)
+    return folder
+
+
+def _one_line(message: str) -> str:
+    return " ".join(str(message).split())
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run `gfjax` with `argv` (default `sys.argv[1:]`); returns the exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv or os.environ.get("GFJAX_DEBUG", "") not in ("", "0")
+    try:
+        parser, module = build_parser(argv)
+        args = parser.parse_args(argv)
+        if module is None:
+            raise InputError(f"{args.command}: not available in this build")
+        enable_compilation_cache()
+        return int(module.run(args) or 0)
+    except InputError as err:
+        if debug:
+            traceback.print_exc()
+        print(f"gfjax: error: {_one_line(err)}", file=sys.stderr)
+        return 2
+    except SystemExit as exit_:  # --help, --version
+        return exit_.code if isinstance(exit_.code, int) else 0
+    except KeyboardInterrupt:
+        print("gfjax: interrupted", file=sys.stderr)
+        return 130
+    except Exception as err:  # noqa: BLE001 (the one place that turns bugs into exit code 1)
+        if debug:
+            traceback.print_exc()
+        print(f"gfjax: internal error: {type(err).__name__}: {_one_line(err)} "
+              "(run with --debug or GFJAX_DEBUG=1 for the traceback)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
