@@ -12,43 +12,28 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import pyproj.exceptions
 import rasterio
 import rasterio.crs
 import rasterio.errors
 from rasterio.transform import Affine
 
 from gfjax.errors import InputError
+from gfjax.io import crs as crs_lib
 
 NODATA = -9999.0
 TILE_PX = 256                  # GeoTIFF block size; rasters larger than this are tiled
 
 
 def cloud_rasterio_crs(cloud) -> rasterio.crs.CRS | None:
-    """The CRS of `cloud` as a `rasterio.crs.CRS`, or None when the file states none.
-
-    Uses `cloud.crs` (a `pyproj.CRS`) when the cloud carries one, else the LAS header's WKT
-    VLR or GeoTIFF keys through `laspy.LasHeader.parse_crs`. A compound CRS that GDAL
-    cannot take is reduced to its horizontal part.
-    # TODO(io): delegate to gfjax.io.crs.rasterio_crs once Cloud carries its CRS.
+    """The CRS of `cloud` (`cloud.crs`, read by `gfjax.io`) as a `rasterio.crs.CRS`, or None.
 
     Raises:
-      InputError: the file holds CRS records that cannot be parsed (names the file).
+      InputError: GDAL does not accept the CRS (names the file).
     """
-    crs = getattr(cloud, "crs", None)
-    if crs is None:
-        try:
-            crs = cloud.las.header.parse_crs(prefer_wkt=True)
-        except (pyproj.exceptions.CRSError, ValueError, UnicodeDecodeError) as err:
-            raise InputError(f"{cloud.name}: cannot parse the CRS stored in the file ({err})") from None
-    if crs is None:
-        return None
     try:
-        return rasterio.crs.CRS.from_wkt(crs.to_wkt())
-    except rasterio.errors.CRSError:
-        if crs.is_compound:
-            return rasterio.crs.CRS.from_wkt(crs.sub_crs_list[0].to_wkt())
-        raise InputError(f"{cloud.name}: GDAL does not accept the file's CRS {crs.name!r}") from None
+        return crs_lib.rasterio_crs(cloud)
+    except rasterio.errors.CRSError as err:
+        raise InputError(f"{cloud.name}: GDAL does not accept the file's CRS ({err})") from None
 
 
 def _check_target(path: Path) -> None:

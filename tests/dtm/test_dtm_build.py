@@ -4,7 +4,6 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-import laspy
 import numpy as np
 import pytest
 import scipy.spatial
@@ -12,6 +11,7 @@ from conftest import shared_file
 from scipy.interpolate import LinearNDInterpolator
 
 import gfjax.dtm
+import gfjax.io.las
 from gfjax.dtm.build import _rasterize_tin, snapped_grid
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
@@ -173,7 +173,8 @@ def test_single_point_and_one_row():
 
 def test_feet_cell_is_converted():
     path = shared_file("pdal_autzen/autzen_trim.laz")
-    cloud = Cloud(las=laspy.read(path), path=path, horizontal_unit_m=0.3048, vertical_unit_m=0.3048)
+    cloud = gfjax.io.las.read(path)                       # feet from the file's CRS
+    assert (cloud.horizontal_unit_m, cloud.vertical_unit_m) == (0.3048, 0.3048)
     ground = cloud.classification == 2
     dtm = gfjax.dtm.build(cloud, ground, cell_m=1.0, max_edge_m=30.0)
     assert dtm.cell == pytest.approx(3.2808399, rel=1e-7)

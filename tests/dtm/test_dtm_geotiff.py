@@ -1,7 +1,6 @@
 """DTM GeoTIFF: rasterio round trip (values, transform, nodata, CRS), atomic writes, PNG."""
 from __future__ import annotations
 
-import laspy
 import matplotlib.image
 import numpy as np
 import pytest
@@ -10,15 +9,15 @@ from conftest import shared_file
 from rasterio.transform import Affine
 
 import gfjax.dtm
+import gfjax.io.las
 from gfjax.dtm.geotiff import write_geotiff
 from gfjax.errors import InputError
-from gfjax.io.cloud import Cloud
 
 
 @pytest.fixture(scope="module")
 def samp12_dtm():
     path = shared_file("isprs_filtertest/reference/samp12-utm.laz")
-    cloud = Cloud(las=laspy.read(path), path=path)
+    cloud = gfjax.io.las.read(path)
     return gfjax.dtm.build(cloud, cloud.classification == 2, cell_m=1.0)
 
 
