@@ -3,7 +3,8 @@
 Steps (issue 2, part 5; SPEC section 1 "dtm.build"):
 1. A grid of square cells of `cell_m` metres, converted to the file's horizontal unit (feet
    data get a 3.2808 ft cell for 1 m), with its origin snapped to whole multiples of the cell
-   so DTMs of neighbouring tiles line up. It covers the x-y extent of the whole cloud.
+   so DTMs of neighbouring tiles line up. It covers the x-y extent of the cloud's points
+   (noise and withheld points, which filters ignore, excepted).
    Row 0 is the northern edge; a cell spans `[x0, x0 + cell) x [y0, y0 + cell)`, so a point
    on a boundary belongs to the cell east / north of it (`row = h - 1 - floor(y / cell)`,
    docs/ARCHITECTURE.md).
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 
 import numpy as np
 import scipy.spatial
@@ -92,11 +94,16 @@ class DTM:
         write_png(path, self.hillshade(azimuth_deg, altitude_deg))
 
 
-def _check_options(name: str, cell_m: float, max_edge_m: float) -> None:
-    if not (isinstance(cell_m, (int, float)) and math.isfinite(cell_m) and cell_m > 0):
-        raise InputError(f"{name}: cell_m (--cell) must be a positive number of metres, got {cell_m!r}")
-    if not (isinstance(max_edge_m, (int, float)) and max_edge_m >= 0 and not math.isnan(max_edge_m)):
-        raise InputError(f"{name}: max_edge_m (--max-edge) must be >= 0 metres, got {max_edge_m!r}")
+def _metres(name: str, option: str, value, *, allow_zero: bool) -> float:
+    """`value` as a float, checked: > 0 and finite (a cell), or >= 0, inf allowed (an edge)."""
+    if not isinstance(value, numbers.Real) or isinstance(value, bool):
+        raise InputError(f"{name}: {option} must be a number of metres, got {value!r}")
+    value = float(value)
+    ok = value >= 0 if allow_zero else 0 < value < math.inf       # False for NaN
+    if not ok:
+        bound = ">= 0" if allow_zero else "a finite number > 0"
+        raise InputError(f"{name}: {option} must be {bound} metres, got {value!r}")
+    return value
 
 
 def snapped_grid(xy: np.ndarray, cell: float) -> tuple[int, int, int, int]:
@@ -188,7 +195,7 @@ def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.
       cell_m: cell size in metres; in the raster it is `cell_m / cloud.horizontal_unit_m`
         file units (1 m -> 3.2808 ft for international feet).
       max_edge_m: longest triangle edge, metres, through which empty cells are interpolated;
-        cells in longer triangles, or outside the ground points' hull, stay nodata.
+        cells in longer triangles, or outside the hull of the cell centroids, stay nodata.
 
     Returns:
       `DTM` with `z` float64 `(h, w)` in the file's vertical unit, `nodata` = -9999 where no
@@ -199,7 +206,8 @@ def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.
         too large for memory. The message names the file.
     """
     name = cloud.name
-    _check_options(name, cell_m, max_edge_m)
+    cell_m = _metres(name, "cell_m (--cell)", cell_m, allow_zero=False)
+    max_edge_m = _metres(name, "max_edge_m (--max-edge)", max_edge_m, allow_zero=True)
     ground = np.asarray(ground)
     if ground.dtype != np.bool_ or ground.shape != (cloud.n_points,):
         raise InputError(f"{name}: ground must be a bool array of shape ({cloud.n_points},), "
@@ -210,7 +218,7 @@ def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.
     cell = cell_m / unit_m
     max_edge = max_edge_m / unit_m
     xyz = cloud.xyz                                        # file units, float64
-    col0, row_top, h, w = snapped_grid(xyz[:, :2], cell)
+    col0, row_top, h, w = snapped_grid(xyz[~cloud.ignored | ground, :2], cell)
     if h * w > MAX_CELLS:
         raise InputError(f"{name}: a {h} x {w} grid of {cell_m} m cells is too large; "
                          "use a larger --cell or split the file")

@@ -156,6 +156,13 @@ def test_grid_is_snapped_and_covers_every_point(cell_m):
     np.testing.assert_array_equal(dtm.count, expected)
 
 
+def test_noise_points_do_not_stretch_the_grid():
+    xyz = np.array([[0.5, 0.5, 1.0], [3.5, 2.5, 2.0], [9000.0, -9000.0, 900.0]])
+    cloud = Cloud.from_xyz(xyz, classification=np.array([2, 1, 7], np.uint8))
+    dtm = gfjax.dtm.build(cloud, cloud.classification == 2)
+    assert dtm.shape == (3, 4)                                  # the noise point is ignored
+
+
 def test_snapped_grid_counts():
     xy = np.array([[0.0, 0.0], [9.999, 4.0], [10.0, -0.5]])
     assert snapped_grid(xy, 2.0) == (0, 3, 4, 6)   # cols 0..5, rows of y in [-2, 6): 4
@@ -197,6 +204,7 @@ def test_no_ground_names_the_file():
 
 
 @pytest.mark.parametrize("kwargs,match", [(dict(cell_m=0.0), "cell_m"), (dict(cell_m=float("nan")), "cell_m"),
+                                          (dict(cell_m=float("inf")), "cell_m"), (dict(cell_m="1"), "cell_m"),
                                           (dict(max_edge_m=-1.0), "max_edge_m")])
 def test_bad_options(kwargs, match):
     cloud = _plane_cloud(n=50, path="t.laz")
