@@ -1,0 +1,127 @@
+"""Buffered tiles: each point labelled once, seamless merge, vmap == tile by tile, invariances."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gfjax.io import tiles as tiling
+from gfjax.io.cloud import Cloud
+from gfjax.smrf import Config, Params
+from gfjax.smrf import filter as smrf_filter
+from gfjax.smrf import stages
+from gfjax.smrf.filter import run_tiles
+
+ORIGIN = np.array([512_345.0, 5_403_210.0, 250.0])        # UTM-sized: float32 would lose cm
+
+
+def dense_scene(seed=0, size_m=64, boxes=6):
+    """Gently sloped ground with two points per 1 m cell (kept off the cell edges) and small
+    4 x 4 m boxes 6 m tall, so that every cell holds a point and every hole is enclosed."""
+    rng = np.random.default_rng(seed)
+    cols, rows = np.meshgrid(np.arange(size_m), np.arange(size_m))
+    centre = np.stack([cols.ravel() + 0.5, rows.ravel() + 0.5], axis=1)
+    xy = np.concatenate([centre + rng.uniform(-0.35, 0.35, centre.shape) for _ in range(2)])
+    z = 0.03 * xy[:, 0] + 0.02 * xy[:, 1] + rng.normal(0, 0.03, len(xy))
+    building = np.zeros(len(xy), bool)
+    for bx, by in rng.integers(3, size_m - 7, size=(boxes, 2)):
+        building |= (xy[:, 0] >= bx) & (xy[:, 0] < bx + 4) & (xy[:, 1] >= by) & (xy[:, 1] < by + 4)
+    z[building] += 6.0
+    return np.column_stack([xy, z]) + ORIGIN, ~building
+
+
+TILED = Config(window_m=3.0, tile_size_m=32.0, buffer_m=16.0)
+WHOLE = Config(window_m=3.0, tile_size_m=500.0, buffer_m=16.0)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return dense_scene()[0]
+
+
+def test_every_point_in_exactly_one_core_and_in_its_window():
+    rng = np.random.default_rng(1)
+    xyz = rng.uniform(0, 1000, (20_000, 3)) + ORIGIN
+    use = rng.random(len(xyz)) > 0.1
+    tiles = tiling.split(xyz, tile_size_m=300.0, buffer_m=40.0, cell_m=1.0, use=use)
+    count = np.zeros(len(xyz), int)
+    for tile in tiles:
+        np.add.at(count, tile.index[tile.core], 1)
+        local = xyz[tile.index] - tile.origin_m
+        assert np.all(local[:, :2] >= 0)
+        assert np.all(local[:, :2] < np.array(tile.shape[::-1]) * 1.0)
+        # float32 local xy stay in the float64 cell
+        np.testing.assert_array_equal(np.floor(tile.local_xyz[:, :2]), np.floor(local[:, :2]))
+        # the window holds every used point within the buffer of the core
+        c0, r0, c1, r1 = tile.core_px
+        rel = xyz - xyz[use].min(axis=0)
+        near = use & (rel[:, 0] >= c0 - 40) & (rel[:, 0] < c1 + 40) & (rel[:, 1] >= r0 - 40) & (rel[:, 1] < r1 + 40)
+        assert set(np.flatnonzero(near)) <= set(tile.index)
+    np.testing.assert_array_equal(count, use.astype(int))
+    merged = tiling.merge(len(xyz), tiles, [np.ones(t.n_points, bool) for t in tiles])
+    np.testing.assert_array_equal(merged, use)
+
+
+def test_buckets():
+    assert [tiling.capacity_bucket(n) for n in (1, 256, 257, 385, 1000)] == [256, 256, 384, 512, 1024]
+    assert tiling.shape_bucket((1, 600)) == (64, 640)
+
+
+def test_batches_cover_every_tile_once(scene):
+    tiles = tiling.split(scene, tile_size_m=32.0, buffer_m=16.0, cell_m=1.0)
+    seen = [t.key for b in tiling.batches(tiles, max_batch=4) for t in b.tiles]
+    assert sorted(seen) == sorted(t.key for t in tiles) and len(tiles) == 4
+    for batch in tiling.batches(tiles, max_batch=4):
+        np.testing.assert_array_equal(batch.valid.sum(axis=1), [t.n_points for t in batch.tiles])
+
+
+def test_bad_options_raise():
+    with pytest.raises(ValueError, match="tile_size_m"):
+        tiling.split(np.zeros((3, 3)), tile_size_m=0.5, cell_m=1.0)
+    with pytest.raises(ValueError, match="buffer_m"):
+        tiling.split(np.zeros((3, 3)), buffer_m=-1.0)
+    assert tiling.split(np.zeros((3, 3)), use=np.zeros(3, bool)) == []
+
+
+@pytest.fixture(scope="module")
+def whole_labels(scene):
+    return smrf_filter(Cloud.from_xyz(scene), config=WHOLE).ground
+
+
+def test_smrf_whole_equals_tiled(scene, whole_labels):
+    """SMRF is local (openings up to 3 cells, enclosed holes): a 16 m buffer makes the tiled
+    labels identical to the whole-cloud labels everywhere, seams included."""
+    tiled = smrf_filter(Cloud.from_xyz(scene), config=TILED)
+    assert tiled.diagnostics.n_tiles == 4
+    np.testing.assert_array_equal(tiled.ground, whole_labels)
+    _, truth = dense_scene()
+    assert np.mean(whole_labels == truth) > 0.99 and not whole_labels.all()
+
+
+def test_vmap_batch_equals_tile_by_tile(scene):
+    tiles = tiling.split(scene, tile_size_m=32.0, buffer_m=16.0, cell_m=1.0)
+    batch = next(tiling.batches(tiles))
+    assert len(batch.tiles) == 4
+    ground, diag = stages.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=TILED, shape=batch.shape)
+    for i in range(4):
+        one, one_diag = stages.classify_tile(batch.xyz[i], batch.valid[i], batch.hw[i], Params(),
+                                             config=TILED, shape=batch.shape)
+        np.testing.assert_array_equal(np.asarray(ground[i]), np.asarray(one))
+        np.testing.assert_array_equal(np.asarray(diag.object_cells[i]), np.asarray(one_diag.object_cells))
+
+
+def test_point_order_invariance(scene, whole_labels):
+    perm = np.random.default_rng(2).permutation(len(scene))
+    shuffled = smrf_filter(Cloud.from_xyz(scene[perm]), config=WHOLE).ground
+    np.testing.assert_array_equal(shuffled, whole_labels[perm])
+
+
+def test_padding_invariance(scene, whole_labels):
+    """More point capacity and a larger shape bucket (padding cells outside the tile's domain)
+    change no label when every domain cell holds a point."""
+    tiles = tiling.split(scene, tile_size_m=500.0, buffer_m=16.0, cell_m=1.0)
+    labels, _ = run_tiles(tiles, Params(), WHOLE, keep_diagnostics=False)
+    np.testing.assert_array_equal(tiling.merge(len(scene), tiles, labels), whole_labels)
+    batch = next(tiling.batches(tiles, shape=(96, 80), capacity=2 * tiling.capacity_bucket(tiles[0].n_points)))
+    ground = np.asarray(stages.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=WHOLE,
+                                              shape=batch.shape)[0])[0]
+    np.testing.assert_array_equal(tiling.merge(len(scene), tiles, [ground]), whole_labels)
