@@ -84,8 +84,10 @@ class PatchBatch(NamedTuple):
         xyz_m = np.asarray(xyz_m)
         safe = np.where(self.valid, self.index, 0)
         out = np.empty(self.index.shape + (3,), dtype=np.float32)
-        out[..., :2] = xyz_m[safe, :2].astype(np.float64) - self.center_m[:, None, :]
-        out[..., 2] = xyz_m[safe, 2]
+        for axis in range(2):                                  # x, y: float64 difference, then cast
+            column = np.ascontiguousarray(xyz_m[:, axis], dtype=np.float64)
+            out[..., axis] = np.take(column, safe) - self.center_m[:, axis, None]
+        out[..., 2] = np.take(np.ascontiguousarray(xyz_m[:, 2], dtype=np.float32), safe)
         out[~self.valid] = 0.0
         return out
 
