@@ -97,8 +97,8 @@ class MethodSetup(NamedTuple):
     params: Any
 
 
-def method_setup(args: argparse.Namespace, *, extra_config: dict[str, Any] | None = None) -> MethodSetup:
-    """Resolve --method / --params / --preset / --set (and `extra_config` such as tile sizes).
+def method_setup(args: argparse.Namespace) -> MethodSetup:
+    """Resolve --method / --params / --preset / --set into a method and its Config/Params.
 
     The method is `--method`, else the params file's method, else `DEFAULT_METHOD`.
     """
@@ -110,10 +110,8 @@ def method_setup(args: argparse.Namespace, *, extra_config: dict[str, Any] | Non
         raise InputError(f"--params {args.params}: fitted for method {params_file['method']!r}, "
                          f"not {name!r}")
     module = methods.get(name)
-    overrides: dict[str, Any] = dict(extra_config or {})
-    overrides.update(parse_set_values(args.set_values))
     config, params = methods.make_config_and_params(
-        module, overrides, args.preset, values=params_file["values"] if params_file else None,
+        module, parse_set_values(args.set_values), args.preset, values=params_file["values"] if params_file else None,
         values_source=f"--params {args.params}")
     return MethodSetup(name, module, config, params)
 

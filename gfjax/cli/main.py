@@ -104,7 +104,8 @@ def cache_folder() -> Path:
 def enable_compilation_cache() -> Path | None:
     """Turn on JAX's persistent compilation cache in `cache_folder()` (before any compile).
 
-    Every compiled program is kept (`min_compile_time_secs = 0`), up to `CACHE_SIZE_BYTES`.
+    Every compiled program is kept (`min_compile_time_secs = 0`), up to `CACHE_SIZE_BYTES`
+    (JAX needs the `filelock` package to enforce that bound; without it the cache is unbounded).
     Settings the user made through `JAX_*` environment variables win. Returns the folder,
     or None when it cannot be created (the cache then stays off).
     """
@@ -115,8 +116,9 @@ def enable_compilation_cache() -> Path | None:
         return None
     settings = {"jax_compilation_cache_dir": str(folder),
                 "jax_persistent_cache_min_compile_time_secs": 0,
-                "jax_persistent_cache_min_entry_size_bytes": 0,
-                "jax_compilation_cache_max_size": CACHE_SIZE_BYTES}
+                "jax_persistent_cache_min_entry_size_bytes": 0}
+    if importlib.util.find_spec("filelock") is not None:
+        settings["jax_compilation_cache_max_size"] = CACHE_SIZE_BYTES
     jax = sys.modules.get("jax")
     for key, value in settings.items():
         if key.upper() in os.environ:
