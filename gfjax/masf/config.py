@@ -37,6 +37,9 @@ class Config:
         the next point larger than this marks the lower point an outlier (our choice) [m].
       neighbour_drop_m: a potential ground point more than this below the lowest potential
         ground point of its occupied neighbour cells (3x3, else 5x5) is a low outlier (R) [m].
+      low_cluster_max_m2: the neighbourhood test applies to connected clusters of potential
+        ground cells (linked within 5x5 when their z differ by at most `neighbour_drop_m`) up to
+        this area: a cluster every link out of which goes up is a low outlier patch (R) [m^2].
       empty_tol_m: tolerance of the empty-sphere test along the dual Voronoi edge [m].
     """
 
@@ -47,6 +50,7 @@ class Config:
     alpha_top_m: float | None = None
     outlier_gap_m: float = 1.0
     neighbour_drop_m: float = 1.0
+    low_cluster_max_m2: float = 1.0
     empty_tol_m: float = 1e-3
 
     def __post_init__(self) -> None:
@@ -55,6 +59,8 @@ class Config:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        if not (math.isfinite(self.low_cluster_max_m2) and self.low_cluster_max_m2 >= 0):
+            raise ValueError(f"low_cluster_max_m2 must be finite and >= 0, got {self.low_cluster_max_m2!r}")
         if not (math.isfinite(self.empty_tol_m) and self.empty_tol_m >= 0):
             raise ValueError(f"empty_tol_m must be finite and >= 0, got {self.empty_tol_m!r}")
         if self.alpha_min_m is not None and not (math.isfinite(self.alpha_min_m) and self.alpha_min_m > 0):
@@ -68,6 +74,11 @@ class Config:
     def min_alpha_m(self) -> float:
         """alpha_min: `alpha_min_m`, or twice the grid cell (Sec. 2.3) [m]."""
         return 2.0 * self.grid_m if self.alpha_min_m is None else float(self.alpha_min_m)
+
+    @property
+    def low_cluster_max_cells(self) -> int:
+        """`low_cluster_max_m2` in grid cells (at least 1: single cells are always tested)."""
+        return max(1, int(math.floor(self.low_cluster_max_m2 / (self.grid_m * self.grid_m) + 1e-9)))
 
     def alphas_m(self) -> np.ndarray:
         """The pyramid, top first: `alpha_k = alpha_max - (k - 1) * alpha_step >= alpha_min` (Eq. 1).

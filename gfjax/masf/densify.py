@@ -46,8 +46,57 @@ def buffer_cells(shape: tuple[int, int], *, cell_m: float) -> np.ndarray:
     return np.concatenate([south, north, west, east])
 
 
+def low_seed_pits(xyz_m: np.ndarray, *, drop_m: float, slope: float, cap_m: float) -> np.ndarray:
+    """Top-layer seeds that form pits in the seed TIN: low outliers the preprocessing missed.
+
+    Seeds joined by an edge of their 2D Delaunay TIN are linked when their z differ by at most
+    `drop_m + slope * edge length`; a connected group, smaller than half the seeds, all of
+    whose other edges climb, is a pit of low outliers (multipath patches metres below the
+    ground, as in ISPRS samp41). The seeds are ground points of a large-alpha layer, so roofs
+    and canopy, which make yards and forest floor look like pits among all cells, are absent.
+
+    Args:
+      xyz_m: float64 `(s, 3)` seeds, local metres.
+
+    Returns:
+      bool `(s,)`, seeds to drop.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import Delaunay, QhullError
+
+    pits = np.zeros(len(xyz_m), dtype=bool)
+    if len(xyz_m) < 4:
+        return pits
+    try:
+        simplices = Delaunay(xyz_m[:, :2]).simplices
+    except (QhullError, ValueError):
+        return pits
+    edges = np.concatenate([simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [2, 0]]])
+    edges = np.unique(np.sort(edges, axis=1), axis=0)
+    head, tail = edges[:, 0], edges[:, 1]
+    rise = xyz_m[tail, 2] - xyz_m[head, 2]
+    length = np.linalg.norm(xyz_m[tail, :2] - xyz_m[head, :2], axis=1)
+    linked = np.abs(rise) <= drop_m + slope * np.minimum(length, cap_m)
+    graph = coo_matrix((np.ones(int(linked.sum()), dtype=np.int8), (head[linked], tail[linked])),
+                       shape=(len(xyz_m), len(xyz_m)))
+    _, label = connected_components(graph, directed=False)
+    size = np.bincount(label)
+    across = label[head] != label[tail]
+    has_down = np.zeros(len(size), dtype=bool)
+    has_up = np.zeros(len(size), dtype=bool)
+    up = rise > 0
+    has_up[label[head[across & up]]] = True
+    has_down[label[tail[across & up]]] = True
+    has_up[label[tail[across & ~up]]] = True
+    has_down[label[head[across & ~up]]] = True
+    pit = has_up & ~has_down & (2 * size < len(xyz_m))
+    return pit[label]
+
+
 def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_m: np.ndarray, *,
-            shape: tuple[int, int], cell_m: float, st: float, ft_m: float) -> Densified:
+            shape: tuple[int, int], cell_m: float, st: float, ft_m: float,
+            pit_drop_m: float = 1.0, pit_slope: float | None = 1.0, pit_cap_m: float = 4.0) -> Densified:
     """Label ground points by top-down densification of the layer TINs.
 
     Args:
@@ -61,6 +110,9 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
     n_layers, n_seeds = layers.shape
     seed_xyz = points_m[seeds]
     in_tin = layers[0].copy() if n_layers else np.zeros(n_seeds, dtype=bool)
+    if pit_slope is not None and in_tin.any():
+        top = np.flatnonzero(in_tin)
+        in_tin[top[low_seed_pits(seed_xyz[top], drop_m=pit_drop_m, slope=pit_slope, cap_m=pit_cap_m)]] = False
     if not in_tin.any():
         in_tin[:] = True          # no top layer (degenerate input): every seed is a seed
     added = np.zeros(max(n_layers, 1), dtype=np.int64)

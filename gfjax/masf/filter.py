@@ -76,7 +76,8 @@ def classify_points(xyz_m: np.ndarray, config: Config, params: Params) -> tuple[
     local = xyz_m - origin
     alphas = config.alphas_m()
     pre = preprocess.potential_ground(local, grid_m=config.grid_m, outlier_gap_m=config.outlier_gap_m,
-                                      neighbour_drop_m=config.neighbour_drop_m)
+                                      neighbour_drop_m=config.neighbour_drop_m,
+                                      max_cluster_cells=config.low_cluster_max_cells)
     seed_xyz = local[pre.index]
     seconds["preprocess"] = time.perf_counter() - clock
     empty_diag = dict(potential_ground=pre.index, alphas_m=alphas, occupied_cells=int(pre.occupied.sum()),

@@ -10,7 +10,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy import ndimage as ndi
 
 __all__ = ["Preprocessed", "grid_shape", "potential_ground"]
 
@@ -46,14 +45,8 @@ def grid_shape(xy_m: np.ndarray, *, grid_m: float) -> tuple[int, int]:
     return int(top[1]), int(top[0])
 
 
-def _ring_footprint(radius_px: int) -> np.ndarray:
-    footprint = np.ones((2 * radius_px + 1, 2 * radius_px + 1), dtype=bool)
-    footprint[radius_px, radius_px] = False
-    return footprint
-
-
 def potential_ground(xyz_m: np.ndarray, *, grid_m: float, outlier_gap_m: float,
-                     neighbour_drop_m: float) -> Preprocessed:
+                     neighbour_drop_m: float, max_cluster_cells: int = 1) -> Preprocessed:
     """Select one potential ground point per occupied cell and drop low outliers.
 
     Extended local minimum (Sec. 2.1): the points of a cell, sorted by z, are walked upwards;
@@ -101,9 +94,59 @@ def potential_ground(xyz_m: np.ndarray, *, grid_m: float, outlier_gap_m: float,
     occupied[p_row, p_col] = True
     z_grid = np.full(shape, np.inf)
     z_grid[p_row, p_col] = xyz_m[chosen, 2]
-    ring3 = ndi.minimum_filter(z_grid, footprint=_ring_footprint(1), mode="constant", cval=np.inf)
-    ring5 = ndi.minimum_filter(z_grid, footprint=_ring_footprint(2), mode="constant", cval=np.inf)
-    neighbour_min = np.where(np.isfinite(ring3), ring3, ring5)
-    low = occupied & np.isfinite(neighbour_min) & (z_grid < neighbour_min - neighbour_drop_m)
+    low = _low_clusters(z_grid, occupied, drop_m=neighbour_drop_m, max_cells=max_cluster_cells)
     keep = ~low[p_row, p_col]
     return Preprocessed(chosen[keep], p_row[keep], p_col[keep], shape, occupied, gap_outliers, low)
+
+
+# Offsets (dr, dc) covering the 5x5 neighbourhood once per unordered pair of cells.
+_HALF_5X5 = [(dr, dc) for dr in range(0, 3) for dc in range(-2, 3) if dr > 0 or dc > 0]
+
+
+def _low_clusters(z_grid: np.ndarray, occupied: np.ndarray, *, drop_m: float, max_cells: int) -> np.ndarray:
+    """Cells of low-outlier clusters: pits in the potential-ground surface.
+
+    Occupied cells within the 5x5 neighbourhood of each other are linked when their z differ
+    by at most `drop_m`; a connected cluster of at most `max_cells` cells whose every link to
+    another cluster goes up by more than `drop_m` (and that has such a link) is a low outlier.
+    For a single cell this is SPEC 4.1's rule (more than `drop_m` below the lowest occupied
+    neighbour); clusters catch the patches of multipath points that sit together, metres
+    below the ground around them (ISPRS samp41), which the per-cell rule cannot see.
+
+    Returns bool `(h, w)`.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    h, w = z_grid.shape
+    ids = np.full((h, w), -1, dtype=np.int64)
+    cells = np.flatnonzero(occupied.reshape(-1))
+    ids.reshape(-1)[cells] = np.arange(len(cells))
+    z_cell = z_grid.reshape(-1)[cells]
+    heads, tails = [], []
+    for dr, dc in _HALF_5X5:
+        c0, c1 = max(0, -dc), w - max(0, dc)
+        a = ids[:h - dr, c0:c1]
+        b = ids[dr:, c0 + dc:c1 + dc]
+        pair = (a >= 0) & (b >= 0)
+        heads.append(a[pair])
+        tails.append(b[pair])
+    head = np.concatenate(heads)
+    tail = np.concatenate(tails)
+    linked = np.abs(z_cell[head] - z_cell[tail]) <= drop_m
+    graph = coo_matrix((np.ones(int(linked.sum()), dtype=np.int8), (head[linked], tail[linked])),
+                       shape=(len(cells), len(cells)))
+    _, label = connected_components(graph, directed=False)
+    size = np.bincount(label)
+    across = label[head] != label[tail]
+    lower_head = z_cell[head] < z_cell[tail]
+    has_up = np.zeros(len(size), dtype=bool)
+    has_down = np.zeros(len(size), dtype=bool)
+    has_up[label[head[across & lower_head]]] = True
+    has_down[label[tail[across & lower_head]]] = True
+    has_up[label[tail[across & ~lower_head]]] = True
+    has_down[label[head[across & ~lower_head]]] = True
+    pit = has_up & ~has_down & (size <= max_cells)
+    low = np.zeros((h, w), dtype=bool)
+    low.reshape(-1)[cells[pit[label]]] = True
+    return low
