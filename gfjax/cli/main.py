@@ -115,7 +115,7 @@ def enable_compilation_cache() -> Path | None:
     except OSError:
         return None
     settings = {"jax_compilation_cache_dir": str(folder),
-                "jax_persistent_cache_min_compile_time_secs": 0,
+                "jax_persistent_cache_min_compile_time_secs": 0.0,
                 "jax_persistent_cache_min_entry_size_bytes": 0}
     if importlib.util.find_spec("filelock") is not None:
         settings["jax_compilation_cache_max_size"] = CACHE_SIZE_BYTES

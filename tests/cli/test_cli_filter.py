@@ -1,0 +1,177 @@
+"""`gfjax filter` with a fake method: classes written, options passed, several inputs, DTM."""
+from __future__ import annotations
+
+import json
+import os
+
+import laspy
+import numpy as np
+import pytest
+from cli_helpers import (SCENE_CLASSES, error_line, fake_methods, no_compilation_cache,  # noqa: F401
+                         run_cli, write_scene)
+
+from gfjax import methods
+
+# Fake rule: ground iff z <= min z of used points + threshold_m; point 6 (class 7) is ignored.
+# Default threshold 0.5 m: points 0, 1, 2, 7 (z 0, 0.1, 0.2, 0.3) are ground.
+GROUND_DEFAULT = np.array([1, 1, 1, 0, 0, 0, 0, 1], dtype=bool)
+
+
+def _classes(path) -> np.ndarray:
+    return np.asarray(laspy.read(path).classification)
+
+
+def test_classes_written_per_spec(tmp_path, capsys, fake_methods):
+    src = write_scene(tmp_path / "in.laz")
+    code, out, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz", "--method", "fake")
+    assert code == 0, err
+    assert "in.laz -> " in out and "4 ground of 8 points" in out
+    expected = SCENE_CLASSES.copy()
+    expected[GROUND_DEFAULT] = 2
+    expected[5] = 1                    # was ground (2), now non-ground -> 1
+    np.testing.assert_array_equal(_classes(tmp_path / "out.laz"), expected)  # 3, 6, 7 keep theirs
+    before, after = laspy.read(src), laspy.read(tmp_path / "out.laz")
+    for name in before.point_format.dimension_names:
+        if name != "classification":
+            np.testing.assert_array_equal(np.asarray(after[name]), np.asarray(before[name]), err_msg=name)
+
+
+def test_reset_nonground(tmp_path, capsys, fake_methods):
+    src = write_scene(tmp_path / "in.las")
+    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.las", "--method", "fake",
+                           "--reset-nonground")
+    assert code == 0, err
+    expected = np.where(GROUND_DEFAULT, 2, 1).astype(np.uint8)
+    expected[6] = 7                    # noise keeps its class
+    np.testing.assert_array_equal(_classes(tmp_path / "out.las"), expected)
+
+
+def test_set_preset_and_params_file_precedence(tmp_path, capsys, fake_methods):
+    src = write_scene(tmp_path / "in.laz")
+    fake = fake_methods["fake"]
+    params = tmp_path / "params.json"
+    params.write_text(json.dumps({"method": "fake", "gfjax_version": "0.1.0", "units": "m",
+                                  "values": {"threshold_m": 3.5}}))
+    cases = [([], 0.5), (["--preset", "generous"], 100.0), (["--params", params], 3.5),
+             (["--preset", "generous", "--params", params], 3.5),
+             (["--params", params, "--set", "threshold_m=0.05"], 0.05),
+             (["--set", "threshold_m=1", "--set", "cell_m=0.25"], 1.0)]
+    for i, (options, threshold) in enumerate(cases):
+        code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / f"out{i}.laz", "--method", "fake", *options)
+        assert code == 0, (options, err)
+        assert fake.calls[-1]["params"].threshold_m == threshold
+    assert fake.calls[-1]["config"].cell_m == 0.25
+    # --params alone picks its method
+    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "p.laz", "--params", params)
+    assert code == 0, err
+    assert fake.calls[-1]["params"].threshold_m == 3.5
+
+
+def test_default_method_is_the_constant(tmp_path, capsys, fake_methods, monkeypatch):
+    monkeypatch.setattr(methods, "DEFAULT_METHOD", "fake")
+    src = write_scene(tmp_path / "in.laz")
+    code, out, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz")
+    assert code == 0, err
+    assert ": fake, " in out and len(fake_methods["fake"].calls) == 1
+
+
+def test_tiling_returns_and_units_reach_the_method(tmp_path, capsys, fake_methods):
+    src = write_scene(tmp_path / "in.laz", returns=np.array([1, 2, 2, 1, 1, 2, 2, 2], np.uint8))
+    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz", "--method", "fake",
+                           "--tile-size", "250", "--buffer", "20", "--returns", "last", "--units", "ft")
+    assert code == 0, err
+    call = fake_methods["fake"].calls[-1]
+    assert (call["config"].tile_size_m, call["config"].buffer_m, call["returns"]) == (250.0, 20.0, "last")
+    assert call["cloud"].horizontal_unit_m == 0.3048
+    # first returns (0, 3, 4) are not filtered and keep their classes
+    classes = _classes(tmp_path / "out.laz")
+    np.testing.assert_array_equal(classes[[0, 3, 4]], SCENE_CLASSES[[0, 3, 4]])
+    assert classes[1] == 2 and classes[5] == 1
+
+
+def test_several_inputs_write_one_output_each(tmp_path, capsys, fake_methods):
+    (tmp_path / "in").mkdir()
+    (tmp_path / "out").mkdir()
+    for name in ("a.laz", "b.las"):
+        write_scene(tmp_path / "in" / name)
+    code, out, err = run_cli(capsys, "filter", str(tmp_path / "in" / "*.la?"), "-o", tmp_path / "out",
+                             "--method", "fake")
+    assert code == 0, err
+    assert sorted(os.listdir(tmp_path / "out")) == ["a.laz", "b.las"]
+    with laspy.open(tmp_path / "out" / "a.laz") as a, laspy.open(tmp_path / "out" / "b.las") as b:
+        assert a.header.are_points_compressed and not b.header.are_points_compressed
+
+
+def test_several_inputs_need_an_existing_folder(tmp_path, capsys, fake_methods):
+    for name in ("a.laz", "b.laz"):
+        write_scene(tmp_path / name)
+    code, _, err = run_cli(capsys, "filter", tmp_path / "a.laz", tmp_path / "b.laz", "-o", tmp_path / "new",
+                           "--method", "fake")
+    assert code == 2
+    assert "2 inputs need an existing output folder" in error_line(err)
+    assert not (tmp_path / "new").exists() and fake_methods["fake"].calls == []
+
+
+def test_same_name_in_two_folders_is_refused(tmp_path, capsys, fake_methods):
+    for folder in ("x", "y", "out"):
+        (tmp_path / folder).mkdir()
+    write_scene(tmp_path / "x" / "t.laz")
+    write_scene(tmp_path / "y" / "t.laz")
+    code, _, err = run_cli(capsys, "filter", tmp_path / "x", tmp_path / "y", "-o", tmp_path / "out",
+                           "--method", "fake")
+    assert code == 2 and "would both write it" in error_line(err)
+    assert os.listdir(tmp_path / "out") == []
+
+
+def test_instances_add_a_uint32_dimension(tmp_path, capsys, fake_methods):
+    src = write_scene(tmp_path / "in.laz")
+    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz", "--method", "fake_inst",
+                           "--instances")
+    assert code == 0, err
+    las = laspy.read(tmp_path / "out.laz")
+    assert "instance_id" in las.point_format.extra_dimension_names
+    assert las["instance_id"].dtype == np.uint32
+    np.testing.assert_array_equal(las["instance_id"], np.arange(8) % 3)
+    assert "instance_id" not in laspy.read(src).point_format.extra_dimension_names
+
+
+def test_instances_from_a_method_without_them(tmp_path, capsys, fake_methods):
+    src = write_scene(tmp_path / "in.laz")
+    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz", "--method", "fake", "--instances")
+    assert code == 2
+    assert error_line(err) == "gfjax: error: --instances: method fake gives no instance ids"
+    assert sorted(os.listdir(tmp_path)) == ["in.laz"]
+
+
+def test_dtm_option_writes_a_geotiff_with_the_crs(tmp_path, capsys, fake_methods):
+    pytest.importorskip("gfjax.dtm")
+    rasterio = pytest.importorskip("rasterio")
+    src = write_scene(tmp_path / "in.laz")
+    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz", "--method", "fake",
+                           "--dtm", tmp_path / "dtm.tif", "--cell", "2")
+    assert code == 0, err
+    with rasterio.open(tmp_path / "dtm.tif") as dtm:
+        assert dtm.crs.to_epsg() == 32632
+        assert dtm.res == (2.0, 2.0)
+
+
+def test_unknown_method_and_missing_package(tmp_path, capsys, monkeypatch):
+    src = write_scene(tmp_path / "in.laz")
+    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz", "--method", "nosuch")
+    assert code == 2 and "--method: unknown method 'nosuch'" in error_line(err)
+    monkeypatch.setitem(methods.METHODS, "ghost", "gfjax._no_such_method_package")
+    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz", "--method", "ghost")
+    assert code == 2 and "method 'ghost' is not available" in error_line(err)
+    assert sorted(os.listdir(tmp_path)) == ["in.laz"]
+
+
+def test_input_spelled_differently_is_not_overwritten(tmp_path, capsys, fake_methods, monkeypatch):
+    src = write_scene(tmp_path / "in.laz")
+    before = src.read_bytes()
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_cli(capsys, "filter", "in.laz", "-o", tmp_path / "." / "in.laz", "--method", "fake")
+    assert code == 2 and "is an input file; pass --force" in error_line(err)
+    assert src.read_bytes() == before and fake_methods["fake"].calls == []
+    code, _, err = run_cli(capsys, "filter", "in.laz", "-o", "in.laz", "--method", "fake", "--force")
+    assert code == 0, err
+    assert src.read_bytes() != before and sorted(os.listdir(tmp_path)) == ["in.laz"]
