@@ -1,0 +1,167 @@
+"""`gfjax info`, `gfjax dtm`, `gfjax eval`, and the dispatch of `main`."""
+from __future__ import annotations
+
+import json
+import os
+
+import laspy
+import numpy as np
+import pytest
+from cli_helpers import (SCENE_CLASSES, error_line, fake_methods, no_compilation_cache,  # noqa: F401
+                         run_cli, write_scene)
+from conftest import shared_file
+
+from gfjax.cli import eval as eval_cli
+from gfjax.cli import info as info_cli
+from gfjax.cli import main as cli_main
+from gfjax.io import las as las_io
+
+# ---------------------------------------------------------------- info
+
+
+def test_info_summary_of_a_scene(tmp_path, capsys):
+    src = write_scene(tmp_path / "in.laz")
+    summary = info_cli.summarize(las_io.read(src))
+    assert (summary["version"], summary["point_format"], summary["point_count"]) == ("1.4", 6, 8)
+    assert summary["epsg"] == 32632 and summary["horizontal_unit_m"] == 1.0
+    counts = {int(code): entry["count"] for code, entry in summary["classes"].items()}
+    assert counts == {int(c): int(k) for c, k in zip(*np.unique(SCENE_CLASSES, return_counts=True))}
+    assert summary["classes"]["2"]["name"] == "ground" and summary["ignored_points"] == 1
+    code, out, err = run_cli(capsys, "info", src)
+    assert code == 0, err
+    assert "LAS 1.4, point format 6 (LAZ), 8 points" in out
+    assert "WGS 84 / UTM zone 32N (EPSG:32632)" in out
+    assert "2  ground" in out and "7  low point (noise)" in out
+
+
+def test_info_says_metres_are_assumed_without_crs(tmp_path, capsys):
+    src = write_scene(tmp_path / "nocrs.las", crs=None)
+    code, out, _ = run_cli(capsys, "info", src)
+    assert code == 0
+    assert "CRS         none" in out and "no CRS in file: metres assumed" in out
+
+
+def test_info_json_of_several_files(tmp_path, capsys):
+    for name in ("a.laz", "b.laz"):
+        write_scene(tmp_path / name)
+    code, out, _ = run_cli(capsys, "info", tmp_path, "--json", "--units", "us-ft")
+    assert code == 0
+    summaries = json.loads(out)
+    assert [os.path.basename(s["path"]) for s in summaries] == ["a.laz", "b.laz"]
+    assert summaries[0]["vertical_unit_m"] == 1200 / 3937
+
+
+@pytest.mark.data
+def test_info_autzen_feet(capsys):
+    code, out, _ = run_cli(capsys, "info", shared_file("pdal_autzen/autzen_trim.laz"))
+    assert code == 0
+    assert "horizontal international foot (0.3048 m), vertical international foot (0.3048 m)" in out
+    assert "110,000 points" in out
+
+
+# ---------------------------------------------------------------- dtm
+
+
+@pytest.mark.data
+def test_dtm_of_isprs_sample_has_epsg_32632(tmp_path, capsys, isprs_sample):
+    pytest.importorskip("gfjax.dtm")
+    rasterio = pytest.importorskip("rasterio")
+    code, out, err = run_cli(capsys, "dtm", isprs_sample("samp24"), "-o", tmp_path / "dtm.tif", "--cell", "1",
+                             "--hillshade", tmp_path / "hs.png")
+    assert code == 0, err
+    with rasterio.open(tmp_path / "dtm.tif") as dtm:
+        assert dtm.crs.to_epsg() == 32632 and dtm.res == (1.0, 1.0) and dtm.nodata == -9999
+    assert (tmp_path / "hs.png").stat().st_size > 0
+    assert sorted(os.listdir(tmp_path)) == ["dtm.tif", "hs.png"]
+
+
+def test_dtm_without_ground_points(tmp_path, capsys):
+    pytest.importorskip("gfjax.dtm")
+    src = write_scene(tmp_path / "in.laz")
+    code, _, err = run_cli(capsys, "dtm", src, "-o", tmp_path / "d.tif", "--ground-class", "9")
+    assert code == 2 and "no ground points" in error_line(err)
+    assert sorted(os.listdir(tmp_path)) == ["in.laz"]
+
+
+# ---------------------------------------------------------------- eval
+
+
+def _relabelled(src, path, classes, order=None):
+    las = laspy.read(src)
+    las.classification = classes
+    if order is not None:
+        las.points = las.points[order]
+    las.write(path)
+    return path
+
+
+def test_eval_against_reference_in_same_and_shuffled_order(tmp_path, capsys):
+    ref = write_scene(tmp_path / "ref.laz")
+    pred_classes = SCENE_CLASSES.copy()
+    pred_classes[[0, 3]] = [1, 2]  # one ground missed (fn), one vegetation taken as ground (fp)
+    same = _relabelled(ref, tmp_path / "same.laz", pred_classes)
+    shuffled = _relabelled(ref, tmp_path / "shuffled.laz", pred_classes, order=np.arange(8)[::-1].copy())
+    code, out, err = run_cli(capsys, "eval", same, shuffled, "--reference", ref, ref,
+                             "--json", tmp_path / "m.json")
+    assert code == 0, err
+    assert "shuffled.laz: point order differs: matched on exact scaled integer XYZ" in out
+    document = json.loads((tmp_path / "m.json").read_text())
+    for record in document["files"]:
+        m = record["metrics"]
+        # 7 scored points (the noise point is not scored); reference ground: 0, 1, 5
+        assert (m["tp"], m["fp"], m["fn"], m["tn"], m["n_points"]) == (2, 1, 1, 3, 7)
+        assert m["total_error"] == pytest.approx(2 / 7)
+    assert document["mean"]["total_error"] == pytest.approx(2 / 7)
+    assert "mean (unweighted)" in out
+
+
+def test_eval_runs_a_method_against_own_labels(tmp_path, capsys, fake_methods):
+    src = write_scene(tmp_path / "in.laz")
+    code, out, err = run_cli(capsys, "eval", src, "--method", "fake", "--reference-class", "2")
+    assert code == 0, err
+    assert "scored method fake against their own labels" in out
+    # fake ground 0, 1, 2, 7 vs reference ground 0, 1, 5: tp 2, fp 2, fn 1, tn 2 (noise unscored)
+    row = [line for line in out.splitlines() if line.startswith("in.laz")][0]
+    assert "57.14%" in row and "42.86%" in row  # OA 4/7, total error 3/7
+
+
+def test_match_points_refuses_other_points(tmp_path):
+    ref = las_io.read(write_scene(tmp_path / "ref.laz"))
+    las = laspy.read(tmp_path / "ref.laz")
+    las.z = las.z + 0.01
+    las.write(tmp_path / "moved.laz")
+    with pytest.raises(las_io.InputError, match="not the same XYZ positions"):
+        eval_cli.match_points(las_io.read(tmp_path / "moved.laz"), ref)
+    index, note = eval_cli.match_points(ref, ref)
+    assert index is None and note == "same point order"
+
+
+# ---------------------------------------------------------------- dispatch
+
+
+def test_help_lists_present_commands_and_version(capsys):
+    code, out, _ = run_cli(capsys, "--help")
+    assert code == 0
+    for name in ("info", "filter", "dtm", "eval", "demo"):
+        assert name in out
+    code, out, _ = run_cli(capsys, "--version")
+    assert code == 0 and out.startswith("gfjax ")
+
+
+def test_missing_subcommand_module(capsys, monkeypatch):
+    monkeypatch.setitem(cli_main.SUBCOMMANDS, "ghost", "a command whose module is not installed")
+    monkeypatch.setattr(cli_main, "ALWAYS_LISTED", ("demo", "ghost"))
+    code, _, err = run_cli(capsys, "ghost")
+    assert code == 2 and error_line(err) == "gfjax: error: ghost: not available in this build"
+    monkeypatch.setattr(cli_main, "ALWAYS_LISTED", ())
+    code, out, _ = run_cli(capsys, "--help")
+    assert code == 0 and "ghost" not in out
+
+
+def test_only_the_requested_command_is_imported(monkeypatch):
+    imported = []
+    real = cli_main._import_command
+    monkeypatch.setattr(cli_main, "_import_command", lambda name: imported.append(name) or real(name))
+    parser, module = cli_main.build_parser(["--debug", "info", "x.laz"])
+    assert imported == ["info"] and module.__name__ == "gfjax.cli.info"
+    assert parser.parse_args(["info", "x.laz", "--debug"]).debug is True
