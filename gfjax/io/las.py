@@ -141,7 +141,7 @@ def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None)
             compressed = reader.header.are_points_compressed
             las = reader.read()
     except (laspy.errors.LaspyException, RuntimeError, OSError, ValueError, EOFError) as err:
-        if compressed_name(path):
+        if _is_compressed(path):
             raise InputError(f"{path}: truncated or corrupt LAZ data (decompression failed: {err})") from None
         raise InputError(f"{path}: truncated or corrupt LAS data ({err})") from None
     expected = las.header.point_count
@@ -154,7 +154,7 @@ def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None)
                  vertical_unit_m=units_found.vertical_m, crs=crs, units_source=units_found.source)
 
 
-def compressed_name(path: Path) -> bool:
+def _is_compressed(path: Path) -> bool:
     """True when `path` holds compressed points (LAZ), judged from its header bits or suffix."""
     try:
         with laspy.open(path, laz_backend=LAZ_BACKENDS, read_evlrs=False) as reader:
