@@ -1,0 +1,158 @@
+"""Nearest and harmonic inpainting (brute force / sparse direct solve) and hole filling (scipy)."""
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import reference
+import scipy.ndimage as ndi
+from reference import Case
+
+from gfjax import raster
+
+CASES = [
+    Case("random", (32, 24), valid_fraction=0.6),
+    Case("sparse", (32, 24), valid_fraction=0.03),
+    Case("all_empty", (8, 8), valid_fraction=0.0),
+    Case("all_full", (8, 8), valid_fraction=1.0),
+    Case("one_row", (1, 33), valid_fraction=0.15),
+    Case("one_column", (33, 1), valid_fraction=0.15),
+    Case("one_cell", (1, 1), valid_fraction=1.0),
+]
+
+
+def _gap_case():
+    """Valid cells with a large rectangular gap and a gap touching the border."""
+    z, valid = reference.random_raster(Case("gap", (32, 24), valid_fraction=0.8), seed=7)
+    valid[6:26, 4:20] = False
+    valid[:, -3:] = False
+    return z, valid
+
+
+@functools.cache
+def jitted():
+    def fn(z, valid):
+        index, dist2 = raster.nearest_valid_index(valid)
+        return index, dist2, raster.inpaint_nearest(z, valid), raster.inpaint_harmonic(z, valid, tol_m=1e-6)
+    return jax.jit(fn)
+
+
+@pytest.mark.parametrize("case", CASES, ids=str)
+def test_nearest_matches_brute_force(case):
+    z, valid = reference.random_raster(case, seed=0)
+    index, dist2, filled, _ = jitted()(z, valid)
+    want_index, want_dist2 = reference.nearest_index(valid)
+    np.testing.assert_array_equal(np.asarray(index), want_index)
+    np.testing.assert_array_equal(np.asarray(dist2), want_dist2)
+    want = z.ravel()[want_index] if valid.any() else np.zeros_like(z)
+    np.testing.assert_array_equal(np.asarray(filled), want.reshape(z.shape))
+
+
+def test_nearest_distance_matches_scipy_edt():
+    z, valid = _gap_case()
+    _, dist2, filled, _ = jitted()(z, valid)
+    np.testing.assert_allclose(np.sqrt(np.asarray(dist2)), ndi.distance_transform_edt(~valid), rtol=1e-12)
+    np.testing.assert_array_equal(np.asarray(filled)[valid], z[valid])
+
+
+@pytest.mark.parametrize("case", CASES + [Case("gap", (32, 24))], ids=str)
+def test_harmonic_matches_sparse_solve(case):
+    z, valid = _gap_case() if case.name == "gap" else reference.random_raster(case, seed=1)
+    got = np.asarray(jitted()(z, valid)[3])
+    want = reference.harmonic(z, valid)
+    np.testing.assert_array_equal(got[valid], z[valid])
+    np.testing.assert_allclose(got, want, atol=1e-3, rtol=0)     # float32 SOR, tol 1e-6 m per sweep
+
+
+def test_harmonic_stays_within_valid_range():
+    """Maximum principle: the harmonic fill never leaves [min, max] of the data."""
+    z, valid = _gap_case()
+    got = np.asarray(jitted()(z, valid)[3])
+    assert got.min() >= z[valid].min() - 1e-4 and got.max() <= z[valid].max() + 1e-4
+
+
+def test_harmonic_reproduces_a_plane_in_one_direction():
+    """A surface linear along columns with full valid rows at top and bottom: exact plane."""
+    h, w = 20, 16
+    z = np.broadcast_to((np.arange(h, dtype=np.float32) * 0.5)[:, None], (h, w)).copy()
+    valid = np.zeros((h, w), bool)
+    valid[0], valid[-1] = True, True
+    got = np.asarray(raster.inpaint_harmonic(jnp.asarray(z), jnp.asarray(valid), tol_m=1e-7))
+    np.testing.assert_allclose(got, z, atol=1e-3)
+
+
+@pytest.mark.parametrize("case", [CASES[1]], ids=str)
+def test_jit_equals_eager(case):
+    z, valid = reference.random_raster(case, seed=2)
+    zj, vj = jnp.asarray(z), jnp.asarray(valid)
+    eager = (*raster.nearest_valid_index(vj), raster.inpaint_nearest(zj, vj), raster.inpaint_harmonic(zj, vj, tol_m=1e-6))
+    for got, want in zip(jitted()(z, valid), eager):
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-6, atol=1e-6)
+
+
+def test_vmap_equals_loop():
+    tiles = [reference.random_raster(Case("random", (32, 24), valid_fraction=f), seed=s)
+             for s, f in enumerate((0.6, 0.03, 0.0))]
+    z, valid = (np.stack(x) for x in zip(*tiles))
+    fn = jitted()
+    batched = jax.jit(jax.vmap(fn))(z, valid)
+    for b in range(len(tiles)):
+        for got, want in zip(batched, fn(z[b], valid[b])):
+            # harmonic: vmap runs every tile for the most sweeps any needs; both are within the
+            # solver's tolerance of the exact solution (test_harmonic_matches_sparse_solve)
+            np.testing.assert_allclose(np.asarray(got[b]), np.asarray(want), atol=1e-3, rtol=0)
+
+
+def test_nearest_padding_never_changes_valid_cells():
+    """Empty cells added south and east (a vmap bucket) change no original cell's nearest value."""
+    z, valid = reference.random_raster(CASES[1], seed=3)
+    zp = np.zeros((40, 40), np.float32)
+    vp = np.zeros((40, 40), bool)
+    zp[:32, :24], vp[:32, :24] = z, valid
+    small = np.asarray(raster.inpaint_nearest(jnp.asarray(z), jnp.asarray(valid)))
+    big = np.asarray(raster.inpaint_nearest(jnp.asarray(zp), jnp.asarray(vp)))
+    np.testing.assert_array_equal(big[:32, :24], small)
+
+
+def _annulus():
+    m = np.zeros((16, 16), bool)
+    m[2:12, 2:12] = True
+    m[4:10, 4:10] = False
+    m[6, 6] = True                                                # an island inside the hole
+    m[13:16, 0:5] = True
+    m[14, 1:4] = False                                            # a hole in a block on the border
+    m[0:3, 12:16] = True
+    m[0, 13:15] = False                                           # a notch open to the border: no hole
+    return m
+
+
+HOLE_MASKS = {
+    "random": np.random.default_rng(0).random((32, 24)) < 0.6,
+    "random_dense": np.random.default_rng(1).random((32, 24)) < 0.75,
+    "annulus": _annulus(),
+    "diagonal_leak": np.eye(8, dtype=bool) | np.eye(8, dtype=bool)[::-1],
+    "all_empty": np.zeros((8, 8), bool),
+    "all_full": np.ones((8, 8), bool),
+    "one_row": np.random.default_rng(2).random((1, 33)) < 0.5,
+}
+
+
+@pytest.mark.parametrize("connectivity", [4, 8])
+@pytest.mark.parametrize("name", HOLE_MASKS)
+def test_fill_holes_matches_scipy(name, connectivity):
+    mask = HOLE_MASKS[name]
+    fn = jax.jit(functools.partial(raster.fill_holes, connectivity=connectivity))
+    expected = ndi.binary_fill_holes(mask, structure=reference.structure(connectivity))
+    np.testing.assert_array_equal(np.asarray(fn(mask)), expected)
+    batched = jax.vmap(fn)(np.stack([mask, ~mask]))
+    np.testing.assert_array_equal(np.asarray(batched[1]), np.asarray(fn(~mask)))
+
+
+def test_bad_shapes():
+    with pytest.raises(ValueError, match="shape"):
+        raster.inpaint_nearest(jnp.zeros((3, 3)), jnp.zeros((3, 4), bool))
+    with pytest.raises(ValueError, match="shape"):
+        raster.inpaint_harmonic(jnp.zeros((3, 3)), jnp.zeros((3, 4), bool))
