@@ -90,7 +90,12 @@ def _is_scalar_array(value: Any) -> bool:
 
 
 def _as_field_value(value: Any, current: Any) -> Any:
-    """A parsed value in the type of the field it replaces (float32 scalar arrays stay so)."""
+    """A parsed value in the type of the field it replaces (float32 scalar arrays stay so;
+    a whole float from a params.json becomes an int for an int field)."""
+    if isinstance(current, int) and not isinstance(current, bool) and isinstance(value, float):
+        if not value.is_integer():
+            raise ValueError(f"expected an integer, got {value}")
+        return int(value)
     if _is_scalar_array(current) and not isinstance(current, (bool, int, float)):
         import jax.numpy as jnp
 
@@ -139,9 +144,9 @@ def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | No
                 raise InputError(f"{source}: unknown key {key!r} for method {method_name}; known keys: {known}")
             try:
                 value = _parse_value(raw, current) if isinstance(raw, str) else raw
+                updates[key] = _as_field_value(value, current)
             except ValueError as err:
                 raise InputError(f"{source} {key}={raw}: {err}") from None
-            updates[key] = _as_field_value(value, current)
             source_of[key] = source
     try:
         if config_updates:
