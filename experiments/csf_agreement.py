@@ -1,0 +1,118 @@
+"""gfjax CSF against the `cloth-simulation-filter` package: label agreement, accuracy, speed.
+
+For each file: the package (single-threaded: `OMP_NUM_THREADS=1`, set before it is imported)
+and `gfjax.csf.filter` run on the same points (`cloud.filter_mask()`, metres) with the same
+parameters (the package's defaults: 1 m cloth, rigidness 3, time step 0.65, threshold 0.5 m,
+500 iterations, slope smoothing on). Reported per file: agreement (share of points with the
+same label), total error / kappa of each against the reference classes (ASPRS 2 = ground),
+filter times (gfjax: after one warm-up call, compile time apart), gfjax's simulation steps.
+
+Usage:
+  nice .venv/bin/python experiments/csf_agreement.py [FILES...] [--json OUT]
+Default files: the 11 ISPRS samples and lasR_bcts/bcts_1.laz of ../shared/data. Results:
+`experiments/results/csf_agreement.json` and `.md`.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+import gfjax  # noqa: E402
+from gfjax import csf  # noqa: E402
+from gfjax.metrics import point_metrics  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+ISPRS = sorted((DATA / "isprs_filtertest" / "reference").glob("samp*-utm.laz"))
+DEFAULT_FILES = [*ISPRS, DATA / "lasR_bcts" / "bcts_1.laz"]
+
+
+def run_package(xyz: np.ndarray) -> tuple[np.ndarray, float]:
+    """Ground labels and filter time of `cloth-simulation-filter` with its defaults."""
+    import CSF  # noqa: N811 (the package's module name)
+    cloth = CSF.CSF()
+    cloth.params.bSloopSmooth = True
+    cloth.params.cloth_resolution = 1.0
+    cloth.params.rigidness = 3
+    cloth.params.time_step = 0.65
+    cloth.params.class_threshold = 0.5
+    cloth.params.interations = 500
+    cloth.setPointCloud(np.ascontiguousarray(xyz, np.float64))
+    ground, off = CSF.VecInt(), CSF.VecInt()
+    t0 = time.perf_counter()
+    cloth.do_filtering(ground, off, False)
+    seconds = time.perf_counter() - t0
+    labels = np.zeros(len(xyz), bool)
+    labels[np.asarray(ground, np.int64)] = True
+    return labels, seconds
+
+
+def run_gfjax(cloud) -> tuple[np.ndarray, float, float, int]:
+    """Labels, compile time and filter time (second call) of `gfjax.csf.filter`."""
+    t0 = time.perf_counter()
+    result = csf.filter(cloud)
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    result = csf.filter(cloud)
+    seconds = time.perf_counter() - t0
+    return result.ground, max(first - seconds, 0.0), seconds, result.diagnostics.steps
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("files", nargs="*", type=Path, default=DEFAULT_FILES)
+    parser.add_argument("--json", type=Path, default=ROOT / "experiments" / "results" / "csf_agreement.json")
+    args = parser.parse_args(argv)
+    rows = []
+    for path in args.files:
+        cloud = gfjax.read(path)
+        use = cloud.filter_mask()
+        ref = cloud.classification == 2
+        pkg, pkg_s = run_package(cloud.xyz_m[use])
+        ours, compile_s, ours_s, steps = run_gfjax(cloud)
+        ours = ours[use]
+        m_pkg = point_metrics(pkg, ref[use])
+        m_ours = point_metrics(ours, ref[use])
+        row = {"file": path.name, "n_points": int(use.sum()), "agreement": float(np.mean(pkg == ours)),
+               "te_package": m_pkg["total_error"], "te_gfjax": m_ours["total_error"],
+               "kappa_package": m_pkg["kappa"], "kappa_gfjax": m_ours["kappa"],
+               "time_package_s": pkg_s, "time_gfjax_s": ours_s, "compile_gfjax_s": compile_s,
+               "time_ratio": ours_s / pkg_s, "steps_gfjax": steps}
+        rows.append(row)
+        print(f"{row['file']:16s} n={row['n_points']:7d} agree={row['agreement']:.4f} "
+              f"TE pkg={row['te_package']:.4f} gfjax={row['te_gfjax']:.4f} "
+              f"t pkg={pkg_s:.3f}s gfjax={ours_s:.3f}s (x{row['time_ratio']:.2f}) "
+              f"compile={compile_s:.1f}s steps={steps}", flush=True)
+    isprs = [r for r in rows if r["file"].startswith("samp")]
+    summary = {
+        "mean_agreement": float(np.mean([r["agreement"] for r in rows])),
+        "min_agreement": float(np.min([r["agreement"] for r in rows])),
+        "mean_te_package_isprs": float(np.mean([r["te_package"] for r in isprs])) if isprs else None,
+        "mean_te_gfjax_isprs": float(np.mean([r["te_gfjax"] for r in isprs])) if isprs else None,
+        "total_time_package_s": float(np.sum([r["time_package_s"] for r in rows])),
+        "total_time_gfjax_s": float(np.sum([r["time_gfjax_s"] for r in rows])),
+        "max_time_ratio": float(np.max([r["time_ratio"] for r in rows])),
+    }
+    env = {"command": "nice .venv/bin/python " + " ".join(["experiments/csf_agreement.py", *(argv or sys.argv[1:])]),
+           "jax": jax.__version__, "device": str(jax.devices()[0]), "cpu_count": os.cpu_count(),
+           "platform": platform.platform(), "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
+           "config": str(csf.Config()), "params": {k: float(v) for k, v in vars(csf.Params()).items()}}
+    print(json.dumps(summary, indent=1))
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps({"environment": env, "summary": summary, "files": rows}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,14 @@
+"""CSF, the cloth simulation filter (Zhang et al. 2016), as a jitted JAX particle simulation.
+
+```python
+import gfjax
+result = gfjax.csf.filter(gfjax.read("tile.laz"))        # cloth-simulation-filter defaults
+result = gfjax.csf.filter(cloud, config=gfjax.csf.Config(rigidness=1),
+                          params=gfjax.csf.Params(class_threshold_m=0.3))
+```
+"""
+from gfjax.csf.config import PRESETS, Config, Params
+from gfjax.csf.filter import CSFDiagnostics, Diagnostics, classify_points, filter, grid_shape
+
+__all__ = ["filter", "Config", "Params", "PRESETS", "classify_points", "grid_shape", "Diagnostics",
+           "CSFDiagnostics"]

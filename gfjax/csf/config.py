@@ -1,0 +1,116 @@
+"""CSF static configuration and traced parameters (Zhang et al. 2016).
+
+Defaults are those of the `cloth-simulation-filter` package (`CSF::CSF()` in its `CSF.cpp`):
+cloth resolution 1 m, rigidness 3, time step 0.65, class threshold 0.5 m, 500 iterations,
+slope smoothing (`bSloopSmooth`) on. The constants the package hard-codes are module constants
+here, with the source line they come from.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+__all__ = ["Config", "Params", "PRESETS", "GRAVITY", "DAMPING", "CLOTH_START_M", "BUFFER_PX",
+           "STOP_DISPLACEMENT_M", "SMOOTH_THRESHOLD_M", "MIN_SMOOTH_COMPONENT", "single_move",
+           "double_move"]
+
+GRAVITY = 0.2                 # CSF.cpp: `double gravity = 0.2` [cloth units per step^2]
+DAMPING = 0.01                # Particle.h: `#define DAMPING 0.01` (Verlet velocity damping)
+CLOTH_START_M = 0.05          # CSF.cpp: `cloth_y_height = 0.05` above the highest inverted point
+BUFFER_PX = 2                 # CSF.cpp: `clothbuffer_d = 2` particles around the bounding box
+STOP_DISPLACEMENT_M = 0.005   # CSF.cpp: stop when 0 < max particle displacement < 0.005
+SMOOTH_THRESHOLD_M = 0.3      # CSF.cpp: `Cloth(..., 0.3, 9999, ...)`, smoothThreshold
+MIN_SMOOTH_COMPONENT = 50     # Cloth.h: MAX_PARTICLE_FOR_POSTPROCESSIN (components > 50)
+
+
+# Particle.h, `singleMove1` / `doubleMove1`: `rigidness` relaxations of 0.3 each folded into
+# one move, s_k = s_{k-1} + 0.3 (1 - s_{k-1}) = 1 - 0.7**k and d_k = d_{k-1} + 0.3 (1 - 2 d_{k-1})
+# = (1 - 0.4**k) / 2, as the package tabulates them (rounded to 4-5 digits).
+_SINGLE_MOVE = (0, 0.3, 0.51, 0.657, 0.7599, 0.83193, 0.88235, 0.91765, 0.94235, 0.95965, 0.97175,
+                0.98023, 0.98616, 0.99031, 0.99322)
+_DOUBLE_MOVE = (0, 0.3, 0.42, 0.468, 0.4872, 0.4949, 0.498, 0.4992, 0.4997, 0.4999, 0.4999, 0.5,
+                0.5, 0.5, 0.5)
+
+
+def single_move(rigidness: int) -> float:
+    """Fraction of a spring's height gap a movable particle closes toward a fixed neighbour."""
+    return 1.0 if rigidness > 14 else _SINGLE_MOVE[rigidness]
+
+
+def double_move(rigidness: int) -> float:
+    """Fraction of the gap each of two movable particles moves toward the other."""
+    return 0.5 if rigidness > 14 else _DOUBLE_MOVE[rigidness]
+
+
+def _f32(value) -> Float[Array, ""]:
+    return jnp.asarray(value, dtype=jnp.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Static CSF settings (hashable: a `static_argnames` value).
+
+    Attributes:
+      cell_m: cloth resolution, the particle spacing [m] (`cloth_resolution`).
+      rigidness: spring relaxations per step, 1..3 in the paper (`rigidness`); sets the
+        fractions `single_move` / `double_move` of Particle.h.
+      iterations: cap on simulation steps (`interations`); the loop also stops as soon as the
+        largest movable-particle displacement of a step is in (0, 0.005) m, as the package does.
+      slope_smooth: post-process movable particles next to fixed ones (`bSloopSmooth`).
+      wavefront_skew: the spring sweep runs in wavefronts `i + skew * j` (`cloth.wavefront_sweep`);
+        4 reproduces the package's sequential sweep exactly, smaller values are faster and
+        approximate.
+      scan_unroll: unroll factor of the sweep's scan (speed only; results are identical).
+    """
+
+    cell_m: float = 1.0
+    rigidness: int = 3
+    iterations: int = 500
+    slope_smooth: bool = True
+    wavefront_skew: int = 4
+    scan_unroll: int = 2
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.cell_m, (int, float)) and math.isfinite(self.cell_m) and self.cell_m > 0):
+            raise ValueError(f"cell_m must be finite and > 0, got {self.cell_m!r}")
+        for name, low in (("rigidness", 1), ("iterations", 1), ("scan_unroll", 1), ("wavefront_skew", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+        if not isinstance(self.slope_smooth, bool):
+            raise ValueError(f"slope_smooth must be a bool, got {self.slope_smooth!r}")
+
+
+class Params(eqx.Module):
+    """Traced CSF scalars (float32; optax may tune them).
+
+    Attributes:
+      class_threshold_m: a point is ground when its height above the cloth is below this [m]
+        (`class_threshold`; c2cdist.cpp).
+      time_step: simulation time step (`time_step`); gravity moves a free particle by
+        `GRAVITY * time_step**4` per step (the package scales by `time_step**2` twice: once in
+        `addForce`, once in the Verlet update).
+    """
+
+    class_threshold_m: Float[Array, ""] = eqx.field(default=0.5, converter=_f32)
+    time_step: Float[Array, ""] = eqx.field(default=0.65, converter=_f32)
+
+    def check(self) -> None:
+        """Range checks on concrete values (call outside jit): raises ValueError naming the key."""
+        for name in ("class_threshold_m", "time_step"):
+            value = float(getattr(self, name))
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {value}")
+
+
+# Scene presets of the CSF paper / CloudCompare plugin (Zhang et al. 2016, Sec. 3): steep
+# slopes want a soft cloth, flat urban scenes a stiff one.
+PRESETS: dict[str, dict[str, float | int | bool]] = {
+    "steep": {"rigidness": 1, "cell_m": 0.5},
+    "relief": {"rigidness": 2},
+    "flat": {"rigidness": 3},
+}
