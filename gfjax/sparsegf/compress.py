@@ -29,9 +29,8 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 from jaxtyping import Array, Bool, Float
-
-from gfjax._types import PointMask, Points
 
 R_OO_M = 150.0                   # outer original radius R_oo [m] (Sec. 3.3)
 R_OC_M = 44.0                    # outer compressed radius R_oc [m] (Sec. 3.3)
@@ -66,9 +65,9 @@ def _check_radii(r_in, r_oc, r_oo) -> None:
                          f"r_oc={r_oc}, r_oo={r_oo}")
 
 
-def compress(xyz: Points, center: Float[Array, "2"], *, r_in: float = R_IN_M,
-             r_oc: float = R_OC_M, r_oo: float = R_OO_M,
-             valid: PointMask | None = None) -> Compressed:
+def compress(xyz: Float[ArrayLike, "n 3"], center: Float[ArrayLike, "2"], *,
+             r_in: float | Float[Array, ""] = R_IN_M, r_oc: float | Float[Array, ""] = R_OC_M,
+             r_oo: float | Float[Array, ""] = R_OO_M, valid: Bool[ArrayLike, " n"] | None = None) -> Compressed:
     """Compress the periphery of one cylindrical patch towards its axis (Eqs. 1-3).
 
     Args:
@@ -94,6 +93,8 @@ def compress(xyz: Points, center: Float[Array, "2"], *, r_in: float = R_IN_M,
     on the circle `r = r_in` (where jax.grad returns the inside, identity, derivative).
     One patch per call; batch with `jax.vmap(compress)`. Works under `jax.jit`.
     """
+    xyz, center = jnp.asarray(xyz), jnp.asarray(center)
+    valid = None if valid is None else jnp.asarray(valid)
     if xyz.ndim != 2 or xyz.shape[-1] != 3:
         raise ValueError(f"compress: xyz must have shape (n, 3), got {xyz.shape}")
     if center.shape != (2,):

@@ -26,6 +26,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 from jaxtyping import Array, Bool, Float, Int
 
 HAG_WEIGHTS = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0)   # w_c per HAG bin, linear 1..6 (Sec. 3.3)
@@ -51,10 +52,11 @@ def _masked_nll(logits, target, mask):
     return jnp.where(mask, nll, 0.0)
 
 
-def height_aware_loss(logits_cls: Float[Array, "*n 2"], logits_hag: Float[Array, "*n c"],
-                      labels: Int[Array, "*n"], hag_bins: Int[Array, "*n"],
-                      central_mask: Bool[Array, "*n"], *,
-                      weights: tuple[float, ...] = HAG_WEIGHTS, lam: float = LAMBDA) -> HeightAwareLoss:
+def height_aware_loss(logits_cls: Float[ArrayLike, "*n 2"], logits_hag: Float[ArrayLike, "*n c"],
+                      labels: Int[ArrayLike, "*n"], hag_bins: Int[ArrayLike, "*n"],
+                      central_mask: Bool[ArrayLike, "*n"], *,
+                      weights: tuple[float, ...] = HAG_WEIGHTS,
+                      lam: float | Float[Array, ""] = LAMBDA) -> HeightAwareLoss:
     """Height-aware loss of a patch (or a batch) of central points (Eqs. 4-5).
 
     Args:
@@ -71,6 +73,8 @@ def height_aware_loss(logits_cls: Float[Array, "*n 2"], logits_hag: Float[Array,
       `HeightAwareLoss(total, cls, hag, n_central)`, float32 scalars; all 0 when no point is
       central. Jit-able; `jax.grad(lambda l: height_aware_loss(l, ...).total)` works.
     """
+    logits_cls, logits_hag, labels, hag_bins, central_mask = (
+        jnp.asarray(a) for a in (logits_cls, logits_hag, labels, hag_bins, central_mask))
     shape = central_mask.shape
     if labels.shape != shape or hag_bins.shape != shape:
         raise ValueError(f"height_aware_loss: labels {labels.shape} and hag_bins {hag_bins.shape} "

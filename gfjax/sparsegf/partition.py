@@ -153,6 +153,8 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None) -> Parti
         raise InputError("partition: xyz_m has non-finite x or y")
     if len(xy) == 0:
         return Partition(np.zeros((0, 2)), np.zeros(0, np.int64), (), config)
+    if len(xy) >= 2 ** 31:
+        raise InputError(f"partition: {len(xy)} points do not fit int32 indices; tile the cloud first")
 
     step = config.step_m
     centers, (ny, nx), origin = grid_centers(xy.min(axis=0), xy.max(axis=0), step)
@@ -182,6 +184,7 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None) -> Parti
         kept.append(cell)
         members.append(np.sort(cand[r_sq <= r_oo_sq]).astype(np.int32))
 
+    centers = centers[kept]
     n_points = np.array([len(m) for m in members], dtype=np.int64)
     caps = np.array([capacity_bucket(int(n), min_capacity=config.min_capacity) for n in n_points])
     batches = []
@@ -190,6 +193,6 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None) -> Parti
         index = np.full((len(ids), int(cap)), -1, dtype=np.int32)
         for row, pid in enumerate(ids):
             index[row, :n_points[pid]] = members[pid]
-        batches.append(PatchBatch(patch_id=ids.astype(np.int32), center_m=centers[kept][ids],
+        batches.append(PatchBatch(patch_id=ids.astype(np.int32), center_m=centers[ids],
                                   index=index, valid=index >= 0))
-    return Partition(centers_m=centers[kept], n_points=n_points, batches=tuple(batches), config=config)
+    return Partition(centers_m=centers, n_points=n_points, batches=tuple(batches), config=config)

@@ -20,6 +20,8 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax.typing import ArrayLike
 from jaxtyping import Array, Bool, Float, Int
 
 UNCOVERED = -1   # label of a point that no patch classified
@@ -41,8 +43,8 @@ class Vote(NamedTuple):
     label: Int[Array, " n"]
 
 
-def soft_vote(point_index: Int[Array, "*v"], prob_ground: Float[Array, "*v"], n_points: int, *,
-              mask: Bool[Array, "*v"] | None = None) -> Vote:
+def soft_vote(point_index: Int[ArrayLike, "*v"], prob_ground: Float[ArrayLike, "*v"], n_points: int | np.integer, *,
+              mask: Bool[ArrayLike, "*v"] | None = None) -> Vote:
     """Mean ground probability per original point over the patches that classified it.
 
     Args:
@@ -58,15 +60,16 @@ def soft_vote(point_index: Int[Array, "*v"], prob_ground: Float[Array, "*v"], n_
       `Vote(prob_ground, count, label)`, each `(n_points,)`. The result does not depend on
       the order of the votes (up to float rounding of the sums).
     """
+    point_index, prob_ground = jnp.asarray(point_index), jnp.asarray(prob_ground)
     if point_index.shape != prob_ground.shape:
         raise ValueError(f"soft_vote: point_index {point_index.shape} and prob_ground "
                          f"{prob_ground.shape} must have the same shape")
-    if mask is not None and mask.shape != point_index.shape:
-        raise ValueError(f"soft_vote: mask must have shape {point_index.shape}, got {mask.shape}")
-    if not isinstance(n_points, int) or n_points < 0:
+    if mask is not None and jnp.shape(mask) != point_index.shape:
+        raise ValueError(f"soft_vote: mask must have shape {point_index.shape}, got {jnp.shape(mask)}")
+    if not isinstance(n_points, (int, np.integer)) or isinstance(n_points, bool) or n_points < 0:
         raise ValueError(f"soft_vote: n_points must be an int >= 0, got {n_points!r}")
-    if mask is None:
-        mask = jnp.ones(point_index.shape, dtype=bool)
+    n_points = int(n_points)
+    mask = jnp.ones(point_index.shape, dtype=bool) if mask is None else jnp.asarray(mask)
     return _soft_vote(point_index, prob_ground, mask, n_points=n_points)
 
 

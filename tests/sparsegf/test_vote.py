@@ -11,6 +11,10 @@ from gfjax.sparsegf import UNCOVERED, soft_vote
 N_POINTS = 40
 SHAPE = (5, 24)   # 5 patches x 24 padded slots
 
+# shape errors: our ValueError, or jaxtyping's TypeCheckError (a TypeError) when runtime
+# type checking is enabled on gfjax
+SHAPE_ERRORS = (ValueError, TypeError)
+
 
 def algorithm_1(index, prob, n_points, mask):
     """Algorithm 1 of the paper, literally (float64)."""
@@ -92,9 +96,9 @@ def test_vmap_matches_loop():
 
 
 def test_bad_input_raises():
-    with pytest.raises(ValueError, match="same shape"):
+    with pytest.raises(SHAPE_ERRORS, match="same shape|prob_ground"):
         soft_vote(jnp.zeros(3, jnp.int32), jnp.zeros(4, jnp.float32), 3)
-    with pytest.raises(ValueError, match="mask"):
+    with pytest.raises(SHAPE_ERRORS, match="mask"):
         soft_vote(jnp.zeros(3, jnp.int32), jnp.zeros(3, jnp.float32), 3, mask=jnp.zeros(2, bool))
     with pytest.raises(ValueError, match="n_points"):
         soft_vote(jnp.zeros(3, jnp.int32), jnp.zeros(3, jnp.float32), -1)
