@@ -251,7 +251,7 @@ def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
     compress = Path(path).suffix.lower() == ".laz"
     backends = _compressors(cloud.las.point_format.id, Path(path)) if compress else None
     with atomic_output(path, force=force, input_paths=inputs, suffixes=LAS_SUFFIXES) as tmp:
-        with open(tmp, "wb") as f:
+        with open(tmp, "w+b") as f:  # readable: laspy re-reads the header to add EVLRs
             cloud.las.write(f, do_compress=compress, laz_backend=backends)
     return Path(path)
 

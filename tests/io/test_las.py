@@ -101,6 +101,9 @@ def synthetic_las(point_format: int, version: str, *, n: int = 64, seed: int = 0
     las.points = laspy.ScaleAwarePointRecord.zeros(n, header=header)
     raw = las.points.array.view(np.uint8)
     raw[:] = np.random.default_rng(seed).integers(0, 256, raw.shape, dtype=np.uint8)
+    las.header.vlrs.append(laspy.VLR("gfjax_test", 7, "a VLR", b"vlr payload"))
+    if version == "1.4":
+        las.evlrs = laspy.vlrs.vlrlist.VLRList([laspy.VLR("gfjax_test", 8, "an EVLR", b"evlr payload " * 100)])
     return las
 
 
@@ -111,6 +114,7 @@ def test_synthetic_round_trip_every_point_format(point_format, version, suffix, 
     src = tmp_path / "src.las"
     las.write(src)  # written by laspy uncompressed, read and re-written by us
     expected = laspy.read(src)  # as stored (laspy fills the extra-bytes min/max on write)
+    assert len(expected.header.vlrs) == 2 and len(expected.evlrs or []) == (version == "1.4")
     assert expected.points.array.tobytes() == las.points.array.tobytes()
     cloud = las_io.read(src, units="m")
     out = las_io.write(cloud.with_ground(cloud.classification == 2), tmp_path / f"out{suffix}")
