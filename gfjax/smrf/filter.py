@@ -11,7 +11,7 @@ classification of airborne LIDAR data", ISPRS J. 77:21-30. Reads like PDAL's `fi
 5. ground points: |z - ZIpro(x, y)| <= threshold + scalar * slope(ZIpro) (bilinear).
 
 The cloud is cut into buffered tiles (`gfjax.io.tiles`); each batch of equal-shape tiles runs
-through one jitted, vmapped call of `stages.classify_tile`.
+through the jitted, vmapped stages of `stages.classify_batch`.
 """
 from __future__ import annotations
 

@@ -12,6 +12,7 @@ them for relaxed (sigmoid) versions.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import NamedTuple
 
@@ -29,7 +30,7 @@ from gfjax.smrf.config import Config, Params
 __all__ = [
     "Diagnostics", "domain_mask", "is_object", "is_ground_point", "progressive_filter",
     "low_outliers", "inpaint", "gradient_magnitude", "replicate_edges", "classify_tile",
-    "classify_batch",
+    "classify_batch", "rasterize_min", "surfaces", "classify_points", "raster_config",
 ]
 
 
@@ -160,10 +161,73 @@ def replicate_edges(z: Raster, hw: Int[Array, "2"]) -> Raster:
     return z[rows[:, None], cols[None, :]]
 
 
-@functools.partial(jax.jit, static_argnames=("config", "shape"))
+def rasterize_min(xyz: Points, valid: PointMask, *, cell_m: float, shape: tuple[int, int]) -> tuple[Raster, Mask]:
+    """Lowest z per cell and the cells holding a point (Sec. 2.1), `(h, w)` each."""
+    cells = rasterize(xyz[:, :2], xyz[:, 2], valid, cell_m=cell_m, shape=shape)
+    return cells.z_min, cells.valid
+
+
+def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, "2"], params: Params, *, config: Config) -> Diagnostics:
+    """The raster part of SMRF (Sec. 2.1-2.3) on one tile: ZImin, low outliers, the progressive
+    opening, ZIpro and its slope.
+
+    Args:
+      z_min: lowest z per cell `(h, w)` [m] (any value where `~filled`).
+      filled: cells holding at least one point.
+      hw: int32 `(2,)` the tile's own extent inside the raster (see `domain_mask`).
+      params: traced thresholds (only `slope` is used here).
+      config: static settings.
+    """
+    domain = domain_mask(hw, z_min.shape)
+    filled = filled & domain
+    # 1. ZImin: lowest point per cell, empty cells inpainted.
+    zimin = inpaint(z_min, filled, config=config)
+    # 2. Low outliers: progressive filter on -ZImin, slope 5, one-cell window.
+    low = low_outliers(zimin, domain, config=config)
+    # 3. Progressive opening r = 1..ceil(window / cell) with threshold slope * r * cell.
+    objects = progressive_filter(zimin, domain, params.slope, cell_m=config.cell_m,
+                                 max_radius_px=config.max_radius_px)
+    # 4. ZIpro: ZImin without empty, low-outlier and object cells, inpainted.
+    zipro = inpaint(zimin, filled & ~low & ~objects, config=config)
+    slope = gradient_magnitude(zipro, domain, cell_m=config.cell_m)
+    return Diagnostics(zimin=zimin, empty=domain & ~filled, low_outliers=low, object_cells=objects,
+                       zipro=zipro, slope=slope, domain=domain)
+
+
+def classify_points(xyz: Points, valid: PointMask, zipro: Raster, slope: Raster, hw: Int[Array, "2"],
+                    params: Params, *, cell_m: float) -> PointMask:
+    """Sec. 2.4: a point is ground when `|z - ZIpro(x, y)| <= threshold + scalar * slope(x, y)`,
+    both rasters sampled bilinearly between cell centres. bool `(n,)`, False where `~valid`."""
+    surface_at = sample_bilinear(replicate_edges(zipro, hw), xyz[:, :2], cell_m=cell_m)
+    slope_at = sample_bilinear(replicate_edges(slope, hw), xyz[:, :2], cell_m=cell_m)
+    return valid & is_ground_point(xyz[:, 2] - surface_at, slope_at, params)
+
+
+def raster_config(config: Config) -> Config:
+    """`config` with the settings the raster stages do not read (tiling) at their defaults, so
+    configs that differ only there share one compiled program."""
+    return dataclasses.replace(config, tile_size_m=Config.tile_size_m, buffer_m=Config.buffer_m)
+
+
+@functools.cache
+def _compiled(config: Config, shape: tuple[int, int], batched: bool):
+    """The three jitted stages of a tile (or of a batch, under `vmap`) for one static setting.
+
+    Separate programs: the costly raster stage compiles once per raster shape, and only the
+    cheap point stages compile again for another point capacity."""
+    raster = functools.partial(rasterize_min, cell_m=config.cell_m, shape=shape)
+    middle = functools.partial(surfaces, config=config)
+    points = functools.partial(classify_points, cell_m=config.cell_m)
+    if batched:
+        raster = jax.vmap(raster)
+        middle = jax.vmap(middle, in_axes=(0, 0, 0, None))
+        points = jax.vmap(points, in_axes=(0, 0, 0, 0, 0, None))
+    return jax.jit(raster), jax.jit(middle), jax.jit(points)
+
+
 def classify_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], params: Params, *,
                   config: Config, shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
-    """SMRF on one tile (Pingel et al. 2013, Sec. 2.1-2.4).
+    """SMRF on one tile (Pingel et al. 2013, Sec. 2.1-2.4): three jitted stages.
 
     Args:
       xyz: tile-local coordinates, float32 `(n, 3)` [m], x/y relative to the raster's
@@ -176,31 +240,17 @@ def classify_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], params: Pa
     Returns:
       `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and the tile's `Diagnostics`.
     """
-    domain = domain_mask(hw, shape)
-    xy, z = xyz[:, :2], xyz[:, 2]
-    cells = rasterize(xy, z, valid, cell_m=config.cell_m, shape=shape)
-    filled = cells.valid & domain
-    # 1. ZImin: lowest point per cell, empty cells inpainted.
-    zimin = inpaint(cells.z_min, filled, config=config)
-    # 2. Low outliers: progressive filter on -ZImin, slope 5, one-cell window.
-    low = low_outliers(zimin, domain, config=config)
-    # 3. Progressive opening r = 1..ceil(window / cell) with threshold slope * r * cell.
-    objects = progressive_filter(zimin, domain, params.slope, cell_m=config.cell_m,
-                                 max_radius_px=config.max_radius_px)
-    # 4. ZIpro: ZImin without empty, low-outlier and object cells, inpainted.
-    zipro = inpaint(zimin, filled & ~low & ~objects, config=config)
-    slope = gradient_magnitude(zipro, domain, cell_m=config.cell_m)
-    # 5. Points within threshold + scalar * slope of ZIpro (bilinear) are ground.
-    surface_at = sample_bilinear(replicate_edges(zipro, hw), xy, cell_m=config.cell_m)
-    slope_at = sample_bilinear(replicate_edges(slope, hw), xy, cell_m=config.cell_m)
-    ground = valid & is_ground_point(z - surface_at, slope_at, params)
-    return ground, Diagnostics(zimin=zimin, empty=domain & ~cells.valid, low_outliers=low,
-                               object_cells=objects, zipro=zipro, slope=slope, domain=domain)
+    raster, middle, points = _compiled(raster_config(config), tuple(shape), False)
+    z_min, filled = raster(xyz, valid)
+    diag = middle(z_min, filled, hw, params)
+    return points(xyz, valid, diag.zipro, diag.slope, hw, params), diag
 
 
-@functools.partial(jax.jit, static_argnames=("config", "shape"))
 def classify_batch(xyz: Float[Array, "b n 3"], valid: Bool[Array, "b n"], hw: Int[Array, "b 2"],
-                   params: Params, *, config: Config, shape: tuple[int, int]):
-    """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared)."""
-    fn = functools.partial(classify_tile.__wrapped__, config=config, shape=shape)
-    return jax.vmap(fn, in_axes=(0, 0, 0, None))(xyz, valid, hw, params)
+                   params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Array, "b n"], Diagnostics]:
+    """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared); the
+    diagnostics gain a leading batch axis."""
+    raster, middle, points = _compiled(raster_config(config), tuple(shape), True)
+    z_min, filled = raster(xyz, valid)
+    diag = middle(z_min, filled, hw, params)
+    return points(xyz, valid, diag.zipro, diag.slope, hw, params), diag
