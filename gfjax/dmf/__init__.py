@@ -1,0 +1,12 @@
+"""DMF: the data-driven morphological filter (Wu et al. 2025), SPEC section 3.
+
+```python
+import gfjax
+result = gfjax.dmf.filter(cloud)                         # Result(ground, diagnostics, instance_id)
+result = gfjax.dmf.filter(cloud, config=gfjax.dmf.Config(basal_stop="per_node"))
+```
+"""
+from gfjax.dmf.config import PRESETS, Config, Params
+from gfjax.dmf.filter import Diagnostics, filter  # noqa: A004
+
+__all__ = ["filter", "Config", "Params", "PRESETS", "Diagnostics"]

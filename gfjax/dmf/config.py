@@ -1,0 +1,130 @@
+"""DMF options: static `Config` (shapes, loop caps, readings), traced `Params`, `PRESETS`.
+
+Every reading marked (R) in SPEC section 3 is a `Config` value; the defaults are the SPEC's
+(fixed before measuring). A different reading becomes the default only when it wins the
+leave-one-out comparison of `experiments/dmf_readings.py` on the 11 shared ISPRS samples.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+__all__ = ["Config", "Params", "PRESETS", "BASAL_STOPS", "FINAL_RULES", "HOLE_TESTS", "SUPPORT_Z"]
+
+BASAL_STOPS = ("global", "per_node")
+FINAL_RULES = ("m_nearest", "height")
+HOLE_TESTS = ("patch", "hole")
+SUPPORT_Z = ("ndng", "ndce")
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Static DMF options (hashable: a `jax.jit` static argument). Lengths in metres.
+
+    Attributes:
+      v0: voxel size factor of Eq. 1, `W = ceil(v0 * mean 3D nearest-neighbour distance)` [-].
+      v1: support nodes are lowered by `v1 * W` (Sec. 2.6) [-].
+      voxel_m: fixed voxel size W [m] instead of Eq. 1 (None = data-driven).
+      sample_fraction: share of points whose nearest-neighbour distance sets W (Sec. 2.1) [-].
+      sample_min: at least this many sampled points (R).
+      basal_radius_w: horizontal radius of the cylinder C_p of Sec. 2.3, in multiples of W (R).
+      basal_stop: (R) "global": sink every node until no node's 3D-nearest ND_CE in C_p
+        changes between two iterations; "per_node": freeze each node once its own does not.
+      basal_max_iter: cap on basal-layer iterations (loop count: static).
+      basal_sink_cap_w: (R) a node sinks at most this many W below its ND_CE (None = no cap).
+      max_filter_px: half-width of the square max filter of Eq. 2 (2 = the paper's 5x5).
+      close_max_px: cap on the closing side `w_close` of Eq. 3, in cells (odd) (R).
+      hole_test: (R) "patch": a patch's holes together: mean NGNEM of the holes >= the patch's
+        maximum (SPEC); "hole": each hole against the patch cells on its own ring.
+      border_patches: (R) Eq. 4: patches touching one or two raster borders are closed
+        against them (True), or the rule is skipped (False).
+      fill_neighbours: support nodes without an ND_NG elevation take the mean of this many
+        nearest TP_G nodes (Sec. 2.6: 24).
+      support_z: (R) elevation of TP_G nodes: "ndng" from the column's ND_CE only when it is
+        in ND_NG, else interpolated (the paper); "ndce": from every ground column's ND_CE.
+      final_rule: (R) "m_nearest": the paper's bidirectional KD-tree rule (Sec. 2.6);
+        "height": a point is ground when it is at most `Params.height_threshold_m` above the
+        (not lowered) support surface.
+      raster_tile_m, raster_buffer_m: the NGNEM is cut into tiles of this core size and buffer
+        for the batched (vmap) raster stages [m].
+    """
+
+    v0: float = 2.0
+    v1: float = 2.0
+    voxel_m: float | None = None
+    sample_fraction: float = 0.01
+    sample_min: int = 1000
+    basal_radius_w: float = 3.0
+    basal_stop: str = "global"
+    basal_max_iter: int = 200
+    basal_sink_cap_w: float | None = None
+    max_filter_px: int = 2
+    close_max_px: int = 31
+    hole_test: str = "patch"
+    border_patches: bool = True
+    fill_neighbours: int = 24
+    support_z: str = "ndng"
+    final_rule: str = "m_nearest"
+    raster_tile_m: float = 500.0
+    raster_buffer_m: float = 50.0
+
+    def __post_init__(self):
+        _positive(self, "v0", "v1", "sample_fraction", "basal_radius_w", "raster_tile_m")
+        if self.voxel_m is not None and not self.voxel_m > 0:
+            raise ValueError(f"voxel_m must be > 0 or None, got {self.voxel_m}")
+        if self.sample_fraction > 1:
+            raise ValueError(f"sample_fraction must be <= 1, got {self.sample_fraction}")
+        if self.basal_stop not in BASAL_STOPS:
+            raise ValueError(f"basal_stop must be one of {BASAL_STOPS}, got {self.basal_stop!r}")
+        if self.hole_test not in HOLE_TESTS:
+            raise ValueError(f"hole_test must be one of {HOLE_TESTS}, got {self.hole_test!r}")
+        if self.support_z not in SUPPORT_Z:
+            raise ValueError(f"support_z must be one of {SUPPORT_Z}, got {self.support_z!r}")
+        if self.final_rule not in FINAL_RULES:
+            raise ValueError(f"final_rule must be one of {FINAL_RULES}, got {self.final_rule!r}")
+        if self.basal_sink_cap_w is not None and not self.basal_sink_cap_w >= 0:
+            raise ValueError(f"basal_sink_cap_w must be >= 0 or None, got {self.basal_sink_cap_w}")
+        for name in ("sample_min", "basal_max_iter", "max_filter_px", "fill_neighbours"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        if not isinstance(self.close_max_px, int) or self.close_max_px < 3 or self.close_max_px % 2 == 0:
+            raise ValueError(f"close_max_px must be an odd int >= 3, got {self.close_max_px!r}")
+        if not self.raster_buffer_m >= 0:
+            raise ValueError(f"raster_buffer_m must be >= 0, got {self.raster_buffer_m}")
+
+    @property
+    def basal_neighbours(self) -> int:
+        """Static width k of the (n, k) cylinder table: one ND_CE per column, so at most the
+        `(2 ceil(r/W) + 1)^2` columns of the square around the node."""
+        return (2 * math.ceil(self.basal_radius_w) + 1) ** 2
+
+
+def _positive(config: Config, *names: str) -> None:
+    for name in names:
+        value = getattr(config, name)
+        if not value > 0:
+            raise ValueError(f"{name} must be > 0, got {value}")
+
+
+class Params(eqx.Module):
+    """Traced DMF thresholds (optax may tune them; none changes a shape).
+
+    Attributes:
+      height_threshold_m: with `final_rule="height"`, the largest height of a ground point
+        above the support surface [m]. Unused by the paper's rule.
+    """
+
+    height_threshold_m: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.5, jnp.float32),
+                                                     converter=lambda v: jnp.asarray(v, jnp.float32))
+
+
+PRESETS: dict[str, dict] = {
+    "paper": {},                                   # Wu et al. (2025) as SPEC section 3 reads it
+    "per_node": {"basal_stop": "per_node"},
+    "height": {"final_rule": "height"},
+}

@@ -1,0 +1,143 @@
+"""DMF step 7: GF-support nodes and the final point rule (Wu et al. 2025, Sec. 2.6).
+
+Support nodes sit at the centres of the NGNEM cells that hold an ND_CE: TP_G on ground cells,
+TPN on object cells (NGNEM_RC). A TP_G whose column's ND_CE is in ND_NG takes that node's
+elevation; every other node takes the mean of its `fill_neighbours` (24) nearest such TP_G
+(2D). All nodes are lowered by `v1 * W`. Host part: the KD-tree queries (scipy). The per-point
+bookkeeping is jitted JAX.
+
+Final rules (`Config.final_rule`, R):
+* "m_nearest" (the paper's bidirectional KD-tree engine): each point finds its 3D-nearest
+  support node; M = ceil(mean points per node that is someone's nearest); each TP_G takes its M
+  nearest points; a point is ground when it is among those and its own nearest node is a TP_G.
+* "height": a point is ground when it lies at most `height_threshold_m` above the support
+  surface (nodes not lowered; bilinear between cell centres, empty cells from the nearest node).
+"""
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+from scipy.spatial import cKDTree
+
+from gfjax.dmf.voxels import Voxels
+from gfjax.raster import inpaint_nearest, sample_bilinear
+
+__all__ = ["SupportNodes", "support_nodes", "m_nearest_ground", "height_ground", "mark_ground"]
+
+
+class SupportNodes(NamedTuple):
+    """GF-support nodes, one per NGNEM cell holding an ND_CE.
+
+    Attributes:
+      xyz: cell-centre x, y and the lowered elevation, float64 `(s, 3)`, local metres.
+      z_surface: the elevation before lowering, float64 `(s,)` [m].
+      ground: True for TP_G, False for TPN, bool `(s,)`.
+      cell: flat cell index, int64 `(s,)` (equals `Voxels.cell`).
+      from_ndng: the elevation is the ND_NG node's own (not interpolated), bool `(s,)`.
+    """
+
+    xyz: np.ndarray
+    z_surface: np.ndarray
+    ground: np.ndarray
+    cell: np.ndarray
+    from_ndng: np.ndarray
+
+
+def support_nodes(vox: Voxels, object_cell: np.ndarray, in_ndng: np.ndarray, *, v1: float,
+                  fill_neighbours: int, support_z: str = "ndng") -> SupportNodes:
+    """Build the GF-support node layer (Sec. 2.6, first two paragraphs).
+
+    Args:
+      vox: voxel columns (`bin_voxels`).
+      object_cell: NGNEM_RC per flat cell, bool `(h * w,)`.
+      in_ndng: ND_CE index is in ND_NG, bool `(m,)`.
+      v1: lowering factor (paper: 2); fill_neighbours: 24 in the paper.
+      support_z: (R) "ndng": a TP_G keeps its own elevation only when its column's ND_CE is
+        in ND_NG (the paper); "ndce": every TP_G keeps its column's ND_CE elevation.
+
+    Returns: `SupportNodes`.
+    """
+    h, w = vox.shape
+    cell_m = vox.cell_m
+    row, col = vox.cell // w, vox.cell % w
+    x = (col + 0.5) * cell_m
+    y = (h - 1 - row + 0.5) * cell_m
+    ground = ~object_cell[vox.cell]
+    known = ground & in_ndng if support_z == "ndng" else ground
+    z = vox.centroid[:, 2].copy()
+    if known.any() and not known.all():
+        xy = np.stack([x, y], axis=1)
+        k = min(fill_neighbours, int(known.sum()))
+        _, idx = cKDTree(xy[known]).query(xy[~known], k=k)
+        idx = np.asarray(idx).reshape(int((~known).sum()), k)
+        z[~known] = z[known][idx].mean(axis=1)
+    lowered = z - v1 * cell_m
+    return SupportNodes(xyz=np.stack([x, y, lowered], axis=1), z_surface=z, ground=ground,
+                        cell=vox.cell, from_ndng=known)
+
+
+@functools.partial(jax.jit, static_argnames="n_points")
+def mark_ground(nearest: Int[Array, " n"], node_ground: Bool[Array, " s"], taken: Int[Array, "g m"],
+                *, n_points: int) -> Bool[Array, " n"]:
+    """Ground = among the M nearest points of some TP_G, and own nearest node is a TP_G.
+
+    Args:
+      nearest: each point's 3D-nearest support node, int32 `(n,)`.
+      node_ground: TP_G flag per node, bool `(s,)`.
+      taken: the M nearest points of each TP_G, int32 `(g, M)`; `n_points` marks "none".
+    """
+    hit = jnp.zeros(n_points + 1, bool).at[taken.reshape(-1)].set(True)[:n_points]
+    return hit & node_ground[nearest]
+
+
+def m_nearest_ground(points: np.ndarray, nodes: SupportNodes, *, points_tree: cKDTree | None = None) -> tuple[np.ndarray, int]:
+    """The paper's bidirectional KD-tree rule (Sec. 2.6, Fig. 4).
+
+    Args:
+      points: local coordinates, float64 `(n, 3)` metres.
+      nodes: the support nodes.
+      points_tree: a `cKDTree` of `points`, reused if given (OKDT).
+
+    Returns: `(ground bool (n,), M)`.
+    """
+    n = len(points)
+    if n == 0 or len(nodes.xyz) == 0:
+        return np.zeros(n, bool), 0
+    _, nearest = cKDTree(nodes.xyz).query(points, k=1)                     # TKDT
+    counts = np.bincount(nearest, minlength=len(nodes.xyz))
+    m = max(1, math.ceil(counts[counts > 0].mean() - 1e-9))
+    tree = cKDTree(points) if points_tree is None else points_tree
+    g_nodes = nodes.xyz[nodes.ground]
+    if len(g_nodes) == 0:
+        return np.zeros(n, bool), m
+    _, taken = tree.query(g_nodes, k=min(m, n))
+    taken = np.asarray(taken).reshape(len(g_nodes), -1).astype(np.int32)
+    ground = mark_ground(jnp.asarray(nearest, jnp.int32), jnp.asarray(nodes.ground), jnp.asarray(taken), n_points=n)
+    return np.asarray(ground), m
+
+
+@functools.partial(jax.jit, static_argnames="cell_m")
+def _height_rule(surface: Float[Array, "h w"], valid: Bool[Array, "h w"], points: Float[Array, "n 3"],
+                 threshold_m: Float[Array, ""], *, cell_m: float) -> Bool[Array, " n"]:
+    filled = inpaint_nearest(surface, valid)
+    s = sample_bilinear(filled, points[:, :2], cell_m=cell_m)
+    return points[:, 2] - s <= threshold_m
+
+
+def height_ground(points: np.ndarray, nodes: SupportNodes, vox: Voxels, threshold_m) -> np.ndarray:
+    """Alternative final rule: ground when `z - S(x, y) <= threshold_m`, S the support surface
+    (not lowered) sampled bilinearly between cell centres. Returns bool `(n,)`."""
+    h, w = vox.shape
+    surface = np.zeros(h * w, np.float32)
+    valid = np.zeros(h * w, bool)
+    surface[nodes.cell] = nodes.z_surface
+    valid[nodes.cell] = True
+    out = _height_rule(jnp.asarray(surface.reshape(h, w)), jnp.asarray(valid.reshape(h, w)),
+                       jnp.asarray(points, jnp.float32), jnp.asarray(threshold_m, jnp.float32), cell_m=float(vox.cell_m))
+    return np.asarray(out)

@@ -1,0 +1,232 @@
+"""`gfjax.dmf.filter`: the data-driven morphological filter of Wu et al. (2025), end to end.
+
+```
+cloud --(host) W (Eq. 1), voxels, ND_CE (Sec. 2.1-2.2)
+      --(JAX while_loop) basal layer ND_BL; (host KD-tree) ND_NG (Sec. 2.3)
+      --(JAX, vmap over NGNEM tiles) NGNEM, R_HC, NGNEM_BI, NGNEM_RC, instances (Sec. 2.4-2.5)
+      --(host KD-trees + JAX bookkeeping) support nodes, ground points (Sec. 2.6)
+```
+W is computed once per cloud, so every NGNEM tile of a batch shares one cell size.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.spatial import cKDTree
+
+from gfjax.dmf import basal as basal_lib
+from gfjax.dmf import extract, neighbours, stages, voxels
+from gfjax.dmf.config import Config, Params
+from gfjax.errors import InputError
+from gfjax.io.cloud import Cloud
+from gfjax.raster import label_components, relabel_consecutive
+from gfjax.result import Result
+
+__all__ = ["Diagnostics", "filter", "run_raster_stages", "SHAPE_QUANTUM_PX", "MAX_BATCH"]
+
+SHAPE_QUANTUM_PX = 16          # tile rasters are padded to multiples of this (few compiles)
+MAX_BATCH = 8                  # tiles per vmap call
+
+
+class Diagnostics(NamedTuple):
+    """Intermediate DMF results (host numpy), for notebooks and tests.
+
+    Rasters are `(h, w)` with cell `cell_m`, row 0 = north, covering local x in `[0, w W)`,
+    y in `[0, h W)` from `origin_m` (the minimum corner of the used points).
+
+    Attributes:
+      cell_m: W [m]; mean_nn_m: the sampled mean 3D nearest-neighbour distance [m].
+      origin_m: float64 `(3,)` [m]: add it to local coordinates and elevations.
+      nd_ce: near-ground voxel centroids, local float64 `(m, 3)`.
+      basal_z: basal-layer elevation of each ND_CE, local float32 `(m,)`.
+      in_ndng: ND_CE in ND_NG (3D-nearest ND_CE of some basal node), bool `(m,)`.
+      ngnem, ngnem_valid, layer: NGNEM (local elevations, empty cells filled from the
+        nearest), its valid cells, voxel layer index.
+      rhc, ngnem_bi, ngnem_rc0, ngnem_rc: the masks of Eq. 2, Sec. 2.4, Sec. 2.5 (a), (b).
+      instances: object id per cell (1..n, 0 = ground), int32.
+      support: `extract.SupportNodes` (local coordinates); m_points: M of Sec. 2.6 (0 if unused).
+      basal_iterations: iterations of the basal loop; converged: every bounded loop converged.
+      voxels: the voxel columns (`voxels.Voxels`), for re-running step 7.
+    """
+
+    cell_m: float
+    mean_nn_m: float
+    origin_m: np.ndarray
+    nd_ce: np.ndarray
+    basal_z: np.ndarray
+    in_ndng: np.ndarray
+    ngnem: np.ndarray
+    ngnem_valid: np.ndarray
+    layer: np.ndarray
+    rhc: np.ndarray
+    ngnem_bi: np.ndarray
+    ngnem_rc0: np.ndarray
+    ngnem_rc: np.ndarray
+    instances: np.ndarray
+    support: extract.SupportNodes
+    m_points: int
+    basal_iterations: int
+    converged: bool
+    voxels: voxels.Voxels
+
+
+def _check(cloud, config, params, returns) -> tuple[Config, Params]:
+    if not isinstance(cloud, Cloud):
+        raise InputError(f"dmf.filter: expected a gfjax.Cloud, got {type(cloud).__name__}")
+    config = Config() if config is None else config
+    params = Params() if params is None else params
+    if not isinstance(config, Config):
+        raise InputError(f"{cloud.name}: config must be a gfjax.dmf.Config, got {type(config).__name__}")
+    if not isinstance(params, Params):
+        raise InputError(f"{cloud.name}: params must be a gfjax.dmf.Params, got {type(params).__name__}")
+    if returns not in ("all", "last"):
+        raise InputError(f"{cloud.name}: returns must be 'all' or 'last', got {returns!r}")
+    return config, params
+
+
+def _round_up(n: int, q: int) -> int:
+    return max(q, -(-n // q) * q)
+
+
+def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_m: float, config: Config,
+                      *, progress: bool = False) -> stages.RasterStages:
+    """Steps 4-6 on the whole NGNEM: one tile, or a vmapped batch of buffered, padded tiles.
+
+    Args:
+      z, layer, valid: ND_CE elevation (float32, local m), layer index (int32), valid (bool),
+        each `(h, w)`.
+      cell_m: W [m]; config: tile core `raster_tile_m` and buffer `raster_buffer_m` [m].
+
+    Returns: `RasterStages` of the whole raster (host numpy); a tile's core comes from that
+    tile; instance ids are relabelled over the whole raster.
+    """
+    h, w = z.shape
+    core = max(1, math.ceil(config.raster_tile_m / cell_m))
+    buf = math.ceil(config.raster_buffer_m / cell_m)
+    kwargs = dict(max_filter_px=config.max_filter_px, max_close_px=config.close_max_px // 2,
+                  border_patches=config.border_patches, hole_test=config.hole_test)
+    w_m = jnp.float32(cell_m)
+    if h <= core + 2 * buf and w <= core + 2 * buf:
+        shape = (_round_up(h, SHAPE_QUANTUM_PX), _round_up(w, SHAPE_QUANTUM_PX))
+        out = stages.raster_stages(*_pad_tile(z, layer, valid, shape), w_m, **kwargs)
+        return stages.RasterStages(*[np.asarray(a)[:h, :w] if np.ndim(a) == 2 else np.asarray(a) for a in out])
+    windows = []
+    for r0 in range(0, h, core):
+        for c0 in range(0, w, core):
+            rows = (max(0, r0 - buf), min(h, r0 + core + buf))
+            cols = (max(0, c0 - buf), min(w, c0 + core + buf))
+            windows.append((r0, c0, rows, cols))
+    shape = (_round_up(max(b - a for _, _, (a, b), _ in windows), SHAPE_QUANTUM_PX),
+             _round_up(max(b - a for _, _, _, (a, b) in windows), SHAPE_QUANTUM_PX))
+    fields = {name: np.zeros((h, w), dtype) for name, dtype in
+              (("ngnem", np.float32), ("layer", np.int32), ("rhc", bool), ("ngnem_bi", bool),
+               ("ngnem_rc0", bool), ("ngnem_rc", bool))}
+    converged = True
+    batched = jax.vmap(lambda *a: stages.raster_stages(*a, w_m, **kwargs))
+    starts = range(0, len(windows), MAX_BATCH)
+    if progress:
+        from tqdm import tqdm
+        starts = tqdm(starts, desc="dmf raster tiles", unit="batch")
+    for s in starts:
+        group = windows[s:s + MAX_BATCH]
+        tiles = [_pad_tile(z[a:b, c:d], layer[a:b, c:d], valid[a:b, c:d], shape) for _, _, (a, b), (c, d) in group]
+        tiles += [tiles[-1]] * (MAX_BATCH - len(tiles))           # one batch shape: one compile
+        out = batched(*[jnp.stack(parts) for parts in zip(*tiles)])
+        converged &= bool(np.all(np.asarray(out.converged)[:len(group)]))
+        for i, (r0, c0, (a, _), (c, _)) in enumerate(group):
+            r1, c1 = min(h, r0 + core), min(w, c0 + core)
+            for name in fields:
+                tile = np.asarray(getattr(out, name)[i])
+                fields[name][r0:r1, c0:c1] = tile[r0 - a:r1 - a, c0 - c:c1 - c]
+    labels, conv = label_components(jnp.asarray(fields["ngnem_rc"]), connectivity=8)
+    instances, _ = relabel_consecutive(labels)
+    return stages.RasterStages(**fields, instances=np.asarray(instances), converged=converged and bool(conv))
+
+
+def _pad_tile(z, layer, valid, shape):
+    h, w = z.shape
+    pad = ((0, shape[0] - h), (0, shape[1] - w))
+    inside = np.pad(np.ones((h, w), bool), pad)
+    return (jnp.asarray(np.pad(z, pad), jnp.float32), jnp.asarray(np.pad(layer, pad), jnp.int32),
+            jnp.asarray(np.pad(valid, pad)), jnp.asarray(inside))
+
+
+def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None = None,  # noqa: A001
+           returns: str = "all", progress: bool = False) -> Result:
+    """Classify ground points with DMF (Wu et al. 2025; our readings: SPEC section 3).
+
+    Args:
+      cloud: the point cloud (metres via `cloud.xyz_m`; noise and withheld points ignored).
+      config: static options (`Config`); params: traced thresholds (`Params`).
+      returns: "all" or "last" returns.
+      progress: show a progress bar over NGNEM tile batches.
+
+    Returns:
+      `Result(ground, diagnostics, instance_id)`: ground bool `(n,)`; `Diagnostics`;
+      instance_id uint32 `(n,)`: the object region (NGNEM_RC instance) of each non-ground
+      point's cell, 0 for ground points and points outside every object region.
+    """
+    config, params = _check(cloud, config, params, returns)
+    n_all = cloud.n_points
+    use = cloud.filter_mask(returns)
+    xyz = cloud.xyz_m[use]
+    ground_all = np.zeros(n_all, bool)
+    instance_all = np.zeros(n_all, np.uint32)
+    if len(xyz) == 0:
+        return Result(ground=ground_all, diagnostics=None, instance_id=instance_all)
+    origin = xyz.min(axis=0)
+    local = xyz - origin
+    tree = cKDTree(local)
+
+    # Steps 1-2 (host): W, voxel columns, ND_CE.
+    if config.voxel_m is not None:
+        cell_m, mean_nn = float(config.voxel_m), float("nan")
+    else:
+        cell_m, mean_nn = voxels.voxel_size_m(local, v0=config.v0, fraction=config.sample_fraction,
+                                              minimum=config.sample_min, tree=tree)
+    vox = voxels.bin_voxels(local, cell_m)
+
+    # Step 3: basal layer (JAX loop on the host-built cylinder table), then ND_NG (host).
+    table = neighbours.cylinder_table(vox.centroid[:, :2], radius_m=config.basal_radius_w * cell_m,
+                                      k=config.basal_neighbours)
+    cap = np.inf if config.basal_sink_cap_w is None else config.basal_sink_cap_w * cell_m
+    basal = basal_lib.basal_layer(jnp.asarray(vox.centroid, jnp.float32), jnp.asarray(table.index),
+                                  jnp.asarray(table.valid), jnp.float32(cap), stop=config.basal_stop,
+                                  max_iter=config.basal_max_iter)
+    basal_z = np.asarray(basal.z)
+    basal_xyz = np.concatenate([vox.centroid[:, :2], basal_z[:, None].astype(np.float64)], axis=1)
+    in_ndng = np.zeros(len(vox.cell), bool)
+    in_ndng[neighbours.nearest_node(vox.centroid, basal_xyz)] = True
+
+    # Steps 4-6: raster stages.
+    h, w = vox.shape
+    z_r = np.zeros(h * w, np.float32)
+    k_r = np.zeros(h * w, np.int32)
+    v_r = np.zeros(h * w, bool)
+    z_r[vox.cell], k_r[vox.cell], v_r[vox.cell] = vox.centroid[:, 2], vox.layer, True
+    rs = run_raster_stages(z_r.reshape(h, w), k_r.reshape(h, w), v_r.reshape(h, w), cell_m, config, progress=progress)
+
+    # Step 7: support nodes and the final rule.
+    object_cell = np.asarray(rs.ngnem_rc).reshape(-1)
+    nodes = extract.support_nodes(vox, object_cell, in_ndng, v1=config.v1, fill_neighbours=config.fill_neighbours,
+                                  support_z=config.support_z)
+    if config.final_rule == "m_nearest":
+        ground, m_points = extract.m_nearest_ground(local, nodes, points_tree=tree)
+    else:
+        ground, m_points = extract.height_ground(local, nodes, vox, params.height_threshold_m), 0
+    instance = np.asarray(rs.instances).reshape(-1)[vox.point_cell].astype(np.uint32)
+    instance[ground] = 0
+    ground_all[use] = ground
+    instance_all[use] = instance
+    diagnostics = Diagnostics(
+        cell_m=cell_m, mean_nn_m=mean_nn, origin_m=origin, nd_ce=vox.centroid, basal_z=basal_z,
+        in_ndng=in_ndng, ngnem=np.asarray(rs.ngnem), ngnem_valid=v_r.reshape(h, w), layer=np.asarray(rs.layer),
+        rhc=np.asarray(rs.rhc), ngnem_bi=np.asarray(rs.ngnem_bi), ngnem_rc0=np.asarray(rs.ngnem_rc0),
+        ngnem_rc=np.asarray(rs.ngnem_rc), instances=np.asarray(rs.instances), support=nodes, m_points=int(m_points),
+        basal_iterations=int(basal.iterations), converged=bool(basal.converged) and bool(rs.converged),
+        voxels=vox)
+    return Result(ground=ground_all, diagnostics=diagnostics, instance_id=instance_all)

@@ -1,0 +1,109 @@
+"""DMF host steps 1-2: the data-driven voxel size W and the near-ground voxel centroids ND_CE.
+
+Wu et al. (2025), Sec. 2.1 (Eq. 1) and Sec. 2.2, as SPEC section 3 (steps 1-2) reads them.
+Host numpy/scipy: a KD-tree query and integer binning; no JAX here.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["voxel_size_m", "nn_sample", "Voxels", "bin_voxels"]
+
+
+def nn_sample(n_points: int, xyz: np.ndarray, *, fraction: float, minimum: int) -> np.ndarray:
+    """Indices of a deterministic, point-order-invariant sample of about `fraction` of points.
+
+    A fixed stride over the points sorted by (x, y, z) (SPEC 3.1, R): stride
+    `min(round(1 / fraction), n // minimum)`, at least 1, so at least `minimum` points are
+    taken when the cloud has them.
+
+    Returns: int64 `(s,)` indices into `xyz`.
+    """
+    order = np.lexsort((xyz[:, 2], xyz[:, 1], xyz[:, 0]))
+    stride = max(1, min(int(round(1.0 / fraction)), n_points // max(minimum, 1)))
+    return order[::stride]
+
+
+def voxel_size_m(xyz: np.ndarray, *, v0: float, fraction: float, minimum: int,
+                 tree: cKDTree | None = None) -> tuple[float, float]:
+    """Eq. 1: `W = ceil(v0 * D_m)`, D_m the mean 3D nearest-neighbour distance of a sample.
+
+    Args:
+      xyz: local coordinates, float64 `(n, 3)`, metres.
+      v0: the factor of Eq. 1 (paper: 2).
+      fraction, minimum: sample share and floor (`nn_sample`).
+      tree: a `cKDTree` of `xyz`, reused if given.
+
+    Returns:
+      `(W, D_m)` in metres. W is a whole number of metres, at least 1 (a cloud of duplicate
+      points has D_m = 0; one metre keeps the raster defined).
+    """
+    n = len(xyz)
+    if n < 2:
+        return 1.0, 0.0
+    tree = cKDTree(xyz) if tree is None else tree
+    sample = nn_sample(n, xyz, fraction=fraction, minimum=minimum)
+    dist, _ = tree.query(xyz[sample], k=2)
+    mean_m = float(dist[:, 1].mean())
+    return float(max(1, math.ceil(v0 * mean_m - 1e-9))), mean_m
+
+
+class Voxels(NamedTuple):
+    """Voxel columns of cell W and their near-ground centroids (SPEC 3.2).
+
+    The raster follows the gfjax convention: shape `(h, w)`, row 0 = north (max y),
+    `row = h - 1 - floor(y / W)`, `col = floor(x / W)`, origin = the cloud's minimum corner.
+
+    Attributes:
+      cell_m: W [m].
+      shape: `(h, w)` of the NGNEM raster.
+      cell: flat cell index `row * w + col` of each ND_CE, int64 `(m,)`, increasing.
+      layer: voxel layer index k of each ND_CE (`floor(z / W)`), int32 `(m,)`.
+      centroid: ND_CE centroid (local x, y, z), float64 `(m, 3)`, metres.
+      point_cell: flat cell index of each input point, int64 `(n,)`.
+      node_of_cell: ND_CE index of each cell, -1 where the column is empty, int32 `(h * w,)`.
+    """
+
+    cell_m: float
+    shape: tuple[int, int]
+    cell: np.ndarray
+    layer: np.ndarray
+    centroid: np.ndarray
+    point_cell: np.ndarray
+    node_of_cell: np.ndarray
+
+
+def bin_voxels(xyz: np.ndarray, cell_m: float) -> Voxels:
+    """Cubes of W from the minimum corner; per (i, j) column the centroid of the lowest
+    non-empty voxel and its layer index k (Wu et al. 2025, Sec. 2.2: ND_CE).
+
+    Args:
+      xyz: local coordinates (minimum corner at or above 0), float64 `(n, 3)`, metres.
+      cell_m: W [m].
+
+    Returns: `Voxels`.
+    """
+    n = len(xyz)
+    ijk = np.floor(xyz / cell_m).astype(np.int64)
+    ijk = np.maximum(ijk, 0)
+    w = int(ijk[:, 0].max()) + 1 if n else 1
+    h = int(ijk[:, 1].max()) + 1 if n else 1
+    row = h - 1 - ijk[:, 1]
+    point_cell = row * w + ijk[:, 0]
+    k = ijk[:, 2]
+    kmin = np.full(h * w, np.iinfo(np.int64).max, dtype=np.int64)
+    np.minimum.at(kmin, point_cell, k)
+    low = k == kmin[point_cell]
+    cells_low = point_cell[low]
+    count = np.bincount(cells_low, minlength=h * w)
+    cell = np.flatnonzero(count)
+    sums = np.stack([np.bincount(cells_low, weights=xyz[low, d], minlength=h * w)[cell] for d in range(3)], axis=1)
+    centroid = sums / count[cell][:, None]
+    node_of_cell = np.full(h * w, -1, dtype=np.int32)
+    node_of_cell[cell] = np.arange(len(cell), dtype=np.int32)
+    return Voxels(cell_m=float(cell_m), shape=(h, w), cell=cell, layer=kmin[cell].astype(np.int32),
+                  centroid=centroid, point_cell=point_cell, node_of_cell=node_of_cell)
