@@ -110,6 +110,23 @@ def test_radius_monotone_and_direction_preserved():
         np.testing.assert_allclose(r_out, r_expected, rtol=1e-6, atol=2e-5)
 
 
+def test_commutes_with_rotation_and_translation():
+    # training rotates patches about z (Sec. 3.3): compressing then rotating = rotating then compressing
+    xyz, center = random_patch(4)
+    angle = 0.7
+    rot = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    shift = np.array([123.25, -45.5])
+
+    def move(p, c):
+        p = np.asarray(p, np.float64).copy()
+        p[:, :2] = (p[:, :2] - c) @ rot.T + c + shift
+        return p
+
+    moved = compress(jnp.asarray(move(xyz, center).astype(np.float32)), jnp.asarray((center + shift).astype(np.float32)))
+    expected = move(np.asarray(compress(jnp.asarray(xyz), jnp.asarray(center)).xyz), center)
+    np.testing.assert_allclose(np.asarray(moved.xyz), expected, rtol=1e-6, atol=1e-4)
+
+
 def test_valid_mask_and_padding():
     xyz, center = random_patch(0)
     valid = np.arange(N) < N - 10
