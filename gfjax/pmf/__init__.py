@@ -1,0 +1,14 @@
+"""PMF, the progressive morphological filter (Zhang et al. 2003), as JAX raster stages.
+
+```python
+import gfjax
+result = gfjax.pmf.filter(gfjax.read("tile.laz"))            # PDAL filters.pmf defaults
+result = gfjax.pmf.filter(cloud, config=gfjax.pmf.Config(max_window_m=17.0),
+                          params=gfjax.pmf.Params(slope=0.5))
+```
+"""
+from gfjax.pmf.config import PRESETS, Config, Params
+from gfjax.pmf.filter import PMFDiagnostics, filter
+from gfjax.pmf.stages import Diagnostics
+
+__all__ = ["filter", "Config", "Params", "PRESETS", "Diagnostics", "PMFDiagnostics"]

@@ -1,0 +1,96 @@
+"""PMF static configuration and traced parameters (Zhang et al. 2003).
+
+Defaults (SPEC section 6; PDAL `filters.pmf`): cell 1 m, max window 33 m, slope 1, initial
+distance 0.15 m, max distance 2.5 m, exponential window growth `w_k = 2 b^k + 1` cells, b = 2.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+__all__ = ["Config", "Params", "PRESETS"]
+
+
+def _f32(value) -> Float[Array, ""]:
+    return jnp.asarray(value, dtype=jnp.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Static PMF settings (hashable: a `static_argnames` value).
+
+    Attributes:
+      cell_m: raster cell side [m] ("c" in Zhang et al. 2003, Eq. 4).
+      max_window_m: the windows grow until one reaches this size [m] (PDAL `max_window_size`).
+      exponential: window sizes `2 b^k + 1` cells (Zhang et al. 2003, Eq. 5) if True, else
+        linear `2 k b + 1` cells (Eq. 4).
+      base: b of the window series [-].
+      tile_size_m: side of a tile core for large clouds [m].
+      buffer_m: context around each tile core [m]; labels come from the core only.
+    """
+
+    cell_m: float = 1.0
+    max_window_m: float = 33.0
+    exponential: bool = True
+    base: int = 2
+    tile_size_m: float = 500.0
+    buffer_m: float = 50.0
+
+    def __post_init__(self) -> None:
+        for name in ("cell_m", "max_window_m", "tile_size_m"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        if not (math.isfinite(self.buffer_m) and self.buffer_m >= 0):
+            raise ValueError(f"buffer_m must be finite and >= 0, got {self.buffer_m!r}")
+        if isinstance(self.base, bool) or not isinstance(self.base, int) or self.base < 2:
+            raise ValueError(f"base must be an int >= 2, got {self.base!r}")
+        if not isinstance(self.exponential, bool):
+            raise ValueError(f"exponential must be a bool, got {self.exponential!r}")
+        if self.tile_size_m < self.cell_m:
+            raise ValueError(f"tile_size_m must be >= cell_m, got {self.tile_size_m!r}")
+
+    @property
+    def windows_px(self) -> tuple[int, ...]:
+        """Window sizes in cells, `w_k = 2 b^k + 1` (or `2 k b + 1`), k = 0, 1, ...: the series
+        stops after the first window of at least `max_window_m` (PDAL's `while (ws < max)` loop:
+        3, 5, 9, 17, 33 cells for the defaults)."""
+        sizes: list[int] = []
+        k = 0
+        while not sizes or sizes[-1] * self.cell_m < self.max_window_m - 1e-9:
+            sizes.append(2 * self.base ** k + 1 if self.exponential else 2 * (k + 1) * self.base + 1)
+            k += 1
+        return tuple(sizes)
+
+
+class Params(eqx.Module):
+    """Traced PMF thresholds (float32; optax may tune them).
+
+    Attributes:
+      slope: terrain slope, rise over run [-] ("s", Eq. 7).
+      initial_distance_m: elevation threshold of the first window [m] ("dh0").
+      max_distance_m: cap on the elevation threshold [m] ("dh_max").
+    """
+
+    slope: Float[Array, ""] = eqx.field(default=1.0, converter=_f32)
+    initial_distance_m: Float[Array, ""] = eqx.field(default=0.15, converter=_f32)
+    max_distance_m: Float[Array, ""] = eqx.field(default=2.5, converter=_f32)
+
+    def check(self) -> None:
+        """Range checks on concrete values (call outside jit): raises ValueError naming the key."""
+        for name in ("slope", "initial_distance_m", "max_distance_m"):
+            value = float(getattr(self, name))
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+
+
+# Coarse scene types (not per-sample values).
+PRESETS: dict[str, dict[str, float]] = {
+    "urban": {"max_window_m": 33.0, "slope": 1.0, "initial_distance_m": 0.15, "max_distance_m": 2.5},
+    "steep": {"max_window_m": 17.0, "slope": 1.5, "initial_distance_m": 0.3, "max_distance_m": 3.0},
+    "flat": {"max_window_m": 65.0, "slope": 0.5, "initial_distance_m": 0.15, "max_distance_m": 2.0},
+}
