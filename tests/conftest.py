@@ -2,10 +2,19 @@
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import jax
 import pytest
+
+# Test modules are imported with --import-mode=importlib (same basenames in different folders
+# are fine); helper modules (tests/reference.py, tests/<folder>/<name>.py) are found on this path.
+# Names of helper modules must be unique across folders: tests/ comes first.
+_TESTS = Path(__file__).resolve().parent
+for _folder in [_TESTS, *sorted(p for p in _TESTS.iterdir() if p.is_dir() and not p.name.startswith((".", "_")))]:
+    if str(_folder) not in sys.path:
+        sys.path.append(str(_folder))
 
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
