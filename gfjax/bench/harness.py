@@ -1,0 +1,237 @@
+"""A timing harness for ground filters: warm-up, repeated wall times, JAX compile time, peak RSS.
+
+STYLE.md "Benchmarks": warm up once, then time the call until its result is on the host (our
+filters return host numpy arrays, so `fn()` returning is the end of the work; pass
+`block=True` to `time_call` for functions that return JAX arrays). Compile time is reported
+apart: `CompileClock` sums the durations JAX itself records for each XLA compilation
+(`jax.monitoring` event `/jax/core/compile/backend_compile_duration`) and for tracing and
+lowering, so no second compile is needed to measure it.
+
+Peak memory of one run is read in a fresh interpreter (`run_isolated`): a child process runs
+one target function and reports its own high-water mark (`VmHWM` of `/proc/self/status`,
+else `ru_maxrss`), so earlier runs never inflate a later run's peak.
+
+Used by `gfjax bench` (`gfjax.bench.run`) and by the speed experiments in `experiments/`.
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import importlib
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+# JAX events (jax._src.dispatch) whose durations make up compilation, in seconds.
+BACKEND_COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
+TRACE_LOWER_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
+                      "/jax/core/compile/jaxpr_to_mlir_module_duration")
+# Environment variables that switch JAX's persistent compilation cache on (gfjax.cli.main):
+# removed in isolated runs so that compile times are those of a cold start.
+_CACHE_ENV = ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
+              "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "JAX_COMPILATION_CACHE_MAX_SIZE")
+_MIB = 1 << 20
+
+
+@dataclasses.dataclass(frozen=True)
+class Timing:
+    """Wall times of one function: a warm-up call, then `repeat` timed calls [s]."""
+
+    warmup_s: tuple[float, ...]   # the untimed-for-the-median calls (first one includes compiles)
+    times_s: tuple[float, ...]    # the timed calls, in order
+
+    @property
+    def median_s(self) -> float:
+        return statistics.median(self.times_s)
+
+    @property
+    def min_s(self) -> float:
+        return min(self.times_s)
+
+
+def _block(value: Any) -> Any:
+    """Wait for every JAX array in `value` (a pytree) to be computed."""
+    jax = sys.modules.get("jax")
+    if jax is None:
+        return value
+    return jax.block_until_ready(value)
+
+
+def time_call(fn: Callable[[], Any], *, repeat: int = 3, warmup: int = 1,
+              block: bool = False) -> tuple[Timing, Any]:
+    """Call `fn()` `warmup` times, then `repeat` timed times; return the timing and last result.
+
+    Args:
+      fn: a function of no arguments (close over the inputs).
+      repeat: timed calls (>= 1).
+      warmup: calls before the timed ones (>= 0); their times are kept in `Timing.warmup_s`.
+      block: wait for JAX arrays in the result (`jax.block_until_ready`) inside each timing.
+
+    Returns:
+      `(Timing, result of the last call)`.
+    """
+    if repeat < 1 or warmup < 0:
+        raise ValueError(f"repeat must be >= 1 and warmup >= 0, got repeat={repeat}, warmup={warmup}")
+    result = None
+    warm, timed = [], []
+    for i in range(warmup + repeat):
+        start = time.perf_counter()
+        result = fn()
+        if block:
+            result = _block(result)
+        (warm if i < warmup else timed).append(time.perf_counter() - start)
+    return Timing(tuple(warm), tuple(timed)), result
+
+
+class CompileClock:
+    """Seconds JAX spends compiling while the clock is open (a `jax.monitoring` listener).
+
+    `compile_s` sums XLA backend compilations; `trace_lower_s` sums tracing to jaxprs and
+    lowering to MLIR (a nested `jit` traced inside another may count twice there). Hits of
+    the persistent compilation cache record no backend compile. Use as a context manager:
+
+        with CompileClock() as clock:
+            method.filter(cloud)
+        clock.compile_s, clock.n_compiles
+    """
+
+    def __init__(self) -> None:
+        self.compile_s = 0.0
+        self.trace_lower_s = 0.0
+        self.n_compiles = 0
+        self._monitoring = None
+
+    def _listen(self, event: str, duration_s: float, **_: Any) -> None:
+        if event == BACKEND_COMPILE_EVENT:
+            self.compile_s += float(duration_s)
+            self.n_compiles += 1
+        elif event in TRACE_LOWER_EVENTS:
+            self.trace_lower_s += float(duration_s)
+
+    def __enter__(self) -> CompileClock:
+        import jax.monitoring
+
+        self._monitoring = jax.monitoring
+        jax.monitoring.register_event_duration_secs_listener(self._listen)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._monitoring.unregister_event_duration_listener(self._listen)
+
+
+def _status_kib(field: str) -> int | None:
+    """A `kB` field of `/proc/self/status` (Linux), or None."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def peak_rss_bytes() -> int:
+    """Peak resident set size of this process so far [bytes] (VmHWM, else ru_maxrss)."""
+    kib = _status_kib("VmHWM")
+    if kib is not None:
+        return kib * 1024
+    import resource
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak if sys.platform == "darwin" else peak * 1024   # bytes on macOS, KiB on Linux
+
+
+def rss_bytes() -> int:
+    """Current resident set size of this process [bytes] (VmRSS; 0 where unknown)."""
+    kib = _status_kib("VmRSS")
+    return kib * 1024 if kib is not None else 0
+
+
+def mib(n_bytes: float) -> float:
+    return n_bytes / _MIB
+
+
+class IsolatedError(RuntimeError):
+    """A target run in a child process failed; `str()` is its last error line."""
+
+
+def run_isolated(target: str, kwargs: Mapping[str, Any], *, timeout_s: float | None = None,
+                 env: Mapping[str, str] | None = None, pythonpath: Sequence[str | os.PathLike] = (),
+                 keep_compile_cache: bool = False) -> dict:
+    """Run `module:function(**kwargs)` in a fresh Python process; return its result dict.
+
+    The child imports the module, calls the function (which returns a JSON-able dict) and
+    adds `peak_rss_bytes` (its own high-water mark, measured after the call) and
+    `child_wall_s` (import + call). Its stdout/stderr (e.g. a C++ peer's progress lines) are
+    captured and dropped unless it fails.
+
+    Args:
+      target: `"package.module:function"`.
+      kwargs: JSON-able keyword arguments of the function.
+      timeout_s: kill the child after this many seconds (None: no limit).
+      env: extra environment variables for the child (e.g. `OMP_NUM_THREADS`).
+      pythonpath: folders put in front of the child's `sys.path`.
+      keep_compile_cache: keep JAX's persistent compilation cache if the environment enables
+        it (default: off in the child, so compile times are cold-start times).
+
+    Raises:
+      IsolatedError: the child exited non-zero, timed out, or returned no result.
+    """
+    child_env = dict(os.environ)
+    if not keep_compile_cache:
+        for key in _CACHE_ENV:
+            child_env.pop(key, None)
+    child_env.update(env or {})
+    with tempfile.TemporaryDirectory(prefix="gfjax-bench-") as tmp:
+        out = Path(tmp) / "result.json"
+        spec = {"target": target, "kwargs": dict(kwargs), "out": str(out),
+                "pythonpath": [os.fspath(p) for p in pythonpath]}
+        command = [sys.executable, "-c", "import sys; from gfjax.bench.harness import _child_main; "
+                   "sys.exit(_child_main(sys.argv[1]))", json.dumps(spec)]
+        try:
+            done = subprocess.run(command, env=child_env, capture_output=True, text=True,
+                                  timeout=timeout_s, check=False)
+        except subprocess.TimeoutExpired:
+            raise IsolatedError(f"{target}: no result within {timeout_s:g} s (killed)") from None
+        if done.returncode != 0 or not out.exists():
+            lines = [ln for ln in (done.stderr or done.stdout or "").splitlines() if ln.strip()]
+            last = lines[-1].strip() if lines else f"exit code {done.returncode}, no output"
+            raise IsolatedError(f"{target}: {last}")
+        return json.loads(out.read_text())
+
+
+def _child_main(spec_json: str) -> int:
+    """Entry point of the child process of `run_isolated`."""
+    spec = json.loads(spec_json)
+    sys.path[:0] = spec["pythonpath"]
+    start = time.perf_counter()
+    module_name, _, function_name = spec["target"].partition(":")
+    function = getattr(importlib.import_module(module_name), function_name)
+    result = dict(function(**spec["kwargs"]))
+    result["peak_rss_bytes"] = peak_rss_bytes()
+    result["child_wall_s"] = time.perf_counter() - start
+    Path(spec["out"]).write_text(json.dumps(result))
+    return 0
+
+
+@contextlib.contextmanager
+def stopwatch() -> Iterator[list[float]]:
+    """`with stopwatch() as t: ...` then `t[0]` is the elapsed wall time [s]."""
+    elapsed = [0.0]
+    start = time.perf_counter()
+    try:
+        yield elapsed
+    finally:
+        elapsed[0] = time.perf_counter() - start
+
+
+__all__ = ["Timing", "time_call", "CompileClock", "peak_rss_bytes", "rss_bytes", "mib",
+           "IsolatedError", "run_isolated", "stopwatch", "BACKEND_COMPILE_EVENT"]
