@@ -26,7 +26,7 @@ from gfjax.io.cloud import Cloud
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
 
-__all__ = ["Diagnostics", "filter", "run_raster_stages", "SHAPE_QUANTUM_PX", "MAX_BATCH"]
+__all__ = ["Diagnostics", "filter", "run_raster_stages", "stage_options", "SHAPE_QUANTUM_PX", "MAX_BATCH"]
 
 SHAPE_QUANTUM_PX = 16          # tile rasters are padded to multiples of this (few compiles)
 MAX_BATCH = 8                  # tiles per vmap call
@@ -107,8 +107,7 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
     h, w = z.shape
     core = max(1, math.ceil(config.raster_tile_m / cell_m))
     buf = math.ceil(config.raster_buffer_m / cell_m)
-    kwargs = dict(max_filter_px=config.max_filter_px, max_close_px=config.close_max_px // 2,
-                  border_patches=config.border_patches, hole_test=config.hole_test)
+    kwargs = stage_options(config)
     w_m = jnp.float32(cell_m)
     if h <= core + 2 * buf and w <= core + 2 * buf:
         shape = (_round_up(h, SHAPE_QUANTUM_PX), _round_up(w, SHAPE_QUANTUM_PX))
@@ -145,6 +144,12 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
     labels, conv = label_components(jnp.asarray(fields["ngnem_rc"]), connectivity=8)
     instances, _ = relabel_consecutive(labels)
     return stages.RasterStages(**fields, instances=np.asarray(instances), converged=converged and bool(conv))
+
+
+def stage_options(config: Config) -> dict:
+    """The static keyword arguments of `stages.raster_stages` for a `Config`."""
+    return dict(max_filter_px=config.max_filter_px, max_close_px=config.close_max_px // 2,
+                border_patches=config.border_patches, hole_test=config.hole_test)
 
 
 def _pad_tile(z, layer, valid, shape):
