@@ -1,0 +1,19 @@
+"""Differentiable tuning of filter thresholds (SPEC section 7, issue 9).
+
+```python
+import gfjax
+from gfjax.tune import Problem, Sample, Settings, fit
+samples = [Sample.from_cloud(gfjax.read("labelled.laz"))]
+problem = Problem(samples, config=gfjax.smrf.Config(), max_window_m=24.0)
+result = fit(problem, Settings(steps=60))
+```
+`relax` holds the soft thresholds, `params` the bounded parametrisation and params.json,
+`smrf` the relaxed SMRF pipeline, `fit` the optax loop and the block validation.
+"""
+from gfjax.tune import relax
+from gfjax.tune.fit import FitResult, Settings, Validation, fit, hard_errors, validate
+from gfjax.tune.params import read_params, write_params
+from gfjax.tune.problem import Problem, Sample, block_folds
+
+__all__ = ["relax", "Sample", "Problem", "Settings", "FitResult", "Validation", "fit", "validate",
+           "hard_errors", "block_folds", "read_params", "write_params"]

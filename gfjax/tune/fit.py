@@ -1,0 +1,353 @@
+"""The optax loop: relaxed SMRF fitted to labelled samples, with a prior and block validation.
+
+`fit` minimises, per parameter group g (one set of thresholds shared by the samples mapped
+to it),
+
+    sum_c w_c * L(c; theta_g(c)) + prior * sum_g ||(theta_g - theta_default) / (hi - lo)||^2,
+
+where L is the expected total error (or 1 - soft kappa) of sample c, pooled over its tiles,
+under the relaxed pipeline (`gfjax.tune.smrf`) at a temperature annealed geometrically (e.g.
+0.5 m -> 0.02 m). Adam acts on the unconstrained `raw` parameters (`gfjax.tune.params`).
+Every `eval_every` steps the hard (plain-filter) total error is measured and the best
+iterate per group is kept, so the result is never worse on the training labels than the
+starting point. The static window is searched on `GRID["window_m"]`: a fit per value.
+
+`validate` adds the out-of-sample guard of issue 9: k-fold by spatial block, tuning on k-1
+folds and scoring the held-out fold with the hard filter, tuned against the defaults.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from gfjax import metrics
+from gfjax.smrf.config import Config
+from gfjax.tune import params as tparams
+from gfjax.tune import relax
+from gfjax.tune import smrf as tsmrf
+from gfjax.tune.problem import Problem
+
+__all__ = ["Settings", "FitResult", "fit", "hard_errors", "soft_loss", "LOSSES"]
+
+LOSSES = ("total-error", "kappa")
+BOUNDS = tsmrf.BOUNDS
+DEFAULTS = np.asarray([b.default for b in BOUNDS], np.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """Tuning settings.
+
+    Attributes:
+      steps: Adam steps per window value.
+      learning_rate: Adam step on the unconstrained parameters.
+      temperature_start_m, temperature_end_m: geometric annealing of the relaxation [m].
+      prior: weight of the squared distance to the defaults (bounded scale).
+      loss: "total-error" (expected total error) or "kappa" (1 - soft kappa).
+      windows_m: the window grid (static parameter).
+      eval_every: steps between hard evaluations (best iterate kept).
+    """
+
+    steps: int = 60
+    learning_rate: float = 0.08
+    temperature_start_m: float = 0.3
+    temperature_end_m: float = 0.02
+    prior: float = 0.01
+    loss: str = "total-error"
+    windows_m: tuple[float, ...] = tsmrf.GRID["window_m"]
+    eval_every: int = 10
+
+    def __post_init__(self):
+        if self.steps < 1:
+            raise ValueError(f"steps must be >= 1, got {self.steps}")
+        if self.loss not in LOSSES:
+            raise ValueError(f"loss must be one of {LOSSES}, got {self.loss!r}")
+        if not (self.prior >= 0 and np.isfinite(self.prior)):
+            raise ValueError(f"prior must be finite and >= 0, got {self.prior}")
+        if not self.windows_m or any(w <= 0 for w in self.windows_m):
+            raise ValueError(f"windows_m must hold values > 0, got {self.windows_m}")
+        if self.eval_every < 1:
+            raise ValueError(f"eval_every must be >= 1, got {self.eval_every}")
+
+
+def _bucket_confusions(values, radius_px, bucket_prep, ref, cloud, mask, group, *, config, temperature,
+                       n_samples):
+    """Per-sample (soft or hard) confusion counts `(n_samples, 4)` of one bucket."""
+    tile_values = values[group[cloud]]                                   # (b, p)
+
+    def one(prep, vals):
+        return tsmrf.ground_weight(prep, tsmrf.make_params(vals), config=config, radius_px=radius_px,
+                                   temperature=temperature)
+
+    weight = jax.vmap(one)(bucket_prep, tile_values)                     # (b, cap)
+    weight = weight.astype(jnp.float32)
+    conf = jax.vmap(metrics.soft_confusion)(weight, ref, mask)            # 4 x (b,)
+    stacked = jnp.stack(conf, axis=-1)                                    # (b, 4)
+    return jax.ops.segment_sum(stacked, cloud, num_segments=n_samples)
+
+
+def _confusions(values, radius_px, buckets, masks, group, *, config, temperature, n_samples):
+    total = jnp.zeros((n_samples, 4), jnp.float32)
+    for (prep, ref, cloud), mask in zip(buckets, masks):
+        total = total + _bucket_confusions(values, radius_px, prep, ref, cloud, mask, group, config=config,
+                                           temperature=temperature, n_samples=n_samples)
+    return total
+
+
+def _sample_loss(conf, kind: str):
+    c = metrics.SoftConfusion(conf[..., 0], conf[..., 1], conf[..., 2], conf[..., 3])
+    if kind == "kappa":
+        return 1 - jax.vmap(metrics.soft_kappa)(c)
+    return jax.vmap(metrics.expected_total_error)(c)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "kind", "n_samples"))
+def soft_loss(raw, radius_px, temperature, buckets, masks, group, weight, prior, *, config: Config,
+              kind: str, n_samples: int):
+    """Relaxed objective (scalar) for unconstrained `raw` `(g, 3)` at a window of `radius_px`
+    openings (traced int32); `group` int32 `(c,)` maps samples to rows of `raw`, `weight`
+    float32 `(c,)` weighs their losses."""
+    values = tparams.from_raw(raw, BOUNDS)
+    conf = _confusions(values, radius_px, buckets, masks, group, config=config, temperature=temperature,
+                       n_samples=n_samples)
+    data = jnp.sum(weight * _sample_loss(conf, kind))
+    return data + prior * jnp.sum(tparams.prior_penalty(raw, BOUNDS))
+
+
+_soft_value_and_grad = jax.jit(jax.value_and_grad(soft_loss.__wrapped__),
+                               static_argnames=("config", "kind", "n_samples"))
+
+
+@functools.partial(jax.jit, static_argnames=("config", "n_samples"))
+def _hard_confusions(values, radius_px, buckets, masks, group, *, config: Config, n_samples: int):
+    return _confusions(values, radius_px, buckets, masks, group, config=config, temperature=None, n_samples=n_samples)
+
+
+def _arrays(problem: Problem):
+    return tuple((b.prep, b.ref, b.cloud) for b in problem.buckets)
+
+
+def hard_errors(problem: Problem, values: np.ndarray, masks, group: np.ndarray, window_m: float,
+                *, kind: str = "total-error") -> np.ndarray:
+    """Plain-filter error per sample, float64 `(c,)`: total error (or 1 - kappa) of the hard
+    labels on the masked points, for values `(g, 3)` (ordered as `BOUNDS`)."""
+    radius = jnp.asarray(tsmrf.radius_for(problem.config, window_m), jnp.int32)
+    conf = np.asarray(_hard_confusions(jnp.asarray(values, jnp.float32), radius, _arrays(problem), masks,
+                                       jnp.asarray(group, jnp.int32), config=problem.config,
+                                       n_samples=problem.n_samples), np.float64)
+    conf = np.rint(conf).astype(np.int64)
+    key = "total_error" if kind == "total-error" else "kappa"
+    out = np.array([metrics.metrics_from_confusion(*map(int, c))[key] for c in conf])
+    return out if kind == "total-error" else 1 - out
+
+
+class FitResult(NamedTuple):
+    """Outcome of `fit`, per group g.
+
+    Attributes:
+      values: float32 `(g, 3)` thresholds ordered as `BOUNDS` (the best hard iterate).
+      window_m: float64 `(g,)` chosen window.
+      train_error: float64 `(g,)` hard training objective of the result: the weighted error
+        over its samples plus `prior` times the distance to the defaults.
+      start_error: float64 `(g,)` the same for the starting values.
+      history: per window, dict of arrays: `loss` `(steps,)`, `values` `(steps, g, 3)`,
+        `temperature` `(steps,)`.
+      forward_passes: hard evaluations + value-and-grad calls (each counted once).
+      gradient_calls: value-and-grad calls.
+      seconds: wall time.
+    """
+
+    values: np.ndarray
+    window_m: np.ndarray
+    train_error: np.ndarray
+    start_error: np.ndarray
+    history: dict
+    forward_passes: int
+    gradient_calls: int
+    seconds: float
+
+
+def _group_error(per_sample: np.ndarray, group: np.ndarray, weight: np.ndarray, n_groups: int) -> np.ndarray:
+    out = np.zeros(n_groups)
+    np.add.at(out, group, weight * per_sample)
+    return out
+
+
+def _penalty(values: np.ndarray) -> np.ndarray:
+    """`params.prior_penalty` on bounded values `(g, 3)` (numpy), `(g,)`."""
+    span = np.asarray([b.hi - b.lo for b in BOUNDS])
+    return np.sum(np.square((np.asarray(values, np.float64) - DEFAULTS) / span), axis=-1)
+
+
+def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=None, weight=None,
+        start: np.ndarray | None = None, progress: bool = False) -> FitResult:
+    """Fit SMRF's slope, threshold and scalar (gradient) and window (grid) to labels.
+
+    Args:
+      problem: the prepared samples.
+      settings: steps, temperatures, prior, loss, window grid.
+      masks: `problem.masks(...)`: which labelled points count (default: all).
+      group: int `(c,)` parameter group of each sample (default: one shared group).
+      weight: float `(c,)` weight of each sample's loss (default: 1 / samples per group);
+        a sample of weight 0 does not influence the fit.
+      start: float `(g, 3)` starting values (default: the defaults).
+      progress: tqdm bar over steps.
+
+    Returns:
+      A `FitResult`; per group the window and thresholds with the lowest hard training
+      objective (error + prior penalty) among the evaluated iterates (the start included).
+    """
+    t0 = time.perf_counter()
+    c = problem.n_samples
+    masks = problem.masks() if masks is None else masks
+    group = np.zeros(c, np.int32) if group is None else np.asarray(group, np.int32)
+    n_groups = int(group.max()) + 1
+    if weight is None:
+        counts = np.bincount(group, minlength=n_groups)
+        weight = 1.0 / counts[group]
+    weight = np.asarray(weight, np.float64)
+    start = np.tile(DEFAULTS, (n_groups, 1)) if start is None else np.asarray(start, np.float32)
+    arrays = _arrays(problem)
+    group_j, weight_j = jnp.asarray(group), jnp.asarray(weight, jnp.float32)
+    temps = relax.geometric_schedule(settings.temperature_start_m, settings.temperature_end_m, settings.steps)
+    optimiser = optax.adam(settings.learning_rate)
+    prior = jnp.asarray(settings.prior, jnp.float32)
+    passes = grads = 0
+
+    def evaluate(values, window_m):
+        nonlocal passes
+        passes += 1
+        errs = hard_errors(problem, values, masks, group, window_m, kind=settings.loss)
+        return _group_error(errs, group, weight, n_groups) + settings.prior * _penalty(values)
+
+    default_window = Config().window_m
+    start_window = default_window if default_window in settings.windows_m else settings.windows_m[0]
+    best_values = start.copy()
+    best_window = np.full(n_groups, start_window)
+    start_error = evaluate(start, start_window)
+    best_error = start_error.copy()
+    history = {}
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        bar = tqdm(total=settings.steps * len(settings.windows_m), desc="tune smrf", unit="step")
+    for window_m in settings.windows_m:
+        radius = jnp.asarray(tsmrf.radius_for(problem.config, window_m), jnp.int32)
+        if window_m != start_window:
+            errs = evaluate(start, window_m)
+            better = errs < best_error
+            best_error = np.where(better, errs, best_error)
+            best_window = np.where(better, window_m, best_window)
+            best_values[better] = start[better]
+        raw = jnp.stack([tparams.to_raw(dict(zip([b.name for b in BOUNDS], row)), BOUNDS) for row in start])
+        state = optimiser.init(raw)
+        losses, trail = [], []
+        for step in range(settings.steps):
+            loss, g = _soft_value_and_grad(raw, radius, temps[step], arrays, masks, group_j, weight_j,
+                                           prior, config=problem.config, kind=settings.loss, n_samples=c)
+            grads += 1
+            passes += 1
+            updates, state = optimiser.update(g, state, raw)
+            raw = optax.apply_updates(raw, updates)
+            values = np.asarray(tparams.from_raw(raw, BOUNDS))
+            losses.append(float(loss))
+            trail.append(values)
+            if (step + 1) % settings.eval_every == 0 or step == settings.steps - 1:
+                errs = evaluate(values, window_m)
+                better = errs < best_error
+                best_error = np.where(better, errs, best_error)
+                best_window = np.where(better, window_m, best_window)
+                best_values[better] = values[better]
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(window_m=window_m, loss=f"{float(loss):.4f}")
+        history[float(window_m)] = {"loss": np.asarray(losses), "values": np.stack(trail),
+                                    "temperature": np.asarray(temps)}
+    if bar is not None:
+        bar.close()
+    return FitResult(best_values, best_window, best_error, start_error, history, passes, grads,
+                     time.perf_counter() - t0)
+
+
+
+class Validation(NamedTuple):
+    """Outcome of `validate`, per group g.
+
+    Attributes:
+      values: float32 `(g, 3)` thresholds to use: the fitted ones where kept, else the defaults.
+      window_m: float64 `(g,)` window to use (the default window where not kept).
+      kept: bool `(g,)` whether validation said the fitted values help.
+      default_error, tuned_error: float64 `(g,)` mean over folds of the held-out hard error.
+      fold_errors: float64 `(folds, g, 2)` held-out error (defaults, tuned) per fold.
+      fit: the `FitResult` of the final fit on all training points.
+      forward_passes: over all fits and evaluations.
+    """
+
+    values: np.ndarray
+    window_m: np.ndarray
+    kept: np.ndarray
+    default_error: np.ndarray
+    tuned_error: np.ndarray
+    fold_errors: np.ndarray
+    fit: FitResult
+    forward_passes: int
+
+
+def validate(problem: Problem, settings: Settings = Settings(), *, point_masks=None, group=None,
+             weight=None, folds: int = 3, block_m: float = 50.0, seed: int = 0,
+             progress: bool = False) -> Validation:
+    """Fit, and keep the fit only where k-fold spatial-block validation says it helps.
+
+    The training points (`point_masks`, default all) are split into `folds` folds of square
+    blocks of `block_m` (`block_folds`). For each fold, `fit` runs on the other folds and the
+    hard total error on the held-out fold is measured for the fitted and the default values
+    (pooled per sample, weighted per group as in the fit). A group keeps the final fit (on all
+    training points) only when its mean held-out error is strictly below the defaults'.
+    `folds < 2` skips validation (kept everywhere the fit improved the training objective).
+    """
+    from gfjax.tune.problem import block_folds
+
+    c = problem.n_samples
+    group = np.zeros(c, np.int32) if group is None else np.asarray(group, np.int32)
+    n_groups = int(group.max()) + 1
+    if weight is None:
+        weight = 1.0 / np.bincount(group, minlength=n_groups)[group]
+    weight = np.asarray(weight, np.float64)
+    base = [np.ones(len(s.xyz_m), bool) for s in problem.samples] if point_masks is None else \
+        [np.asarray(m, bool) for m in point_masks]
+    defaults = np.tile(DEFAULTS, (n_groups, 1))
+    default_window = Config().window_m
+    passes = 0
+    fold_errors = np.zeros((max(folds, 0), n_groups, 2))
+    if folds >= 2:
+        fold_id = [block_folds(s.xyz_m, folds=folds, block_m=block_m, seed=seed) for s in problem.samples]
+        for k in range(folds):
+            train = problem.masks([b & (f != k) for b, f in zip(base, fold_id)])
+            held = problem.masks([b & (f == k) for b, f in zip(base, fold_id)])
+            result = fit(problem, settings, masks=train, group=group, weight=weight, progress=progress)
+            passes += result.forward_passes
+            for col, (vals, wins) in enumerate(((defaults, np.full(n_groups, default_window)),
+                                                (result.values, result.window_m))):
+                for w in np.unique(wins):
+                    errs = hard_errors(problem, vals, held, group, float(w))
+                    passes += 1
+                    fold_errors[k, wins == w, col] = _group_error(errs, group, weight, n_groups)[wins == w]
+    final = fit(problem, settings, masks=problem.masks(base), group=group, weight=weight, progress=progress)
+    passes += final.forward_passes
+    if folds >= 2:
+        default_error, tuned_error = fold_errors[..., 0].mean(axis=0), fold_errors[..., 1].mean(axis=0)
+        kept = tuned_error < default_error
+    else:
+        default_error, tuned_error = final.start_error, final.train_error
+        kept = final.train_error < final.start_error
+    values = np.where(kept[:, None], final.values, defaults).astype(np.float32)
+    window = np.where(kept, final.window_m, default_window)
+    return Validation(values, window, kept, default_error, tuned_error, fold_errors, final, passes)

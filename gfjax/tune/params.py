@@ -1,0 +1,145 @@
+"""Bounded parametrisation of the tuned thresholds, and the `params.json` file.
+
+Optax works on unconstrained reals `raw`; a parameter with bounds `[lo, hi]` is
+`lo + (hi - lo) * sigmoid(raw)` (SPEC section 7), so no step can leave its bounds. The prior
+toward the defaults is measured on the bounded scale, `((value - default) / (hi - lo))^2`.
+
+`params.json` (read by `gfjax filter --params`, `gfjax.cli._common.load_params_file`):
+```json
+{"method": "smrf", "gfjax_version": "0.1.0",
+ "units": {"slope": "1 (rise over run)", "threshold_m": "m", ...},
+ "values": {"slope": 0.17, "threshold_m": 0.45, "scalar": 1.3, "window_m": 18.0},
+ "fitted": ["slope", ...], "validation": {...}}
+```
+`values` holds only keys of the method's `Config`/`Params`; the rest is a report.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from gfjax.errors import InputError
+
+__all__ = ["Bound", "to_raw", "from_raw", "prior_penalty", "write_params", "read_params"]
+
+
+class Bound(NamedTuple):
+    """One tuned scalar: its name (a `Params` field), default, bounds and unit."""
+
+    name: str
+    default: float
+    lo: float
+    hi: float
+    unit: str
+
+
+def _check(bounds: Sequence[Bound]) -> None:
+    for b in bounds:
+        if not (b.lo < b.default < b.hi):
+            raise ValueError(f"{b.name}: default {b.default} must lie strictly inside ({b.lo}, {b.hi})")
+
+
+def to_raw(values: Mapping[str, float], bounds: Sequence[Bound]) -> Float[Array, " p"]:
+    """Unconstrained `raw` (float32 `(p,)`) of `values` (clipped just inside the bounds)."""
+    _check(bounds)
+    out = []
+    for b in bounds:
+        frac = (float(values[b.name]) - b.lo) / (b.hi - b.lo)
+        frac = min(max(frac, 1e-4), 1 - 1e-4)
+        out.append(math.log(frac / (1 - frac)))
+    return jnp.asarray(out, jnp.float32)
+
+
+def from_raw(raw: Float[Array, "... p"], bounds: Sequence[Bound]) -> Float[Array, "... p"]:
+    """Bounded values `lo + (hi - lo) * sigmoid(raw)`, same shape as `raw` (jit/vmap-able)."""
+    lo = jnp.asarray([b.lo for b in bounds], raw.dtype)
+    span = jnp.asarray([b.hi - b.lo for b in bounds], raw.dtype)
+    return lo + span * jax.nn.sigmoid(raw)
+
+
+def prior_penalty(raw: Float[Array, "... p"], bounds: Sequence[Bound]) -> Float[Array, "..."]:
+    """`sum_k ((value_k - default_k) / (hi_k - lo_k))^2`: distance to the defaults on the
+    bounded scale (0 at the defaults), summed over the last axis."""
+    values = from_raw(raw, bounds)
+    default = jnp.asarray([b.default for b in bounds], raw.dtype)
+    span = jnp.asarray([b.hi - b.lo for b in bounds], raw.dtype)
+    return jnp.sum(jnp.square((values - default) / span), axis=-1)
+
+
+def write_params(path: str | os.PathLike, *, method: str, values: Mapping[str, float],
+                 units: Mapping[str, str], extra: Mapping[str, Any] | None = None) -> Path:
+    """Write a params.json atomically (temporary file + rename). Returns the path.
+
+    Args:
+      method: the method name (`gfjax.methods.METHODS` key).
+      values: `{key: float}` for `make_config_and_params` (Config or Params fields).
+      units: `{key: unit}` for each value.
+      extra: more report entries (fitted keys, validation figures); must not hold
+        `method`, `gfjax_version`, `units` or `values`.
+    """
+    from gfjax import __version__
+
+    clean = {}
+    for key, value in values.items():
+        value = float(value)
+        if not math.isfinite(value):
+            raise ValueError(f"value of {key!r} must be finite, got {value}")
+        clean[key] = value
+    missing = sorted(set(clean) - set(units))
+    if missing:
+        raise ValueError(f"no unit for {missing}")
+    data: dict[str, Any] = {"method": method, "gfjax_version": __version__,
+                            "units": {k: units[k] for k in clean}, "values": clean}
+    for key, value in (extra or {}).items():
+        if key in data:
+            raise ValueError(f"extra entry {key!r} would overwrite a params.json field")
+        data[key] = value
+    path = Path(path)
+    text = json.dumps(data, indent=2, sort_keys=False, default=_jsonable) + "\n"
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent if str(path.parent) else ".")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def _jsonable(value):
+    if isinstance(value, (np.generic, jax.Array)):
+        return np.asarray(value).tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def read_params(path: str | os.PathLike) -> dict[str, Any]:
+    """Read a params.json; raises `InputError` naming the file for a bad one.
+
+    Returns:
+      The JSON object; `values` maps keys to floats.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"{path}: not a readable JSON file ({err})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("values"), dict) or not isinstance(data.get("method"), str):
+        raise InputError(f"{path}: expected a JSON object with 'method' and 'values'")
+    for key, value in data["values"].items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise InputError(f"{path}: value of {key!r} must be a finite number, got {value!r}")
+    return data

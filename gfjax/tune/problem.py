@@ -1,0 +1,161 @@
+"""Labelled samples cut into tiles, prepared once, in fixed-shape buckets for the tuning loop.
+
+A `Problem` holds, for a list of labelled clouds, the parameter-free part of a method's
+pipeline (`gfjax.tune.smrf.prepare_tile`) per shape bucket of `gfjax.io.tiles`, with the
+reference labels padded alike. Which labelled points count (a training half, a fold) is an
+array argument (`Problem.masks`), not part of the compiled shapes, so every protocol of a
+run reuses the same preparation and the same compiled loss.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gfjax.errors import InputError
+from gfjax.io import tiles as tiling
+from gfjax.io.cloud import Cloud
+from gfjax.smrf.config import Config
+from gfjax.tune import smrf as tsmrf
+
+__all__ = ["Sample", "Bucket", "Problem", "block_folds"]
+
+
+class Sample(NamedTuple):
+    """One labelled cloud.
+
+    Attributes:
+      name: for reports.
+      xyz_m: float64 `(n, 3)` [m].
+      ref_ground: bool `(n,)` reference ground (class 2).
+      use: bool `(n,)` points the filter sees (noise and withheld excluded).
+    """
+
+    name: str
+    xyz_m: np.ndarray
+    ref_ground: np.ndarray
+    use: np.ndarray
+
+    @classmethod
+    def from_cloud(cls, cloud: Cloud, *, returns: str = "all") -> "Sample":
+        """Reference ground = ASPRS class 2 of the cloud (ISPRS: object = class 0)."""
+        try:
+            use = cloud.filter_mask(returns)
+        except ValueError as err:
+            raise InputError(f"{cloud.name}: {err}") from None
+        ref = np.asarray(cloud.classification) == 2
+        return cls(cloud.name, np.asarray(cloud.xyz_m, np.float64), ref, use)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Bucket:
+    """Tiles of one shape bucket, prepared (`Prepared` fields carry a leading `b` axis)."""
+
+    prep: tsmrf.Prepared
+    ref: jax.Array              # bool (b, cap) reference ground
+    cloud: jax.Array            # int32 (b,) sample index of each tile
+    core_index: np.ndarray      # int64 (b, cap) cloud point index of core points, -1 elsewhere
+    shape: tuple[int, int]
+
+
+def block_folds(xyz_m: np.ndarray, *, folds: int, block_m: float, seed: int = 0) -> np.ndarray:
+    """Fold id `0..folds-1` per point from square spatial blocks of `block_m` (int `(n,)`).
+
+    Blocks are shuffled (seeded) and dealt round-robin to the folds, so folds are balanced in
+    blocks and every block lies wholly in one fold (k-fold by block).
+    """
+    if folds < 2:
+        raise ValueError(f"folds must be >= 2, got {folds}")
+    if not block_m > 0:
+        raise ValueError(f"block_m must be > 0, got {block_m}")
+    xy = np.asarray(xyz_m)[:, :2]
+    cells = np.floor((xy - xy.min(axis=0)) / block_m).astype(np.int64)
+    _, block = np.unique(cells, axis=0, return_inverse=True)
+    block = block.reshape(-1)
+    order = np.random.default_rng(seed).permutation(block.max() + 1)
+    fold_of_block = np.empty_like(order)
+    fold_of_block[order] = np.arange(order.size) % folds
+    return fold_of_block[block]
+
+
+@functools.partial(jax.jit, static_argnames=("config", "shape"))
+def _prepare_batch(xyz, valid, hw, *, config: Config, shape):
+    fn = functools.partial(tsmrf.prepare_tile.__wrapped__, config=config, shape=shape)
+    return jax.vmap(fn)(xyz, valid, hw)
+
+
+class Problem:
+    """Labelled samples prepared for tuning SMRF at windows up to `max(window grid)`.
+
+    Args:
+      samples: labelled clouds.
+      config: static SMRF settings (cell, tiling; the window is replaced by `max_window_m`).
+      max_window_m: the largest window tried (openings are computed up to it).
+      max_batch: tiles per vmapped batch.
+    """
+
+    def __init__(self, samples: Sequence[Sample], *, config: Config, max_window_m: float,
+                 max_batch: int = 8):
+        if not samples:
+            raise InputError("no labelled samples to tune on")
+        self.samples = list(samples)
+        self.config = dataclasses.replace(config, window_m=float(max(max_window_m, config.window_m)))
+        tiles, owner = [], {}
+        for i, s in enumerate(self.samples):
+            for tile in tiling.split(s.xyz_m, tile_size_m=config.tile_size_m, buffer_m=config.buffer_m,
+                                     cell_m=config.cell_m, use=s.use):
+                owner[id(tile)] = i
+                tiles.append(tile)
+        if not tiles:
+            raise InputError("the labelled samples hold no usable point")
+        self.buckets: list[Bucket] = []
+        for batch in tiling.batches(tiles, max_batch=max_batch):
+            prep = _prepare_batch(batch.xyz, batch.valid, batch.hw, config=self.config, shape=batch.shape)
+            b, cap = batch.valid.shape
+            ref = np.zeros((b, cap), bool)
+            core_index = np.full((b, cap), -1, np.int64)
+            cloud = np.zeros(b, np.int32)
+            for j, tile in enumerate(batch.tiles):
+                i = owner[id(tile)]
+                cloud[j] = i
+                ref[j, :tile.n_points] = self.samples[i].ref_ground[tile.index]
+                core_index[j, :tile.n_points] = np.where(tile.core, tile.index, -1)
+            self.buckets.append(Bucket(prep, jnp.asarray(ref), jnp.asarray(cloud), core_index, batch.shape))
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.samples)
+
+    def masks(self, point_masks: Sequence[np.ndarray] | None = None) -> tuple[jax.Array, ...]:
+        """Per bucket, bool `(b, cap)`: the labelled core points that count.
+
+        Args:
+          point_masks: per sample a bool `(n,)` over its points (None: all of them).
+        """
+        out = []
+        for bucket in self.buckets:
+            mask = bucket.core_index >= 0
+            if point_masks is not None:
+                cloud = np.asarray(bucket.cloud)
+                for j in range(mask.shape[0]):
+                    pm = np.asarray(point_masks[cloud[j]], bool)
+                    idx = bucket.core_index[j]
+                    mask[j] &= np.where(idx >= 0, pm[np.maximum(idx, 0)], False)
+            out.append(jnp.asarray(mask))
+        return tuple(out)
+
+    def labels(self, per_bucket_ground: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """Per sample a bool `(n,)` ground array from per-bucket `(b, cap)` labels (cores)."""
+        out = [np.zeros(len(s.xyz_m), bool) for s in self.samples]
+        for bucket, ground in zip(self.buckets, per_bucket_ground):
+            cloud = np.asarray(bucket.cloud)
+            ground = np.asarray(ground)
+            for j in range(ground.shape[0]):
+                idx = bucket.core_index[j]
+                out[cloud[j]][idx[idx >= 0]] = ground[j][idx >= 0]
+        return out
