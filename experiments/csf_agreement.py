@@ -10,7 +10,7 @@ filter times (gfjax: after one warm-up call, compile time apart), gfjax's simula
 Usage:
   nice .venv/bin/python experiments/csf_agreement.py [FILES...] [--json OUT]
 Default files: the 11 ISPRS samples and lasR_bcts/bcts_1.laz of ../shared/data. Results:
-`experiments/results/csf_agreement.json` and `.md`.
+`experiments/results/csf_agreement.json` (and the printed table, `csf_agreement.txt`).
 """
 from __future__ import annotations
 

@@ -72,7 +72,7 @@ class Config:
     iterations: int = 500
     slope_smooth: bool = True
     wavefront_skew: int = 4
-    scan_unroll: int = 2
+    scan_unroll: int = 1
 
     def __post_init__(self) -> None:
         if not (isinstance(self.cell_m, (int, float)) and math.isfinite(self.cell_m) and self.cell_m > 0):
