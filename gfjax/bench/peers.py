@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import warnings
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -36,8 +37,11 @@ class Peer(NamedTuple):
 
 def _run_pysmrf(xyz_m: np.ndarray) -> np.ndarray:
     pysmrf = importlib.import_module("pysmrf")
-    result = pysmrf.classify(xyz_m[:, 0], xyz_m[:, 1], xyz_m[:, 2], cellsize=1.0, windows=18,
-                             slope_threshold=0.15, elevation_threshold=0.5, elevation_scaler=1.25)
+    with warnings.catch_warnings():   # pysmrf 1.0.2 multiplies affine transforms with `*`
+        warnings.simplefilter("ignore", PendingDeprecationWarning)
+        warnings.simplefilter("ignore", DeprecationWarning)
+        result = pysmrf.classify(xyz_m[:, 0], xyz_m[:, 1], xyz_m[:, 2], cellsize=1.0, windows=18,
+                                 slope_threshold=0.15, elevation_threshold=0.5, elevation_scaler=1.25)
     return np.asarray(result.is_ground, dtype=bool)
 
 
