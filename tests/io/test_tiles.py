@@ -83,11 +83,16 @@ def test_bad_options_raise():
 
 
 @pytest.fixture(scope="module")
-def whole_labels(scene):
-    return smrf_filter(Cloud.from_xyz(scene), config=WHOLE).ground
+def whole(scene):
+    return smrf_filter(Cloud.from_xyz(scene), config=WHOLE)
 
 
-def test_smrf_whole_equals_tiled(scene, whole_labels):
+@pytest.fixture(scope="module")
+def whole_labels(whole):
+    return whole.ground
+
+
+def test_smrf_whole_equals_tiled(scene, whole, whole_labels):
     """SMRF is local (openings up to 3 cells, enclosed holes): a 16 m buffer makes the tiled
     labels identical to the whole-cloud labels everywhere, seams included."""
     tiled = smrf_filter(Cloud.from_xyz(scene), config=TILED)
@@ -95,6 +100,11 @@ def test_smrf_whole_equals_tiled(scene, whole_labels):
     np.testing.assert_array_equal(tiled.ground, whole_labels)
     _, truth = dense_scene()
     assert np.mean(whole_labels == truth) > 0.99 and not whole_labels.all()
+    # the mosaic of the tile cores is the whole cloud's raster (fills agree to the solver tolerance)
+    np.testing.assert_array_equal(tiled.diagnostics.object_cells, whole.diagnostics.object_cells)
+    np.testing.assert_array_equal(tiled.diagnostics.zimin, whole.diagnostics.zimin)
+    np.testing.assert_allclose(tiled.diagnostics.zipro, whole.diagnostics.zipro, atol=5e-3)
+    np.testing.assert_array_equal(tiled.diagnostics.origin_m, whole.diagnostics.origin_m)
 
 
 def test_vmap_batch_equals_tile_by_tile(scene):
