@@ -40,6 +40,11 @@ class Config:
       low_cluster_max_m2: the neighbourhood test applies to connected clusters of potential
         ground cells (linked within 5x5 when their z differ by at most `neighbour_drop_m`) up to
         this area: a cluster every link out of which goes up is a low outlier patch (R) [m^2].
+      pit_slope: top-layer seeds joined by a TIN edge are linked when their z differ by at most
+        `neighbour_drop_m + pit_slope * min(edge length, pit_cap_m)`; a linked group of seeds
+        (fewer than half of them) all of whose other edges climb is a pit of low outliers and
+        leaves the seeds (R, see `densify.low_seed_pits`) [-]; None switches the test off.
+      pit_cap_m: edge length beyond which the allowed step stops growing [m].
       empty_tol_m: tolerance of the empty-sphere test along the dual Voronoi edge [m].
     """
 
@@ -51,6 +56,8 @@ class Config:
     outlier_gap_m: float = 1.0
     neighbour_drop_m: float = 1.0
     low_cluster_max_m2: float = 1.0
+    pit_slope: float | None = 1.0
+    pit_cap_m: float = 4.0
     empty_tol_m: float = 1e-3
 
     def __post_init__(self) -> None:
@@ -61,6 +68,10 @@ class Config:
                 raise ValueError(f"{name} must be finite and > 0, got {value!r}")
         if not (math.isfinite(self.low_cluster_max_m2) and self.low_cluster_max_m2 >= 0):
             raise ValueError(f"low_cluster_max_m2 must be finite and >= 0, got {self.low_cluster_max_m2!r}")
+        if self.pit_slope is not None and not (math.isfinite(self.pit_slope) and self.pit_slope >= 0):
+            raise ValueError(f"pit_slope must be finite and >= 0 (or None), got {self.pit_slope!r}")
+        if not (math.isfinite(self.pit_cap_m) and self.pit_cap_m >= 0):
+            raise ValueError(f"pit_cap_m must be finite and >= 0, got {self.pit_cap_m!r}")
         if not (math.isfinite(self.empty_tol_m) and self.empty_tol_m >= 0):
             raise ValueError(f"empty_tol_m must be finite and >= 0, got {self.empty_tol_m!r}")
         if self.alpha_min_m is not None and not (math.isfinite(self.alpha_min_m) and self.alpha_min_m > 0):

@@ -2,7 +2,8 @@
 
 1. The points of the top layer are the seeds of a 2D TIN, with simulated ground points at the
    centres of a ring of buffer cells around the grid (z of the nearest top-layer point), so
-   every point lies inside the TIN and no long thin triangles form at its edge.
+   every point lies inside the TIN and no long thin triangles form at its edge. Seeds that
+   form pits in the seed TIN (`low_seed_pits`, our addition) are dropped first.
 2. For each lower layer k, its points not yet ground whose perpendicular distance to the facet
    under them is below `DT_k = st * alpha_k + ft_m` (Eq. 2) become ground; they are all tested
    against the TIN of the previous layers, then inserted together (non-iterative per layer).

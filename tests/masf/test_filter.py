@@ -109,3 +109,56 @@ def test_isprs_smoke(isprs_sample, sample, max_total_error):
     result = masf.filter(cloud, config=config, params=params)
     scores = metrics.point_metrics(result.ground, cloud.classification == 2)
     assert scores["total_error"] <= max_total_error
+
+
+def ground_plane(size_m=40.0, seed=0, density=1.0):
+    rng = np.random.default_rng(seed)
+    n = int(density * size_m * size_m)
+    xy = rng.uniform(0, size_m, (n, 2))
+    z = 50.0 + 0.05 * xy[:, 1] + rng.normal(0, 0.03, n)
+    return xy, z
+
+
+def test_a_patch_of_low_outliers_is_not_ground_and_does_not_drag_the_ground_down():
+    """A 4 x 4 m patch of multipath points 8 m below the ground (as in ISPRS samp41): the
+    per-cell and single-cell rules keep them (they have each other); the seed pit test drops them."""
+    xy, z = ground_plane()
+    patch = (np.abs(xy[:, 0] - 20) < 2) & (np.abs(xy[:, 1] - 20) < 2)
+    z[patch] -= 8.0
+    xyz = np.column_stack([xy + 400_000.0, z])
+    result = masf.filter(Cloud.from_xyz(xyz))
+    assert not result.ground[patch].any()
+    assert result.ground[~patch].mean() > 0.98
+    without_test = masf.filter(Cloud.from_xyz(xyz), config=masf.Config(pit_slope=None))
+    assert without_test.ground[patch].all()                 # the cell rules alone keep the patch
+
+
+def test_a_courtyard_enclosed_by_a_building_stays_ground():
+    """Ground inside a ring-shaped building looks like a pit among all cells (roofs around it)
+    but not among the top-layer seeds, which hold no roof point."""
+    xy, z = ground_plane(size_m=56.0, seed=4)
+    outer = (np.abs(xy[:, 0] - 28) < 14) & (np.abs(xy[:, 1] - 28) < 14)
+    inner = (np.abs(xy[:, 0] - 28) < 6) & (np.abs(xy[:, 1] - 28) < 6)
+    roof = outer & ~inner
+    z[roof] += 9.0
+    result = masf.filter(Cloud.from_xyz(np.column_stack([xy + 400_000.0, z])), config=masf.Config(alpha_max_m=30.0))
+    assert not result.ground[roof].any()
+    assert result.ground[inner].mean() > 0.95 and result.ground[~outer].mean() > 0.97
+
+
+def test_low_seed_pits_unit():
+    from gfjax.masf.densify import low_seed_pits
+    g = np.arange(0.0, 30.0, 3.0)
+    xx, yy = np.meshgrid(g, g)
+    xyz = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)])
+    centre = np.flatnonzero((xx.ravel() == 15.0) & (yy.ravel() == 15.0))
+    pits = low_seed_pits(xyz, drop_m=1.0, slope=1.0, cap_m=4.0)
+    assert not pits.any()                                   # flat: no pit
+    xyz[centre, 2] = -7.0                                   # a step of 7 m > 1 + 1 * 3 m
+    pits = low_seed_pits(xyz, drop_m=1.0, slope=1.0, cap_m=4.0)
+    assert np.flatnonzero(pits).tolist() == centre.tolist()
+    xyz[centre, 2] = -3.5                                   # within 1 + 3 m of its neighbours: linked
+    assert not low_seed_pits(xyz, drop_m=1.0, slope=1.0, cap_m=4.0).any()
+    slope = xyz.copy()
+    slope[:, 2] = 0.9 * slope[:, 0]                         # a steep slope has no pit
+    assert not low_seed_pits(slope, drop_m=1.0, slope=1.0, cap_m=4.0).any()
