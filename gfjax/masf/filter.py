@@ -10,6 +10,15 @@ Modified 3D Alpha Shape", Remote Sens. 16:1443. Reads like the paper (Fig. 1):
    from one 3D Delaunay triangulation;
 3. multiscale TIN densification with `DT_k = ST * alpha_k + FT` (Eq. 2; Sec. 2.4; `densify`).
 
+Our readings where the paper is silent (R), beside SPEC section 4's:
+- the bottom TIN of the "below" test is rasterised on the 1 m grid from the potential ground
+  points themselves (one per cell; empty cells from the nearest occupied cell), sampled
+  bilinearly; a centre outside the points' convex hull is never below;
+- the neighbourhood low-outlier test compares a cell with every occupied cell of its 5x5
+  window (`preprocess`), and a second test drops pits of low outliers from the top-layer seeds
+  (`densify.low_seed_pits`): patches of multipath points that hold each other up;
+- the pyramid stops at the last `alpha_k >= alpha_min` (alpha_min itself is not appended).
+
 Defined results on degenerate input (SPEC section 1): no used point -> no ground; when the
 potential ground points span no tetrahedron (fewer than 4, or all coplanar or collinear) the
 pyramid is skipped and every potential ground point seeds the TIN, so a flat tile, a single

@@ -25,7 +25,7 @@ class Preprocessed(NamedTuple):
       occupied: bool `(h, w)`, cells holding at least one point.
       gap_outliers: int, points removed by the per-cell gap rule that were their cell's lowest.
       neighbour_outliers: bool `(h, w)`, cells whose potential ground point the neighbourhood
-        test removed.
+        test removed (they hold no potential ground point).
     """
 
     index: np.ndarray
@@ -52,13 +52,17 @@ def potential_ground(xyz_m: np.ndarray, *, grid_m: float, outlier_gap_m: float,
     Extended local minimum (Sec. 2.1): the points of a cell, sorted by z, are walked upwards;
     a point whose gap to the next point of its cell exceeds `outlier_gap_m` is an outlier; the
     first point that is not is the cell's potential ground point (the top point of a cell is
-    never an outlier, so every occupied cell has one). Then (R, SPEC 4.1): a potential ground
-    point more than `neighbour_drop_m` below the lowest potential ground point of its occupied
-    3x3 neighbour cells (5x5 where the 3x3 ring is empty) is a low outlier and is removed.
+    never an outlier, so every occupied cell has one). Then the neighbourhood test (R): a
+    connected group of at most `max_cluster_cells` cells (linked within 5x5 when their z differ
+    by at most `neighbour_drop_m`) that lies more than `neighbour_drop_m` below every occupied
+    cell around it is a low outlier (`_low_clusters`). With the default single cell this is
+    SPEC 4.1's rule, except that all occupied cells of the 5x5 window count (SPEC: the 3x3
+    ring, the 5x5 one only where the 3x3 ring is empty).
 
     Args:
       xyz_m: float64 `(n, 3)` local metres, `x, y >= 0` (subtract the minimum corner first).
       grid_m: cell side [m]. outlier_gap_m, neighbour_drop_m: thresholds [m].
+      max_cluster_cells: largest group of cells the neighbourhood test removes together.
 
     Returns:
       A `Preprocessed`. The choice depends only on the coordinates, never on point order:
