@@ -4,8 +4,12 @@ Every function takes one tile (no batch axis) and is correct under `jax.vmap`. A
 of static shape `(h, w)` may be padded beyond the tile's own extent `hw = (h_data, w_data)`
 (a traced int32 pair, so tiles of different extents share one compiled shape): the data
 occupy the south-west corner, rows `h - h_data .. h - 1` and columns `0 .. w_data - 1`
-(row 0 = north, docs/ARCHITECTURE.md). That corner is the `domain`; the morphology ignores
-cells outside it, exactly as if the raster ended at the domain's edge.
+(row 0 = north, docs/ARCHITECTURE.md). That corner is the `domain`: the openings ignore cells
+outside it and the slope uses one-sided differences at its edge, exactly as if the raster
+ended there; bilinear sampling sees the domain's edge values continued over the padding. The
+harmonic fill alone treats padding cells as unknowns (zero flux at the padded raster's border),
+so padding can move the fill of empty cells that touch the domain's edge; where every edge cell
+holds a point, padding changes nothing (tests/io/test_tiles.py).
 
 The thresholds are isolated in `is_object` and `is_ground_point`, so `gfjax.tune` can swap
 them for relaxed (sigmoid) versions.
@@ -20,7 +24,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from gfjax._types import XY, Heights, Mask, PointMask, Points, Raster
+from gfjax._types import Heights, Mask, PointMask, Points, Raster
 from gfjax.raster.fill import inpaint_harmonic, inpaint_nearest
 from gfjax.raster.grid import sample_bilinear
 from gfjax.raster.morphology import opening
