@@ -165,7 +165,7 @@ class IsolatedError(RuntimeError):
 
 def run_isolated(target: str, kwargs: Mapping[str, Any], *, timeout_s: float | None = None,
                  env: Mapping[str, str] | None = None, pythonpath: Sequence[str | os.PathLike] = (),
-                 keep_compile_cache: bool = False) -> dict:
+                 keep_compile_cache: bool = False, cpus: Sequence[int] | None = None) -> dict:
     """Run `module:function(**kwargs)` in a fresh Python process; return its result dict.
 
     The child imports the module, calls the function (which returns a JSON-able dict) and
@@ -181,6 +181,9 @@ def run_isolated(target: str, kwargs: Mapping[str, Any], *, timeout_s: float | N
       pythonpath: folders put in front of the child's `sys.path`.
       keep_compile_cache: keep JAX's persistent compilation cache if the environment enables
         it (default: off in the child, so compile times are cold-start times).
+      cpus: pin the child to these CPU ids (`os.sched_setaffinity`, before anything is
+        imported; XLA and OpenMP size their thread pools from it) and set `OMP_NUM_THREADS`
+        to their number. None: the parent's CPUs and environment.
 
     Raises:
       IsolatedError: the child exited non-zero, timed out, or returned no result.
@@ -189,11 +192,14 @@ def run_isolated(target: str, kwargs: Mapping[str, Any], *, timeout_s: float | N
     if not keep_compile_cache:
         for key in _CACHE_ENV:
             child_env.pop(key, None)
+    if cpus is not None:
+        child_env["OMP_NUM_THREADS"] = str(len(cpus))
     child_env.update(env or {})
     with tempfile.TemporaryDirectory(prefix="gfjax-bench-") as tmp:
         out = Path(tmp) / "result.json"
         spec = {"target": target, "kwargs": dict(kwargs), "out": str(out),
-                "pythonpath": [os.fspath(p) for p in pythonpath]}
+                "pythonpath": [os.fspath(p) for p in pythonpath],
+                "cpus": None if cpus is None else [int(c) for c in cpus]}
         command = [sys.executable, "-c", "import sys; from gfjax.bench.harness import _child_main; "
                    "sys.exit(_child_main(sys.argv[1]))", json.dumps(spec)]
         try:
@@ -208,15 +214,32 @@ def run_isolated(target: str, kwargs: Mapping[str, Any], *, timeout_s: float | N
         return json.loads(out.read_text())
 
 
+def choose_cpus(n_threads: int | None) -> list[int] | None:
+    """The first `n_threads` CPUs this process may run on (None for None).
+
+    Raises:
+      ValueError: `n_threads` < 1 or more than the CPUs available.
+    """
+    if n_threads is None:
+        return None
+    allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if not 1 <= n_threads <= len(allowed):
+        raise ValueError(f"threads must be between 1 and {len(allowed)} (CPUs available), got {n_threads}")
+    return allowed[:n_threads]
+
+
 def _child_main(spec_json: str) -> int:
     """Entry point of the child process of `run_isolated`."""
     spec = json.loads(spec_json)
+    if spec.get("cpus") is not None:
+        os.sched_setaffinity(0, spec["cpus"])
     sys.path[:0] = spec["pythonpath"]
     start = time.perf_counter()
     module_name, _, function_name = spec["target"].partition(":")
     function = getattr(importlib.import_module(module_name), function_name)
     result = dict(function(**spec["kwargs"]))
     result["peak_rss_bytes"] = peak_rss_bytes()
+    result["n_cpus"] = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     result["child_wall_s"] = time.perf_counter() - start
     Path(spec["out"]).write_text(json.dumps(result))
     return 0
@@ -234,4 +257,4 @@ def stopwatch() -> Iterator[list[float]]:
 
 
 __all__ = ["Timing", "time_call", "CompileClock", "peak_rss_bytes", "rss_bytes", "mib",
-           "IsolatedError", "run_isolated", "stopwatch", "BACKEND_COMPILE_EVENT"]
+           "IsolatedError", "run_isolated", "choose_cpus", "stopwatch", "BACKEND_COMPILE_EVENT"]

@@ -20,7 +20,7 @@ from gfjax.bench import harness, peers
 from gfjax.errors import InputError
 
 SCHEMA = "gfjax-bench/1"
-RECORD_KEYS = ("file", "filter", "kind", "status", "error", "n_points", "n_used", "n_ground",
+RECORD_KEYS = ("file", "filter", "kind", "status", "error", "n_cpus", "n_points", "n_used", "n_ground",
                "first_call_s", "compile_s", "filter_s", "read_s", "write_s", "job_s",
                "filter_times_s", "job_times_s", "points_per_s", "filter_points_per_s",
                "peak_rss_mib", "baseline_rss_mib", "rss_per_million_points_mib",
@@ -86,11 +86,13 @@ def _rates(record: dict) -> None:
 
 
 def run_one(path: Path, runner: Runner, *, repeat: int = 1, units: str | None = None,
-            timeout_s: float | None = None, env: dict | None = None) -> dict:
+            timeout_s: float | None = None, env: dict | None = None, threads: int | None = None) -> dict:
     """Benchmark one filter on one file in a fresh process; a record with `RECORD_KEYS`.
 
-    A failure of the filter (an exception, a crash, the timeout) gives `status="failed"` and
-    the error's last line in `error`, with the other figures None.
+    `threads`: run on that many CPUs (`harness.choose_cpus`: affinity and `OMP_NUM_THREADS`),
+    the same for every filter; None: every CPU, environment as is. A failure of the filter (an
+    exception, a crash, the timeout) gives `status="failed"` and the error's last line in
+    `error`, with the other figures None.
     """
     record = dict.fromkeys(RECORD_KEYS)
     record.update(file=str(path), filter=runner.label, kind=runner.kind, status="ok")
@@ -98,7 +100,7 @@ def run_one(path: Path, runner: Runner, *, repeat: int = 1, units: str | None = 
         result = harness.run_isolated("gfjax.bench.job:bench_one",
                                       {"path": str(path), "kind": runner.kind, "name": runner.name,
                                        "repeat": repeat, "units": units},
-                                      timeout_s=timeout_s, env=env)
+                                      timeout_s=timeout_s, env=env, cpus=harness.choose_cpus(threads))
     except harness.IsolatedError as err:
         record.update(status="failed", error=str(err))
         return record
@@ -140,13 +142,14 @@ def _cpu_model() -> str:
     return platform.processor()
 
 
-def document(records: list[dict], *, repeat: int, notes: Sequence[str], command: str) -> dict:
+def document(records: list[dict], *, repeat: int, notes: Sequence[str], command: str,
+             threads: int | None = None) -> dict:
     """The JSON document of a benchmark (schema `SCHEMA`)."""
     from gfjax import __version__
 
     return {"schema": SCHEMA, "gfjax_version": __version__, "command": command,
             "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "machine": machine(), "repeat": repeat, "dtm_cell_m": 2.0, "notes": list(notes),
+            "machine": machine(), "repeat": repeat, "threads": threads, "dtm_cell_m": 2.0, "notes": list(notes),
             "runs": records, "summary": summarize(records)}
 
 
@@ -187,15 +190,19 @@ def _aligned(header: list[str], body: list[list[str]], *, left: int = 2) -> str:
     return "\n".join(lines)
 
 
-def format_table(records: Sequence[dict]) -> str:
-    """One row per (file, filter): times, throughput, memory and accuracy (percent)."""
-    header = ["file", "filter", "points", "filter s", "compile s", "job s", "points/s", "peak MiB",
-              "total err %", "type I %", "type II %", "kappa", "F1", "DTM RMSE m"]
+TABLE_HEADER = ["file", "filter", "points", "filter s", "compile s", "job s", "points/s", "peak MiB",
+                "total err %", "type I %", "type II %", "kappa", "F1", "DTM RMSE m"]
+SUMMARY_HEADER = ["filter", "files", "labelled", "mean total err %", "mean type I %", "mean type II %",
+                  "mean kappa", "mean DTM RMSE m", "points/s (pooled)", "max peak MiB"]
+
+
+def table_rows(records: Sequence[dict]) -> tuple[list[list[str]], list[str]]:
+    """Cells of `TABLE_HEADER` for each record, and one line per failed run."""
     body, failures = [], []
     for r in records:
         name = Path(r["file"]).name
         if r["status"] != "ok":
-            body.append([name, r["filter"], "failed", *["-"] * (len(header) - 3)])
+            body.append([name, r["filter"], "failed", *["-"] * (len(TABLE_HEADER) - 3)])
             failures.append(f"failed: {name}, {r['filter']}: {r['error']}")
             continue
         pm, dm = r["point_metrics"] or {}, r["dtm_metrics"] or {}
@@ -203,18 +210,32 @@ def format_table(records: Sequence[dict]) -> str:
                      f"{r['job_s']:.2f}", f"{r['points_per_s']:,.0f}", f"{r['peak_rss_mib']:.0f}",
                      _pct(pm.get("total_error")), _pct(pm.get("type1")), _pct(pm.get("type2")),
                      _num(pm.get("kappa"), ".4f"), _num(pm.get("f1"), ".4f"), _num(dm.get("rmse_m"), ".3f")])
-    return "\n".join([_aligned(header, body), *failures])
+    return body, failures
+
+
+def summary_rows(summary: Sequence[dict]) -> list[list[str]]:
+    """Cells of `SUMMARY_HEADER` for each row of `summarize`."""
+    return [[s["filter"], str(s["n_files"]), str(s["n_labelled"]), _pct(s["mean_total_error"]),
+             _pct(s["mean_type1"]), _pct(s["mean_type2"]), _num(s["mean_kappa"], ".4f"),
+             _num(s["mean_dtm_rmse_m"], ".3f"), _num(s["points_per_s"], ",.0f"), _num(s["max_peak_rss_mib"], ".0f")]
+            for s in summary]
+
+
+def format_table(records: Sequence[dict]) -> str:
+    """One row per (file, filter): times, throughput, memory and accuracy (percent)."""
+    body, failures = table_rows(records)
+    return "\n".join([_aligned(TABLE_HEADER, body), *failures])
 
 
 def format_summary(summary: Sequence[dict]) -> str:
     """Per filter: mean accuracy over its labelled files (unweighted), pooled points/s."""
-    header = ["filter", "files", "labelled", "mean total err %", "mean type I %", "mean type II %",
-              "mean kappa", "mean DTM RMSE m", "points/s (pooled)", "max peak MiB"]
-    body = [[s["filter"], str(s["n_files"]), str(s["n_labelled"]), _pct(s["mean_total_error"]),
-             _pct(s["mean_type1"]), _pct(s["mean_type2"]), _num(s["mean_kappa"], ".4f"),
-             _num(s["mean_dtm_rmse_m"], ".3f"), _num(s["points_per_s"], ",.0f"), _num(s["max_peak_rss_mib"], ".0f")]
-            for s in summary]
-    return _aligned(header, body, left=1)
+    return _aligned(SUMMARY_HEADER, summary_rows(summary), left=1)
+
+
+def markdown(header: Sequence[str], body: Sequence[Sequence[str]], *, left: int = 2) -> str:
+    """A Markdown table; columns after the first `left` are right-aligned."""
+    rule = ["---" if i < left else "---:" for i in range(len(header))]
+    return "\n".join("| " + " | ".join(row) + " |" for row in [header, rule, *body])
 
 
 def has_accuracy(records: Sequence[dict]) -> bool:
@@ -274,4 +295,5 @@ def command_line() -> str:
 
 
 __all__ = ["SCHEMA", "RECORD_KEYS", "Runner", "plan", "run_one", "iter_runs", "machine", "document",
-           "summarize", "format_table", "format_summary", "has_accuracy", "json_safe", "plot"]
+           "summarize", "TABLE_HEADER", "SUMMARY_HEADER", "table_rows", "summary_rows", "format_table",
+           "format_summary", "markdown", "has_accuracy", "json_safe", "plot"]

@@ -48,6 +48,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--json", default=None, metavar="OUT.json", help="write every figure as JSON")
     parser.add_argument("--plot", default=None, metavar="PNG",
                         help="draw total error against points per second (labelled files)")
+    parser.add_argument("--threads", type=_positive_int, default=None, metavar="N",
+                        help="run every filter on the same N CPUs (affinity and OMP_NUM_THREADS; "
+                             "default: all CPUs, environment as is)")
     parser.add_argument("--timeout", type=positive_float, default=None, metavar="S",
                         help="give up on one (file, filter) run after S seconds (default: no limit)")
     add_units_option(parser)
@@ -57,7 +60,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
+    from gfjax.bench import harness
     from gfjax.bench import run as bench
+    from gfjax.errors import InputError
     from gfjax.io import las as las_io
 
     inputs = las_io.expand_inputs(args.inputs)
@@ -67,6 +72,11 @@ def run(args: argparse.Namespace) -> int:
         las_io.check_output(args.json, input_paths=inputs, suffixes=(".json",), option="--json")
     if args.plot:
         las_io.check_output(args.plot, input_paths=inputs, suffixes=(".png",), option="--plot")
+    if args.threads is not None:
+        try:
+            harness.choose_cpus(args.threads)
+        except ValueError as err:
+            raise InputError(f"--threads: {err}") from None
     runners, notes = bench.plan(args.methods, args.peers)
     for note in notes:
         print(note, file=sys.stderr)
@@ -75,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     records = []
     with tqdm(total=pairs, desc="bench", unit="run", disable=pairs == 1) as bar:
         for record in bench.iter_runs(inputs, runners, repeat=args.repeat, units=args.units,
-                                      timeout_s=args.timeout):
+                                      timeout_s=args.timeout, threads=args.threads):
             records.append(record)
             bar.update(1)
     summary = bench.summarize(records)
@@ -84,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
         print()
         print(bench.format_summary(summary))
     if args.json:
-        document = bench.document(records, repeat=args.repeat, notes=notes, command=bench.command_line())
+        document = bench.document(records, repeat=args.repeat, notes=notes, command=bench.command_line(),
+                                  threads=args.threads)
         with las_io.atomic_output(args.json, input_paths=inputs, suffixes=(".json",), option="--json") as tmp:
             tmp.write_text(json.dumps(bench.json_safe(document), indent=2, allow_nan=False) + "\n")
     if args.plot and bench.has_accuracy(records):

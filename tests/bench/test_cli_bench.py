@@ -13,7 +13,7 @@ from gfjax.bench import run as bench
 from gfjax.cli.main import main
 from gfjax.metrics import DTM_KEYS, POINT_KEYS
 
-TOP_KEYS = {"schema", "gfjax_version", "command", "created_utc", "machine", "repeat", "dtm_cell_m",
+TOP_KEYS = {"schema", "gfjax_version", "command", "created_utc", "machine", "repeat", "threads", "dtm_cell_m",
             "notes", "runs", "summary"}
 
 
@@ -28,7 +28,7 @@ def test_bench_smrf_end_to_end_with_a_missing_peer(scene, tmp_path, capsys, monk
     monkeypatch.setitem(sys.modules, "pysmrf", None)          # as if the [bench] extra were absent
     out_json, out_png = tmp_path / "bench.json", tmp_path / "bench.png"
     code = main(["bench", str(labelled), "--methods", "smrf", "--peers", "pysmrf",
-                 "--repeat", "2", "--json", str(out_json), "--plot", str(out_png)])
+                 "--repeat", "2", "--threads", "1", "--json", str(out_json), "--plot", str(out_png)])
     captured = capsys.readouterr()
     assert code == 0, captured.err
     assert "peer pysmrf skipped: not installed" in captured.err
@@ -36,14 +36,14 @@ def test_bench_smrf_end_to_end_with_a_missing_peer(scene, tmp_path, capsys, monk
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
     doc = json.loads(out_json.read_text())
-    assert set(doc) == TOP_KEYS and doc["schema"] == bench.SCHEMA and doc["repeat"] == 2
+    assert set(doc) == TOP_KEYS and doc["schema"] == bench.SCHEMA and doc["repeat"] == 2 and doc["threads"] == 1
     assert doc["notes"] == [peers.skip_note("pysmrf")]
     assert doc["machine"]["nproc"] >= 1
     (run,) = doc["runs"]
     assert set(run) == set(bench.RECORD_KEYS)
     assert run["file"] == str(labelled) and run["filter"] == "gfjax smrf"
     assert run["status"] == "ok" and run["error"] is None and run["kind"] == "method"
-    assert run["n_points"] == run["n_used"] == 3000
+    assert run["n_points"] == run["n_used"] == 3000 and run["n_cpus"] == 1
     assert len(run["filter_times_s"]) == len(run["job_times_s"]) == 2
     assert 0 < run["filter_s"] <= run["job_s"]
     assert run["compile_s"] > 0 and run["first_call_s"] > run["compile_s"]
@@ -80,6 +80,7 @@ def test_bench_peer_only_labelled_and_unlabelled(scene, tmp_path, capsys):
     (["--peers", "nosuch"], "--peers: unknown peer 'nosuch'"),
     (["--methods", "none", "--peers", "none"], "nothing to run"),
     (["--repeat", "0"], "--repeat: must be >= 1"),
+    (["--threads", "100000"], "--threads: threads must be between 1 and"),
     (["--json", "out.txt"], "--json out.txt: output must end in .json"),
     (["--plot", "out.jpg"], "--plot out.jpg: output must end in .png"),
 ])

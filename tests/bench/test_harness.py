@@ -114,6 +114,17 @@ def test_run_isolated_drops_the_persistent_compile_cache(child_module, monkeypat
     assert kept["cache"] == "/nonexistent/cache"
 
 
+def test_run_isolated_pins_the_child(child_module):
+    (child_module / "bench_cpu_target.py").write_text(
+        "import os\ndef cpus():\n    return {'cpus': sorted(os.sched_getaffinity(0)), 'omp': os.environ.get('OMP_NUM_THREADS')}\n")
+    first = harness.choose_cpus(1)
+    got = harness.run_isolated("bench_cpu_target:cpus", {}, pythonpath=[child_module], cpus=first)
+    assert got["cpus"] == first and got["omp"] == "1" and got["n_cpus"] == 1
+    with pytest.raises(ValueError, match="threads must be between 1"):
+        harness.choose_cpus(0)
+    assert harness.choose_cpus(None) is None
+
+
 def test_stopwatch():
     with harness.stopwatch() as elapsed:
         time.sleep(0.02)
