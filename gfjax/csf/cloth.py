@@ -69,30 +69,28 @@ def _skew_index(shape: tuple[int, int], skew: int) -> tuple[np.ndarray, np.ndarr
     return to_skew.astype(np.int32), from_skew.astype(np.int32), n_t
 
 
-def wavefront_sweep(u: Raster, movable: Mask, exists: Mask, *, rigidness: int, skew: int = EXACT_SKEW,
-                    unroll: int = 1) -> Raster:
-    """One pass of the package's spring relaxation, in wavefronts `t = i + skew * j`.
+def wavefront_sweep(u: Raster, movable: Mask, exists: Mask, *, rigidness: int, unroll: int = 1) -> Raster:
+    """One pass of the package's spring relaxation, in wavefronts `t = i + 4 j`.
 
     The package walks particles in `j * w + i` order, each relaxing its 16 springs in place.
     Particle `p` touches `p` and its 16 neighbours; two particles whose touched sets overlap are
-    at most 4 apart in `i` and `j`, and none is at `(4, -1)`. With `skew = 4` the particles of a
-    wavefront touch disjoint sets, and every overlapping pair is met in the package's order, so
+    at most 4 apart in `i` and `j`, and none is at `(4, -1)`. So the particles of a wavefront
+    `t = i + 4 j` touch disjoint sets, and every overlapping pair is met in the package's order:
     the sweep is the package's, exactly (same operations on the same values in the same order).
     It costs `w + 4 (h - 1)` dependent scan steps, each vectorised over the `h` lanes `j`.
-    A smaller `skew` is a faster approximation (fewer, conflicting wavefronts).
 
     Args:
       u: heights `(h, w)` [m] (`[j, i]`, row 0 south).
       movable, exists: bool `(h, w)`; fixed particles never move, springs to particles that do
         not exist (padding) are skipped.
       rigidness: static; sets `double_move` / `single_move` (Particle.h).
-      skew: static wavefront slope (4: exact).
       unroll: static unroll factor of the scan (speed only).
 
     Returns:
       Heights `(h, w)` [m] after the pass.
     """
     both, single = double_move(rigidness), single_move(rigidness)
+    skew = EXACT_SKEW
     h, w = u.shape
     to_skew, from_skew, n_t = _skew_index((h, w), skew)
     reach = 2 + 2 * skew                                   # largest |t| offset of a spring
@@ -132,10 +130,9 @@ def _lanes(line: Array, dl: int, n: int) -> Array:
     return lax.slice_in_dim(line, 2 + dl, 2 + dl + n, axis=0)
 
 
-def relax_springs(u: Raster, movable: Mask, exists: Mask, *, rigidness: int, skew: int = EXACT_SKEW,
-                  unroll: int = 1) -> Raster:
+def relax_springs(u: Raster, movable: Mask, exists: Mask, *, rigidness: int, unroll: int = 1) -> Raster:
     """One step's spring relaxation (Cloth.cpp `timeStep`, the `satisfyConstraintSelf` loop)."""
-    return wavefront_sweep(u, movable, exists, rigidness=rigidness, skew=skew, unroll=unroll)
+    return wavefront_sweep(u, movable, exists, rigidness=rigidness, unroll=unroll)
 
 
 class ClothState(NamedTuple):
@@ -188,8 +185,7 @@ def simulate(heights: Raster, exists: Mask, start_u: Float[Array, ""], time_step
     def body(s: ClothState) -> ClothState:
         u = jnp.where(s.movable, s.u + (s.u - s.u_old) * (1.0 - DAMPING) + accel, s.u)
         u_old = jnp.where(s.movable, s.u, s.u_old)
-        u = relax_springs(u, s.movable, exists, rigidness=config.rigidness, skew=config.wavefront_skew,
-                          unroll=config.scan_unroll)
+        u = relax_springs(u, s.movable, exists, rigidness=config.rigidness, unroll=config.scan_unroll)
         max_step = jnp.max(jnp.where(s.movable, jnp.abs(u - s.u), 0.0))
         hit = s.movable & (u < heights)
         return ClothState(u=jnp.where(hit, heights, u), u_old=u_old, movable=s.movable & ~hit,

@@ -61,9 +61,6 @@ class Config:
       iterations: cap on simulation steps (`interations`); the loop also stops as soon as the
         largest movable-particle displacement of a step is in (0, 0.005) m, as the package does.
       slope_smooth: post-process movable particles next to fixed ones (`bSloopSmooth`).
-      wavefront_skew: the spring sweep runs in wavefronts `i + skew * j` (`cloth.wavefront_sweep`);
-        4 reproduces the package's sequential sweep exactly, smaller values are faster and
-        approximate.
       scan_unroll: unroll factor of the sweep's scan (speed only; results are identical).
     """
 
@@ -71,13 +68,12 @@ class Config:
     rigidness: int = 3
     iterations: int = 500
     slope_smooth: bool = True
-    wavefront_skew: int = 4
     scan_unroll: int = 1
 
     def __post_init__(self) -> None:
         if not (isinstance(self.cell_m, (int, float)) and math.isfinite(self.cell_m) and self.cell_m > 0):
             raise ValueError(f"cell_m must be finite and > 0, got {self.cell_m!r}")
-        for name, low in (("rigidness", 1), ("iterations", 1), ("scan_unroll", 1), ("wavefront_skew", 1)):
+        for name, low in (("rigidness", 1), ("iterations", 1), ("scan_unroll", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
