@@ -1,20 +1,29 @@
-"""Harmonic (Laplace) inpainting of empty raster cells, coarse to fine.
+"""Harmonic (Laplace) inpainting of empty raster cells: multigrid-preconditioned CG.
 
 The filled surface u solves the discrete Laplace equation on the empty cells,
 
-    sum_{j in N4(i)} (u_j - u_i) = 0        for every cell i with ~valid[i],
+    sum_{j in N4(i)} (u_i - u_j) = 0        for every cell i with ~valid[i],
     u_i = z_i                               for every valid cell,
 
-where N4(i) are the 4-neighbours inside the raster (zero flux across the raster border). It is
-the minimum of the Dirichlet energy `sum (u_i - u_j)^2` over edges: the smoothest surface
-through the valid cells. Solver: the raster is averaged 2x2 down to a few cells; each level
-starts from the level below (nearest upsampling), and is smoothed by red-black successive
-over-relaxation (SOR); the finest level iterates until the largest update is below `tol_m`.
+where N4(i) are the 4-neighbours inside the raster (zero flux across the raster border): the
+minimiser of the Dirichlet energy `sum (u_i - u_j)^2` over edges, the smoothest surface
+through the valid cells. SMRF (Pingel et al. 2013, Sec. 2.1) inpaints ZImin and ZIpro this
+way (the paper uses D'Errico's "springs" inpaint_nans; SPEC section 6: harmonic fill measured
+best).
 
-SMRF (Pingel et al. 2013, Sec. 2.1) inpaints ZImin and ZIpro this way (the paper uses the
-"springs" inpainting of D'Errico's inpaint_nans; SPEC section 6: harmonic fill measured best).
+Solver. The system `A e = r` for the correction on empty cells is symmetric positive definite.
+Conjugate gradients are preconditioned by one symmetric multigrid V-cycle: red-black
+Gauss-Seidel smoothing (red then black before, black then red after the coarse correction),
+2x2 aggregation with the Galerkin coarse operator `P^T A P` (P = piecewise constant on the
+empty cells of each 2x2 block; still a 5-point operator, with edge weights = number of fine
+edges between blocks and a diagonal that keeps the Dirichlet couplings), and a dense solve on
+the coarsest level (<= 8 x 8). The start is a push-pull fill (each empty cell takes the mean
+of the valid cells in the smallest enclosing 2^k block that has any). Iterations stop when a
+CG step moves no cell by more than `tol_m`.
 """
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import jax.numpy as jnp
 from jax import lax
@@ -23,79 +32,161 @@ from gfjax._types import Mask, Raster
 
 __all__ = ["inpaint_harmonic"]
 
-_COARSEST = 4            # stop coarsening when both sides are <= this
-_COARSE_SWEEPS = 16      # red-black SOR sweeps per coarser level
-_OMEGA = 1.8             # over-relaxation factor (1 = Gauss-Seidel)
+_COARSEST = 8            # dense solve once both sides are <= this
+_SWEEPS = 1              # Gauss-Seidel sweeps before and after each coarse correction
+_OVERCORRECT = 1.6       # scale of the piecewise-constant coarse correction, in (0, 2): keeps
+                         # the V-cycle an A-norm contraction (SPD preconditioner); 1.6 measured
+                         # 5-10x smaller error after 8 iterations than 1.0 on a 300 x 300 raster
 
 
-def _neighbour_sum_count(u: Raster) -> tuple[Raster, Raster]:
-    """Sum of the in-raster 4-neighbours of each cell, and how many there are."""
-    h, w = u.shape
-    p = jnp.pad(u, 1)
-    total = p[:-2, 1:-1] + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:]
-    rows = jnp.arange(h)[:, None]
-    cols = jnp.arange(w)[None, :]
-    count = ((rows > 0).astype(u.dtype) + (rows < h - 1).astype(u.dtype)
-             + (cols > 0).astype(u.dtype) + (cols < w - 1).astype(u.dtype))
-    return total, jnp.broadcast_to(count, (h, w))
+class _Level(NamedTuple):
+    """A 5-point symmetric operator `(A e)_i = diag_i e_i - sum_j w_ij e_j` on one level."""
+
+    diag: Raster          # 0 on inactive cells (fixed or padding): e = 0 there
+    w_east: Raster        # weight of the edge (i, j) - (i, j + 1); 0 in the last column
+    w_south: Raster       # weight of the edge (i, j) - (i + 1, j); 0 in the last row
 
 
-def _colours(shape) -> tuple[Mask, Mask]:
+def _shift(x: Raster, drow: int, dcol: int) -> Raster:
+    """`out[i, j] = x[i + drow, j + dcol]`, 0 outside."""
+    h, w = x.shape
+    p = jnp.pad(x, 1)
+    return lax.slice(p, (1 + drow, 1 + dcol), (1 + drow + h, 1 + dcol + w))
+
+
+def _neighbour_sum(level: _Level, e: Raster) -> Raster:
+    west = _shift(level.w_east, 0, -1)
+    north = _shift(level.w_south, -1, 0)
+    return (level.w_east * _shift(e, 0, 1) + west * _shift(e, 0, -1)
+            + level.w_south * _shift(e, 1, 0) + north * _shift(e, -1, 0))
+
+
+def _apply(level: _Level, e: Raster) -> Raster:
+    return level.diag * e - _neighbour_sum(level, e)
+
+
+def _n_inside(shape, dtype) -> Raster:
+    """Number of 4-neighbours inside the raster (from iotas: no large constant to fold)."""
     h, w = shape
-    red = ((jnp.arange(h)[:, None] + jnp.arange(w)[None, :]) % 2) == 0
-    return red, ~red
+    rows, cols = lax.broadcasted_iota(jnp.int32, shape, 0), lax.broadcasted_iota(jnp.int32, shape, 1)
+    return ((rows > 0).astype(dtype) + (rows < h - 1).astype(dtype)
+            + (cols > 0).astype(dtype) + (cols < w - 1).astype(dtype))
 
 
-def _sor_sweep(u: Raster, free: Mask, red: Mask, omega: float) -> tuple[Raster, Raster]:
-    """One red-black SOR sweep on the free cells; returns (u, largest |update|)."""
-    biggest = jnp.zeros((), u.dtype)
-    for colour in (red, ~red):
-        total, count = _neighbour_sum_count(u)
-        step = jnp.where(free & colour, total / count - u, 0)
-        u = u + omega * step
-        biggest = jnp.maximum(biggest, jnp.max(jnp.abs(step)))
-    return u, biggest
+def _finest(valid: Mask, dtype) -> _Level:
+    free = ~valid
+    n_inside = _n_inside(valid.shape, dtype)
+    east = free & (_shift(free.astype(jnp.int8), 0, 1) > 0)
+    south = free & (_shift(free.astype(jnp.int8), 1, 0) > 0)
+    return _Level(jnp.where(free, n_inside, 0).astype(dtype), east.astype(dtype), south.astype(dtype))
 
 
-def _coarsen(z: Raster, valid: Mask) -> tuple[Raster, Mask]:
-    """2x2 means of the valid cells (odd sides padded); a coarse cell is valid if any child is."""
-    h, w = z.shape
-    ph, pw = h % 2, w % 2
-    zs = jnp.pad(jnp.where(valid, z, 0), ((0, ph), (0, pw)))
-    vs = jnp.pad(valid, ((0, ph), (0, pw))).astype(z.dtype)
-    zs = zs.reshape((h + ph) // 2, 2, (w + pw) // 2, 2).sum(axis=(1, 3))
-    vs = vs.reshape((h + ph) // 2, 2, (w + pw) // 2, 2).sum(axis=(1, 3))
-    return zs / jnp.maximum(vs, 1), vs > 0
+def _pad_even(x: Raster) -> Raster:
+    h, w = x.shape
+    return jnp.pad(x, ((0, h % 2), (0, w % 2)))
 
 
-def _refine(coarse: Raster, shape) -> Raster:
+def _quads(x: Raster) -> tuple[Raster, Raster, Raster, Raster]:
+    """The four cells of each 2x2 block, `(x[2I, 2J], x[2I, 2J+1], x[2I+1, 2J], x[2I+1, 2J+1])`,
+    after padding to even sides with zeros (strided slices: they fuse, unlike a reshape-sum)."""
+    x = _pad_even(x)
+    return x[0::2, 0::2], x[0::2, 1::2], x[1::2, 0::2], x[1::2, 1::2]
+
+
+def _coarsen(level: _Level) -> _Level:
+    """Galerkin `P^T A P` for piecewise-constant prolongation over 2x2 blocks."""
+    d00, d01, d10, d11 = _quads(level.diag)
+    e00, e01, e10, e11 = _quads(level.w_east)
+    s00, s01, s10, s11 = _quads(level.w_south)
+    internal = e00 + e10 + s00 + s01
+    return _Level(diag=d00 + d01 + d10 + d11 - 2 * internal, w_east=e01 + e11, w_south=s10 + s11)
+
+
+def _restrict(r: Raster) -> Raster:
+    a, b, c, d = _quads(r)
+    return a + b + c + d
+
+
+def _prolong(ec: Raster, shape) -> Raster:
     h, w = shape
-    return jnp.repeat(jnp.repeat(coarse, 2, axis=0), 2, axis=1)[:h, :w]
+    hc, wc = ec.shape
+    up = jnp.broadcast_to(ec[:, None, :, None], (hc, 2, wc, 2)).reshape(2 * hc, 2 * wc)
+    return up[:h, :w]
 
 
-def _solve(z: Raster, valid: Mask, sweeps: int) -> Raster:
-    """Coarse-to-fine initial guess for the level `(z, valid)` plus `sweeps` SOR sweeps."""
+def _gauss_seidel(level: _Level, e: Raster | None, r: Raster, red_first: bool) -> Raster:
+    """One red-black Gauss-Seidel sweep for `A e = r` on active cells (`e=None`: start at 0)."""
+    red = ((lax.broadcasted_iota(jnp.int32, r.shape, 0) + lax.broadcasted_iota(jnp.int32, r.shape, 1)) % 2) == 0
+    active = level.diag > 0
+    safe = jnp.where(active, level.diag, 1)
+    for colour in ((red, ~red) if red_first else (~red, red)):
+        if e is None:                   # neighbours all 0: no shifted reads (nothing to fold)
+            e = jnp.where(active & colour, r / safe, 0)
+        else:
+            e = jnp.where(active & colour, (r + _neighbour_sum(level, e)) / safe, e)
+        e = lax.optimization_barrier(e)
+    return e
+
+
+def _dense_solve(level: _Level, r: Raster) -> Raster:
+    h, w = r.shape
+    n = h * w
+    idx = jnp.arange(n)
+    active = level.diag.reshape(-1) > 0
+    a = jnp.zeros((n, n), r.dtype).at[idx, idx].set(jnp.where(active, level.diag.reshape(-1), 1))
+    east, south = level.w_east.reshape(-1), level.w_south.reshape(-1)
+    a = a.at[idx, jnp.minimum(idx + 1, n - 1)].add(-jnp.where(idx + 1 < n, east, 0))
+    a = a.at[jnp.minimum(idx + 1, n - 1), idx].add(-jnp.where(idx + 1 < n, east, 0))
+    a = a.at[idx, jnp.minimum(idx + w, n - 1)].add(-jnp.where(idx + w < n, south, 0))
+    a = a.at[jnp.minimum(idx + w, n - 1), idx].add(-jnp.where(idx + w < n, south, 0))
+    e = jnp.linalg.solve(a, jnp.where(active, r.reshape(-1), 0)[:, None])[:, 0]
+    return jnp.where(active, e, 0).reshape(h, w)
+
+
+def _hierarchy(level: _Level) -> list[_Level]:
+    levels = [level]
+    while max(levels[-1].diag.shape) > _COARSEST:
+        levels.append(_coarsen(levels[-1]))
+    return levels
+
+
+def _v_cycle(levels: list[_Level], r: Raster, depth: int = 0) -> Raster:
+    """Symmetric V-cycle: an SPD approximation of `A^{-1} r` (the CG preconditioner)."""
+    level = levels[depth]
+    if depth == len(levels) - 1:
+        return _dense_solve(level, r)
+    e = _gauss_seidel(level, None, r, red_first=True)
+    for _ in range(_SWEEPS - 1):
+        e = _gauss_seidel(level, e, r, red_first=True)
+    # Barriers: XLA would otherwise fuse each producer into its shifted/strided consumers and
+    # recompute it many times over (measured: a V-cycle 10-20x slower on 1000 x 1000).
+    rc = lax.optimization_barrier(_restrict(r - _apply(level, e)))
+    ec = _v_cycle(levels, rc, depth + 1)
+    e = lax.optimization_barrier(e + _OVERCORRECT * jnp.where(level.diag > 0, _prolong(ec, r.shape), 0))
+    for _ in range(_SWEEPS):
+        e = _gauss_seidel(level, e, r, red_first=False)
+    return e
+
+
+def _push_pull(z: Raster, valid: Mask) -> Raster:
+    """Each empty cell: the mean of the valid cells of its smallest data-holding 2^k block."""
     h, w = z.shape
-    if h <= _COARSEST and w <= _COARSEST:
-        mean = jnp.sum(jnp.where(valid, z, 0)) / jnp.maximum(jnp.sum(valid), 1).astype(z.dtype)
-        u = jnp.where(valid, z, mean)
-        sweeps = max(sweeps, 4 * _COARSEST)
-    else:
-        zc, vc = _coarsen(z, valid)
-        u = jnp.where(valid, z, _refine(_solve(zc, vc, _COARSE_SWEEPS), (h, w)))
-    red, _ = _colours((h, w))
-    u = lax.fori_loop(0, sweeps, lambda _, x: _sor_sweep(x, ~valid, red, _OMEGA)[0], u)
-    return u
+    if max(h, w) <= 1:
+        return z
+    zs = _restrict(jnp.where(valid, z, 0))
+    count = _restrict(valid.astype(z.dtype))
+    coarse = _push_pull(zs / jnp.maximum(count, 1), count > 0)
+    return jnp.where(valid, z, _prolong(coarse, (h, w)))
 
 
-def inpaint_harmonic(z: Raster, valid: Mask, *, max_iter: int = 2000, tol_m: float = 1e-4) -> Raster:
+def inpaint_harmonic(z: Raster, valid: Mask, *, max_iter: int = 100, tol_m: float = 1e-4) -> Raster:
     """Fill empty cells with the harmonic (Laplace) interpolant of the valid cells.
 
     Args:
       z: raster `(h, w)`, elevations [m]; values where `~valid` are ignored (may be inf).
       valid: bool `(h, w)`, cells with data (Dirichlet values).
-      max_iter: bound on SOR sweeps at full resolution (static).
-      tol_m: stop when a sweep changes no cell by more than this [m] (static).
+      max_iter: bound on multigrid-preconditioned CG iterations (static).
+      tol_m: stop when an iteration moves no cell by more than this [m] (static).
 
     Returns:
       `(h, w)`, dtype of `z`: `z` on valid cells, the solution of the discrete Laplace equation
@@ -105,19 +196,35 @@ def inpaint_harmonic(z: Raster, valid: Mask, *, max_iter: int = 2000, tol_m: flo
         raise ValueError(f"inpaint_harmonic: z shape {z.shape} != valid shape {valid.shape}")
     if not jnp.issubdtype(z.dtype, jnp.floating):
         raise ValueError(f"inpaint_harmonic needs a float raster, got {z.dtype}")
-    z0 = jnp.where(valid, z, jnp.zeros((), z.dtype))
-    u = _solve(z0, valid, 0)
-    red, _ = _colours(z.shape)
-    free = ~valid
+    dtype = z.dtype
+    anything = jnp.any(valid)
+    valid = valid | ~anything                       # nothing valid: solve the all-zero problem
+    z0 = jnp.where(valid & anything, z, jnp.zeros((), dtype))
+    u0 = _push_pull(z0, valid)
+    levels = _hierarchy(_finest(valid, dtype))
+    free = (~valid).astype(dtype)
+    # Residual of the Laplace equation at the start: (sum of neighbours) - n_inside * u.
+    n_inside = _n_inside(z.shape, dtype)
+    neighbours = _shift(u0, 0, 1) + _shift(u0, 0, -1) + _shift(u0, 1, 0) + _shift(u0, -1, 0)
+    r = free * (neighbours - n_inside * u0)
 
     def cond(state):
-        _, it, change = state
+        *_, it, change = state
         return (it < max_iter) & (change > tol_m)
 
     def body(state):
-        u, it, _ = state
-        u, change = _sor_sweep(u, free, red, _OMEGA)
-        return u, it + 1, change
+        e, r, p, rz, it, _ = state
+        s = _v_cycle(levels, r)                                      # preconditioned residual
+        rz_new = jnp.vdot(r, s)
+        beta = jnp.where(rz > 0, rz_new / jnp.where(rz > 0, rz, 1), 0)
+        p = s + beta * p                                             # p = s on the first pass
+        ap = _apply(levels[0], p)
+        pap = jnp.vdot(p, ap)
+        alpha = jnp.where(pap > 0, rz_new / jnp.where(pap > 0, pap, 1), 0)
+        step = alpha * p
+        return e + step, r - alpha * ap, p, rz_new, it + 1, jnp.max(jnp.abs(step))
 
-    u, _, _ = lax.while_loop(cond, body, (u, jnp.int32(0), jnp.array(jnp.inf, z.dtype)))
-    return jnp.where(valid, z, u)
+    zeros = jnp.zeros_like(r)
+    init = (zeros, r, zeros, jnp.zeros((), dtype), jnp.int32(0), jnp.array(jnp.inf, dtype))
+    e = lax.while_loop(cond, body, init)[0]
+    return jnp.where(valid & anything, z, jnp.where(anything, u0 + e, 0)).astype(dtype)

@@ -36,10 +36,10 @@ def jitted(op: str, radius: int, footprint: str):
 
 
 @functools.cache
-def jitted_all(radius: int, footprint: str, ops: tuple[str, ...] = tuple(OPS)):
+def jitted_all(radius: int, footprint: str, ops: tuple[str, ...] = tuple(OPS), **kwargs):
     """One compile for several ops (keeps the number of compiles small)."""
-    fns = [getattr(raster, op) for op in ops]
-    return jax.jit(lambda *args: [fn(*args, radius_px=radius, footprint=footprint) for fn in fns])
+    fns = [functools.partial(getattr(raster, op), radius_px=radius, footprint=footprint, **kwargs) for op in ops]
+    return jax.jit(lambda *args: [fn(*args) for fn in fns])
 
 
 @pytest.mark.parametrize("radius", [0, 1, 2, 5, 18, 25])
@@ -57,6 +57,16 @@ def test_matches_scipy_exactly(case, op, footprint):
     z, valid = reference.random_raster(case, seed=1)
     got = jitted_all(case.radius, footprint)(z, valid)[list(OPS).index(op)]
     np.testing.assert_array_equal(np.asarray(got), OPS[op](z, valid, footprint, case.radius))
+
+
+@pytest.mark.parametrize("footprint", FOOTPRINTS)
+@pytest.mark.parametrize("case", [CASES[0], CASES[1], CASES[6]], ids=str)
+def test_van_herk_matches_scipy_exactly(case, footprint):
+    """The van Herk / Gil-Werman path (algorithm="vhgw") gives the same bits as the table."""
+    z, valid = reference.random_raster(case, seed=1)
+    got = jitted_all(case.radius, footprint, algorithm="vhgw")(z, valid)
+    for op, result in zip(OPS, got):
+        np.testing.assert_array_equal(np.asarray(result), OPS[op](z, valid, footprint, case.radius), err_msg=op)
 
 
 @pytest.mark.parametrize("footprint", FOOTPRINTS)
@@ -151,6 +161,8 @@ def test_bad_arguments():
         raster.min_filter(z, radius_px=1.5)
     with pytest.raises(ValueError, match="footprint"):
         raster.min_filter(z, radius_px=1, footprint="diamond")
+    with pytest.raises(ValueError, match="algorithm"):
+        raster.min_filter(z, radius_px=1, algorithm="naive")
     with pytest.raises(ValueError, match="valid shape"):
         raster.min_filter(z, jnp.ones((3, 4), bool), radius_px=1)
     with pytest.raises(ValueError, match="bool"):
