@@ -98,10 +98,10 @@ class Params(eqx.Module):
                 raise ValueError(f"{name} must be finite and >= 0, got {value}")
 
 
-# Named overrides for `--preset` (metres). Pingel et al. (2013, Table 2) optimise per sample;
-# these are coarse scene types, not per-sample values.
-PRESETS: dict[str, dict[str, float]] = {
-    "urban": {"window_m": 18.0, "slope": 0.15, "threshold_m": 0.5, "scalar": 1.25},
-    "steep": {"window_m": 12.0, "slope": 0.3, "threshold_m": 0.5, "scalar": 1.25},
-    "flat": {"window_m": 24.0, "slope": 0.1, "threshold_m": 0.4, "scalar": 1.25},
+# Named overrides for `--preset` (`gfjax filter --method smrf --preset NAME`). "nearest-fill"
+# inpaints empty and removed cells from the nearest filled cell instead of the harmonic fill
+# (SPEC section 6: a numpy prototype measured 4.0 % vs 3.3 % mean total error on the 11 ISPRS
+# samples; closer to PDAL, whose filters.smrf fills by nearest neighbours).
+PRESETS: dict[str, dict[str, object]] = {
+    "nearest-fill": {"inpaint": "nearest"},
 }
