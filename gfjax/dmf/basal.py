@@ -22,7 +22,7 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array, Bool, Float, Int
 
-__all__ = ["BasalLayer", "basal_layer", "masked_median", "nearest_in_table", "sort_rows"]
+__all__ = ["BasalLayer", "basal_layer", "masked_median", "nearest_in_table", "sort_rows", "sort_columns"]
 
 
 class BasalLayer(NamedTuple):
@@ -41,28 +41,42 @@ class BasalLayer(NamedTuple):
     converged: Bool[Array, ""]
 
 
-def sort_rows(x: Float[Array, "m k"]) -> Float[Array, "m k"]:
-    """Sort each row ascending with a bitonic network (k a power of two).
+def sort_columns(x: Float[Array, "k m"]) -> Float[Array, "k m"]:
+    """Sort each column ascending with a bitonic network (k a power of two).
 
+    `log2(k) (log2(k) + 1) / 2` passes of elementwise min/max over contiguous rows of length m:
     XLA's generic sort is slow on CPU for many short rows (0.7 s for 58,000 x 49 float32 here);
-    the network is `log2(k) (log2(k) + 1) / 2` elementwise min/max passes (33 ms at k = 32).
+    this takes 8 ms for 57,000 x 32 (and 100 ms in the row-major layout, hence columns).
     """
-    m, n = x.shape
+    n, m = x.shape
     if n & (n - 1):
-        raise ValueError(f"sort_rows needs a power-of-two row length, got {n}")
+        raise ValueError(f"sorting network needs a power-of-two length, got {n}")
     k = 2
     while k <= n:
         j = k // 2
         while j >= 1:
             start = np.arange(n // (2 * j)) * 2 * j
-            ascending = jnp.asarray((start & k) == 0)[None, :, None]
-            pairs = x.reshape(m, n // (2 * j), 2, j)
-            a, b = pairs[:, :, 0, :], pairs[:, :, 1, :]
+            ascending = jnp.asarray((start & k) == 0)[:, None, None]
+            pairs = x.reshape(n // (2 * j), 2, j, m)
+            a, b = pairs[:, 0], pairs[:, 1]
             lo, hi = jnp.minimum(a, b), jnp.maximum(a, b)
-            x = jnp.stack([jnp.where(ascending, lo, hi), jnp.where(ascending, hi, lo)], axis=2).reshape(m, n)
+            x = jnp.stack([jnp.where(ascending, lo, hi), jnp.where(ascending, hi, lo)], axis=1).reshape(n, m)
             j //= 2
         k *= 2
     return x
+
+
+def sort_rows(x: Float[Array, "m k"]) -> Float[Array, "m k"]:
+    """Sort each row ascending (k a power of two): `sort_columns` on the transpose."""
+    return sort_columns(x.T).T
+
+
+def _median_t(values: Float[Array, "k m"], use: Bool[Array, "k m"]) -> tuple[Float[Array, " m"], Int[Array, " m"]]:
+    sorted_ = sort_columns(jnp.where(use, values, jnp.inf))
+    count = jnp.sum(use, axis=0, dtype=jnp.int32)
+    lo = jnp.take_along_axis(sorted_, jnp.maximum((count - 1) // 2, 0)[None, :], axis=0)[0]
+    hi = jnp.take_along_axis(sorted_, jnp.maximum(count // 2, 0)[None, :], axis=0)[0]
+    return jnp.where(count > 0, 0.5 * (lo + hi), jnp.inf), count
 
 
 def masked_median(values: Float[Array, "m k"], use: Bool[Array, "m k"]) -> tuple[Float[Array, " m"], Int[Array, " m"]]:
@@ -70,21 +84,21 @@ def masked_median(values: Float[Array, "m k"], use: Bool[Array, "m k"]) -> tuple
 
     Returns: `(median, count)`; `median` is +inf where a row uses no value.
     """
-    sorted_ = sort_rows(jnp.where(use, values, jnp.inf))
-    count = jnp.sum(use, axis=1, dtype=jnp.int32)
-    lo = jnp.take_along_axis(sorted_, jnp.maximum((count - 1) // 2, 0)[:, None], axis=1)[:, 0]
-    hi = jnp.take_along_axis(sorted_, jnp.maximum(count // 2, 0)[:, None], axis=1)[:, 0]
-    return jnp.where(count > 0, 0.5 * (lo + hi), jnp.inf), count
+    return _median_t(values.T, use.T)
+
+
+def _nearest_t(z: Float[Array, " m"], z0_table: Float[Array, "k m"], dxy2: Float[Array, "k m"],
+               index: Int[Array, "k m"], valid: Bool[Array, "k m"]) -> Int[Array, " m"]:
+    d2 = jnp.where(valid, dxy2 + (z0_table - z[None, :]) ** 2, jnp.inf)
+    slot = jnp.argmin(d2, axis=0)
+    return jnp.take_along_axis(index, slot[None, :], axis=0)[0]
 
 
 def nearest_in_table(z: Float[Array, " m"], z0: Float[Array, " m"], dxy2: Float[Array, "m k"],
                      index: Int[Array, "m k"], valid: Bool[Array, "m k"]) -> Int[Array, " m"]:
     """3D-nearest ND_CE (original elevations `z0`) of each node at elevation `z`, among the
     node's table row. Ties go to the earlier slot (the table lists nearest first)."""
-    d2 = dxy2 + (z0[index] - z[:, None]) ** 2
-    d2 = jnp.where(valid, d2, jnp.inf)
-    slot = jnp.argmin(d2, axis=1)
-    return jnp.take_along_axis(index, slot[:, None], axis=1)[:, 0]
+    return _nearest_t(z, z0[index].T, dxy2.T, index.T, valid.T)
 
 
 @functools.partial(jax.jit, static_argnames=("stop", "max_iter"))
@@ -105,19 +119,21 @@ def basal_layer(xyz: Float[Array, "m 3"], index: Int[Array, "m k"], valid: Bool[
     if stop not in ("global", "per_node"):
         raise ValueError(f"stop must be 'global' or 'per_node', got {stop!r}")
     z0 = xyz[:, 2]
-    d = xyz[:, None, :2] - xyz[index][:, :, :2]
+    index_t, valid_t = index.T, valid.T                                 # (k, m): rows are contiguous
+    d = xyz[None, :, :2] - xyz[index_t][:, :, :2]
     dxy2 = jnp.sum(d * d, axis=2)
     floor = z0 - sink_cap_m
-    nearest0 = nearest_in_table(z0, z0, dxy2, index, valid)
+    z0_table = z0[index_t]
+    nearest0 = _nearest_t(z0, z0_table, dxy2, index_t, valid_t)
 
     def body(state):
         z, nearest, frozen, _, it = state
-        zn = z[index]
-        lower = valid & (zn < z[:, None])
-        median, count = masked_median(zn, lower)
+        zn = z[index_t]
+        lower = valid_t & (zn < z[None, :])
+        median, count = _median_t(zn, lower)
         sunk = jnp.maximum(jnp.where(count > 0, median, z), floor)
         z_new = jnp.where(frozen, z, jnp.minimum(sunk, z))
-        nearest_new = nearest_in_table(z_new, z0, dxy2, index, valid)
+        nearest_new = _nearest_t(z_new, z0_table, dxy2, index_t, valid_t)
         same = nearest_new == nearest
         if stop == "per_node":
             frozen = frozen | same

@@ -11,6 +11,7 @@ W is computed once per cloud, so every NGNEM tile of a batch shares one cell siz
 from __future__ import annotations
 
 import math
+import time
 from typing import NamedTuple
 
 import jax
@@ -51,6 +52,9 @@ class Diagnostics(NamedTuple):
       support: `extract.SupportNodes` (local coordinates); m_points: M of Sec. 2.6 (0 if unused).
       basal_iterations: iterations of the basal loop; converged: every bounded loop converged.
       voxels: the voxel columns (`voxels.Voxels`), for re-running step 7.
+      table_overflowed: some cylinder held more ND_CE than `Config.basal_table_width`.
+      stage_seconds: wall-clock seconds per step ("voxels", "basal", "raster", "extract"),
+        JAX compilation included on a first call.
     """
 
     cell_m: float
@@ -72,6 +76,8 @@ class Diagnostics(NamedTuple):
     basal_iterations: int
     converged: bool
     voxels: voxels.Voxels
+    stage_seconds: dict
+    table_overflowed: bool
 
 
 def _check(cloud, config, params, returns) -> tuple[Config, Params]:
@@ -109,9 +115,10 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
     buf = math.ceil(config.raster_buffer_m / cell_m)
     kwargs = stage_options(config)
     w_m = jnp.float32(cell_m)
+    share = jnp.float32(config.rc_min_share)
     if h <= core + 2 * buf and w <= core + 2 * buf:
         shape = (_round_up(h, SHAPE_QUANTUM_PX), _round_up(w, SHAPE_QUANTUM_PX))
-        out = stages.raster_stages(*_pad_tile(z, layer, valid, shape), w_m, **kwargs)
+        out = stages.raster_stages(*_pad_tile(z, layer, valid, shape), w_m, share, **kwargs)
         return stages.RasterStages(*[np.asarray(a)[:h, :w] if np.ndim(a) == 2 else np.asarray(a) for a in out])
     windows = []
     for r0 in range(0, h, core):
@@ -125,7 +132,7 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
               (("ngnem", np.float32), ("layer", np.int32), ("rhc", bool), ("ngnem_bi", bool),
                ("ngnem_rc0", bool), ("ngnem_rc", bool))}
     converged = True
-    batched = jax.vmap(lambda *a: stages.raster_stages(*a, w_m, **kwargs))
+    batched = jax.vmap(lambda *a: stages.raster_stages(*a, w_m, share, **kwargs))
     starts = range(0, len(windows), MAX_BATCH)
     if progress:
         from tqdm import tqdm
@@ -149,7 +156,7 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
 def stage_options(config: Config) -> dict:
     """The static keyword arguments of `stages.raster_stages` for a `Config`."""
     return dict(max_filter_px=config.max_filter_px, max_close_px=config.close_max_px // 2,
-                border_patches=config.border_patches, hole_test=config.hole_test)
+                border_patches=config.border_patches, hole_test=config.hole_test, close_all=config.close_all)
 
 
 def _pad_tile(z, layer, valid, shape):
@@ -183,6 +190,14 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     instance_all = np.zeros(n_all, np.uint32)
     if len(xyz) == 0:
         return Result(ground=ground_all, diagnostics=None, instance_id=instance_all)
+    clock = [time.perf_counter()]
+    seconds = {}
+
+    def lap(name):
+        now = time.perf_counter()
+        seconds[name] = now - clock[0]
+        clock[0] = now
+
     origin = xyz.min(axis=0)
     local = xyz - origin
     tree = cKDTree(local)
@@ -194,10 +209,11 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
         cell_m, mean_nn = voxels.voxel_size_m(local, v0=config.v0, fraction=config.sample_fraction,
                                               minimum=config.sample_min, tree=tree)
     vox = voxels.bin_voxels(local, cell_m)
+    lap("voxels")
 
     # Step 3: basal layer (JAX loop on the host-built cylinder table), then ND_NG (host).
     table = neighbours.cylinder_table(vox.centroid[:, :2], radius_m=config.basal_radius_w * cell_m,
-                                      k=config.basal_neighbours)
+                                      k=config.basal_neighbours, max_width=config.basal_table_width)
     cap = np.inf if config.basal_sink_cap_w is None else config.basal_sink_cap_w * cell_m
     basal = basal_lib.basal_layer(jnp.asarray(vox.centroid, jnp.float32), jnp.asarray(table.index),
                                   jnp.asarray(table.valid), jnp.float32(cap), stop=config.basal_stop,
@@ -206,6 +222,7 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     basal_xyz = np.concatenate([vox.centroid[:, :2], basal_z[:, None].astype(np.float64)], axis=1)
     in_ndng = np.zeros(len(vox.cell), bool)
     in_ndng[neighbours.nearest_node(vox.centroid, basal_xyz)] = True
+    lap("basal")
 
     # Steps 4-6: raster stages.
     h, w = vox.shape
@@ -214,6 +231,7 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     v_r = np.zeros(h * w, bool)
     z_r[vox.cell], k_r[vox.cell], v_r[vox.cell] = vox.centroid[:, 2], vox.layer, True
     rs = run_raster_stages(z_r.reshape(h, w), k_r.reshape(h, w), v_r.reshape(h, w), cell_m, config, progress=progress)
+    lap("raster")
 
     # Step 7: support nodes and the final rule.
     object_cell = np.asarray(rs.ngnem_rc).reshape(-1)
@@ -225,6 +243,7 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
         ground, m_points = extract.height_ground(local, nodes, vox, params.height_threshold_m), 0
     instance = np.asarray(rs.instances).reshape(-1)[vox.point_cell].astype(np.uint32)
     instance[ground] = 0
+    lap("extract")
     ground_all[use] = ground
     instance_all[use] = instance
     diagnostics = Diagnostics(
@@ -233,5 +252,6 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
         rhc=np.asarray(rs.rhc), ngnem_bi=np.asarray(rs.ngnem_bi), ngnem_rc0=np.asarray(rs.ngnem_rc0),
         ngnem_rc=np.asarray(rs.ngnem_rc), instances=np.asarray(rs.instances), support=nodes, m_points=int(m_points),
         basal_iterations=int(basal.iterations), converged=bool(basal.converged) and bool(rs.converged),
-        voxels=vox)
+        table_overflowed=table.overflowed,
+        voxels=vox, stage_seconds=seconds)
     return Result(ground=ground_all, diagnostics=diagnostics, instance_id=instance_all)

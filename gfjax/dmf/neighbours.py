@@ -30,7 +30,8 @@ class NeighbourTable(NamedTuple):
     overflowed: bool
 
 
-def cylinder_table(xy: np.ndarray, *, radius_m: float, k: int, shrink: bool = True) -> NeighbourTable:
+def cylinder_table(xy: np.ndarray, *, radius_m: float, k: int, shrink: bool = True,
+                   max_width: int | None = None) -> NeighbourTable:
     """Neighbours of every node within `radius_m` in x, y (a vertical cylinder).
 
     Args:
@@ -40,6 +41,8 @@ def cylinder_table(xy: np.ndarray, *, radius_m: float, k: int, shrink: bool = Tr
         `(2 ceil(r) + 1)^2` always suffices (`Config.basal_neighbours`).
       shrink: narrow the table to the next power of two (>= 8) of the largest neighbour count
         (so the JAX sorting network of `basal.sort_rows` applies and stays small).
+      max_width: keep at most this many nearest neighbours (a power of two); a node with more
+        loses its farthest ones and `overflowed` is set. None = no cap.
 
     Returns: `NeighbourTable`.
     """
@@ -60,6 +63,8 @@ def cylinder_table(xy: np.ndarray, *, radius_m: float, k: int, shrink: bool = Tr
         width = 8
         while width < used:
             width *= 2
+        if max_width is not None and width > max_width:
+            width, overflowed = max_width, True
         found, idx = found[:, :min(width, found.shape[1])], idx[:, :min(width, idx.shape[1])]
         k = width
     own = np.arange(m, dtype=np.int64)[:, None]

@@ -149,7 +149,7 @@ def _walls(sides_padded: tuple[Mask, ...]) -> tuple[Mask, ...]:
 
 
 def coverage(ngnem: Raster, patches: Mask, inside: Mask, *, max_close_px: int = 15,
-             border_patches: bool = True, hole_test: str = "patch") -> tuple[Mask, Bool[Array, ""]]:
+             border_patches: bool = True, hole_test: str = "patch", close_all: bool = False) -> tuple[Mask, Bool[Array, ""]]:
     """Ground coverage regions (Sec. 2.4): NGNEM_BI from the R_HC patches.
 
     1. Patches (8-connected R_HC) are sorted by the borders they touch: none or 3-4 -> plain
@@ -160,7 +160,9 @@ def coverage(ngnem: Raster, patches: Mask, inside: Mask, *, max_close_px: int = 
        hole is tested against the enclosing cells on its own ring.
     3. A patch with no hole is closed with a square of side `w = max(3, 2 floor(sqrt(N)/2)+1)`
        (Eq. 3, N its cell count; half-width capped at `max_close_px`), then tested the same
-       way on the cells it adds. Patches of one half-width are closed together.
+       way on the cells it adds. Patches of one half-width are closed together. With
+       `close_all` (R) every patch is closed, holes or not (incomplete roof outlines inside
+       a patch that has other holes).
 
     Returns: `(ngnem_bi, converged)`.
     """
@@ -211,14 +213,17 @@ def coverage(ngnem: Raster, patches: Mask, inside: Mask, *, max_close_px: int = 
     root = jnp.floor(jnp.sqrt(size.astype(jnp.float32))).astype(jnp.int32)
     root = root - (root * root > size).astype(jnp.int32) + ((root + 1) * (root + 1) <= size).astype(jnp.int32)
     radius = jnp.clip(root // 2, 1, max_close_px)
-    radius_cell = jnp.where(no_hole, radius[labels], 0)
+    radius_cell = jnp.where(no_hole | close_all, radius[labels], 0)
 
     def close_step(carry, r):
         bi_acc, conv_acc = carry
         source = radius_cell == r
         closed_r = closing_square(source, inside, r, max_radius_px=max_close_px)
-        groups_r, conv_r = label_components(closed_r, connectivity=8)
-        marked_r, _ = _group_test(groups_r, source, closed_r & ~source, ngnem)
+        if hole_test == "patch":
+            groups_r, conv_r = label_components(closed_r, connectivity=8)
+            marked_r, _ = _group_test(groups_r, source, closed_r & ~source, ngnem)
+        else:
+            marked_r, conv_r = _hole_test(source, closed_r & ~source, ngnem)
         return (bi_acc | marked_r, conv_acc & conv_r), None
 
     radii = jnp.arange(1, max_close_px + 1, dtype=jnp.int32)
@@ -244,10 +249,12 @@ def equal_layer_regions(layer: Labels, inside: Mask) -> tuple[Labels, Bool[Array
     return labels[0::2, 0::2], conv
 
 
-def patch_correction(ngnem: Raster, layer: Labels, bi: Mask, inside: Mask) -> tuple[Mask, Mask, Labels, Bool[Array, ""]]:
+def patch_correction(ngnem: Raster, layer: Labels, bi: Mask, inside: Mask,
+                     min_share: Float[Array, ""] = 1.0) -> tuple[Mask, Mask, Labels, Bool[Array, ""]]:
     """Patch labelling correction (Sec. 2.5).
 
-    (a) An equal-layer region is non-ground only if all its cells are 1 in NGNEM_BI.
+    (a) An equal-layer region is non-ground only if all its cells are 1 in NGNEM_BI (R: at
+        least the share `min_share` of them; 1 = all, the paper); its NGNEM_BI cells stay 1.
     (b) A connected (8) non-ground region whose one-cell boundary ring has a maximum NGNEM above
         the region's mean NGNEM is ground (slope or depression) and is reset.
 
@@ -256,8 +263,10 @@ def patch_correction(ngnem: Raster, layer: Labels, bi: Mask, inside: Mask) -> tu
     h, w = ngnem.shape
     num = h * w + 1
     regions, conv_a = equal_layer_regions(layer, inside)
-    all_bi = _segment(bi.astype(jnp.int32), regions, num, jax.ops.segment_min) > 0
-    rc0 = bi & inside & all_bi[regions]
+    in_bi = _segment(bi.astype(jnp.float32), regions, num, jax.ops.segment_sum)
+    size = _segment(jnp.ones(regions.shape, jnp.float32), regions, num, jax.ops.segment_sum)
+    enough = in_bi >= min_share * size                                   # min_share = 1: "all"
+    rc0 = bi & inside & enough[regions]
     objects, conv_b = label_components(rc0, connectivity=8)
     ring = boundary_ring(objects, ngnem, inside, num_labels=h * w, connectivity=8)
     total = _segment(jnp.where(rc0, ngnem, 0), objects, num, jax.ops.segment_sum)
@@ -269,10 +278,12 @@ def patch_correction(ngnem: Raster, layer: Labels, bi: Mask, inside: Mask) -> tu
     return rc0, rc, instances, conv_a & conv_b
 
 
-@functools.partial(jax.jit, static_argnames=("max_filter_px", "max_close_px", "border_patches", "hole_test"))
-def raster_stages(z: Raster, layer: Labels, valid: Mask, inside: Mask, cell_m: Float[Array, ""], *,
+@functools.partial(jax.jit, static_argnames=("max_filter_px", "max_close_px", "border_patches", "hole_test",
+                                             "close_all"))
+def raster_stages(z: Raster, layer: Labels, valid: Mask, inside: Mask, cell_m: Float[Array, ""],
+                  rc_min_share: Float[Array, ""] = 1.0, *,
                   max_filter_px: int = 2, max_close_px: int = 15,
-                  border_patches: bool = True, hole_test: str = "patch") -> RasterStages:
+                  border_patches: bool = True, hole_test: str = "patch", close_all: bool = False) -> RasterStages:
     """Steps 4-6 of DMF on one tile (Wu et al. 2025, Sec. 2.3 end - 2.5).
 
     Args:
@@ -281,7 +292,8 @@ def raster_stages(z: Raster, layer: Labels, valid: Mask, inside: Mask, cell_m: F
       valid: cells holding an ND_CE, bool `(h, w)`.
       inside: the tile's real cells (`valid` is a subset), bool `(h, w)`.
       cell_m: W [m], float32 scalar (traced: one compile serves every W).
-      max_filter_px, max_close_px, border_patches, hole_test: static options (`Config`; `max_close_px` is
+      rc_min_share: share of an equal-layer region that must be in NGNEM_BI (traced; 1 = all).
+      max_filter_px, max_close_px, border_patches, hole_test, close_all: static options (`Config`; `max_close_px` is
         the largest closing half-width, `close_max_px // 2`).
 
     Returns: `RasterStages`; vmap over a batch of padded tiles.
@@ -289,7 +301,7 @@ def raster_stages(z: Raster, layer: Labels, valid: Mask, inside: Mask, cell_m: F
     ngnem, kf = fill_ngnem(z, layer, valid)
     r = rhc(ngnem, inside, cell_m, radius_px=max_filter_px)
     bi, conv_bi = coverage(ngnem, r, inside, max_close_px=max_close_px, border_patches=border_patches,
-                           hole_test=hole_test)
-    rc0, rc, instances, conv_rc = patch_correction(ngnem, kf, bi, inside)
+                           hole_test=hole_test, close_all=close_all)
+    rc0, rc, instances, conv_rc = patch_correction(ngnem, kf, bi, inside, rc_min_share)
     return RasterStages(ngnem=ngnem, layer=kf, rhc=r, ngnem_bi=bi, ngnem_rc0=rc0, ngnem_rc=rc,
                         instances=instances, converged=conv_bi & conv_rc)

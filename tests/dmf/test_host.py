@@ -80,3 +80,12 @@ def test_cylinder_table_reports_overflow():
     xy = np.zeros((20, 2))
     table = neighbours.cylinder_table(xy, radius_m=1.0, k=8, shrink=False)
     assert table.overflowed and table.index.shape == (20, 8)
+
+
+def test_cylinder_table_width_cap_keeps_the_nearest():
+    rng = np.random.default_rng(6)
+    xy = rng.uniform(0, 10, (300, 2))
+    full = neighbours.cylinder_table(xy, radius_m=3.0, k=300)
+    capped = neighbours.cylinder_table(xy, radius_m=3.0, k=300, max_width=8)
+    assert capped.index.shape == (300, 8) and capped.overflowed
+    np.testing.assert_array_equal(capped.index, full.index[:, :8])

@@ -43,7 +43,7 @@ def pad_tile(z, layer, valid, shape=PADDED):
 @pytest.fixture(scope="session")
 def run_tile():
     options = stage_options(Config())                 # as the filter calls it: one shared compile
-    return lambda z, k, v, inside: stages.raster_stages(z, k, v, inside, jnp.float32(CELL_M), **options)
+    return lambda z, k, v, inside: stages.raster_stages(z, k, v, inside, jnp.float32(CELL_M), jnp.float32(1.0), **options)
 
 
 @pytest.fixture(scope="session")
@@ -77,7 +77,7 @@ def test_vmap_over_padded_tiles_equals_tile_by_tile(unpadded_results):
     tiles, results = unpadded_results
     batch = [jnp.stack(parts) for parts in zip(*[pad_tile(*t) for t in tiles])]
     options = stage_options(Config())
-    out = jax.vmap(lambda z, k, v, i: stages.raster_stages(z, k, v, i, jnp.float32(CELL_M), **options))(*batch)
+    out = jax.vmap(lambda z, k, v, i: stages.raster_stages(z, k, v, i, jnp.float32(CELL_M), jnp.float32(1.0), **options))(*batch)
     h, w = TILE
     for b, single in enumerate(results):
         for name in ("ngnem", "layer", "rhc", "ngnem_bi", "ngnem_rc0", "ngnem_rc", "instances"):
