@@ -5,15 +5,16 @@ import gfjax
 from gfjax.tune import Problem, Sample, Settings, fit
 samples = [Sample.from_cloud(gfjax.read("labelled.laz"))]
 problem = Problem(samples, config=gfjax.smrf.Config(), max_window_m=24.0)
-result = fit(problem, Settings(steps=60))
+result = fit.fit(problem, Settings(steps=60))       # module `fit`, function `fit`
+checked = validate(problem, Settings(), folds=3)    # keep the fit only where it helps
 ```
 `relax` holds the soft thresholds, `params` the bounded parametrisation and params.json,
 `smrf` the relaxed SMRF pipeline, `fit` the optax loop and the block validation.
 """
-from gfjax.tune import relax
-from gfjax.tune.fit import FitResult, Settings, Validation, fit, hard_errors, validate
+from gfjax.tune import fit, relax
+from gfjax.tune.fit import FitResult, Settings, Validation, hard_errors, validate
 from gfjax.tune.params import read_params, write_params
 from gfjax.tune.problem import Problem, Sample, block_folds
 
-__all__ = ["relax", "Sample", "Problem", "Settings", "FitResult", "Validation", "fit", "validate",
+__all__ = ["relax", "fit", "Sample", "Problem", "Settings", "FitResult", "Validation", "fit", "validate",
            "hard_errors", "block_folds", "read_params", "write_params"]

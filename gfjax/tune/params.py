@@ -62,17 +62,20 @@ def to_raw(values: Mapping[str, float], bounds: Sequence[Bound]) -> Float[Array,
 
 def from_raw(raw: Float[Array, "... p"], bounds: Sequence[Bound]) -> Float[Array, "... p"]:
     """Bounded values `lo + (hi - lo) * sigmoid(raw)`, same shape as `raw` (jit/vmap-able)."""
-    lo = jnp.asarray([b.lo for b in bounds], raw.dtype)
-    span = jnp.asarray([b.hi - b.lo for b in bounds], raw.dtype)
+    lo, span = _row([b.lo for b in bounds], raw), _row([b.hi - b.lo for b in bounds], raw)
     return lo + span * jax.nn.sigmoid(raw)
+
+
+def _row(values: list[float], like: Array) -> Array:
+    """`values` as an array broadcastable against `like` `(..., p)` (explicit rank)."""
+    return jnp.asarray(values, like.dtype).reshape((1,) * (like.ndim - 1) + (len(values),))
 
 
 def prior_penalty(raw: Float[Array, "... p"], bounds: Sequence[Bound]) -> Float[Array, "..."]:
     """`sum_k ((value_k - default_k) / (hi_k - lo_k))^2`: distance to the defaults on the
     bounded scale (0 at the defaults), summed over the last axis."""
     values = from_raw(raw, bounds)
-    default = jnp.asarray([b.default for b in bounds], raw.dtype)
-    span = jnp.asarray([b.hi - b.lo for b in bounds], raw.dtype)
+    default, span = _row([b.default for b in bounds], raw), _row([b.hi - b.lo for b in bounds], raw)
     return jnp.sum(jnp.square((values - default) / span), axis=-1)
 
 

@@ -53,11 +53,13 @@ from gfjax.tune.params import Bound
 __all__ = ["BOUNDS", "GRID", "UNITS", "Prepared", "prepare_tile", "ground_weight", "make_params",
            "soft_inpaint", "radius_for"]
 
-# Tuned scalars with PDAL's defaults and the bounds the optimiser keeps them in.
+# Tuned scalars with PDAL's defaults and the bounds the optimiser keeps them in; a 5-value
+# grid over each (`numpy.linspace(lo, hi, 5)`, the grid search of the experiments) holds the
+# defaults.
 BOUNDS = (
-    Bound("slope", 0.15, 0.01, 1.0, "1 (rise over run)"),
-    Bound("threshold_m", 0.5, 0.05, 3.0, "m"),
-    Bound("scalar", 1.25, 0.0, 5.0, "m per unit slope"),
+    Bound("slope", 0.15, 0.05, 0.45, "1 (rise over run)"),
+    Bound("threshold_m", 0.5, 0.1, 0.9, "m"),
+    Bound("scalar", 1.25, 0.0, 2.5, "m per unit slope"),
 )
 # Static parameters searched on a grid (each value: its own relaxed fit).
 GRID = {"window_m": (12.0, 18.0, 24.0)}
