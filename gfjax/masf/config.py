@@ -15,7 +15,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-__all__ = ["Config", "Params", "PRESETS", "PAPER_TABLE3"]
+__all__ = ["Config", "Params", "PRESETS", "PAPER_TABLE3", "DISTANCES"]
+
+DISTANCES = ("under", "nearest_facet")
 
 
 def _f32(value) -> Float[Array, ""]:
@@ -45,6 +47,13 @@ class Config:
         (fewer than half of them) all of whose other edges climb is a pit of low outliers and
         leaves the seeds (R, see `densify.low_seed_pits`) [-]; None switches the test off.
       pit_cap_m: edge length beyond which the allowed step stops growing [m].
+      distance: point-to-TIN distance of the densification: "under" (SPEC 4.4: perpendicular
+        to the plane of the facet under the point) or "nearest_facet" (the paper's Fig. 7a
+        wording: 3D distance to the nearest facet, searched among the facet under the point
+        and its edge neighbours).
+      layer_passes: most passes of the densification test per layer (1: one pass; more: the
+        layer's remaining points are retested against the TIN holding the points just
+        accepted, until a pass adds none) (R).
       empty_tol_m: tolerance of the empty-sphere test along the dual Voronoi edge [m].
     """
 
@@ -58,6 +67,8 @@ class Config:
     low_cluster_max_m2: float = 1.0
     pit_slope: float | None = 1.0
     pit_cap_m: float = 4.0
+    distance: str = "under"
+    layer_passes: int = 1
     empty_tol_m: float = 1e-3
 
     def __post_init__(self) -> None:
@@ -72,6 +83,10 @@ class Config:
             raise ValueError(f"pit_slope must be finite and >= 0 (or None), got {self.pit_slope!r}")
         if not (math.isfinite(self.pit_cap_m) and self.pit_cap_m >= 0):
             raise ValueError(f"pit_cap_m must be finite and >= 0, got {self.pit_cap_m!r}")
+        if not (isinstance(self.layer_passes, int) and self.layer_passes >= 1):
+            raise ValueError(f"layer_passes must be an integer >= 1, got {self.layer_passes!r}")
+        if self.distance not in DISTANCES:
+            raise ValueError(f"distance must be one of {DISTANCES}, got {self.distance!r}")
         if not (math.isfinite(self.empty_tol_m) and self.empty_tol_m >= 0):
             raise ValueError(f"empty_tol_m must be finite and >= 0, got {self.empty_tol_m!r}")
         if self.alpha_min_m is not None and not (math.isfinite(self.alpha_min_m) and self.alpha_min_m > 0):

@@ -6,7 +6,10 @@
    form pits in the seed TIN (`low_seed_pits`, our addition) are dropped first.
 2. For each lower layer k, its points not yet ground whose perpendicular distance to the facet
    under them is below `DT_k = st * alpha_k + ft_m` (Eq. 2) become ground; they are all tested
-   against the TIN of the previous layers, then inserted together (non-iterative per layer).
+   against the TIN of the previous layers, then inserted together. With `layer_passes > 1`
+   the layer's remaining points are tested again against the TIN that now holds them, until
+   a pass adds none (R: classic TIN densification inserts accepted points at once, so the TIN
+   climbs ridges and terrace edges within a layer; each point is still accepted only once).
 3. Finally every remaining point of the whole cloud closer than `ft_m` to the TIN is ground.
 """
 from __future__ import annotations
@@ -97,7 +100,8 @@ def low_seed_pits(xyz_m: np.ndarray, *, drop_m: float, slope: float, cap_m: floa
 
 def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_m: np.ndarray, *,
             shape: tuple[int, int], cell_m: float, st: float, ft_m: float,
-            pit_drop_m: float = 1.0, pit_slope: float | None = 1.0, pit_cap_m: float = 4.0) -> Densified:
+            pit_drop_m: float = 1.0, pit_slope: float | None = 1.0, pit_cap_m: float = 4.0,
+            nearest_facet: bool = False, layer_passes: int = 1) -> Densified:
     """Label ground points by top-down densification of the layer TINs.
 
     Args:
@@ -107,6 +111,10 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
       alphas_m: float64 `(L,)` the layers' alpha [m].
       shape: `(h, w)` of the preprocessing grid; cell_m its cell [m].
       st: slope threshold ST [-]; ft_m: final threshold FT [m] (Eq. 2).
+      pit_drop_m, pit_slope, pit_cap_m: the seed pit test (`low_seed_pits`; slope None: off).
+      nearest_facet: distance to the nearest facet instead of the facet under the point.
+      layer_passes: tests of a layer's remaining points against the TIN with the points the
+        previous pass accepted, until a pass accepts none (1: one test per layer).
     """
     n_layers, n_seeds = layers.shape
     seed_xyz = points_m[seeds]
@@ -125,18 +133,22 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
         candidates = np.flatnonzero(layers[level] & ~in_tin)
         if len(candidates) == 0:
             continue
-        size = int(np.count_nonzero(in_tin))
-        if tin is None or size != tin_size:
-            tin, tin_size = GroundTin(np.concatenate([seed_xyz[in_tin], ring])), size
-        threshold_m = st * alphas_m[level] + ft_m
-        accepted = candidates[tin.distance_m(seed_xyz[candidates]) < threshold_m]
-        in_tin[accepted] = True
-        added[level] = len(accepted)
+        for _ in range(layer_passes):
+            candidates = np.flatnonzero(layers[level] & ~in_tin)
+            size = int(np.count_nonzero(in_tin))
+            if tin is None or size != tin_size:
+                tin, tin_size = GroundTin(np.concatenate([seed_xyz[in_tin], ring])), size
+            threshold_m = st * alphas_m[level] + ft_m
+            accepted = candidates[tin.distance_m(seed_xyz[candidates], nearest_facet=nearest_facet) < threshold_m]
+            in_tin[accepted] = True
+            added[level] += len(accepted)
+            if len(accepted) == 0:
+                break
     ground = np.zeros(len(points_m), dtype=bool)
     ground[seeds[in_tin]] = True
     rest = np.flatnonzero(~ground)
     if len(rest):
         if tin is None or int(np.count_nonzero(in_tin)) != tin_size:
             tin = GroundTin(np.concatenate([seed_xyz[in_tin], ring]))
-        ground[rest[tin.distance_m(points_m[rest]) < ft_m]] = True
+        ground[rest[tin.distance_m(points_m[rest], nearest_facet=nearest_facet) < ft_m]] = True
     return Densified(ground, in_tin, added)

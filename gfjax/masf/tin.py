@@ -114,11 +114,15 @@ class GroundTin:
         inside = (weight >= -1e-12).all(axis=2)
         return np.where(inside.any(axis=1), np.argmax(inside, axis=1), -1)
 
-    def distance_m(self, xyz_m: np.ndarray) -> np.ndarray:
-        """Perpendicular distance of each point to the plane of the TIN facet under it.
+    def distance_m(self, xyz_m: np.ndarray, *, nearest_facet: bool = False) -> np.ndarray:
+        """Distance of each point to the TIN (Sec. 2.4, Fig. 7a).
 
         Args:
           xyz_m: float64 `(q, 3)` local metres.
+          nearest_facet: False (SPEC 4.4): perpendicular distance to the plane of the facet
+            under the point. True (the paper's words, "the distance between P and its nearest
+            TIN facet"): the 3D point-to-triangle distance, smallest over the facet under the
+            point and its three edge neighbours.
 
         Returns:
           float64 `(q,)` [m], `inf` for a point outside the TIN's x, y hull.
@@ -129,11 +133,41 @@ class GroundTin:
             return distance
         simplex = self.locate(xyz_m[:, :2])
         inside = simplex >= 0
-        corners = self.xyz_m[self._tri.simplices[simplex[inside]]]          # (q', 3, 3)
-        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-        distance[inside] = np.abs(np.einsum("qk,qk->q", xyz_m[inside] - corners[:, 0], normal))
+        points = xyz_m[inside]
+        under = simplex[inside]
+        if not nearest_facet:
+            corners = self.xyz_m[self._tri.simplices[under]]                    # (q', 3, 3)
+            normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+            normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+            distance[inside] = np.abs(np.einsum("qk,qk->q", points - corners[:, 0], normal))
+            return distance
+        best = _point_triangle_distance(points, self.xyz_m[self._tri.simplices[under]])
+        for side in range(3):
+            other = self._tri.neighbors[under, side]
+            has = other >= 0
+            d = _point_triangle_distance(points[has], self.xyz_m[self._tri.simplices[other[has]]])
+            best[has] = np.minimum(best[has], d)
+        distance[inside] = best
         return distance
+
+
+def _point_triangle_distance(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """3D distance from points `(q, 3)` to triangles `(q, 3, 3)` (the closest point may lie on
+    the face, an edge or a vertex), float64 `(q,)`."""
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+    normal = np.cross(b - a, c - a)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    height = np.einsum("qk,qk->q", points - a, normal)
+    foot = points - height[:, None] * normal
+    over_face = np.ones(len(points), dtype=bool)
+    for u, v in ((a, b), (b, c), (c, a)):
+        over_face &= np.einsum("qk,qk->q", np.cross(v - u, foot - u), normal) >= 0
+    edge = np.full(len(points), np.inf)
+    for u, v in ((a, b), (b, c), (c, a)):
+        uv = v - u
+        t = np.clip(np.einsum("qk,qk->q", points - u, uv) / np.einsum("qk,qk->q", uv, uv), 0.0, 1.0)
+        edge = np.minimum(edge, np.linalg.norm(points - (u + t[:, None] * uv), axis=1))
+    return np.where(over_face, np.abs(height), edge)
 
 
 def nearest_z(xy_query_m: np.ndarray, xyz_m: np.ndarray) -> np.ndarray:
