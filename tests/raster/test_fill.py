@@ -88,9 +88,11 @@ def test_harmonic_reproduces_a_plane_in_one_direction():
 def test_jit_equals_eager(case):
     z, valid = reference.random_raster(case, seed=2)
     zj, vj = jnp.asarray(z), jnp.asarray(valid)
-    eager = (*raster.nearest_valid_index(vj), raster.inpaint_nearest(zj, vj), raster.inpaint_harmonic(zj, vj, tol_m=1e-6))
+    # Harmonic is left out: eager dispatch of its multigrid set-up compiles every small op
+    # separately (~20 s); its loop body is compiled in both modes anyway.
+    eager = (*raster.nearest_valid_index(vj), raster.inpaint_nearest(zj, vj))
     for got, want in zip(jitted()(z, valid), eager):
-        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-6, atol=1e-6)
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
 
 
 def test_vmap_equals_loop():

@@ -60,7 +60,7 @@ def test_matches_scipy_exactly(case, op, footprint):
 
 
 @pytest.mark.parametrize("footprint", FOOTPRINTS)
-@pytest.mark.parametrize("case", [CASES[0], CASES[1], CASES[6]], ids=str)
+@pytest.mark.parametrize("case", [CASES[0], CASES[6]], ids=str)
 def test_van_herk_matches_scipy_exactly(case, footprint):
     """The van Herk / Gil-Werman path (algorithm="vhgw") gives the same bits as the table."""
     z, valid = reference.random_raster(case, seed=1)
