@@ -22,6 +22,7 @@ import json
 import os
 import shlex
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -83,6 +84,10 @@ def write_report(document: dict, md_path: Path, png_path: Path, *, planned: int)
     if partial:
         lines += [f"**Partial**: {done_pairs} of {planned} planned (file, filter) runs are in this table; "
                   "the missing ones are listed at the end.", ""]
+    cache_note = ("with JAX's persistent compilation cache shared by the runs of this benchmark: a "
+                  "program compiled for an earlier file of the same shapes is loaded, so `compile s` is the "
+                  "compiling that run still had to do (the first file of each shape pays)"
+                  if document.get("compile_cache") else "cold: every run compiles from scratch")
     lines += ["Command (resumable; each (file, filter) pair in a fresh process, one after another):", "",
               *[f"    {c}" for c in document.get("invocations", [document["command"]])], "",
               f"Machine: {machine['nproc']} CPUs ({machine['processor']}), {machine['platform']}, Python "
@@ -91,8 +96,8 @@ def write_report(document: dict, md_path: Path, png_path: Path, *, planned: int)
               f"{', '.join(f'{x:.1f}' for x in machine['loadavg_1_5_15'])}, at the last update "
               f"{', '.join(f'{x:.1f}' for x in document.get('loadavg_end', machine['loadavg_1_5_15']))}: "
               "the machine was shared with other jobs, so times are upper bounds and noisy.", "",
-              f"Protocol: per pair, one warm-up (read + filter; JAX compile time measured apart, cold: no "
-              f"persistent cache), then {document['repeat']} timed whole job(s) (read + filter + write LAZ/LAS to a "
+              f"Protocol: per pair, one warm-up (read + filter; JAX compile time measured apart, {cache_note}), "
+              f"then {document['repeat']} timed whole job(s) (read + filter + write LAZ/LAS to a "
               "temporary folder); medians. Threads: every run pinned to "
               f"{document.get('threads') or 'all'} CPU(s) (affinity and OMP_NUM_THREADS), the same for every filter. `points/s` = points / whole-job time. `peak MiB` = peak RSS of "
               "the run's process (includes the Python/JAX runtime and compilation). Accuracy: ground = "
@@ -139,6 +144,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=1)
     parser.add_argument("--threads", type=int, default=1,
                         help="CPUs per run, the same for every filter (0: all CPUs, environment as is)")
+    parser.add_argument("--cold", action="store_true",
+                        help="no shared JAX compilation cache (every run compiles from scratch)")
     parser.add_argument("--timeout", type=float, default=900.0, help="seconds per (file, filter) run")
     parser.add_argument("--out", type=Path, default=RESULTS / "bench_all.json")
     parser.add_argument("--fresh", action="store_true", help="ignore results already in --out")
@@ -155,7 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     command = "nice " + " ".join(shlex.quote(a) for a in [".venv/bin/python", "experiments/bench_all.py",
                                                           *(sys.argv[1:] if argv is None else argv)])
     threads = args.threads or None
-    document = bench.document(records, repeat=args.repeat, notes=notes, command=command, threads=threads)
+    cache = None if args.cold else Path(tempfile.gettempdir()) / "gfjax_bench_all_jax_cache"
+    document = bench.document(records, repeat=args.repeat, notes=notes, command=command, threads=threads,
+                              compile_cache=cache is not None)
     document["invocations"] = [*(previous or {}).get("invocations", []), command]
     if previous and records:
         document["machine"] = previous["machine"]       # the load when the run began
@@ -167,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     md_path, png_path = args.out.with_suffix(".md"), args.out.with_suffix(".png")
     done = {(r["file"], r["filter"]) for r in records}
     for record in bench.iter_runs(files, runners, skip=done, repeat=args.repeat,
-                                  timeout_s=args.timeout, threads=threads):
+                                  timeout_s=args.timeout, threads=threads, compile_cache=cache):
         records.append(record)
         records.sort(key=lambda r: (order.get(r["file"], len(order)), _filter_rank(r["filter"])))
         status = (f"{record['points_per_s']:,.0f} points/s" if record["status"] == "ok"

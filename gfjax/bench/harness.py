@@ -31,6 +31,7 @@ from typing import Any
 
 # JAX events (jax._src.dispatch) whose durations make up compilation, in seconds.
 BACKEND_COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
+CACHE_HIT_EVENT = "/jax/compilation_cache/cache_hits"   # a program loaded from the persistent cache
 TRACE_LOWER_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
                       "/jax/core/compile/jaxpr_to_mlir_module_duration")
 # Environment variables that switch JAX's persistent compilation cache on (gfjax.cli.main):
@@ -95,7 +96,8 @@ class CompileClock:
 
     `compile_s` sums XLA backend compilations; `trace_lower_s` sums tracing to jaxprs and
     lowering to MLIR (a nested `jit` traced inside another may count twice there). Hits of
-    the persistent compilation cache record no backend compile. Use as a context manager:
+    the persistent compilation cache record no backend compile; `n_cache_hits` counts them.
+    Use as a context manager:
 
         with CompileClock() as clock:
             method.filter(cloud)
@@ -106,7 +108,12 @@ class CompileClock:
         self.compile_s = 0.0
         self.trace_lower_s = 0.0
         self.n_compiles = 0
+        self.n_cache_hits = 0
         self._monitoring = None
+
+    def _count(self, event: str, **_: Any) -> None:
+        if event == CACHE_HIT_EVENT:
+            self.n_cache_hits += 1
 
     def _listen(self, event: str, duration_s: float, **_: Any) -> None:
         if event == BACKEND_COMPILE_EVENT:
@@ -120,10 +127,12 @@ class CompileClock:
 
         self._monitoring = jax.monitoring
         jax.monitoring.register_event_duration_secs_listener(self._listen)
+        jax.monitoring.register_event_listener(self._count)
         return self
 
     def __exit__(self, *exc: Any) -> None:
         self._monitoring.unregister_event_duration_listener(self._listen)
+        self._monitoring.unregister_event_listener(self._count)
 
 
 def _status_kib(field: str) -> int | None:
@@ -214,6 +223,13 @@ def run_isolated(target: str, kwargs: Mapping[str, Any], *, timeout_s: float | N
         return json.loads(out.read_text())
 
 
+def compile_cache_env(folder: str | os.PathLike) -> dict[str, str]:
+    """Environment that makes a child's JAX keep every compiled program in `folder`
+    (pass with `keep_compile_cache=True`)."""
+    return {"JAX_COMPILATION_CACHE_DIR": os.fspath(folder), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+            "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0"}
+
+
 def choose_cpus(n_threads: int | None) -> list[int] | None:
     """The first `n_threads` CPUs this process may run on (None for None).
 
@@ -257,4 +273,4 @@ def stopwatch() -> Iterator[list[float]]:
 
 
 __all__ = ["Timing", "time_call", "CompileClock", "peak_rss_bytes", "rss_bytes", "mib",
-           "IsolatedError", "run_isolated", "choose_cpus", "stopwatch", "BACKEND_COMPILE_EVENT"]
+           "IsolatedError", "run_isolated", "choose_cpus", "compile_cache_env", "stopwatch", "BACKEND_COMPILE_EVENT"]

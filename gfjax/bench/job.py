@@ -91,7 +91,7 @@ def bench_one(*, path: str, kind: str, name: str, repeat: int = 1, units: str | 
 
     Returns:
       JSON-able dict: `n_points`, `n_used`, `n_ground`, `baseline_rss_bytes`, `first_read_s`,
-      `first_call_s`, `compile_s` / `trace_lower_s` / `n_compiles` (None for peers), lists
+      `first_call_s`, `compile_s` / `trace_lower_s` / `n_compiles` / `n_cache_hits` (None for peers), lists
       `read_times_s`, `filter_times_s`, `write_times_s`, `job_times_s`, their medians
       `read_s`, `filter_s`, `write_s`, `job_s`, and `point_metrics` / `dtm_metrics` (None
       for an unlabelled file). Times in seconds.
@@ -106,10 +106,11 @@ def bench_one(*, path: str, kind: str, name: str, repeat: int = 1, units: str | 
     if kind == "method":
         with harness.CompileClock() as clock:
             ground, out["first_call_s"] = _timed(run, cloud)
-        out.update(compile_s=clock.compile_s, trace_lower_s=clock.trace_lower_s, n_compiles=clock.n_compiles)
+        out.update(compile_s=clock.compile_s, trace_lower_s=clock.trace_lower_s, n_compiles=clock.n_compiles,
+                   n_cache_hits=clock.n_cache_hits)
     else:
         ground, out["first_call_s"] = _timed(run, cloud)
-        out.update(compile_s=None, trace_lower_s=None, n_compiles=None)
+        out.update(compile_s=None, trace_lower_s=None, n_compiles=None, n_cache_hits=None)
     times: dict[str, list[float]] = {"read": [], "filter": [], "write": [], "job": []}
     with tempfile.TemporaryDirectory(prefix="gfjax-bench-out-") as tmp:
         target = Path(tmp) / f"out{Path(path).suffix.lower() or '.laz'}"

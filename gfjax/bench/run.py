@@ -21,7 +21,7 @@ from gfjax.errors import InputError
 
 SCHEMA = "gfjax-bench/1"
 RECORD_KEYS = ("file", "filter", "kind", "status", "error", "n_cpus", "n_points", "n_used", "n_ground",
-               "first_call_s", "compile_s", "filter_s", "read_s", "write_s", "job_s",
+               "first_call_s", "compile_s", "n_compiles", "n_cache_hits", "filter_s", "read_s", "write_s", "job_s",
                "filter_times_s", "job_times_s", "points_per_s", "filter_points_per_s",
                "peak_rss_mib", "baseline_rss_mib", "rss_per_million_points_mib",
                "point_metrics", "dtm_metrics")
@@ -86,11 +86,15 @@ def _rates(record: dict) -> None:
 
 
 def run_one(path: Path, runner: Runner, *, repeat: int = 1, units: str | None = None,
-            timeout_s: float | None = None, env: dict | None = None, threads: int | None = None) -> dict:
+            timeout_s: float | None = None, env: dict | None = None, threads: int | None = None,
+            compile_cache: str | os.PathLike | None = None) -> dict:
     """Benchmark one filter on one file in a fresh process; a record with `RECORD_KEYS`.
 
     `threads`: run on that many CPUs (`harness.choose_cpus`: affinity and `OMP_NUM_THREADS`),
-    the same for every filter; None: every CPU, environment as is. A failure of the filter (an
+    the same for every filter; None: every CPU, environment as is. `compile_cache`: a folder
+    for JAX's persistent compilation cache shared by the runs (programs compiled for an earlier
+    file are loaded, not compiled; `compile_s` is then the compiling this run still did);
+    None: every run compiles from scratch. A failure of the filter (an
     exception, a crash, the timeout) gives `status="failed"` and the error's last line in
     `error`, with the other figures None.
     """
@@ -100,7 +104,10 @@ def run_one(path: Path, runner: Runner, *, repeat: int = 1, units: str | None = 
         result = harness.run_isolated("gfjax.bench.job:bench_one",
                                       {"path": str(path), "kind": runner.kind, "name": runner.name,
                                        "repeat": repeat, "units": units},
-                                      timeout_s=timeout_s, env=env, cpus=harness.choose_cpus(threads))
+                                      timeout_s=timeout_s, cpus=harness.choose_cpus(threads),
+                                      env={**(harness.compile_cache_env(compile_cache) if compile_cache else {}),
+                                           **(env or {})},
+                                      keep_compile_cache=compile_cache is not None)
     except harness.IsolatedError as err:
         record.update(status="failed", error=str(err))
         return record
@@ -143,13 +150,14 @@ def _cpu_model() -> str:
 
 
 def document(records: list[dict], *, repeat: int, notes: Sequence[str], command: str,
-             threads: int | None = None) -> dict:
+             threads: int | None = None, compile_cache: bool = False) -> dict:
     """The JSON document of a benchmark (schema `SCHEMA`)."""
     from gfjax import __version__
 
     return {"schema": SCHEMA, "gfjax_version": __version__, "command": command,
             "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "machine": machine(), "repeat": repeat, "threads": threads, "dtm_cell_m": 2.0, "notes": list(notes),
+            "machine": machine(), "repeat": repeat, "threads": threads,
+            "compile_cache": compile_cache, "dtm_cell_m": 2.0, "notes": list(notes),
             "runs": records, "summary": summarize(records)}
 
 

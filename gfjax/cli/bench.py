@@ -51,6 +51,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--threads", type=_positive_int, default=None, metavar="N",
                         help="run every filter on the same N CPUs (affinity and OMP_NUM_THREADS; "
                              "default: all CPUs, environment as is)")
+    parser.add_argument("--compile-cache", default=None, metavar="DIR",
+                        help="share JAX's persistent compilation cache in DIR between runs "
+                             "(default: every run compiles from scratch; compile s is then cold)")
     parser.add_argument("--timeout", type=positive_float, default=None, metavar="S",
                         help="give up on one (file, filter) run after S seconds (default: no limit)")
     add_units_option(parser)
@@ -85,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     records = []
     with tqdm(total=pairs, desc="bench", unit="run", disable=pairs == 1) as bar:
         for record in bench.iter_runs(inputs, runners, repeat=args.repeat, units=args.units,
-                                      timeout_s=args.timeout, threads=args.threads):
+                                      timeout_s=args.timeout, threads=args.threads,
+                                      compile_cache=args.compile_cache):
             records.append(record)
             bar.update(1)
     summary = bench.summarize(records)
@@ -95,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
         print(bench.format_summary(summary))
     if args.json:
         document = bench.document(records, repeat=args.repeat, notes=notes, command=bench.command_line(),
-                                  threads=args.threads)
+                                  threads=args.threads, compile_cache=args.compile_cache is not None)
         with las_io.atomic_output(args.json, input_paths=inputs, suffixes=(".json",), option="--json") as tmp:
             tmp.write_text(json.dumps(bench.json_safe(document), indent=2, allow_nan=False) + "\n")
     if args.plot and bench.has_accuracy(records):

@@ -13,7 +13,7 @@ from gfjax.bench import run as bench
 from gfjax.cli.main import main
 from gfjax.metrics import DTM_KEYS, POINT_KEYS
 
-TOP_KEYS = {"schema", "gfjax_version", "command", "created_utc", "machine", "repeat", "threads", "dtm_cell_m",
+TOP_KEYS = {"schema", "gfjax_version", "command", "created_utc", "machine", "repeat", "threads", "compile_cache", "dtm_cell_m",
             "notes", "runs", "summary"}
 
 
@@ -37,6 +37,7 @@ def test_bench_smrf_end_to_end_with_a_missing_peer(scene, tmp_path, capsys, monk
 
     doc = json.loads(out_json.read_text())
     assert set(doc) == TOP_KEYS and doc["schema"] == bench.SCHEMA and doc["repeat"] == 2 and doc["threads"] == 1
+    assert doc["compile_cache"] is False
     assert doc["notes"] == [peers.skip_note("pysmrf")]
     assert doc["machine"]["nproc"] >= 1
     (run,) = doc["runs"]
@@ -109,3 +110,25 @@ def test_a_failing_run_is_a_row_not_a_crash(scene):
 
 def test_json_safe_turns_nan_into_null():
     assert bench.json_safe({"a": [1.0, float("nan")], "b": (float("inf"), "x")}) == {"a": [1.0, None], "b": [None, "x"]}
+
+
+def test_run_one_passes_threads_and_compile_cache_and_derives_rates(monkeypatch, tmp_path):
+    seen = {}
+
+    def fake_run_isolated(target, kwargs, **options):
+        seen.update(target=target, kwargs=kwargs, **options)
+        return {"n_points": 2_000_000, "n_used": 2_000_000, "n_ground": 10, "n_cpus": 1, "job_s": 4.0,
+                "filter_s": 2.0, "compile_s": 1.5, "peak_rss_bytes": 300 << 20, "baseline_rss_bytes": 100 << 20,
+                "point_metrics": None, "dtm_metrics": None, "not_a_record_key": 1}
+
+    monkeypatch.setattr(bench.harness, "run_isolated", fake_run_isolated)
+    record = bench.run_one(tmp_path / "x.laz", bench.Runner("method", "smrf"), repeat=3, threads=1,
+                           compile_cache=tmp_path / "cache")
+    assert seen["target"] == "gfjax.bench.job:bench_one"
+    assert seen["kwargs"] == {"path": str(tmp_path / "x.laz"), "kind": "method", "name": "smrf",
+                              "repeat": 3, "units": None}
+    assert seen["cpus"] == bench.harness.choose_cpus(1) and seen["keep_compile_cache"] is True
+    assert seen["env"]["JAX_COMPILATION_CACHE_DIR"] == str(tmp_path / "cache")
+    assert set(record) == set(bench.RECORD_KEYS) and record["status"] == "ok"
+    assert record["points_per_s"] == 500_000 and record["filter_points_per_s"] == 1_000_000
+    assert record["peak_rss_mib"] == 300 and record["rss_per_million_points_mib"] == 100
