@@ -123,8 +123,12 @@ def write_report(document: dict, md_path: Path, png_path: Path, *, planned: int)
                   "filter's unweighted mean total error at its pooled throughput.", ""]
     if partial:
         done = {(r["file"], r["filter"]) for r in records}
-        missing = [f"{Path(f).name} / {label}" for f, label in document.get("planned", []) if (f, label) not in done]
-        lines += ["## Not run yet", "", ", ".join(missing) or "-", ""]
+        missing: dict[str, list[str]] = {}
+        for f, label in document.get("planned", []):
+            if (f, label) not in done:
+                missing.setdefault(Path(f).name, []).append(label)
+        lines += ["## Not run (the time ran out before these pairs)", "",
+                  *[f"- {name}: {', '.join(labels)}" for name, labels in missing.items()], ""]
     md_path.write_text("\n".join(lines))
 
 
@@ -169,10 +173,11 @@ def main(argv: list[str] | None = None) -> int:
     if previous and records:
         document["machine"] = previous["machine"]       # the load when the run began
         document["created_utc"] = previous["created_utc"]
-    planned = {(r["file"], r["filter"]) for r in records}
+    planned = {(r["file"], r["filter"]) for r in records}      # the full table: every file x filter
+    planned |= {(str(p), r.label) for p in ALL_FILES for r in bench.plan(None, None)[0]}
     planned |= {(str(p), r.label) for p in files for r in runners}
     order = {str(p): i for i, p in enumerate(ALL_FILES)}
-    document["planned"] = sorted(planned, key=lambda fr: (order.get(fr[0], len(order)), fr[1]))
+    document["planned"] = sorted(planned, key=lambda fr: (order.get(fr[0], len(order)), _filter_rank(fr[1])))
     md_path, png_path = args.out.with_suffix(".md"), args.out.with_suffix(".png")
     done = {(r["file"], r["filter"]) for r in records}
     for record in bench.iter_runs(files, runners, skip=done, repeat=args.repeat,
