@@ -131,7 +131,6 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     cell = np.floor(rel[:, :2] / cell_m).astype(np.int64)        # global (col, row-from-south)
     extent_px = cell.max(axis=0) + 1
     core = np.floor(rel[:, :2] / tile_size_m).astype(np.int64)
-    n_tiles = core.max(axis=0) + 1
     core_px = tile_size_m / cell_m
     buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
 
@@ -140,7 +139,7 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     keys, starts = np.unique(core[order], axis=0, return_index=True)
     for key, chunk in zip(keys, np.split(order, starts[1:])):
         by_core[(int(key[0]), int(key[1]))] = chunk
-    reach = max(1, math.ceil(buffer_m / tile_size_m))            # neighbour cores a buffer reaches
+    reach = max(1, math.ceil((buffer_px + 1) * cell_m / tile_size_m))   # neighbour cores a window reaches
 
     tiles = []
     for (ti, tj) in sorted(by_core, key=lambda k: (k[1], k[0])):
