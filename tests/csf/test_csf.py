@@ -222,7 +222,8 @@ def test_point_order_does_not_matter(classify):
     np.testing.assert_array_equal(np.asarray(a)[:len(xyz)][perm], np.asarray(b)[:len(xyz)])
 
 
-def test_matches_package_on_scene():
+def test_matches_package_on_scene(monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")        # the package's sequential sweep (no OpenMP races)
     CSF = pytest.importorskip("CSF")
     xyz = scene("plane_box", 5)
     package = CSF.CSF()
