@@ -10,11 +10,13 @@ wall time.
 
     nice .venv/bin/python experiments/tune_isprs.py [--steps N] [--skip-loo]
 
-Writes experiments/results/tune_isprs.json and .md (after every phase).
+Writes experiments/results/tune_isprs_<phases>.json after every phase, and tune_isprs.md from
+all such files (so (b)/(e) and (c)/(d) may run as two processes).
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 import platform
@@ -49,6 +51,9 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-loo", action="store_true")
     ap.add_argument("--samples", nargs="*", default=NAMES, help="subset (smoke tests)")
     ap.add_argument("--out", default=str(OUT))
+    ap.add_argument("--phases", default="abecd", help="which of a, b, e, c, d to run")
+    ap.add_argument("--loo-windows", default="12,18,24", help="window grid of (d)")
+    ap.add_argument("--cd-steps", type=int, default=None, help="steps of (c) and (d) (default --steps)")
     args = ap.parse_args(argv)
     jax.config.update("jax_compilation_cache_dir", "/tmp/gfjax_tune_cache")
     res: dict = {"command": "nice .venv/bin/python experiments/tune_isprs.py " + " ".join(sys.argv[1:]),
@@ -65,13 +70,23 @@ def main(argv=None) -> int:
     all_masks = problem.masks()
 
     def save():
-        (out / "tune_isprs.json").write_text(json.dumps(res, indent=1, default=lambda a: np.asarray(a).tolist()))
-        (out / "tune_isprs.md").write_text(report(res))
+        (out / f"tune_isprs_{args.phases}.json").write_text(
+            json.dumps(res, indent=1, default=lambda a: np.asarray(a).tolist()))
+        merged: dict = {}
+        commands = []
+        for part in sorted(out.glob("tune_isprs_*.json")):
+            data = json.loads(part.read_text())
+            commands.append(data["command"])
+            merged.update(data)
+        merged["command"] = "`; `".join(commands)
+        (out / "tune_isprs.md").write_text(report(merged))
         print(f"[{time.perf_counter() - t0:.0f}s] saved", flush=True)
 
     # (a) defaults
     res["a_defaults"] = tfit.hard_errors(problem, defaults, all_masks, per, 18.0).tolist()
     save()
+    if "b" not in args.phases:
+        return cd(args, res, problem, samples, per, defaults, all_masks, save, t0)
 
     # timing of one hard evaluation and one value-and-grad call (all 11 samples), warm.
     radius = jnp.asarray(tsmrf.radius_for(problem.config, 18.0), jnp.int32)
@@ -126,10 +141,21 @@ def main(argv=None) -> int:
                      "forward_equivalents": n_eval, "wall_s": time.perf_counter() - t}
     save()
 
+    if "c" in args.phases or "d" in args.phases:
+        return cd(args, res, problem, samples, per, defaults, all_masks, save, t0)
+    res["total_s"] = time.perf_counter() - t0
+    save()
+    return 0
+
+
+def cd(args, res, problem, samples, per, defaults, all_masks, save, t0) -> int:
+    c = len(samples)
     # (c) half split with the tool's guard: prior + k-fold block validation, per sample.
-    settings = tfit.Settings(steps=args.steps)
+    settings = tfit.Settings(steps=args.cd_steps or args.steps)
+    res["cd_settings"] = {"steps": settings.steps, "prior": settings.prior, "folds": args.folds,
+                          "block_m": 50.0, "loo_windows": args.loo_windows}
     res["c"] = {}
-    for train_side in ("west", "east"):
+    for train_side in (("west", "east") if "c" in args.phases else ()):
         halves = []
         for s in samples:
             west = s.xyz_m[:, 0] < np.median(s.xyz_m[s.use, 0])
@@ -145,11 +171,12 @@ def main(argv=None) -> int:
         save()
 
     # (d) leave one sample out: one shared set tuned on 10 samples (prior), scored on the 11th.
-    if not args.skip_loo:
+    if "d" in args.phases and not args.skip_loo:
+        loo = dataclasses.replace(settings, windows_m=tuple(float(w) for w in args.loo_windows.split(",")))
         res["d"] = {"defaults": res["a_defaults"], "tuned": [], "values": [], "window_m": []}
         for i in range(c):
             weight = np.where(per == i, 0.0, 1.0 / (c - 1))
-            f = tfit.fit(problem, settings, group=np.zeros(c, np.int32), weight=weight)
+            f = tfit.fit(problem, loo, group=np.zeros(c, np.int32), weight=weight)
             err = tfit.hard_errors_at(problem, np.tile(f.values, (c, 1)), np.repeat(f.window_m, c), all_masks, per)
             res["d"]["tuned"].append(float(err[i]))
             res["d"]["values"].append(f.values[0])

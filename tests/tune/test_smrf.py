@@ -65,7 +65,7 @@ def test_check_grads_soft_inpaint():
     rng = np.random.default_rng(0)
     z = jnp.asarray(rng.normal(0, 1, (8, 9)), jnp.float32)
     keep = rng.choice([0.1, 0.3, 0.7, 0.95], size=(8, 9)).astype(np.float32)
-    fn = functools.partial(tsmrf.soft_inpaint, config=CONFIG, sweeps=6)
+    fn = jax.jit(functools.partial(tsmrf.soft_inpaint, config=CONFIG, sweeps=6))
     check_grads(fn, (z, jnp.asarray(keep)), order=1, modes=["fwd", "rev"], eps=1e-2, atol=2e-2, rtol=2e-2)
 
 
@@ -80,7 +80,7 @@ def test_soft_inpaint_with_hard_weights_is_the_harmonic_fill():
 
 def test_check_grads_relaxed_object_test():
     prep = crop_prepared()
-    fn = lambda slope: jnp.sum(tsmrf._object_cells(prep, slope, jnp.int32(6), CONFIG.cell_m, 0.3))  # noqa: E731
+    fn = jax.jit(lambda slope: jnp.sum(tsmrf._object_cells(prep, slope, jnp.int32(6), CONFIG.cell_m, 0.3)))
     check_grads(fn, (jnp.float32(0.15),), order=1, modes=["fwd", "rev"], eps=1e-2, atol=1e-1, rtol=2e-2)
 
 
@@ -88,6 +88,7 @@ def test_check_grads_relaxed_point_test():
     """threshold and scalar act only at the point test (ZIpro does not depend on them)."""
     prep = crop_prepared()
 
+    @jax.jit
     def fn(threshold_m, scalar):
         w = tsmrf.ground_weight(prep, Params(slope=0.15, threshold_m=threshold_m, scalar=scalar), config=CONFIG,
                                 temperature=0.2)

@@ -1,0 +1,91 @@
+"""The optax loop, block validation and the `gfjax tune` command on a small labelled crop."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from gfjax.cli import main as cli_main
+from gfjax.tune import fit as tfit
+from gfjax.tune import smrf as tsmrf
+from gfjax.tune.problem import block_folds
+
+from .helpers import WINDOWS, crop_cloud, problem
+
+SETTINGS = tfit.Settings(steps=4, eval_every=2, windows_m=WINDOWS)
+
+
+def test_fit_stays_in_bounds_and_never_worsens_training_error():
+    pb = problem(("crop",))
+    r = tfit.fit(pb, SETTINGS)
+    lo = np.array([b.lo for b in tsmrf.BOUNDS])
+    hi = np.array([b.hi for b in tsmrf.BOUNDS])
+    assert r.values.shape == (1, 3) and np.all((r.values >= lo) & (r.values <= hi))
+    assert r.train_error[0] <= r.start_error[0]
+    assert r.window_m[0] in WINDOWS
+    assert set(r.history) == set(WINDOWS)
+    for h in r.history.values():
+        assert h["loss"].shape == (4,) and h["values"].shape == (4, 1, 3) and np.all(np.isfinite(h["loss"]))
+        assert np.any(h["values"][-1] != h["values"][0])                    # the parameters moved
+    assert r.gradient_calls == 4 * len(WINDOWS)
+
+
+def test_per_sample_groups_are_independent():
+    pb = problem(("flat", "roof"))
+    r = tfit.fit(pb, SETTINGS, group=np.array([0, 1]))
+    alone = tfit.fit(pb, SETTINGS, group=np.array([0, 1]), weight=np.array([1.0, 0.0]))
+    np.testing.assert_allclose(alone.history[WINDOWS[0]]["values"][:, 0], r.history[WINDOWS[0]]["values"][:, 0],
+                               rtol=1e-5, atol=1e-6)
+
+
+def test_validate_keeps_a_fit_only_when_held_out_error_drops():
+    pb = problem(("crop",))
+    v = tfit.validate(pb, SETTINGS, folds=2, block_m=20.0)
+    assert v.fold_errors.shape == (2, 1, 2)
+    np.testing.assert_allclose(v.default_error, v.fold_errors[:, :, 0].mean(axis=0))
+    if v.kept[0]:
+        assert v.tuned_error[0] < v.default_error[0]
+        np.testing.assert_array_equal(v.values, v.fit.values)
+    else:
+        np.testing.assert_array_equal(v.values[0], tfit.DEFAULTS)
+        assert v.window_m[0] == 18.0
+
+
+def test_block_folds_are_whole_blocks_and_balanced():
+    rng = np.random.default_rng(0)
+    xyz = np.column_stack([rng.uniform(0, 100, 2000), rng.uniform(0, 100, 2000), np.zeros(2000)])
+    fold = block_folds(xyz, folds=3, block_m=25.0, seed=1)
+    block = np.floor(xyz[:, :2] / 25.0).astype(int)
+    for key in np.unique(block, axis=0):
+        assert len(np.unique(fold[np.all(block == key, axis=1)])) == 1
+    counts = np.bincount([fold[np.all(block == k, axis=1)][0] for k in np.unique(block, axis=0)])
+    assert counts.tolist() == [6, 5, 5]
+    np.testing.assert_array_equal(fold, block_folds(xyz, folds=3, block_m=25.0, seed=1))
+    with pytest.raises(ValueError):
+        block_folds(xyz, folds=1, block_m=25.0)
+
+
+def test_settings_checks():
+    for bad in (dict(steps=0), dict(loss="l2"), dict(prior=-1.0), dict(windows_m=()), dict(eval_every=0)):
+        with pytest.raises(ValueError):
+            tfit.Settings(**bad)
+
+
+def test_cli_tune_writes_params_that_filter_reads(tmp_path, capsys):
+    import gfjax
+
+    laz = tmp_path / "crop.laz"
+    gfjax.write(crop_cloud(), laz)
+    out = tmp_path / "params.json"
+    code = cli_main.main(["tune", str(laz), "-o", str(out), "--steps", "2", "--folds", "0", "--windows", "18"])
+    assert code == 0, capsys.readouterr()
+    data = json.loads(out.read_text())
+    assert data["method"] == "smrf" and set(data["values"]) == {"slope", "threshold_m", "scalar", "window_m"}
+    assert data["units"]["threshold_m"] == "m" and "validation" in data
+    for key in data["fitted"]:
+        assert key in ("slope", "threshold_m", "scalar")
+    assert cli_main.main(["filter", str(laz), "-o", str(tmp_path / "out.laz"), "--params", str(out)]) == 0
+    assert cli_main.main(["tune", str(laz), "-o", str(out), "--steps", "2"]) == 2          # exists
+    assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "p.json"), "--method", "masf"]) == 2
+    assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "p.txt")]) == 2
