@@ -4,7 +4,7 @@ Every function takes one tile (no batch axis); static arguments are keyword-only
 are carried by a `valid` mask, never NaN. Row 0 of a raster is its northern edge (see
 `gfjax.raster.grid`). The contract is `docs/ARCHITECTURE.md`, section "Raster kernels".
 """
-from gfjax.raster.fill import fill_holes, inpaint_harmonic, inpaint_nearest, nearest_valid_index
+from gfjax.raster.fill import fill_holes, inpaint_harmonic, inpaint_nearest, nearest_valid_index, solve_harmonic
 from gfjax.raster.grid import Grid, cell_index, sample_bilinear
 from gfjax.raster.label import (
     PatchStats,
@@ -32,7 +32,7 @@ from gfjax.raster.rasterize import CellStats, flat_cell, rasterize
 
 __all__ = [
     "Grid", "cell_index", "sample_bilinear", "CellStats", "rasterize", "flat_cell",
-    "inpaint_nearest", "inpaint_harmonic", "nearest_valid_index", "fill_holes",
+    "inpaint_nearest", "inpaint_harmonic", "solve_harmonic", "nearest_valid_index", "fill_holes",
     "disk", "chord_half_widths", "min_filter", "max_filter", "erode", "dilate", "opening", "closing",
     "binary_erode", "binary_dilate", "binary_opening", "binary_closing",
     "label_components", "relabel_consecutive", "PatchStats", "patch_stats", "RingStats", "boundary_ring",

@@ -16,10 +16,10 @@ from jax import lax
 from jaxtyping import Array, Int
 
 from gfjax._types import Mask, Raster
-from gfjax.raster.harmonic import inpaint_harmonic
+from gfjax.raster.harmonic import inpaint_harmonic, solve_harmonic
 from gfjax.raster.label import label_components
 
-__all__ = ["nearest_valid_index", "inpaint_nearest", "inpaint_harmonic", "fill_holes"]
+__all__ = ["nearest_valid_index", "inpaint_nearest", "inpaint_harmonic", "solve_harmonic", "fill_holes"]
 
 _FAR = 1 << 30                     # "no candidate" squared distance / index (int32)
 

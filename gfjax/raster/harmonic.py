@@ -28,9 +28,11 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jax import lax
 
+from jaxtyping import Array, Bool, Int
+
 from gfjax._types import Mask, Raster
 
-__all__ = ["inpaint_harmonic"]
+__all__ = ["inpaint_harmonic", "solve_harmonic"]
 
 _COARSEST = 8            # dense solve once both sides are <= this
 _SWEEPS = 1              # Gauss-Seidel sweeps before and after each coarse correction
@@ -45,6 +47,7 @@ class _Level(NamedTuple):
     diag: Raster          # 0 on inactive cells (fixed or padding): e = 0 there
     w_east: Raster        # weight of the edge (i, j) - (i, j + 1); 0 in the last column
     w_south: Raster       # weight of the edge (i, j) - (i + 1, j); 0 in the last row
+    unit: bool = False    # static: all edges between active cells weigh 1 (the finest level)
 
 
 def _shift(x: Raster, drow: int, dcol: int) -> Raster:
@@ -55,6 +58,9 @@ def _shift(x: Raster, drow: int, dcol: int) -> Raster:
 
 
 def _neighbour_sum(level: _Level, e: Raster) -> Raster:
+    """`sum_j w_ij e_j` for active cells i (e is 0 on inactive cells)."""
+    if level.unit:                      # finest level: 1 per active neighbour, e = 0 elsewhere
+        return _shift(e, 0, 1) + _shift(e, 0, -1) + _shift(e, 1, 0) + _shift(e, -1, 0)
     west = _shift(level.w_east, 0, -1)
     north = _shift(level.w_south, -1, 0)
     return (level.w_east * _shift(e, 0, 1) + west * _shift(e, 0, -1)
@@ -62,7 +68,8 @@ def _neighbour_sum(level: _Level, e: Raster) -> Raster:
 
 
 def _apply(level: _Level, e: Raster) -> Raster:
-    return level.diag * e - _neighbour_sum(level, e)
+    """`A e`, 0 on inactive cells."""
+    return jnp.where(level.diag > 0, level.diag * e - _neighbour_sum(level, e), 0)
 
 
 def _n_inside(shape, dtype) -> Raster:
@@ -78,7 +85,7 @@ def _finest(valid: Mask, dtype) -> _Level:
     n_inside = _n_inside(valid.shape, dtype)
     east = free & (_shift(free.astype(jnp.int8), 0, 1) > 0)
     south = free & (_shift(free.astype(jnp.int8), 1, 0) > 0)
-    return _Level(jnp.where(free, n_inside, 0).astype(dtype), east.astype(dtype), south.astype(dtype))
+    return _Level(jnp.where(free, n_inside, 0).astype(dtype), east.astype(dtype), south.astype(dtype), unit=True)
 
 
 def _pad_even(x: Raster) -> Raster:
@@ -190,8 +197,16 @@ def inpaint_harmonic(z: Raster, valid: Mask, *, max_iter: int = 100, tol_m: floa
 
     Returns:
       `(h, w)`, dtype of `z`: `z` on valid cells, the solution of the discrete Laplace equation
-      (zero flux at the raster border) elsewhere. No valid cell: zeros.
+      (zero flux at the raster border) elsewhere. No valid cell: zeros. See `solve_harmonic`
+      for the iteration count and convergence flag.
     """
+    return solve_harmonic(z, valid, max_iter=max_iter, tol_m=tol_m)[0]
+
+
+def solve_harmonic(
+    z: Raster, valid: Mask, *, max_iter: int = 100, tol_m: float = 1e-4
+) -> tuple[Raster, Int[Array, ""], Bool[Array, ""]]:
+    """`inpaint_harmonic` that also returns `(iterations int32, converged bool)`."""
     if z.shape != valid.shape:
         raise ValueError(f"inpaint_harmonic: z shape {z.shape} != valid shape {valid.shape}")
     if not jnp.issubdtype(z.dtype, jnp.floating):
@@ -199,7 +214,9 @@ def inpaint_harmonic(z: Raster, valid: Mask, *, max_iter: int = 100, tol_m: floa
     dtype = z.dtype
     anything = jnp.any(valid)
     valid = valid | ~anything                       # nothing valid: solve the all-zero problem
-    z0 = jnp.where(valid & anything, z, jnp.zeros((), dtype))
+    # Solve for heights relative to the mean of the data: smaller numbers, smaller rounding.
+    offset = jnp.sum(jnp.where(valid & anything, z, 0)) / jnp.maximum(jnp.sum(valid), 1).astype(dtype)
+    z0 = jnp.where(valid & anything, z - offset, jnp.zeros((), dtype))
     u0 = _push_pull(z0, valid)
     levels = _hierarchy(_finest(valid, dtype))
     free = (~valid).astype(dtype)
@@ -226,5 +243,6 @@ def inpaint_harmonic(z: Raster, valid: Mask, *, max_iter: int = 100, tol_m: floa
 
     zeros = jnp.zeros_like(r)
     init = (zeros, r, zeros, jnp.zeros((), dtype), jnp.int32(0), jnp.array(jnp.inf, dtype))
-    e = lax.while_loop(cond, body, init)[0]
-    return jnp.where(valid & anything, z, jnp.where(anything, u0 + e, 0)).astype(dtype)
+    e, _, _, _, iterations, change = lax.while_loop(cond, body, init)
+    filled = jnp.where(valid & anything, z, jnp.where(anything, u0 + e + offset, 0)).astype(dtype)
+    return filled, iterations, change <= tol_m

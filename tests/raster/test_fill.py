@@ -36,14 +36,15 @@ def _gap_case():
 def jitted():
     def fn(z, valid):
         index, dist2 = raster.nearest_valid_index(valid)
-        return index, dist2, raster.inpaint_nearest(z, valid), raster.inpaint_harmonic(z, valid, tol_m=1e-6)
+        harmonic, iterations, converged = raster.solve_harmonic(z, valid, tol_m=1e-6)
+        return index, dist2, raster.inpaint_nearest(z, valid), harmonic, iterations, converged
     return jax.jit(fn)
 
 
 @pytest.mark.parametrize("case", CASES, ids=str)
 def test_nearest_matches_brute_force(case):
     z, valid = reference.random_raster(case, seed=0)
-    index, dist2, filled, _ = jitted()(z, valid)
+    index, dist2, filled, *_ = jitted()(z, valid)
     want_index, want_dist2 = reference.nearest_index(valid)
     np.testing.assert_array_equal(np.asarray(index), want_index)
     np.testing.assert_array_equal(np.asarray(dist2), want_dist2)
@@ -53,7 +54,7 @@ def test_nearest_matches_brute_force(case):
 
 def test_nearest_distance_matches_scipy_edt():
     z, valid = _gap_case()
-    _, dist2, filled, _ = jitted()(z, valid)
+    _, dist2, filled, *_ = jitted()(z, valid)
     np.testing.assert_allclose(np.sqrt(np.asarray(dist2)), ndi.distance_transform_edt(~valid), rtol=1e-12)
     np.testing.assert_array_equal(np.asarray(filled)[valid], z[valid])
 
@@ -61,10 +62,12 @@ def test_nearest_distance_matches_scipy_edt():
 @pytest.mark.parametrize("case", CASES + [Case("gap", (32, 24))], ids=str)
 def test_harmonic_matches_sparse_solve(case):
     z, valid = _gap_case() if case.name == "gap" else reference.random_raster(case, seed=1)
-    got = np.asarray(jitted()(z, valid)[3])
+    _, _, _, got, iterations, converged = jitted()(z, valid)
+    got = np.asarray(got)
     want = reference.harmonic(z, valid)
+    assert bool(converged) and int(iterations) <= 30
     np.testing.assert_array_equal(got[valid], z[valid])
-    np.testing.assert_allclose(got, want, atol=1e-3, rtol=0)     # float32 SOR, tol 1e-6 m per sweep
+    np.testing.assert_allclose(got, want, atol=1e-4, rtol=0)     # float32, z ~ 100 m
 
 
 def test_harmonic_stays_within_valid_range():
@@ -105,7 +108,7 @@ def test_vmap_equals_loop():
         for got, want in zip(batched, fn(z[b], valid[b])):
             # harmonic: vmap runs every tile for the most sweeps any needs; both are within the
             # solver's tolerance of the exact solution (test_harmonic_matches_sparse_solve)
-            np.testing.assert_allclose(np.asarray(got[b]), np.asarray(want), atol=1e-3, rtol=0)
+            np.testing.assert_allclose(np.asarray(got[b]), np.asarray(want), atol=1e-4, rtol=0)
 
 
 def test_nearest_padding_never_changes_valid_cells():

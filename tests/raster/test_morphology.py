@@ -59,10 +59,11 @@ def test_matches_scipy_exactly(case, op, footprint):
     np.testing.assert_array_equal(np.asarray(got), OPS[op](z, valid, footprint, case.radius))
 
 
-@pytest.mark.parametrize("footprint", FOOTPRINTS)
-@pytest.mark.parametrize("case", [CASES[0], CASES[6]], ids=str)
+@pytest.mark.parametrize(("case", "footprint"), [(CASES[0], "disk"), (CASES[0], "square"), (CASES[6], "square")],
+                         ids=str)
 def test_van_herk_matches_scipy_exactly(case, footprint):
-    """The van Herk / Gil-Werman path (algorithm="vhgw") gives the same bits as the table."""
+    """The van Herk / Gil-Werman path (algorithm="vhgw") gives the same bits as scipy. (Its
+    unrolled block scans compile slowly for large disks, so large radii run on squares only.)"""
     z, valid = reference.random_raster(case, seed=1)
     got = jitted_all(case.radius, footprint, algorithm="vhgw")(z, valid)
     for op, result in zip(OPS, got):
