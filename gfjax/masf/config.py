@@ -54,6 +54,9 @@ class Config:
       layer_passes: most passes of the densification test per layer (1: one pass; more: the
         layer's remaining points are retested against the TIN holding the points just
         accepted, until a pass adds none) (R).
+      retest_earlier: at each layer, points of earlier layers not yet ground are tested again
+        against the current TIN with the DT of the first layer that held them (R; costs no
+        extra triangulation, unlike `layer_passes`).
       empty_tol_m: tolerance of the empty-sphere test along the dual Voronoi edge [m].
     """
 
@@ -69,6 +72,7 @@ class Config:
     pit_cap_m: float = 4.0
     distance: str = "under"
     layer_passes: int = 1
+    retest_earlier: bool = False
     empty_tol_m: float = 1e-3
 
     def __post_init__(self) -> None:

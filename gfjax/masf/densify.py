@@ -101,7 +101,7 @@ def low_seed_pits(xyz_m: np.ndarray, *, drop_m: float, slope: float, cap_m: floa
 def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_m: np.ndarray, *,
             shape: tuple[int, int], cell_m: float, st: float, ft_m: float,
             pit_drop_m: float = 1.0, pit_slope: float | None = 1.0, pit_cap_m: float = 4.0,
-            nearest_facet: bool = False, layer_passes: int = 1) -> Densified:
+            nearest_facet: bool = False, layer_passes: int = 1, retest_earlier: bool = False) -> Densified:
     """Label ground points by top-down densification of the layer TINs.
 
     Args:
@@ -115,6 +115,8 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
       nearest_facet: distance to the nearest facet instead of the facet under the point.
       layer_passes: tests of a layer's remaining points against the TIN with the points the
         previous pass accepted, until a pass accepts none (1: one test per layer).
+      retest_earlier: at each layer, also retest the points of earlier layers that are not yet
+        ground, each with the DT of the first layer that held it (no extra triangulation).
     """
     n_layers, n_seeds = layers.shape
     seed_xyz = points_m[seeds]
@@ -128,18 +130,28 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
     added[0] = np.count_nonzero(in_tin)
     ring_xy = buffer_cells(shape, cell_m=cell_m)
     ring = np.column_stack([ring_xy, nearest_z(ring_xy, seed_xyz[in_tin])])
+    # threshold_m[i]: DT of the first (largest-alpha) layer that held seed i; pits start over
+    threshold_m = np.full(n_seeds, -np.inf)
+    if n_layers:
+        threshold_m[layers[0] & in_tin] = st * alphas_m[0] + ft_m
     tin, tin_size = None, -1
     for level in range(1, n_layers):
-        candidates = np.flatnonzero(layers[level] & ~in_tin)
-        if len(candidates) == 0:
-            continue
+        dt_m = st * alphas_m[level] + ft_m
+        fresh = layers[level] & ~np.isfinite(threshold_m)
+        threshold_m[fresh] = dt_m
         for _ in range(layer_passes):
-            candidates = np.flatnonzero(layers[level] & ~in_tin)
+            if retest_earlier:
+                candidates = np.flatnonzero(np.isfinite(threshold_m) & ~in_tin)
+                limit_m = threshold_m[candidates]
+            else:
+                candidates = np.flatnonzero(layers[level] & ~in_tin)
+                limit_m = dt_m
+            if len(candidates) == 0:
+                break
             size = int(np.count_nonzero(in_tin))
             if tin is None or size != tin_size:
                 tin, tin_size = GroundTin(np.concatenate([seed_xyz[in_tin], ring])), size
-            threshold_m = st * alphas_m[level] + ft_m
-            accepted = candidates[tin.distance_m(seed_xyz[candidates], nearest_facet=nearest_facet) < threshold_m]
+            accepted = candidates[tin.distance_m(seed_xyz[candidates], nearest_facet=nearest_facet) < limit_m]
             in_tin[accepted] = True
             added[level] += len(accepted)
             if len(accepted) == 0:
