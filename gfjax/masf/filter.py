@@ -17,7 +17,11 @@ Our readings where the paper is silent (R), beside SPEC section 4's:
 - the neighbourhood low-outlier test compares a cell with every occupied cell of its 5x5
   window (`preprocess`), and a second test drops pits of low outliers from the top-layer seeds
   (`densify.low_seed_pits`): patches of multipath points that hold each other up;
-- the pyramid stops at the last `alpha_k >= alpha_min` (alpha_min itself is not appended).
+- the pyramid stops at the last `alpha_k >= alpha_min` (alpha_min itself is not appended);
+- alternatives kept as `Config` values, measured in `experiments/masf_isprs.py`:
+  `layer_passes` (retest a layer's rejected points against the TIN holding the points just
+  accepted; 3 passes lower the mean total error but cost one triangulation per pass),
+  `retest_earlier`, `distance="nearest_facet"` (the paper's "nearest TIN facet").
 
 Defined results on degenerate input (SPEC section 1): no used point -> no ground; when the
 potential ground points span no tetrahedron (fewer than 4, or all coplanar or collinear) the
