@@ -10,6 +10,7 @@ W is computed once per cloud, so every NGNEM tile of a batch shares one cell siz
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from typing import NamedTuple
@@ -27,7 +28,7 @@ from gfjax.io.cloud import Cloud
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
 
-__all__ = ["Diagnostics", "filter", "run_raster_stages", "stage_options", "SHAPE_QUANTUM_PX", "MAX_BATCH"]
+__all__ = ["Diagnostics", "filter", "run_raster_stages", "stage_options", "batched_stages", "SHAPE_QUANTUM_PX", "MAX_BATCH"]
 
 SHAPE_QUANTUM_PX = 16          # tile rasters are padded to multiples of this (few compiles)
 MAX_BATCH = 8                  # tiles per vmap call
@@ -116,7 +117,7 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
     kwargs = stage_options(config)
     w_m = jnp.float32(cell_m)
     share = jnp.float32(config.rc_min_share)
-    if h <= core + 2 * buf and w <= core + 2 * buf:
+    if h <= core and w <= core:
         shape = (_round_up(h, SHAPE_QUANTUM_PX), _round_up(w, SHAPE_QUANTUM_PX))
         out = stages.raster_stages(*_pad_tile(z, layer, valid, shape), w_m, share, **kwargs)
         return stages.RasterStages(*[np.asarray(a)[:h, :w] if np.ndim(a) == 2 else np.asarray(a) for a in out])
@@ -132,7 +133,6 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
               (("ngnem", np.float32), ("layer", np.int32), ("rhc", bool), ("ngnem_bi", bool),
                ("ngnem_rc0", bool), ("ngnem_rc", bool))}
     converged = True
-    batched = jax.vmap(lambda *a: stages.raster_stages(*a, w_m, share, **kwargs))
     starts = range(0, len(windows), MAX_BATCH)
     if progress:
         from tqdm import tqdm
@@ -141,7 +141,7 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
         group = windows[s:s + MAX_BATCH]
         tiles = [_pad_tile(z[a:b, c:d], layer[a:b, c:d], valid[a:b, c:d], shape) for _, _, (a, b), (c, d) in group]
         tiles += [tiles[-1]] * (MAX_BATCH - len(tiles))           # one batch shape: one compile
-        out = batched(*[jnp.stack(parts) for parts in zip(*tiles)])
+        out = batched_stages(*[jnp.stack(parts) for parts in zip(*tiles)], w_m, share, **kwargs)
         converged &= bool(np.all(np.asarray(out.converged)[:len(group)]))
         for i, (r0, c0, (a, _), (c, _)) in enumerate(group):
             r1, c1 = min(h, r0 + core), min(w, c0 + core)
@@ -151,6 +151,14 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
     labels, conv = label_components(jnp.asarray(fields["ngnem_rc"]), connectivity=8)
     instances, _ = relabel_consecutive(labels)
     return stages.RasterStages(**fields, instances=np.asarray(instances), converged=converged and bool(conv))
+
+
+@functools.partial(jax.jit, static_argnames=("max_filter_px", "max_close_px", "border_patches", "hole_test",
+                                             "close_all"))
+def batched_stages(z, layer, valid, inside, cell_m, rc_min_share, **static) -> stages.RasterStages:
+    """`stages.raster_stages` vmapped over a batch `(b, h, w)` of padded tiles sharing W."""
+    return jax.vmap(lambda a, b, c, d: stages.raster_stages(a, b, c, d, cell_m, rc_min_share, **static))(
+        z, layer, valid, inside)
 
 
 def stage_options(config: Config) -> dict:
@@ -200,7 +208,7 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
 
     origin = xyz.min(axis=0)
     local = xyz - origin
-    tree = cKDTree(local)
+    tree = cKDTree(local, balanced_tree=False, compact_nodes=False)        # 2.5x faster build
 
     # Steps 1-2 (host): W, voxel columns, ND_CE.
     if config.voxel_m is not None:
