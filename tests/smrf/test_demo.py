@@ -1,17 +1,32 @@
-"""`gfjax demo`: runs on the shipped sample with no arguments beyond the output folder."""
+"""`gfjax demo`: runs on the shipped sample with no arguments beyond the output folder.
+
+`demo.run` is called directly: `gfjax.cli.main.main` would also switch on JAX's persistent
+compilation cache in the user's cache folder for the rest of the test session.
+"""
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
+import pytest
 import rasterio
 
 import gfjax
-from gfjax.cli.main import main
+from gfjax.cli import demo
+from gfjax.cli.main import build_parser
 from gfjax.data import demo_sample
+from gfjax.errors import InputError
+
+
+def test_demo_is_a_subcommand_without_required_arguments():
+    parser, module = build_parser(["demo"])
+    assert module is demo
+    assert parser.parse_args(["demo"]).out == demo.DEFAULT_OUT
 
 
 def test_demo_writes_laz_dtm_png(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out)]) == 0
+    assert demo.run(argparse.Namespace(out=str(out))) == 0
     printed = capsys.readouterr().out
     assert "total error" in printed and str(out / "samp12-smrf.laz") in printed
     classified = gfjax.read(out / "samp12-smrf.laz")
@@ -25,6 +40,9 @@ def test_demo_writes_laz_dtm_png(tmp_path, capsys):
     assert (out / "samp12-demo.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_demo_bad_output_folder(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path / "missing" / "demo")]) == 2
-    assert "--out" in capsys.readouterr().err
+def test_demo_bad_output_folder(tmp_path):
+    with pytest.raises(InputError, match="--out"):
+        demo.run(argparse.Namespace(out=str(tmp_path / "missing" / "demo")))
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="not a folder"):
+        demo.run(argparse.Namespace(out=str(tmp_path / "file")))
