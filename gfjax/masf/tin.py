@@ -6,6 +6,7 @@
 - `GroundTin`: the 2D TIN (Delaunay in x, y) of the ground points of the multiscale TIN
   densification (Sec. 2.4), with the perpendicular distance of points to the facet under them.
 - `nearest_z`: z of the nearest point in x, y (cKDTree), for the buffer cells.
+- `bottom_surface`: the rasterised bottom TIN of the alpha shape's "below" test.
 
 Qhull errors on degenerate input (fewer than 4 points, all coplanar or collinear) never leave
 this module: `delaunay_faces` returns None and the caller takes its documented fallback.
@@ -13,9 +14,10 @@ this module: `delaunay_faces` returns None and the caller takes its documented f
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import QhullError, Delaunay, cKDTree
+from scipy import ndimage as ndi
+from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
-__all__ = ["delaunay_faces", "GroundTin", "nearest_z"]
+__all__ = ["delaunay_faces", "GroundTin", "nearest_z", "bottom_surface"]
 
 
 def delaunay_faces(xyz_m: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -192,9 +194,6 @@ def bottom_surface(xyz_m: np.ndarray, row: np.ndarray, col: np.ndarray, shape: t
     Returns:
       `(z, inside)`: float64 `(h, w)` [m] and bool `(h, w)`.
     """
-    from scipy import ndimage as ndi
-    from scipy.spatial import ConvexHull
-
     h, w = shape
     z = np.zeros(shape)
     occupied = np.zeros(shape, dtype=bool)
