@@ -17,7 +17,7 @@ from gfjax.result import Result
 
 __version__ = "0.1.0"
 
-_LAZY = {"smrf", "dmf", "masf", "pmf", "csf", "sparsegf", "raster", "dtm", "metrics", "tune", "io", "methods"}
+_LAZY = {"data", "bench", "smrf", "dmf", "masf", "pmf", "csf", "sparsegf", "raster", "dtm", "metrics", "tune", "io", "methods"}
 _LAZY_FUNCS = {"read": "gfjax.io.las", "write": "gfjax.io.las"}
 
 

@@ -16,6 +16,12 @@ for _folder in [_TESTS, *sorted(p for p in _TESTS.iterdir() if p.is_dir() and no
     if str(_folder) not in sys.path:
         sys.path.append(str(_folder))
 
+# `gfjax.cli.main` turns on JAX's persistent compilation cache under $XDG_CACHE_HOME: keep the
+# tests' cache out of the user's home, in one folder per test session.
+if "GFJAX_TEST_KEEP_CACHE" not in os.environ:
+    import tempfile
+    os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="gfjax-test-cache-")
+
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
 jax.config.update("jax_enable_x64", False)

@@ -49,7 +49,7 @@ def plot_demo(path: Path, cloud, ground, dtm, *, title: str) -> None:
     from matplotlib.figure import Figure
     from matplotlib.patches import Patch
 
-    from gfjax.dtm.geotiff import atomic_path
+    from gfjax.io.atomic import atomic_output
 
     xyz = cloud.xyz
     x0, y0 = np.floor(xyz[:, 0].min()), np.floor(xyz[:, 1].min())
@@ -83,7 +83,7 @@ def plot_demo(path: Path, cloud, ground, dtm, *, title: str) -> None:
         ax.set_xlabel(f"x - {x0:.0f} [m]")
     left.set_ylabel(f"y - {y0:.0f} [m]")
     fig.suptitle(title)
-    with atomic_path(path, ".png") as tmp:
+    with atomic_output(path, force=True) as tmp:
         fig.savefig(tmp, dpi=110, format="png", bbox_inches="tight")
 
 

@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         las_io.read_header(path)
     targets = output_targets(inputs, args.output, suffixes=las_io.LAS_SUFFIXES)
     for target in targets:
-        las_io.check_output(target, force=args.force, input_paths=inputs, option="-o")
+        las_io.check_output(target, force=args.force, input_paths=inputs, suffixes=las_io.LAS_SUFFIXES, option="-o")
     dtm_targets = [None] * len(inputs)
     if args.dtm:
         dtm_targets = output_targets(inputs, args.dtm, option="--dtm", suffixes=TIF_SUFFIXES,

@@ -6,11 +6,6 @@ renamed over the target only when complete, so a failed run never leaves a parti
 """
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
-from pathlib import Path
-
 import numpy as np
 import rasterio
 import rasterio.crs
@@ -19,6 +14,7 @@ from rasterio.transform import Affine
 
 from gfjax.errors import InputError
 from gfjax.io import crs as crs_lib
+from gfjax.io.atomic import atomic_output
 
 NODATA = -9999.0
 TILE_PX = 256                  # GeoTIFF block size; rasters larger than this are tiled
@@ -34,32 +30,6 @@ def cloud_rasterio_crs(cloud) -> rasterio.crs.CRS | None:
         return crs_lib.rasterio_crs(cloud)
     except rasterio.errors.CRSError as err:
         raise InputError(f"{cloud.name}: GDAL does not accept the file's CRS ({err})") from None
-
-
-def _check_target(path: Path) -> None:
-    folder = path.parent
-    if not folder.is_dir():
-        raise InputError(f"{path}: output folder {folder} does not exist")
-    if not os.access(folder, os.W_OK):
-        raise InputError(f"{path}: output folder {folder} is not writable")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, expected a file name")
-
-
-@contextlib.contextmanager
-def atomic_path(path, suffix: str):
-    """Yield a temporary path beside `path`; on success rename it onto `path`, else delete it."""
-    path = Path(path)
-    _check_target(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
 
 
 def write_geotiff(path, z: np.ndarray, *, transform: Affine, crs: rasterio.crs.CRS | None,
@@ -84,9 +54,9 @@ def write_geotiff(path, z: np.ndarray, *, transform: Affine, crs: rasterio.crs.C
                    BIGTIFF="IF_SAFER")
     if max(h, w) > TILE_PX:
         profile.update(tiled=True, blockxsize=TILE_PX, blockysize=TILE_PX)
-    with atomic_path(path, ".tif") as tmp:
+    with atomic_output(path, force=True) as tmp:
         with rasterio.open(tmp, "w", **profile) as dst:
             dst.write(z.astype(np.float32), 1)
 
 
-__all__ = ["NODATA", "cloud_rasterio_crs", "write_geotiff", "atomic_path"]
+__all__ = ["NODATA", "cloud_rasterio_crs", "write_geotiff"]

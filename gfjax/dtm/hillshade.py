@@ -11,7 +11,7 @@ import math
 import matplotlib.image
 import numpy as np
 
-from gfjax.dtm.geotiff import atomic_path
+from gfjax.io.atomic import atomic_output
 
 
 def _neighbours(z: np.ndarray, valid: np.ndarray) -> dict[tuple[int, int], np.ndarray]:
@@ -69,7 +69,7 @@ def hillshade(z: np.ndarray, valid: np.ndarray, *, cell: float, z_factor: float 
 
 def write_png(path, shade: np.ndarray) -> None:
     """Write a hillshade in [0, 1] as a grey PNG, NaN transparent, atomically."""
-    with atomic_path(path, ".png") as tmp:
+    with atomic_output(path, force=True) as tmp:
         matplotlib.image.imsave(tmp, shade, cmap="gray", vmin=0.0, vmax=1.0, format="png")
 
 
