@@ -5,8 +5,9 @@ Shiloach-Vishkin-style union-find on the pixel graph): every foreground cell kee
 index `P[i] <= i`; one sweep (1) takes the minimum parent over each cell's neighbourhood,
 (2) hooks the cell's root to that minimum (scatter-min), (3) compresses paths (`P = P[P]`
 until stable). The root of a component is its first cell in raster order, so the returned ids
-are `root + 1`. Sweeps needed grow like the log of the component diameter for blob-like
-components (at worst like the diameter); the loop is bounded and reports `converged`.
+are `root + 1`. Hooking whole trees and jumping pointers spreads a minimum much faster than
+plain propagation (one cell per sweep), which stays the worst case; the loop is bounded and
+reports `converged`. The parent array has one extra slot, a dump for background cells.
 """
 from __future__ import annotations
 
