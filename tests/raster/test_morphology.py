@@ -135,6 +135,18 @@ def test_integer_raster():
     np.testing.assert_array_equal(np.asarray(got), expected)
 
 
+def test_bool_raster_grey_ops_with_mask():
+    """Grey ops on a bool raster (DMF closes masks inside a tile's valid area): False/True are
+    the identities of max/min, so cells outside `valid` never add or remove anything."""
+    rng = np.random.default_rng(1)
+    m, valid = rng.random((16, 16)) < 0.5, rng.random((16, 16)) < 0.8
+    got = jax.jit(functools.partial(raster.closing, radius_px=2, footprint="square"))(m, valid)
+    dilated = ndi.maximum_filter(np.where(valid, m, False), size=5, mode="constant", cval=False)
+    expected = ndi.minimum_filter(np.where(valid, dilated, True), size=5, mode="constant", cval=True)
+    np.testing.assert_array_equal(np.asarray(got), expected)
+    assert got.dtype == jnp.bool_
+
+
 BINARY = {
     "binary_erode": lambda m, f: ndi.binary_erosion(m, f, border_value=1),
     "binary_dilate": lambda m, f: ndi.binary_dilation(m, f),
