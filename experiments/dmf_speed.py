@@ -3,10 +3,11 @@
 
     nice .venv/bin/python experiments/dmf_speed.py          # writes experiments/results/dmf_speed.{md,json}
 
-Order: read, DMF first call (JIT compilation included), DMF warm call (per-stage seconds from
+Order: read, DMF first call (JIT compilation included), DMF warm calls (per-stage seconds from
 `Diagnostics.stage_seconds`), peak RSS (before any peer runs), pysmrf, CSF, then the whole
-`gfjax filter --method dmf` process (start, read, filter, write) twice: the second finds the
-persistent compilation cache warm. Wall-clock seconds on this machine; the load average at the
+`gfjax filter --method dmf` process (start, read, filter, write): once with whatever cache, then
+with the persistent compilation cache warm. Every warm figure is the best of 3 runs, peers too
+(the machine is shared with other jobs). Wall-clock seconds on this machine; the load average at the
 start and end is recorded (the machine is shared).
 """
 from __future__ import annotations
@@ -26,6 +27,7 @@ import gfjax  # noqa: E402
 from experiments import harness  # noqa: E402
 from gfjax import dmf  # noqa: E402
 
+REPEAT = 3
 DATA = (ROOT / ".." / "shared" / "data" / "lasR_bcts" / "bcts_2.laz").resolve()
 
 
@@ -46,17 +48,21 @@ def main(argv=None) -> int:
     read_s, cloud = harness.timed(lambda: gfjax.read(args.data))
     n = cloud.n_points
     first_s, _ = harness.timed(lambda: dmf.filter(cloud))
-    warm_s, result = harness.timed(lambda: dmf.filter(cloud))
-    stages = dict(result.diagnostics.stage_seconds)
+    warm_s, result, stages = float("inf"), None, {}
+    for _ in range(REPEAT):                          # best of REPEAT warm calls (shared machine)
+        seconds, out = harness.timed(lambda: dmf.filter(cloud))
+        if seconds < warm_s:
+            warm_s, result, stages = seconds, out, dict(out.diagnostics.stage_seconds)
     rss_mb = harness.peak_rss_mb()
     xyz = cloud.xyz_m
-    pysmrf_s, _ = harness.run_pysmrf(xyz, windows=18)
-    csf_s, _ = harness.run_csf(xyz)
+    pysmrf_s = min(harness.run_pysmrf(xyz, windows=18)[0] for _ in range(REPEAT))
+    csf_s = min(harness.run_csf(xyz)[0] for _ in range(REPEAT))
     cli = {}
     if not args.no_cli:
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "out.laz"
-            cli = {"first_s": _cli(args.data, out), "warm_cache_s": _cli(args.data, out)}
+            cli = {"first_s": _cli(args.data, out)}
+            cli["warm_cache_s"] = min(_cli(args.data, out) for _ in range(REPEAT))
     figures = {
         "file": str(args.data.name), "n_points": n, "read_s": read_s,
         "dmf_first_call_s": first_s, "dmf_warm_s": warm_s, "dmf_points_per_s": n / warm_s,
@@ -77,13 +83,13 @@ def main(argv=None) -> int:
              "| what | seconds | points/s |", "|---|---:|---:|",
              f"| read (laspy) | {read_s:.2f} | {n / read_s:,.0f} |",
              f"| DMF first call (JIT compile included) | {first_s:.2f} | {n / first_s:,.0f} |",
-             f"| **DMF warm call** | **{warm_s:.2f}** | **{n / warm_s:,.0f}** |"]
+             f"| **DMF warm call (best of {REPEAT})** | **{warm_s:.2f}** | **{n / warm_s:,.0f}** |"]
     lines += [f"| &nbsp; DMF stage `{k}` | {v:.2f} | {n / v:,.0f} |" for k, v in stages.items() if v > 0]
-    lines += [f"| pysmrf.classify(windows=18) | {pysmrf_s:.2f} | {n / pysmrf_s:,.0f} |",
-              f"| CSF (cloth-simulation-filter defaults) | {csf_s:.2f} | {n / csf_s:,.0f} |"]
+    lines += [f"| pysmrf.classify(windows=18), best of {REPEAT} | {pysmrf_s:.2f} | {n / pysmrf_s:,.0f} |",
+              f"| CSF (cloth-simulation-filter defaults), best of {REPEAT} | {csf_s:.2f} | {n / csf_s:,.0f} |"]
     if cli:
         lines += [f"| `gfjax filter --method dmf` process, cold cache | {cli['first_s']:.2f} | {n / cli['first_s']:,.0f} |",
-                  f"| `gfjax filter --method dmf` process, warm cache | {cli['warm_cache_s']:.2f} | {n / cli['warm_cache_s']:,.0f} |"]
+                  f"| `gfjax filter --method dmf` process, warm cache, best of {REPEAT} | {cli['warm_cache_s']:.2f} | {n / cli['warm_cache_s']:,.0f} |"]
     lines += ["", f"- DMF warm call vs pysmrf: **{figures['speedup_vs_pysmrf']:.2f}x** faster (target >= 2x); vs CSF {figures['speedup_vs_csf']:.2f}x",
               f"- peak RSS of the process after DMF (before the peers ran): **{rss_mb:,.0f} MiB** (target < 1536)",
               f"- W = {figures['cell_m']} m, basal iterations {figures['basal_iterations']}"]

@@ -50,6 +50,8 @@ def cylinder_table(xy: np.ndarray, *, radius_m: float, k: int, shrink: bool = Tr
     if m == 0:
         return NeighbourTable(np.zeros((0, k), np.int32), np.zeros((0, k), bool), False)
     tree = cKDTree(xy)
+    if max_width is not None:
+        k = min(k, max_width)                      # the query needs no more (one extra: overflow)
     kq = min(k + 1, m)
     dist, idx = tree.query(xy, k=kq, distance_upper_bound=radius_m * (1 + 1e-9))
     dist, idx = np.atleast_2d(dist), np.atleast_2d(idx)

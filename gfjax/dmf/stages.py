@@ -181,27 +181,43 @@ def coverage(ngnem: Raster, patches: Mask, inside: Mask, *, max_close_px: int = 
     combo_of_patch = jnp.where((n_touch >= 1) & (n_touch <= 2), jnp.asarray(lookup, jnp.int32)[code], 0)
     combo_cell = jnp.where(patches, combo_of_patch[labels], -1)
 
-    # 1-2: hole filling per wall class, vmapped over the classes.
+    # 1-2: hole filling per wall class (a `lax.map` over the classes).
     pad = functools.partial(jnp.pad, pad_width=1, constant_values=False)
     walls = _walls(tuple(pad(s) for s in sides))
     members = jnp.stack([combo_cell == c for c in range(len(WALL_COMBOS))])              # (c, h, w)
     wall_masks = jnp.stack([functools.reduce(jnp.logical_or, [walls[i] for i in combo], jnp.zeros((h + 2, w + 2), bool))
                             for combo in WALL_COMBOS])
-    closed = jax.vmap(pad)(members) | wall_masks
-    filled_p = jax.vmap(fill_holes)(closed)
-    outside_p = ~filled_p
-    near_out = functools.reduce(jnp.logical_or, [jax.vmap(lambda o, dr=dr, dc=dc: shift(o, dr, dc, False))(outside_p)
-                                                  for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1))])
-    filled = filled_p[:, 1:-1, 1:-1] & inside[None]
-    outer_cell = jnp.any(members & near_out[:, 1:-1, 1:-1], axis=0)
+    empty = jnp.zeros((h, w), bool)
+
+    def fill_class(args):                     # classes without patches skip the work (lax.cond)
+        member, wall = args
+
+        def run(_):
+            filled_p = fill_holes(pad(member) | wall)
+            near_out = functools.reduce(jnp.logical_or, [shift(~filled_p, dr, dc, False)
+                                                         for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1))])
+            return filled_p[1:-1, 1:-1] & inside, member & near_out[1:-1, 1:-1]
+
+        return lax.cond(jnp.any(member), run, lambda _: (empty, empty), None)
+
+    filled, outer_cells = lax.map(fill_class, (members, wall_masks))
+    outer_cell = jnp.any(outer_cells, axis=0)
     outer_patch = _segment(outer_cell.astype(jnp.int32), labels, num, jax.ops.segment_max) > 0
     edge = members & outer_patch[labels][None]
     fill = filled & ~edge
-    if hole_test == "patch":
-        groups, conv_g = jax.vmap(functools.partial(label_components, connectivity=8))(filled)
-        marked, _ = jax.vmap(lambda g, e, f: _group_test(g, e, f, ngnem))(groups, edge, fill)
-    else:
-        marked, conv_g = jax.vmap(lambda e, f: _hole_test(e, f, ngnem))(edge, fill)
+
+    def test_class(args):
+        member, e, f, fl = args
+
+        def run(_):
+            if hole_test == "patch":
+                groups, conv_g = label_components(fl, connectivity=8)
+                return _group_test(groups, e, f, ngnem)[0], conv_g
+            return _hole_test(e, f, ngnem)
+
+        return lax.cond(jnp.any(member), run, lambda _: (empty, jnp.array(True)), None)
+
+    marked, conv_g = lax.map(test_class, (members, edge, fill, filled))
     bi = jnp.any(marked, axis=0)
     # A patch with a hole (or nested in another's) touches a fill cell (3x3).
     near_fill = jax.vmap(lambda f: dilate_square(f, jnp.int32(1), max_radius_px=1))(filled & ~members)
@@ -218,12 +234,15 @@ def coverage(ngnem: Raster, patches: Mask, inside: Mask, *, max_close_px: int = 
     def close_step(carry, r):
         bi_acc, conv_acc = carry
         source = radius_cell == r
-        closed_r = closing_square(source, inside, r, max_radius_px=max_close_px)
-        if hole_test == "patch":
-            groups_r, conv_r = label_components(closed_r, connectivity=8)
-            marked_r, _ = _group_test(groups_r, source, closed_r & ~source, ngnem)
-        else:
-            marked_r, conv_r = _hole_test(source, closed_r & ~source, ngnem)
+
+        def run(_):
+            closed_r = closing_square(source, inside, r, max_radius_px=max_close_px)
+            if hole_test == "patch":
+                groups_r, conv_r = label_components(closed_r, connectivity=8)
+                return _group_test(groups_r, source, closed_r & ~source, ngnem)[0], conv_r
+            return _hole_test(source, closed_r & ~source, ngnem)
+
+        marked_r, conv_r = lax.cond(jnp.any(source), run, lambda _: (empty, jnp.array(True)), None)
         return (bi_acc | marked_r, conv_acc & conv_r), None
 
     radii = jnp.arange(1, max_close_px + 1, dtype=jnp.int32)

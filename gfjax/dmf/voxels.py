@@ -17,33 +17,36 @@ __all__ = ["voxel_size_m", "nn_sample", "Voxels", "bin_voxels"]
 _KEY_QUANTUM_M = 1e-4
 
 
-def _sort_xyz(xyz: np.ndarray) -> np.ndarray:
-    """Order of the points sorted by (x, y, z): one argsort of an int64 key of 0.1 mm
-    quantised coordinates when it fits (10x faster than `np.lexsort` on 800 k points), else
-    `np.lexsort`. Points within 0.1 mm of each other keep their input order (they are
-    interchangeable for a nearest-neighbour distance)."""
-    if len(xyz) == 0:
-        return np.zeros(0, np.int64)
-    q = np.floor((xyz - xyz.min(axis=0)) / _KEY_QUANTUM_M).astype(np.int64)
-    span = q.max(axis=0) + 1
-    if float(span[0]) * float(span[1]) * float(span[2]) < 2.0 ** 62:
-        key = (q[:, 0] * span[1] + q[:, 1]) * span[2] + q[:, 2]
-        return np.argsort(key, kind="stable")
-    return np.lexsort((xyz[:, 2], xyz[:, 1], xyz[:, 0]))
+def _fmix64(x: np.ndarray) -> np.ndarray:
+    """MurmurHash3's 64-bit finaliser (uint64, wrapping arithmetic)."""
+    x = x ^ (x >> np.uint64(33))
+    x = x * np.uint64(0xFF51AFD7ED558CCD)
+    x = x ^ (x >> np.uint64(33))
+    x = x * np.uint64(0xC4CEB9FE1A85EC53)
+    return x ^ (x >> np.uint64(33))
+
+
+def _hash_xyz(xyz: np.ndarray) -> np.ndarray:
+    """A hash of each point's coordinates quantised to 0.1 mm, uint64 `(n,)`."""
+    q = np.floor((xyz - xyz.min(axis=0)) / _KEY_QUANTUM_M).astype(np.uint64)
+    with np.errstate(over="ignore"):
+        return _fmix64(q[:, 0] + _fmix64(q[:, 1] + _fmix64(q[:, 2])))
 
 
 def nn_sample(n_points: int, xyz: np.ndarray, *, fraction: float, minimum: int) -> np.ndarray:
-    """Indices of a deterministic, point-order-invariant sample of about `fraction` of points.
+    """Indices of a deterministic, point-order-invariant sample of `fraction` of the points.
 
-    A fixed stride over the points sorted by (x, y, z) (SPEC 3.1, R): stride
-    `min(round(1 / fraction), n // minimum)`, at least 1, so at least `minimum` points are
-    taken when the cloud has them.
+    SPEC 3.1 (R) asks for a deterministic, point-order-invariant 1 % sample of at least
+    `minimum` points: the `max(minimum, round(fraction n))` points with the smallest hash of
+    their (0.1 mm quantised) coordinates, an O(n) selection (`np.argpartition`) that behaves
+    like a uniform random sample. Points within 0.1 mm of each other are interchangeable.
 
     Returns: int64 `(s,)` indices into `xyz`.
     """
-    order = _sort_xyz(xyz)
-    stride = max(1, min(int(round(1.0 / fraction)), n_points // max(minimum, 1)))
-    return order[::stride]
+    count = min(n_points, max(minimum, int(round(fraction * n_points))))
+    if count >= n_points:
+        return np.arange(n_points, dtype=np.int64)
+    return np.argpartition(_hash_xyz(xyz), count - 1)[:count].astype(np.int64)
 
 
 def voxel_size_m(xyz: np.ndarray, *, v0: float, fraction: float, minimum: int,

@@ -135,3 +135,14 @@ def test_tiled_raster_stages_equal_one_tile(box):
         np.testing.assert_array_equal(getattr(tiled.diagnostics, name), getattr(single.diagnostics, name), err_msg=name)
     np.testing.assert_array_equal(tiled.ground, single.ground)
     np.testing.assert_array_equal(tiled.instance_id, single.instance_id)
+
+
+def test_paper_preset_on_the_box(box):
+    """The SPEC's first reading (global stop, per-patch hole test, the M-nearest rule)."""
+    cloud, ground, roof, _ = box
+    config = dataclasses.replace(dmf.Config(), **dmf.PRESETS["paper"])
+    result = dmf.filter(cloud, config=config)
+    d = result.diagnostics
+    assert d.m_points >= 1 and d.converged and d.instances.max() == 1
+    assert not result.ground[roof].any()
+    assert result.ground[ground].mean() > 0.7
