@@ -251,14 +251,16 @@ def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=
             best_window = np.where(better, window_m, best_window)
             best_values[better] = start[better]
         raw = jnp.stack([tparams.to_raw(dict(zip([b.name for b in BOUNDS], row)), BOUNDS) for row in start])
-        state = optimiser.init(raw)
+        with jax.numpy_dtype_promotion("standard"):
+            state = optimiser.init(raw)
         losses, trail = [], []
         for step in range(settings.steps):
             loss, g = _soft_value_and_grad(raw, radius, temps[step], arrays, masks, group_j, weight_j,
                                            prior, config=problem.config, kind=settings.loss, n_samples=c)
             grads += 1
-            updates, state = optimiser.update(g, state, raw)
-            raw = optax.apply_updates(raw, updates)
+            with jax.numpy_dtype_promotion("standard"):   # optax: float ** int32 step count
+                updates, state = optimiser.update(g, state, raw)
+                raw = optax.apply_updates(raw, updates)
             values = np.asarray(tparams.from_raw(raw, BOUNDS))
             losses.append(float(loss))
             trail.append(values)

@@ -1,12 +1,14 @@
 """The optax loop, block validation and the `gfjax tune` command on a small labelled crop."""
 from __future__ import annotations
 
+import argparse
 import json
 
 import numpy as np
 import pytest
 
 from gfjax.cli import main as cli_main
+from gfjax.cli._common import method_setup
 from gfjax.tune import fit as tfit
 from gfjax.tune import smrf as tsmrf
 from gfjax.tune.problem import block_folds
@@ -56,7 +58,7 @@ def test_block_folds_are_whole_blocks_and_balanced():
     rng = np.random.default_rng(0)
     xyz = np.column_stack([rng.uniform(0, 100, 2000), rng.uniform(0, 100, 2000), np.zeros(2000)])
     fold = block_folds(xyz, folds=3, block_m=25.0, seed=1)
-    block = np.floor(xyz[:, :2] / 25.0).astype(int)
+    block = np.floor((xyz[:, :2] - xyz[:, :2].min(axis=0)) / 25.0).astype(int)
     for key in np.unique(block, axis=0):
         assert len(np.unique(fold[np.all(block == key, axis=1)])) == 1
     counts = np.bincount([fold[np.all(block == k, axis=1)][0] for k in np.unique(block, axis=0)])
@@ -85,7 +87,9 @@ def test_cli_tune_writes_params_that_filter_reads(tmp_path, capsys):
     assert data["units"]["threshold_m"] == "m" and "validation" in data
     for key in data["fitted"]:
         assert key in ("slope", "threshold_m", "scalar")
-    assert cli_main.main(["filter", str(laz), "-o", str(tmp_path / "out.laz"), "--params", str(out)]) == 0
+    setup = method_setup(argparse.Namespace(params=str(out), method=None, preset=None, set_values=[]))
+    assert setup.config.window_m == data["values"]["window_m"]                # what `filter --params` uses
+    assert np.float32(setup.params.slope) == np.float32(data["values"]["slope"])
     assert cli_main.main(["tune", str(laz), "-o", str(out), "--steps", "2"]) == 2          # exists
     assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "p.json"), "--method", "masf"]) == 2
     assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "p.txt")]) == 2
