@@ -67,7 +67,8 @@ def _save_json(path: Path, document: dict) -> None:
 
 def _md_table(records: list[dict]) -> str:
     body, failures = bench.table_rows(records)
-    return "\n".join([bench.markdown(bench.TABLE_HEADER, body), *([""] + [f"- {f}" for f in failures] if failures else [])])
+    notes = [""] + [f"- {f}" for f in failures] if failures else []
+    return "\n".join([bench.markdown(bench.TABLE_HEADER, body), *notes])
 
 
 def _md_summary(summary: list[dict]) -> str:
@@ -99,7 +100,8 @@ def write_report(document: dict, md_path: Path, png_path: Path, *, planned: int)
               f"Protocol: per pair, one warm-up (read + filter; JAX compile time measured apart, {cache_note}), "
               f"then {document['repeat']} timed whole job(s) (read + filter + write LAZ/LAS to a "
               "temporary folder); medians. Threads: every run pinned to "
-              f"{document.get('threads') or 'all'} CPU(s) (affinity and OMP_NUM_THREADS), the same for every filter. `points/s` = points / whole-job time. `peak MiB` = peak RSS of "
+              f"{document.get('threads') or 'all'} CPU(s) (affinity and OMP_NUM_THREADS), the same for every filter. "
+              "`points/s` = points / whole-job time. `peak MiB` = peak RSS of "
               "the run's process (includes the Python/JAX runtime and compilation). Accuracy: ground = "
               "class 2, everything else non-ground (ISPRS: class 0; Topography water, class 9, counts as "
               "non-ground); scored on non-noise, non-withheld points; DTM RMSE of 2 m cell-mean DTMs "

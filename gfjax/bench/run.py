@@ -132,7 +132,8 @@ def machine() -> dict:
     import jax
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
-    return {"nproc": os.cpu_count(), "affinity_cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
+    affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+    return {"nproc": os.cpu_count(), "affinity_cpus": affinity,
             "loadavg_1_5_15": list(load), "platform": platform.platform(), "processor": _cpu_model(),
             "python": platform.python_version(), "jax": jax.__version__, "jax_backend": jax.default_backend(),
             "jax_device": str(jax.devices()[0]),

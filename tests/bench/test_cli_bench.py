@@ -13,8 +13,8 @@ from gfjax.bench import run as bench
 from gfjax.cli.main import main
 from gfjax.metrics import DTM_KEYS, POINT_KEYS
 
-TOP_KEYS = {"schema", "gfjax_version", "command", "created_utc", "machine", "repeat", "threads", "compile_cache", "dtm_cell_m",
-            "notes", "runs", "summary"}
+TOP_KEYS = {"schema", "gfjax_version", "command", "created_utc", "machine", "repeat", "threads", "compile_cache",
+            "dtm_cell_m", "notes", "runs", "summary"}
 
 
 @pytest.fixture(scope="module")

@@ -116,7 +116,8 @@ def test_run_isolated_drops_the_persistent_compile_cache(child_module, monkeypat
 
 def test_run_isolated_pins_the_child(child_module):
     (child_module / "bench_cpu_target.py").write_text(
-        "import os\ndef cpus():\n    return {'cpus': sorted(os.sched_getaffinity(0)), 'omp': os.environ.get('OMP_NUM_THREADS')}\n")
+        "import os\ndef cpus():\n"
+        "    return {'cpus': sorted(os.sched_getaffinity(0)), 'omp': os.environ.get('OMP_NUM_THREADS')}\n")
     first = harness.choose_cpus(1)
     got = harness.run_isolated("bench_cpu_target:cpus", {}, pythonpath=[child_module], cpus=first)
     assert got["cpus"] == first and got["omp"] == "1" and got["n_cpus"] == 1
