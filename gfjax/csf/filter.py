@@ -28,8 +28,8 @@ from gfjax._types import Mask, PointMask, Points, Raster
 from gfjax.csf import stages
 from gfjax.csf.cloth import simulate
 from gfjax.csf.config import BUFFER_PX, CLOTH_START_M, Config, Params
-from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
+from gfjax.io.tiled import checked_options
 from gfjax.result import Result
 
 __all__ = ["filter", "classify_points", "grid_shape", "Diagnostics", "CSFDiagnostics"]
@@ -134,17 +134,8 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
       `diagnostics` a `CSFDiagnostics` (None for a cloud with no usable point).
     """
     del progress
-    config = Config() if config is None else config
-    params = Params() if params is None else params
-    if not isinstance(config, Config):
-        raise InputError(f"config must be a gfjax.csf.Config, got {type(config).__name__}")
-    if not isinstance(params, Params):
-        raise InputError(f"params must be a gfjax.csf.Params, got {type(params).__name__}")
-    try:
-        params.check()
-        use = cloud.filter_mask(returns)
-    except ValueError as err:
-        raise InputError(f"{cloud.name}: {err}") from None
+    config, params, use = checked_options(cloud, config, params, returns, config_type=Config,
+                                          params_type=Params, package="gfjax.csf")
     if not use.any():
         return Result(ground=np.zeros(cloud.n_points, bool), diagnostics=None)
     xyz_m = cloud.xyz_m

@@ -8,7 +8,8 @@
 3. the points that passed every window are ground.
 
 The cloud is cut into buffered tiles (`gfjax.io.tiles`); each batch of equal-shape tiles runs
-through one jitted, vmapped call of `stages.classify_batch`.
+through one jitted, vmapped call of `stages.classify_batch` (`gfjax.io.tiled` drives the tiles
+and mosaics the tile cores).
 """
 from __future__ import annotations
 
@@ -16,8 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gfjax.errors import InputError
-from gfjax.io import tiles as tiling
+from gfjax.io import tiled
 from gfjax.io.cloud import Cloud
 from gfjax.pmf import stages
 from gfjax.pmf.config import Config, Params
@@ -48,28 +48,6 @@ class PMFDiagnostics(NamedTuple):
     n_tiles: int
 
 
-def _mosaic(tiles, diags, config: Config) -> PMFDiagnostics:
-    """Tile cores pasted into one raster over the cloud's extent (row 0 = north)."""
-    width = max(t.core_px[2] for t in tiles)
-    height = max(t.core_px[3] for t in tiles)
-    out = {"zimin": np.zeros((height, width)), "surface": np.zeros((height, width)),
-           "empty": np.zeros((height, width), bool)}
-    for tile, diag in zip(tiles, diags):
-        c0, r0, c1, r1 = tile.core_px
-        wc, wr = tile.window_px
-        h = tile.shape[0]
-        src_rows = slice(h - (r1 - wr), h - (r0 - wr))
-        dst_rows = slice(height - r1, height - r0)
-        for name in out:
-            out[name][dst_rows, c0:c1] = getattr(diag, name)[src_rows, c0 - wc:c1 - wc]
-    z0 = float(tiles[0].origin_m[2])
-    out["zimin"] += z0
-    out["surface"] += z0
-    origin = tiles[0].origin_m[:2] - np.asarray(tiles[0].window_px, np.float64) * config.cell_m
-    return PMFDiagnostics(**out, origin_m=origin, cell_m=config.cell_m, windows_px=config.windows_px,
-                          n_tiles=len(tiles))
-
-
 def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False) -> Result:  # noqa: A001 (the package API name)
     """Classify a cloud's ground points with PMF (Zhang et al. 2003).
@@ -85,38 +63,14 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points;
       `diagnostics` a `PMFDiagnostics` (None for a cloud with no usable point).
     """
-    config = Config() if config is None else config
-    params = Params() if params is None else params
-    if not isinstance(config, Config):
-        raise InputError(f"config must be a gfjax.pmf.Config, got {type(config).__name__}")
-    if not isinstance(params, Params):
-        raise InputError(f"params must be a gfjax.pmf.Params, got {type(params).__name__}")
-    try:
-        params.check()
-        use = cloud.filter_mask(returns)
-    except ValueError as err:
-        raise InputError(f"{cloud.name}: {err}") from None
-    tiles = tiling.split(cloud.xyz_m, tile_size_m=config.tile_size_m, buffer_m=config.buffer_m,
-                         cell_m=config.cell_m, use=use)
-    if not tiles:
-        return Result(ground=np.zeros(cloud.n_points, bool), diagnostics=None)
-    position = {id(tile): i for i, tile in enumerate(tiles)}
-    labels: list[np.ndarray | None] = [None] * len(tiles)
-    diags: list[stages.Diagnostics | None] = [None] * len(tiles)
-    groups = list(tiling.batches(tiles, max_batch=MAX_BATCH))
-    if progress:
-        from tqdm.auto import tqdm
-        groups = tqdm(groups, desc="pmf tiles", unit="batch")
-    for batch in groups:
-        ground, diag = stages.classify_batch(batch.xyz, batch.valid, batch.hw, params, config=config,
-                                             shape=batch.shape)
-        ground = np.asarray(ground)
-        diag = stages.Diagnostics(*(np.asarray(a) for a in diag))
-        for b, tile in enumerate(batch.tiles):
-            i = position[id(tile)]
-            labels[i] = ground[b, :tile.n_points]
-            h, w = tile.shape
-            rows = slice(batch.shape[0] - h, batch.shape[0])
-            diags[i] = stages.Diagnostics(*(a[b, rows, :w] for a in diag))
-    ground = tiling.merge(cloud.n_points, tiles, labels) & use
-    return Result(ground=ground, diagnostics=_mosaic(tiles, diags, config))
+    config, params, use = tiled.checked_options(cloud, config, params, returns, config_type=Config,
+                                                params_type=Params, package="gfjax.pmf")
+    run = tiled.classify_cloud(cloud.xyz_m, use, stages.classify_batch, params, config, max_batch=MAX_BATCH,
+                               progress=progress, desc="pmf tiles")
+    if not run.tiles:
+        return Result(ground=run.ground, diagnostics=None)
+    cores = tiled.mosaic(run.tiles, run.diagnostics, names=("zimin", "surface", "empty"),
+                         heights=("zimin", "surface"), cell_m=config.cell_m)
+    return Result(ground=run.ground, diagnostics=PMFDiagnostics(
+        **cores.rasters, origin_m=cores.origin_m, cell_m=config.cell_m, windows_px=config.windows_px,
+        n_tiles=len(run.tiles)))

@@ -11,7 +11,8 @@ classification of airborne LIDAR data", ISPRS J. 77:21-30. Reads like PDAL's `fi
 5. ground points: |z - ZIpro(x, y)| <= threshold + scalar * slope(ZIpro) (bilinear).
 
 The cloud is cut into buffered tiles (`gfjax.io.tiles`); each batch of equal-shape tiles runs
-through the jitted, vmapped stages of `stages.classify_batch`.
+through the jitted, vmapped stages of `stages.classify_batch` (`gfjax.io.tiled` drives the
+tiles and mosaics the tile cores).
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gfjax.errors import InputError
+from gfjax.io import tiled
 from gfjax.io import tiles as tiling
 from gfjax.io.cloud import Cloud
 from gfjax.result import Result
@@ -29,6 +30,7 @@ from gfjax.smrf.config import Config, Params
 __all__ = ["filter", "SMRFDiagnostics", "run_tiles"]
 
 MAX_BATCH = 8
+_RASTERS = ("zimin", "zipro", "slope", "empty", "low_outliers", "object_cells")
 
 
 class SMRFDiagnostics(NamedTuple):
@@ -62,47 +64,8 @@ def run_tiles(tiles: list[tiling.Tile], params: Params, config: Config, *, progr
       `(labels, diagnostics)`: per tile a bool `(tile.n_points,)` ground array, and per tile a
       `stages.Diagnostics` cropped to the tile's own extent (or None when not kept).
     """
-    position = {id(tile): i for i, tile in enumerate(tiles)}
-    labels: list[np.ndarray | None] = [None] * len(tiles)
-    diagnostics: list[stages.Diagnostics | None] = [None] * len(tiles)
-    groups = list(tiling.batches(tiles, max_batch=max_batch))
-    if progress:
-        from tqdm.auto import tqdm
-        groups = tqdm(groups, desc="smrf tiles", unit="batch")
-    for batch in groups:
-        ground, diag = stages.classify_batch(batch.xyz, batch.valid, batch.hw, params,
-                                             config=config, shape=batch.shape)
-        ground = np.asarray(ground)
-        diag = stages.Diagnostics(*(np.asarray(a) for a in diag)) if keep_diagnostics else None
-        for b, tile in enumerate(batch.tiles):
-            i = position[id(tile)]
-            labels[i] = ground[b, :tile.n_points]
-            if diag is not None:
-                h, w = tile.shape
-                rows = slice(batch.shape[0] - h, batch.shape[0])
-                diagnostics[i] = stages.Diagnostics(*(a[b, rows, :w] for a in diag))
-    return labels, diagnostics
-
-
-def _mosaic(tiles: list[tiling.Tile], diags: list[stages.Diagnostics], config: Config) -> SMRFDiagnostics:
-    """Tile cores pasted into one raster over the cloud's extent (row 0 = north)."""
-    width = max(t.core_px[2] for t in tiles)
-    height = max(t.core_px[3] for t in tiles)
-    z0 = float(tiles[0].origin_m[2])
-    out = {name: np.zeros((height, width), dtype=np.float64 if name in ("zimin", "zipro", "slope") else bool)
-           for name in ("zimin", "zipro", "slope", "empty", "low_outliers", "object_cells")}
-    for tile, diag in zip(tiles, diags):
-        c0, r0, c1, r1 = tile.core_px
-        wc, wr = tile.window_px
-        h = tile.shape[0]
-        src_rows = slice(h - (r1 - wr), h - (r0 - wr))             # rows from the south -> north-up
-        dst_rows = slice(height - r1, height - r0)
-        for name in out:
-            out[name][dst_rows, c0:c1] = getattr(diag, name)[src_rows, c0 - wc:c1 - wc]
-    out["zimin"] += z0
-    out["zipro"] += z0
-    origin = tiles[0].origin_m[:2] - np.asarray(tiles[0].window_px, np.float64) * config.cell_m
-    return SMRFDiagnostics(**out, origin_m=origin, cell_m=config.cell_m, n_tiles=len(tiles))
+    return tiled.run_batches(tiles, stages.classify_batch, params, config, max_batch=max_batch,
+                             progress=progress, desc="smrf tiles", keep_diagnostics=keep_diagnostics)
 
 
 def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None = None,
@@ -121,21 +84,13 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
       withheld, and non-last returns with `returns="last"`); `diagnostics` an
       `SMRFDiagnostics` (None for a cloud with no usable point).
     """
-    config = Config() if config is None else config
-    params = Params() if params is None else params
-    if not isinstance(config, Config):
-        raise InputError(f"config must be a gfjax.smrf.Config, got {type(config).__name__}")
-    if not isinstance(params, Params):
-        raise InputError(f"params must be a gfjax.smrf.Params, got {type(params).__name__}")
-    try:
-        params.check()
-        use = cloud.filter_mask(returns)
-    except ValueError as err:
-        raise InputError(f"{cloud.name}: {err}") from None
-    tiles = tiling.split(cloud.xyz_m, tile_size_m=config.tile_size_m, buffer_m=config.buffer_m,
-                         cell_m=config.cell_m, use=use)
-    if not tiles:
-        return Result(ground=np.zeros(cloud.n_points, bool), diagnostics=None)
-    labels, diags = run_tiles(tiles, params, config, progress=progress)
-    ground = tiling.merge(cloud.n_points, tiles, labels)
-    return Result(ground=ground, diagnostics=_mosaic(tiles, diags, config))
+    config, params, use = tiled.checked_options(cloud, config, params, returns, config_type=Config,
+                                                params_type=Params, package="gfjax.smrf")
+    run = tiled.classify_cloud(cloud.xyz_m, use, stages.classify_batch, params, config, max_batch=MAX_BATCH,
+                               progress=progress, desc="smrf tiles")
+    if not run.tiles:
+        return Result(ground=run.ground, diagnostics=None)
+    cores = tiled.mosaic(run.tiles, run.diagnostics, names=_RASTERS, heights=("zimin", "zipro"),
+                         cell_m=config.cell_m)
+    return Result(ground=run.ground, diagnostics=SMRFDiagnostics(
+        **cores.rasters, origin_m=cores.origin_m, cell_m=config.cell_m, n_tiles=len(run.tiles)))

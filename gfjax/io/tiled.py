@@ -1,0 +1,210 @@
+"""Run a per-tile-batch classifier over a cloud's buffered tiles and mosaic the tile cores.
+
+The whole-cloud driver shared by the raster filters that work tile by tile (`gfjax.smrf`,
+`gfjax.pmf`): cut the cloud into buffered tiles (`gfjax.io.tiles.split`), pad them into
+batches of one raster shape (`tiles.batches`), run each batch through one jitted, vmapped
+`classify_batch` (one compile per batch shape), keep the core points' labels (`tiles.merge`),
+and paste each tile's core out of its per-tile rasters into whole-cloud rasters (row 0 =
+north, docs/ARCHITECTURE.md). Also the padded tile layout as a JAX mask (`domain_mask`) and the
+option checks at the top of every method's `filter`.
+
+Host-side numpy around the jitted batch function; `domain_mask` is pure JAX (traced `hw`).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple, TypeVar
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+from gfjax._types import Mask
+from gfjax.errors import InputError
+from gfjax.io import tiles as tiling
+from gfjax.io.cloud import Cloud
+
+__all__ = ["domain_mask", "checked_options", "ClassifyBatch", "run_batches", "mosaic", "Mosaic",
+           "classify_cloud", "TiledRun"]
+
+ConfigT = TypeVar("ConfigT")
+ParamsT = TypeVar("ParamsT")
+
+ClassifyBatch = Callable[..., tuple[Bool[Array, "b n"], NamedTuple]]
+"""`classify_batch(xyz (b, n, 3) float32, valid (b, n) bool, hw (b, 2) int32, params, *, config,
+shape=(h, w)) -> (ground (b, n) bool, diagnostics)`, every diagnostics field a `(b, h, w)`
+raster whose tile data sit in the south-west corner (`domain_mask`)."""
+
+
+def domain_mask(hw: Int[Array, " 2"], shape: tuple[int, int]) -> Mask:
+    """Cells of a `shape` raster inside a data extent `hw = (rows, cols)` anchored at the
+    south-west corner (rows `h - hw[0] ..`, columns `.. hw[1] - 1`). bool `(h, w)`.
+
+    The layout of a tile padded by `tiles.batches` (row 0 = north); `hw` may be traced, so
+    tiles of different extents share one compiled shape."""
+    h, w = shape
+    rows = jnp.arange(h, dtype=jnp.int32) >= h - hw[0]
+    cols = jnp.arange(w, dtype=jnp.int32) < hw[1]
+    return rows[:, None] & cols[None, :]
+
+
+def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None, returns: str, *,
+                    config_type: type[ConfigT], params_type: type[ParamsT],
+                    package: str) -> tuple[ConfigT, ParamsT, np.ndarray]:
+    """The checks at the top of a method's `filter`: defaults, types, `params.check()`, returns.
+
+    Args:
+      cloud: the cloud to filter.
+      config, params: the caller's settings, None for the defaults `config_type()`, `params_type()`.
+      returns: "all" or "last" (`Cloud.filter_mask`).
+      config_type, params_type: the method's `Config` and `Params` classes.
+      package: the method's package for messages, e.g. "gfjax.smrf".
+
+    Returns:
+      `(config, params, use)`: `use` bool `(n,)`, the points to filter.
+
+    Raises:
+      InputError: a config or params of the wrong type, a params out of range (the message
+        names the cloud), or a bad `returns`.
+    """
+    config = config_type() if config is None else config
+    params = params_type() if params is None else params
+    if not isinstance(config, config_type):
+        raise InputError(f"config must be a {package}.Config, got {type(config).__name__}")
+    if not isinstance(params, params_type):
+        raise InputError(f"params must be a {package}.Params, got {type(params).__name__}")
+    try:
+        params.check()
+        use = cloud.filter_mask(returns)
+    except ValueError as err:
+        raise InputError(f"{cloud.name}: {err}") from None
+    return config, params, use
+
+
+def run_batches(tiles: Sequence[tiling.Tile], classify_batch: ClassifyBatch, params: Any, config: Any, *,
+                max_batch: int, progress: bool = False, desc: str = "tiles",
+                keep_diagnostics: bool = True) -> tuple[list[np.ndarray], list[NamedTuple | None]]:
+    """Classify tiles batch by batch (`tiles.batches`, one `classify_batch` call per batch).
+
+    Args:
+      tiles: from `tiles.split`.
+      classify_batch: the method's vmapped batch function (`ClassifyBatch`).
+      params, config: passed through (`config` static).
+      max_batch: most tiles per call.
+      progress: show a progress bar over batches, labelled `desc`.
+      keep_diagnostics: crop and keep the per-tile rasters (else None per tile).
+
+    Returns:
+      `(labels, diagnostics)` in the order of `tiles`: per tile a bool `(tile.n_points,)`
+      ground array, and the batch's diagnostics NamedTuple (host numpy) cropped to the tile's
+      own extent, each field `tile.shape` (or None when not kept).
+    """
+    position = {id(tile): i for i, tile in enumerate(tiles)}
+    labels: list[np.ndarray | None] = [None] * len(tiles)
+    diagnostics: list[NamedTuple | None] = [None] * len(tiles)
+    groups = list(tiling.batches(tiles, max_batch=max_batch))
+    if progress:
+        from tqdm.auto import tqdm
+        groups = tqdm(groups, desc=desc, unit="batch")
+    for batch in groups:
+        ground, diag = classify_batch(batch.xyz, batch.valid, batch.hw, params, config=config,
+                                      shape=batch.shape)
+        ground = np.asarray(ground)
+        diag = type(diag)(*(np.asarray(a) for a in diag)) if keep_diagnostics else None
+        for b, tile in enumerate(batch.tiles):
+            i = position[id(tile)]
+            labels[i] = ground[b, :tile.n_points]
+            if diag is not None:
+                h, w = tile.shape
+                rows = slice(batch.shape[0] - h, batch.shape[0])
+                diagnostics[i] = type(diag)(*(a[b, rows, :w] for a in diag))
+    return labels, diagnostics
+
+
+class Mosaic(NamedTuple):
+    """Whole-cloud rasters from tile cores (host numpy, row 0 = north).
+
+    Attributes:
+      rasters: name -> `(h, w)` raster over the cloud's cell lattice; float fields as float64
+        (heights shifted to the cloud's vertical frame [m]), bool fields as bool.
+      origin_m: float64 `(2,)`, x and y of the raster's south-west corner [m].
+    """
+
+    rasters: dict[str, np.ndarray]
+    origin_m: np.ndarray
+
+
+def mosaic(tiles: Sequence[tiling.Tile], diagnostics: Sequence[NamedTuple], *, names: Sequence[str],
+           heights: Sequence[str] = (), cell_m: float) -> Mosaic:
+    """Paste each tile's core cells of its cropped rasters into whole-cloud rasters.
+
+    Args:
+      tiles: from `tiles.split` (at least one).
+      diagnostics: per tile, a NamedTuple of `tile.shape` rasters (row 0 = north), as
+        `run_batches` returns them.
+      names: the fields to mosaic.
+      heights: those of `names` holding tile-local heights; the cloud's z origin is added [m].
+      cell_m: the tiles' raster cell [m].
+
+    Returns:
+      `Mosaic`: rasters `(H, W)` over the union of the cores, and their south-west corner.
+    """
+    width = max(t.core_px[2] for t in tiles)
+    height = max(t.core_px[3] for t in tiles)
+    first = diagnostics[0]
+    out = {}
+    for name in names:
+        dtype = np.asarray(getattr(first, name)).dtype
+        out[name] = np.zeros((height, width), np.float64 if np.issubdtype(dtype, np.floating) else dtype)
+    for tile, diag in zip(tiles, diagnostics):
+        c0, r0, c1, r1 = tile.core_px
+        wc, wr = tile.window_px
+        h = tile.shape[0]
+        src_rows = slice(h - (r1 - wr), h - (r0 - wr))             # rows from the south -> north-up
+        dst_rows = slice(height - r1, height - r0)
+        for name in names:
+            out[name][dst_rows, c0:c1] = getattr(diag, name)[src_rows, c0 - wc:c1 - wc]
+    z0 = float(tiles[0].origin_m[2])
+    for name in heights:
+        out[name] += z0
+    origin = tiles[0].origin_m[:2] - np.asarray(tiles[0].window_px, np.float64) * cell_m
+    return Mosaic(rasters=out, origin_m=origin)
+
+
+class TiledRun(NamedTuple):
+    """What `classify_cloud` returns.
+
+    Attributes:
+      ground: bool `(n,)` labels of the whole cloud (False for points outside `use`).
+      tiles: the tiles of `tiles.split` (empty when no point is used).
+      diagnostics: per tile, the cropped diagnostics of `run_batches`.
+    """
+
+    ground: np.ndarray
+    tiles: list[tiling.Tile]
+    diagnostics: list[NamedTuple | None]
+
+
+def classify_cloud(xyz_m: Float[np.ndarray, "n 3"], use: Bool[np.ndarray, " n"], classify_batch: ClassifyBatch,
+                   params: Any, config: Any, *, max_batch: int, progress: bool = False,
+                   desc: str = "tiles") -> TiledRun:
+    """Split a cloud into buffered tiles, run `classify_batch` over them, merge the core labels.
+
+    Args:
+      xyz_m: float64 `(n, 3)` coordinates [m].
+      use: bool `(n,)` points to classify.
+      classify_batch, params, max_batch, progress, desc: as `run_batches`.
+      config: the method's static config; its `tile_size_m`, `buffer_m` and `cell_m` [m] set
+        the tiling.
+
+    Returns:
+      `TiledRun(ground, tiles, diagnostics)`.
+    """
+    tiles = tiling.split(xyz_m, tile_size_m=config.tile_size_m, buffer_m=config.buffer_m,
+                         cell_m=config.cell_m, use=use)
+    if not tiles:
+        return TiledRun(ground=np.zeros(len(use), bool), tiles=[], diagnostics=[])
+    labels, diagnostics = run_batches(tiles, classify_batch, params, config, max_batch=max_batch,
+                                      progress=progress, desc=desc)
+    ground = tiling.merge(len(use), tiles, labels) & use
+    return TiledRun(ground=ground, tiles=tiles, diagnostics=diagnostics)
