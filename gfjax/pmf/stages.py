@@ -20,9 +20,10 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Bool, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from gfjax._types import Heights, Mask, PointMask, Points, Raster
+from gfjax.io.tiled import domain_mask
 from gfjax.pmf.config import Config, Params
 from gfjax.raster.fill import inpaint_nearest
 from gfjax.raster.grid import cell_index
@@ -47,15 +48,6 @@ class Diagnostics(NamedTuple):
     empty: Mask
     surface: Raster
     domain: Mask
-
-
-def domain_mask(hw: Int[Array, " 2"], shape: tuple[int, int]) -> Mask:
-    """Cells of a `shape` raster inside a data extent `hw = (rows, cols)` anchored at the
-    south-west corner (rows `h - hw[0] ..`, columns `.. hw[1] - 1`). bool `(h, w)`."""
-    h, w = shape
-    rows = jnp.arange(h, dtype=jnp.int32) >= h - hw[0]
-    cols = jnp.arange(w, dtype=jnp.int32) < hw[1]
-    return rows[:, None] & cols[None, :]
 
 
 def thresholds_m(params: Params, *, windows_px: tuple[int, ...], cell_m: float) -> Float[Array, " k"]:

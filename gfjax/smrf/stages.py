@@ -25,6 +25,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from gfjax._types import Heights, Mask, PointMask, Points, Raster
+from gfjax.io.tiled import domain_mask
 from gfjax.raster.fill import inpaint_harmonic, inpaint_nearest
 from gfjax.raster.grid import sample_bilinear
 from gfjax.raster.morphology import opening
@@ -59,15 +60,6 @@ class Diagnostics(NamedTuple):
     zipro: Raster
     slope: Raster
     domain: Mask
-
-
-def domain_mask(hw: Int[Array, "2"], shape: tuple[int, int]) -> Mask:
-    """Cells of a `shape` raster inside a data extent of `hw = (rows, cols)` anchored at the
-    south-west corner (rows `h - hw[0] ..`, columns `.. hw[1] - 1`). bool `(h, w)`."""
-    h, w = shape
-    rows = jnp.arange(h, dtype=jnp.int32) >= h - hw[0]
-    cols = jnp.arange(w, dtype=jnp.int32) < hw[1]
-    return rows[:, None] & cols[None, :]
 
 
 def is_object(surface: Raster, opened: Raster, threshold_m: Float[Array, ""]) -> Mask:
