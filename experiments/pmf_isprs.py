@@ -12,34 +12,29 @@ import argparse
 import json
 import platform
 import sys
-import time
 from pathlib import Path
 
 import jax
 import numpy as np
 
-import gfjax
-from gfjax import pmf
-from gfjax.metrics import point_metrics
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-ROOT = Path(__file__).resolve().parents[1]
-ISPRS = sorted((ROOT.parent / "shared" / "data" / "isprs_filtertest" / "reference").glob("samp*-utm.laz"))
+import gfjax  # noqa: E402
+from experiments.common import ROOT, first_and_again, isprs_samples, score  # noqa: E402
+from gfjax import pmf  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("files", nargs="*", type=Path, default=ISPRS)
+    parser.add_argument("files", nargs="*", type=Path, default=isprs_samples())
     parser.add_argument("--json", type=Path, default=ROOT / "experiments" / "results" / "pmf_isprs.json")
     args = parser.parse_args(argv)
     rows = []
     for path in args.files:
         cloud = gfjax.read(path)
         use = cloud.filter_mask()
-        pmf.filter(cloud)                                   # warm-up (compile)
-        t0 = time.perf_counter()
-        result = pmf.filter(cloud)
-        seconds = time.perf_counter() - t0
-        m = point_metrics(result.ground, cloud.classification == 2, mask=use)
+        _, seconds, _, result = first_and_again(lambda: pmf.filter(cloud))      # warm-up (compile), then timed
+        m = score(result.ground, cloud, use)
         row = {"file": path.name, "n_points": int(use.sum()), "total_error": m["total_error"],
                "type1": m["type1"], "type2": m["type2"], "kappa": m["kappa"], "time_s": seconds}
         rows.append(row)

@@ -16,27 +16,22 @@ import argparse
 import os
 import platform
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
 
-import gfjax
-from gfjax import metrics, smrf
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = ROOT / ".." / "shared" / "data" / "isprs_filtertest" / "reference"
-KEYS = ("total_error", "type1", "type2", "kappa")
+import gfjax  # noqa: E402
+from experiments.common import ISPRS_REFERENCE, KEYS, ROOT, first_and_again, isprs_samples, score  # noqa: E402
+from gfjax import smrf  # noqa: E402
 
 
 def run_gfjax(cloud):
-    start = time.perf_counter()
-    first = smrf.filter(cloud)
-    t_first = time.perf_counter() - start
-    start = time.perf_counter()
-    again = smrf.filter(cloud)
-    t_again = time.perf_counter() - start
+    t_first, t_again, first, again = first_and_again(lambda: smrf.filter(cloud))
     assert np.array_equal(first.ground, again.ground)
     return again.ground, t_first, t_again
 
@@ -50,27 +45,22 @@ def run_pysmrf(cloud):
     return np.asarray(res.is_ground, bool), time.perf_counter() - start
 
 
-def _row(name, m):
-    return f"| {name} | " + " | ".join(f"{100 * m[k]:.2f}" for k in KEYS)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser.add_argument("--data", type=Path, default=ISPRS_REFERENCE)
     parser.add_argument("--out", type=Path, default=ROOT / "experiments" / "results" / "smrf_isprs.md")
     args = parser.parse_args(argv)
-    files = sorted(args.data.glob("samp*-utm.laz"))
+    files = isprs_samples(args.data)
     if not files:
         raise SystemExit(f"{args.data}: no samp*-utm.laz files")
 
     rows = []
     for path in files:
         cloud = gfjax.read(path)
-        reference = cloud.classification == 2
         ours, t_first, t_again = run_gfjax(cloud)
         peer, t_peer = run_pysmrf(cloud)
-        m_ours = metrics.point_metrics(ours, reference)
-        m_peer = metrics.point_metrics(peer, reference)
+        m_ours = score(ours, cloud)
+        m_peer = score(peer, cloud)
         name = path.name.split("-")[0]
         rows.append((name, cloud.n_points, m_ours, m_peer, t_first, t_again, t_peer))
         print(f"{name}: gfjax TE {100 * m_ours['total_error']:.2f} % kappa {m_ours['kappa']:.3f} "

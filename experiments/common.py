@@ -1,0 +1,57 @@
+"""What the ISPRS accuracy experiments share: the sample files, a first-and-warm call, scoring.
+
+    from experiments.common import ISPRS_REFERENCE, isprs_samples, first_and_again, score
+    for path in isprs_samples():
+        cloud = gfjax.read(path)
+        first_s, again_s, result = first_and_again(lambda: gfjax.smrf.filter(cloud))
+        m = score(result.ground, cloud)
+
+The shared data live in `../shared/data` next to the repository (or `$GFJAX_SHARED_DATA`);
+ISPRS reference ground is ASPRS class 2, every other class non-ground (data/README.md).
+Scores are those of `gfjax.metrics.point_metrics` (SPEC section 8).
+"""
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
+
+import numpy as np
+
+from gfjax.io.cloud import Cloud
+from gfjax.metrics import point_metrics
+
+__all__ = ["ROOT", "DATA", "ISPRS_REFERENCE", "KEYS", "isprs_samples", "first_and_again", "score"]
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("GFJAX_SHARED_DATA", ROOT.parent / "shared" / "data"))
+ISPRS_REFERENCE = DATA / "isprs_filtertest" / "reference"
+KEYS = ("total_error", "type1", "type2", "kappa")        # the per-sample scores the tables report
+
+T = TypeVar("T")
+
+
+def isprs_samples(folder: Path = ISPRS_REFERENCE) -> list[Path]:
+    """The ISPRS reference samples `samp*-utm.laz` of `folder`, sorted (11 in the shared data;
+    an empty list when the folder is absent)."""
+    return sorted(Path(folder).glob("samp*-utm.laz"))
+
+
+def first_and_again(fn: Callable[[], T]) -> tuple[float, float, T, T]:
+    """Call `fn` twice: `(first_s, again_s, first, again)`, wall-clock seconds of each call
+    (`time.perf_counter`); the first includes JIT compilation, the second runs warm."""
+    start = time.perf_counter()
+    first = fn()
+    first_s = time.perf_counter() - start
+    start = time.perf_counter()
+    again = fn()
+    again_s = time.perf_counter() - start
+    return first_s, again_s, first, again
+
+
+def score(ground: np.ndarray, cloud: Cloud, mask: np.ndarray | None = None) -> dict:
+    """`point_metrics` of bool `(n,)` ground labels against the cloud's class 2, on `mask`
+    (bool `(n,)`, default all points)."""
+    return point_metrics(ground, cloud.classification == 2, mask=mask)
