@@ -9,7 +9,8 @@ result = fit.fit(problem, Settings(steps=60))       # module `fit`, function `fi
 checked = validate(problem, Settings(), folds=3)    # keep the fit only where it helps
 ```
 `relax` holds the soft thresholds, `params` the bounded parametrisation and params.json,
-`smrf` the relaxed SMRF pipeline, `fit` the optax loop and the block validation.
+`smrf` the relaxed SMRF pipeline, `pmf` the relaxed PMF point test (not yet driven by `fit`),
+`fit` the optax loop and the block validation.
 """
 from gfjax.tune import fit, relax
 from gfjax.tune.fit import FitResult, Settings, Validation, hard_errors, validate
