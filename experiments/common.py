@@ -12,6 +12,8 @@ Scores are those of `gfjax.metrics.point_metrics` (SPEC section 8).
 """
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import time
 from collections.abc import Callable
@@ -23,11 +25,13 @@ import numpy as np
 from gfjax.io.cloud import Cloud
 from gfjax.metrics import point_metrics
 
-__all__ = ["ROOT", "DATA", "ISPRS_REFERENCE", "KEYS", "isprs_samples", "first_and_again", "score"]
+__all__ = ["ROOT", "DATA", "ISPRS_REFERENCE", "RESULTS", "KEYS", "isprs_samples", "files_parser",
+           "first_and_again", "score", "write_json"]
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("GFJAX_SHARED_DATA", ROOT.parent / "shared" / "data"))
 ISPRS_REFERENCE = DATA / "isprs_filtertest" / "reference"
+RESULTS = ROOT / "experiments" / "results"
 KEYS = ("total_error", "type1", "type2", "kappa")        # the per-sample scores the tables report
 
 T = TypeVar("T")
@@ -37,6 +41,21 @@ def isprs_samples(folder: Path = ISPRS_REFERENCE) -> list[Path]:
     """The ISPRS reference samples `samp*-utm.laz` of `folder`, sorted (11 in the shared data;
     an empty list when the folder is absent)."""
     return sorted(Path(folder).glob("samp*-utm.laz"))
+
+
+def files_parser(doc: str, default_files: list[Path], json_name: str) -> argparse.ArgumentParser:
+    """The command line of a per-file experiment: `[FILES...] [--json OUT]`, described by the
+    first line of `doc`, OUT defaulting to `experiments/results/<json_name>`."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("files", nargs="*", type=Path, default=default_files)
+    parser.add_argument("--json", type=Path, default=RESULTS / json_name)
+    return parser
+
+
+def write_json(path: Path, environment: dict, summary: dict, rows: list[dict]) -> None:
+    """Write `{"environment", "summary", "files"}` as indented JSON to `path` (folders made)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"environment": environment, "summary": summary, "files": rows}, indent=1))
 
 
 def first_and_again(fn: Callable[[], T]) -> tuple[float, float, T, T]:

@@ -18,7 +18,6 @@ import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
@@ -31,7 +30,8 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import gfjax  # noqa: E402
-from experiments.common import DATA, ROOT, first_and_again, isprs_samples, score  # noqa: E402
+from experiments.common import (  # noqa: E402
+    DATA, files_parser, first_and_again, isprs_samples, score, write_json)
 from gfjax import csf  # noqa: E402
 
 DEFAULT_FILES = [*isprs_samples(), DATA / "lasR_bcts" / "bcts_1.laz"]
@@ -64,9 +64,7 @@ def run_gfjax(cloud) -> tuple[np.ndarray, float, float, int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("files", nargs="*", type=Path, default=DEFAULT_FILES)
-    parser.add_argument("--json", type=Path, default=ROOT / "experiments" / "results" / "csf_agreement.json")
+    parser = files_parser(__doc__, DEFAULT_FILES, "csf_agreement.json")
     args = parser.parse_args(argv)
     rows = []
     for path in args.files:
@@ -104,8 +102,7 @@ def main(argv: list[str] | None = None) -> int:
            "platform": platform.platform(), "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
            "config": str(csf.Config()), "params": {k: float(v) for k, v in vars(csf.Params()).items()}}
     print(json.dumps(summary, indent=1))
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"environment": env, "summary": summary, "files": rows}, indent=1))
+    write_json(args.json, env, summary, rows)
     return 0
 
 

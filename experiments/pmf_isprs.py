@@ -8,7 +8,6 @@ class 2. Results: `experiments/results/pmf_isprs.json`.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import platform
 import sys
@@ -20,14 +19,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import gfjax  # noqa: E402
-from experiments.common import ROOT, first_and_again, isprs_samples, score  # noqa: E402
+from experiments.common import files_parser, first_and_again, isprs_samples, score, write_json  # noqa: E402
 from gfjax import pmf  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("files", nargs="*", type=Path, default=isprs_samples())
-    parser.add_argument("--json", type=Path, default=ROOT / "experiments" / "results" / "pmf_isprs.json")
+    parser = files_parser(__doc__, isprs_samples(), "pmf_isprs.json")
     args = parser.parse_args(argv)
     rows = []
     for path in args.files:
@@ -47,8 +44,7 @@ def main(argv: list[str] | None = None) -> int:
            "config": str(pmf.Config()), "windows_px": list(pmf.Config().windows_px),
            "params": {k: float(v) for k, v in vars(pmf.Params()).items()}}
     print("mean over samples:", json.dumps(summary))
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"environment": env, "summary": summary, "files": rows}, indent=1))
+    write_json(args.json, env, summary, rows)
     return 0
 
 
