@@ -7,7 +7,14 @@ The filled surface u solves the discrete Laplace equation on the empty cells,
 
 where N4(i) are the 4-neighbours inside the raster (zero flux across the raster border): the
 minimiser of the Dirichlet energy `sum (u_i - u_j)^2` over edges, the smoothest surface
-through the valid cells. SMRF (Pingel et al. 2013, Sec. 2.1) inpaints ZImin and ZIpro this
+through the valid cells.
+
+Domain. An optional `domain` mask restricts the problem to its cells: N4(i) keeps only the
+neighbours inside the domain (zero flux across the domain's border, homogeneous Neumann), so
+cells outside it neither hold data nor unknowns and are returned as given. A tile padded to a
+larger raster with `domain` = its own cells is filled exactly as the unpadded tile (to the
+solver tolerance). A 4-connected component of the domain without a valid cell has no unique
+solution (pure Neumann); its cells are set to 0, as is every cell when nothing is valid. SMRF (Pingel et al. 2013, Sec. 2.1) inpaints ZImin and ZIpro this
 way (the paper uses D'Errico's "springs" inpaint_nans; SPEC section 6: harmonic fill measured
 best).
 
@@ -31,6 +38,7 @@ from jax import lax
 from jaxtyping import Array, Bool, Int
 
 from gfjax._types import Mask, Raster
+from gfjax.raster.label import label_components
 
 __all__ = ["inpaint_harmonic", "solve_harmonic"]
 
@@ -80,9 +88,16 @@ def _n_inside(shape, dtype) -> Raster:
             + (cols > 0).astype(dtype) + (cols < w - 1).astype(dtype))
 
 
-def _finest(valid: Mask, dtype) -> _Level:
-    free = ~valid
-    n_inside = _n_inside(valid.shape, dtype)
+def _n_in_domain(domain: Mask, dtype) -> Raster:
+    """Number of 4-neighbours inside the domain."""
+    d = domain.astype(dtype)
+    return _shift(d, 0, 1) + _shift(d, 0, -1) + _shift(d, 1, 0) + _shift(d, -1, 0)
+
+
+def _finest(free: Mask, n_inside: Raster, dtype) -> _Level:
+    """The Laplacian on the `free` cells; `n_inside` = neighbours in the problem per cell
+    (free or Dirichlet). Cells that are not free are inactive (e = 0): Dirichlet data and
+    cells outside the domain alike, so the Galerkin hierarchy follows the domain's shape."""
     east = free & (_shift(free.astype(jnp.int8), 0, 1) > 0)
     south = free & (_shift(free.astype(jnp.int8), 1, 0) > 0)
     return _Level(jnp.where(free, n_inside, 0).astype(dtype), east.astype(dtype), south.astype(dtype), unit=True)
@@ -186,44 +201,68 @@ def _push_pull(z: Raster, valid: Mask) -> Raster:
     return jnp.where(valid, z, _prolong(coarse, (h, w)))
 
 
-def inpaint_harmonic(z: Raster, valid: Mask, *, max_iter: int = 100, tol_m: float = 1e-4) -> Raster:
+def _supported(fixed: Mask, domain: Mask) -> Mask:
+    """Domain cells whose 4-connected component of the domain holds a fixed (valid) cell."""
+    labels, _ = label_components(domain, connectivity=4)
+    h, w = domain.shape
+    flat = labels.reshape(-1)
+    has = jnp.zeros(h * w + 1, bool).at[flat].max(fixed.reshape(-1))
+    return domain & has[flat].reshape(h, w)
+
+
+def inpaint_harmonic(z: Raster, valid: Mask, *, domain: Mask | None = None, max_iter: int = 100,
+                     tol_m: float = 1e-4) -> Raster:
     """Fill empty cells with the harmonic (Laplace) interpolant of the valid cells.
 
     Args:
       z: raster `(h, w)`, elevations [m]; values where `~valid` are ignored (may be inf).
       valid: bool `(h, w)`, cells with data (Dirichlet values).
+      domain: bool `(h, w)`, the cells of the problem (e.g. a tile's own cells inside a padded
+        raster); None = the whole raster. Valid cells outside it are ignored.
       max_iter: bound on multigrid-preconditioned CG iterations (static).
       tol_m: stop when an iteration moves no cell by more than this [m] (static).
 
     Returns:
       `(h, w)`, dtype of `z`: `z` on valid cells, the solution of the discrete Laplace equation
-      (zero flux at the raster border) elsewhere. No valid cell: zeros. See `solve_harmonic`
-      for the iteration count and convergence flag.
+      (zero flux at the border of the raster, or of the domain) on the empty cells, `z` as given
+      outside the domain. Cells of a domain component (4-connected) without a valid cell, and
+      every cell when nothing is valid: zeros. See `solve_harmonic` for the iteration count and
+      convergence flag.
     """
-    return solve_harmonic(z, valid, max_iter=max_iter, tol_m=tol_m)[0]
+    return solve_harmonic(z, valid, domain=domain, max_iter=max_iter, tol_m=tol_m)[0]
 
 
 def solve_harmonic(
-    z: Raster, valid: Mask, *, max_iter: int = 100, tol_m: float = 1e-4
+    z: Raster, valid: Mask, *, domain: Mask | None = None, max_iter: int = 100, tol_m: float = 1e-4
 ) -> tuple[Raster, Int[Array, ""], Bool[Array, ""]]:
     """`inpaint_harmonic` that also returns `(iterations int32, converged bool)`."""
     if z.shape != valid.shape:
         raise ValueError(f"inpaint_harmonic: z shape {z.shape} != valid shape {valid.shape}")
+    if domain is not None and domain.shape != z.shape:
+        raise ValueError(f"inpaint_harmonic: domain shape {domain.shape} != z shape {z.shape}")
     if not jnp.issubdtype(z.dtype, jnp.floating):
         raise ValueError(f"inpaint_harmonic needs a float raster, got {z.dtype}")
     dtype = z.dtype
-    anything = jnp.any(valid)
-    valid = valid | ~anything                       # nothing valid: solve the all-zero problem
+    if domain is None:                              # the whole raster: connected, no labelling
+        fixed = valid
+        n_inside = _n_inside(z.shape, dtype)
+        solved = jnp.broadcast_to(jnp.any(valid), z.shape)
+    else:
+        domain = domain.astype(bool)
+        fixed = valid & domain
+        n_inside = _n_in_domain(domain, dtype)
+        solved = _supported(fixed, domain)          # domain cells with a unique solution
+    free = solved & ~fixed                          # the unknowns
     # Solve for heights relative to the mean of the data: smaller numbers, smaller rounding.
-    offset = jnp.sum(jnp.where(valid & anything, z, 0)) / jnp.maximum(jnp.sum(valid), 1).astype(dtype)
-    z0 = jnp.where(valid & anything, z - offset, jnp.zeros((), dtype))
-    u0 = _push_pull(z0, valid)
-    levels = _hierarchy(_finest(valid, dtype))
-    free = (~valid).astype(dtype)
-    # Residual of the Laplace equation at the start: (sum of neighbours) - n_inside * u.
-    n_inside = _n_inside(z.shape, dtype)
+    offset = jnp.sum(jnp.where(fixed, z, 0)) / jnp.maximum(jnp.sum(fixed), 1).astype(dtype)
+    z0 = jnp.where(fixed, z - offset, jnp.zeros((), dtype))
+    u0 = jnp.where(free | fixed, _push_pull(z0, fixed), 0)
+    levels = _hierarchy(_finest(free, n_inside, dtype))
+    # Residual of the Laplace equation at the start: (sum of neighbours) - n_inside * u, where u
+    # is 0 outside the domain and on unsolved components (neither is a neighbour of a free cell
+    # inside the domain, except through the domain's border, which n_inside excludes).
     neighbours = _shift(u0, 0, 1) + _shift(u0, 0, -1) + _shift(u0, 1, 0) + _shift(u0, -1, 0)
-    r = free * (neighbours - n_inside * u0)
+    r = jnp.where(free, neighbours - n_inside * u0, jnp.zeros((), dtype))
 
     def cond(state):
         *_, it, change = state
@@ -244,5 +283,7 @@ def solve_harmonic(
     zeros = jnp.zeros_like(r)
     init = (zeros, r, zeros, jnp.zeros((), dtype), jnp.int32(0), jnp.array(jnp.inf, dtype))
     e, _, _, _, iterations, change = lax.while_loop(cond, body, init)
-    filled = jnp.where(valid & anything, z, jnp.where(anything, u0 + e + offset, 0)).astype(dtype)
-    return filled, iterations, change <= tol_m
+    filled = jnp.where(fixed, z, jnp.where(free, u0 + e + offset, 0))
+    if domain is not None:
+        filled = jnp.where(domain, filled, z)
+    return filled.astype(dtype), iterations, change <= tol_m
