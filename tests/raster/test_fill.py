@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 import reference
 import scipy.ndimage as ndi
+import scipy.sparse
+import scipy.sparse.linalg
 from reference import Case
 
 from gfjax import raster
@@ -122,6 +124,109 @@ def test_nearest_padding_never_changes_valid_cells():
     np.testing.assert_array_equal(big[:32, :24], small)
 
 
+# ---- harmonic fill on a domain (a tile's own cells inside a padded raster) -------------------
+
+DOMAIN_SHAPE = (40, 40)
+
+
+def _harmonic_on_domain(z: np.ndarray, valid: np.ndarray, domain: np.ndarray) -> np.ndarray:
+    """Direct sparse solve of the Laplace equation on the empty cells of the domain, the 5-point
+    stencil restricted to the domain (zero flux across its border), valid domain cells as
+    Dirichlet data (float64). Outside the domain: `z`; components without data: 0."""
+    h, w = z.shape
+    fixed = valid & domain
+    labels, _ = ndi.label(domain)                               # 4-connectivity
+    solved = domain & np.isin(labels, np.unique(labels[fixed]))
+    out = np.where(domain, np.where(fixed, z, 0.0), z).astype(np.float64)
+    free = np.flatnonzero((solved & ~fixed).ravel())
+    if free.size == 0:
+        return out
+    pos = -np.ones(h * w, np.int64)
+    pos[free] = np.arange(free.size)
+    a = scipy.sparse.lil_matrix((free.size, free.size))
+    rhs = np.zeros(free.size)
+    flat = out.ravel()
+    for k, i in enumerate(free):
+        r, c = divmod(i, w)
+        for rr, cc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+            if 0 <= rr < h and 0 <= cc < w and domain[rr, cc]:
+                a[k, k] += 1.0
+                if pos[rr * w + cc] >= 0:
+                    a[k, pos[rr * w + cc]] -= 1.0
+                else:
+                    rhs[k] += flat[rr * w + cc]
+    flat[free] = scipy.sparse.linalg.spsolve(a.tocsc(), rhs)
+    return flat.reshape(h, w)
+
+
+def _domain_case(name: str):
+    z, valid = reference.random_raster(Case(name, DOMAIN_SHAPE, valid_fraction=0.08), seed=11)
+    h, w = DOMAIN_SHAPE
+    if name == "random":            # several components, some without data, ragged borders
+        domain = ndi.binary_opening(np.random.default_rng(5).random(DOMAIN_SHAPE) < 0.6)
+        domain[:, 19:21] = False                                   # a data-free strip ...
+        domain[10:14, 19:21] = True                                # ... joined to the left half
+        domain[30:36, 30:36], valid[30:36, 30:36] = True, False   # an island without data
+        domain[29, 29:37] = domain[36, 29:37] = False
+        domain[29:37, 29] = domain[29:37, 36] = False
+    elif name == "L":
+        domain = np.ones(DOMAIN_SHAPE, bool)
+        domain[: h // 2, w // 2:] = False
+    else:                           # "corner": a 32 x 24 tile in the south-west of the raster
+        domain = np.zeros(DOMAIN_SHAPE, bool)
+        domain[h - 32:, :24] = True
+        valid[:, :] = False
+        valid[h - 32:, :24] = _gap_case()[1]
+        z[h - 32:, :24] = _gap_case()[0]
+    z = np.where(domain, z, np.float32(np.inf))                    # never read outside
+    valid = valid | ~domain                                        # valid outside: ignored
+    return z, valid, domain
+
+
+DOMAIN_CASES = ["random", "L", "corner"]
+
+
+@functools.cache
+def jitted_on_domain():
+    return jax.jit(lambda z, valid, domain: raster.solve_harmonic(z, valid, domain=domain, tol_m=1e-6))
+
+
+@pytest.mark.parametrize("name", DOMAIN_CASES)
+def test_harmonic_on_domain_matches_sparse_solve(name):
+    z, valid, domain = _domain_case(name)
+    got, iterations, converged = (np.asarray(x) for x in jitted_on_domain()(z, valid, domain))
+    want = _harmonic_on_domain(z, valid, domain)
+    assert bool(converged) and int(iterations) <= 40
+    np.testing.assert_array_equal(got[~domain], z[~domain])        # outside: as given
+    np.testing.assert_array_equal(got[valid & domain], z[valid & domain])
+    np.testing.assert_allclose(got[domain], want[domain], atol=1e-4, rtol=0)
+    if name == "random":                                           # the data-free island
+        np.testing.assert_array_equal(got[30:36, 30:36], 0.0)
+
+
+def test_harmonic_on_padded_domain_equals_unpadded_fill():
+    """A tile padded to a larger raster, with `domain` = its cells, fills as the bare tile."""
+    z, valid, domain = _domain_case("corner")
+    padded = np.asarray(jitted_on_domain()(z, valid, domain)[0])
+    bare = np.asarray(jitted()(*_gap_case())[3])
+    np.testing.assert_allclose(padded[DOMAIN_SHAPE[0] - 32:, :24], bare, atol=1e-4, rtol=0)
+
+
+def test_harmonic_on_domain_vmap_equals_loop():
+    z, valid, domain = (np.stack(x) for x in zip(*map(_domain_case, DOMAIN_CASES)))
+    fn = jitted_on_domain()
+    batched = jax.jit(jax.vmap(fn))(z, valid, domain)[0]
+    for b in range(len(DOMAIN_CASES)):
+        np.testing.assert_allclose(np.asarray(batched[b]), np.asarray(fn(z[b], valid[b], domain[b])[0]),
+                                   atol=1e-4, rtol=0)
+
+
+def test_harmonic_whole_domain_equals_no_domain():
+    z, valid = _gap_case()
+    got = jax.jit(lambda z, v: raster.inpaint_harmonic(z, v, domain=jnp.ones(v.shape, bool), tol_m=1e-6))(z, valid)
+    np.testing.assert_allclose(np.asarray(got), np.asarray(jitted()(z, valid)[3]), atol=1e-4, rtol=0)
+
+
 def _annulus():
     m = np.zeros((16, 16), bool)
     m[2:12, 2:12] = True
@@ -161,3 +266,5 @@ def test_bad_shapes():
         raster.inpaint_nearest(jnp.zeros((3, 3)), jnp.zeros((3, 4), bool))
     with pytest.raises(ValueError, match="shape"):
         raster.inpaint_harmonic(jnp.zeros((3, 3)), jnp.zeros((3, 4), bool))
+    with pytest.raises(ValueError, match="domain shape"):
+        raster.inpaint_harmonic(jnp.zeros((3, 3)), jnp.zeros((3, 3), bool), domain=jnp.ones((3, 4), bool))
