@@ -21,7 +21,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import time
-from collections.abc import Sequence
 from typing import NamedTuple
 
 import jax

@@ -11,7 +11,6 @@ import pytest
 from jax.test_util import check_grads
 
 import gfjax
-from gfjax.io import tiles as tiling
 from gfjax.smrf import Params, stages
 from gfjax.tune import fit as tfit
 from gfjax.tune import params as tparams
