@@ -6,10 +6,9 @@ of static shape `(h, w)` may be padded beyond the tile's own extent `hw = (h_dat
 occupy the south-west corner, rows `h - h_data .. h - 1` and columns `0 .. w_data - 1`
 (row 0 = north, docs/ARCHITECTURE.md). That corner is the `domain`: the openings ignore cells
 outside it and the slope uses one-sided differences at its edge, exactly as if the raster
-ended there; bilinear sampling sees the domain's edge values continued over the padding. The
-harmonic fill alone treats padding cells as unknowns (zero flux at the padded raster's border),
-so padding can move the fill of empty cells that touch the domain's edge; where every edge cell
-holds a point, padding changes nothing (tests/io/test_tiles.py).
+ended there; bilinear sampling sees the domain's edge values continued over the padding; the
+harmonic fills solve the Laplace equation on the domain alone (zero flux across its edge). So
+the labels of a tile do not depend on the shape bucket it is padded to (tests/smrf).
 
 The thresholds are isolated in `is_object` and `is_ground_point`, so `gfjax.tune` can swap
 them for relaxed (sigmoid) versions.
@@ -113,15 +112,20 @@ def low_outliers(zimin: Raster, domain: Mask, *, config: Config) -> Mask:
                               max_radius_px=config.low_outlier_radius_px)
 
 
-def inpaint(z: Raster, known: Mask, *, config: Config) -> Raster:
+def inpaint(z: Raster, known: Mask, *, config: Config, domain: Mask | None = None) -> Raster:
     """Fill the cells `~known` from the known ones (Sec. 2.1/2.3): harmonic (Laplace) fill or
     nearest known cell, per `config.inpaint`. Returns a finite `(h, w)` raster [m] (zeros when
-    nothing is known)."""
+    nothing is known).
+
+    `domain`: the tile's cells (None = the whole raster); `known` should lie inside it. The
+    harmonic fill is solved on the domain alone (zero flux across its edge; 0 outside), so
+    padding never moves it; the nearest known cell is independent of padding anyway."""
     z = jnp.where(known, z, 0.0).astype(z.dtype)
     if config.inpaint == "nearest":
         filled = inpaint_nearest(z, known)
     else:
-        filled = inpaint_harmonic(z, known, max_iter=config.inpaint_max_iter, tol_m=config.inpaint_tol_m)
+        filled = inpaint_harmonic(z, known, domain=domain, max_iter=config.inpaint_max_iter,
+                                  tol_m=config.inpaint_tol_m)
     return jnp.where(jnp.any(known), filled, jnp.zeros_like(z))
 
 
@@ -177,14 +181,14 @@ def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, "2"], params: Params, *
     domain = domain_mask(hw, z_min.shape)
     filled = filled & domain
     # 1. ZImin: lowest point per cell, empty cells inpainted.
-    zimin = inpaint(z_min, filled, config=config)
+    zimin = inpaint(z_min, filled, config=config, domain=domain)
     # 2. Low outliers: progressive filter on -ZImin, slope 5, one-cell window.
     low = low_outliers(zimin, domain, config=config)
     # 3. Progressive opening r = 1..ceil(window / cell) with threshold slope * r * cell.
     objects = progressive_filter(zimin, domain, params.slope, cell_m=config.cell_m,
                                  max_radius_px=config.max_radius_px)
     # 4. ZIpro: ZImin without empty, low-outlier and object cells, inpainted.
-    zipro = inpaint(zimin, filled & ~low & ~objects, config=config)
+    zipro = inpaint(zimin, filled & ~low & ~objects, config=config, domain=domain)
     slope = gradient_magnitude(zipro, domain, cell_m=config.cell_m)
     return Diagnostics(zimin=zimin, empty=domain & ~filled, low_outliers=low, object_cells=objects,
                        zipro=zipro, slope=slope, domain=domain)
