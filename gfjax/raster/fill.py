@@ -6,7 +6,8 @@
   the cell's column (cumulative max/min of indices), then along rows the minimum of
   `dx^2 + g(col + dx)^2` over growing `|dx|`, stopped once `dx^2` exceeds every cell's best.
 * `inpaint_harmonic`: the Laplace equation on empty cells with valid cells as Dirichlet data
-  and zero-flux raster borders (see `harmonic.py`).
+  and zero-flux borders, of the raster or of an optional `domain` mask (a tile's own cells in
+  a padded raster: padding then never changes the fill; see `harmonic.py`).
 * `fill_holes`: background components that do not touch the border become foreground.
 """
 from __future__ import annotations
