@@ -98,7 +98,7 @@ def prepare_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], *, config: 
     domain = stages.domain_mask(hw, shape)
     cells = rasterize(xyz[:, :2], xyz[:, 2], valid, cell_m=config.cell_m, shape=shape)
     filled = cells.valid & domain
-    zimin = stages.inpaint(cells.z_min, filled, config=config)
+    zimin = stages.inpaint(cells.z_min, filled, config=config, domain=domain)
     low = stages.low_outliers(zimin, domain, config=config)
     surfaces = [zimin]
     for radius_px in range(1, config.max_radius_px + 1):      # as stages.progressive_filter
@@ -143,23 +143,26 @@ def _neighbour_mean(u: Raster) -> Raster:
     return total / jnp.maximum(count, jnp.ones((), u.dtype))
 
 
-def soft_inpaint(z: Raster, keep: Raster, *, config: Config, sweeps: int = SOFT_SWEEPS) -> Raster:
+def soft_inpaint(z: Raster, keep: Raster, *, config: Config, domain: Mask | None = None,
+                 sweeps: int = SOFT_SWEEPS) -> Raster:
     """Soft-masked harmonic fill: `u = keep * z + (1 - keep) * mean_4(u)` (`keep` in [0, 1]).
 
     Args:
       z: finite surface `(h, w)` [m] (ZImin).
       keep: weight of each cell's own value, `(h, w)`; 0/1 gives the plain harmonic fill.
       config: the inpainting settings (`stages.inpaint` for the start).
+      domain: the tile's own cells `(h, w)` (None: all); cells outside keep the start value.
       sweeps: Jacobi sweeps (static); the gradient reaches `sweeps` cells from a cell.
 
     Returns:
       `(h, w)` [m], differentiable in `keep` and `z`.
     """
     half = jnp.asarray(0.5, keep.dtype)
-    start = lax.stop_gradient(stages.inpaint(z, keep > half, config=config))
+    start = lax.stop_gradient(stages.inpaint(z, keep > half, config=config, domain=domain))
 
     def sweep(u, _):
-        return keep * z + (1 - keep) * _neighbour_mean(u), None
+        new = keep * z + (1 - keep) * _neighbour_mean(u)
+        return (new if domain is None else jnp.where(domain, new, start)), None
 
     u, _ = lax.scan(sweep, start, None, length=sweeps)
     return u
@@ -192,11 +195,11 @@ def ground_weight(prep: Prepared, params: Params, *, config: Config,
     zimin = prep.surfaces[0]
     objects = _object_cells(prep, params.slope, radius_px, config.cell_m, temperature)
     if temperature is None:
-        zipro = stages.inpaint(zimin, prep.candidate & ~objects, config=config)
+        zipro = stages.inpaint(zimin, prep.candidate & ~objects, config=config, domain=prep.domain)
         slope = stages.gradient_magnitude(zipro, prep.domain, cell_m=config.cell_m)
     else:
         keep = jnp.where(prep.candidate, 1 - objects, jnp.zeros((), zimin.dtype))
-        zipro = soft_inpaint(zimin, keep, config=config, sweeps=sweeps)
+        zipro = soft_inpaint(zimin, keep, config=config, domain=prep.domain, sweeps=sweeps)
         slope = stages.gradient_magnitude(lax.stop_gradient(zipro), prep.domain, cell_m=config.cell_m)
     surface_at = sample_bilinear(stages.replicate_edges(zipro, prep.hw), xy, cell_m=config.cell_m)
     slope_at = sample_bilinear(stages.replicate_edges(slope, prep.hw), xy, cell_m=config.cell_m)
