@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 from collections.abc import Sequence
@@ -24,6 +23,29 @@ def positive_float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def _integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+
+
+def positive_int(text: str) -> int:
+    """argparse type: a whole number >= 1 (steps, folds, repeats)."""
+    value = _integer(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def nonnegative_int(text: str) -> int:
+    """argparse type: a whole number >= 0."""
+    value = _integer(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
     return value
 
 
@@ -70,22 +92,10 @@ def parse_set_values(items: Sequence[str]) -> dict[str, str]:
 
 
 def load_params_file(path: str | os.PathLike) -> dict[str, Any]:
-    """A params.json of `gfjax tune`: `{method, gfjax_version, units, values: {name: float}}`."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"--params {path}: no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise InputError(f"--params {path}: not a readable JSON file ({err})") from None
-    if not isinstance(data, dict) or not isinstance(data.get("values"), dict):
-        raise InputError(f"--params {path}: expected a JSON object with a 'values' object")
-    if not isinstance(data.get("method"), str):
-        raise InputError(f"--params {path}: expected a 'method' name")
-    for key, value in data["values"].items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise InputError(f"--params {path}: value of {key!r} must be a finite number, got {value!r}")
-    return data
+    """A params.json of `gfjax tune` (`gfjax.io.params_file.read_params`), errors as `--params`."""
+    from gfjax.io.params_file import read_params
+
+    return read_params(path, option="--params")
 
 
 class MethodSetup(NamedTuple):

@@ -13,30 +13,10 @@ from __future__ import annotations
 
 import argparse
 
-from gfjax.cli._common import add_units_option, nonnegative_float, positive_float
+from gfjax.cli._common import add_units_option, nonnegative_float, nonnegative_int, positive_float, positive_int
 from gfjax.errors import InputError
 
 TUNABLE = ("smrf",)
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
-def _nonnegative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
 
 
 def _windows(text: str) -> tuple[float, ...]:
@@ -59,8 +39,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="expected total error (default) or 1 - soft kappa")
     parser.add_argument("--prior", type=nonnegative_float, default=0.01, metavar="W",
                         help="weight of the pull toward the defaults (default 0.01)")
-    parser.add_argument("--steps", type=_positive_int, default=60, help="Adam steps per window (default 60)")
-    parser.add_argument("--folds", type=_nonnegative_int, default=3,
+    parser.add_argument("--steps", type=positive_int, default=60, help="Adam steps per window (default 60)")
+    parser.add_argument("--folds", type=nonnegative_int, default=3,
                         help="k-fold block validation (default 3; 0 or 1: no validation)")
     parser.add_argument("--block", type=positive_float, default=50.0, metavar="M",
                         help="side of the validation blocks [m] (default 50)")

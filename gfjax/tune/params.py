@@ -4,7 +4,7 @@ Optax works on unconstrained reals `raw`; a parameter with bounds `[lo, hi]` is
 `lo + (hi - lo) * sigmoid(raw)` (SPEC section 7), so no step can leave its bounds. The prior
 toward the defaults is measured on the bounded scale, `((value - default) / (hi - lo))^2`.
 
-`params.json` (read by `gfjax filter --params`, `gfjax.cli._common.load_params_file`):
+`params.json` (read by `gfjax.io.params_file.read_params`, so by `gfjax filter --params`):
 ```json
 {"method": "smrf", "gfjax_version": "0.1.0",
  "units": {"slope": "1 (rise over run)", "threshold_m": "m", ...},
@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -28,7 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from gfjax.errors import InputError
+from gfjax.io.atomic import atomic_output
+from gfjax.io.params_file import read_params
 
 __all__ = ["Bound", "to_raw", "from_raw", "prior_penalty", "write_params", "read_params"]
 
@@ -109,15 +109,8 @@ def write_params(path: str | os.PathLike, *, method: str, values: Mapping[str, f
         data[key] = value
     path = Path(path)
     text = json.dumps(data, indent=2, sort_keys=False, default=_jsonable) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent if str(path.parent) else ".")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_output(path, force=True, suffixes=(".json",)) as tmp:
+        tmp.write_text(text)
     return path
 
 
@@ -127,22 +120,3 @@ def _jsonable(value):
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
-def read_params(path: str | os.PathLike) -> dict[str, Any]:
-    """Read a params.json; raises `InputError` naming the file for a bad one.
-
-    Returns:
-      The JSON object; `values` maps keys to floats.
-    """
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise InputError(f"{path}: not a readable JSON file ({err})") from None
-    if not isinstance(data, dict) or not isinstance(data.get("values"), dict) or not isinstance(data.get("method"), str):
-        raise InputError(f"{path}: expected a JSON object with 'method' and 'values'")
-    for key, value in data["values"].items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise InputError(f"{path}: value of {key!r} must be a finite number, got {value!r}")
-    return data
