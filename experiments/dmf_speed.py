@@ -24,8 +24,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import gfjax  # noqa: E402
-from experiments import harness  # noqa: E402
 from gfjax import dmf  # noqa: E402
+from gfjax.bench import harness  # noqa: E402
+from gfjax.bench.peers import PEERS  # noqa: E402
+from gfjax.bench.run import machine  # noqa: E402
 
 REPEAT = 3
 DATA = (ROOT / ".." / "shared" / "data" / "lasR_bcts" / "bcts_2.laz").resolve()
@@ -38,25 +40,34 @@ def _cli(path: Path, out: Path) -> float:
     return time.perf_counter() - start
 
 
+def _environment() -> dict:
+    """What the figures were measured on (`gfjax.bench.run.machine`), under this script's keys."""
+    facts = machine()
+    return {**facts, "cpus": facts["nproc"], "device": facts["jax_device"],
+            "load_avg_1min": facts["loadavg_1_5_15"][0]}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--out", type=Path, default=ROOT / "experiments" / "results" / "dmf_speed.md")
     parser.add_argument("--no-cli", action="store_true", help="skip the whole-process `gfjax filter` timing")
     args = parser.parse_args(argv)
-    env_start = harness.environment()
-    read_s, cloud = harness.timed(lambda: gfjax.read(args.data))
+    env_start = _environment()
+    read_timing, cloud = harness.time_call(lambda: gfjax.read(args.data), repeat=1, warmup=0)
+    read_s = read_timing.min_s
     n = cloud.n_points
-    first_s, _ = harness.timed(lambda: dmf.filter(cloud))
+    first_timing, _ = harness.time_call(lambda: dmf.filter(cloud), repeat=1, warmup=0)
+    first_s = first_timing.min_s
     warm_s, result, stages = float("inf"), None, {}
     for _ in range(REPEAT):                          # best of REPEAT warm calls (shared machine)
-        seconds, out = harness.timed(lambda: dmf.filter(cloud))
-        if seconds < warm_s:
-            warm_s, result, stages = seconds, out, dict(out.diagnostics.stage_seconds)
-    rss_mb = harness.peak_rss_mb()
+        timing, out = harness.time_call(lambda: dmf.filter(cloud), repeat=1, warmup=0)
+        if timing.min_s < warm_s:
+            warm_s, result, stages = timing.min_s, out, dict(out.diagnostics.stage_seconds)
+    rss_mb = harness.mib(harness.peak_rss_bytes())
     xyz = cloud.xyz_m
-    pysmrf_s = min(harness.run_pysmrf(xyz, windows=18)[0] for _ in range(REPEAT))
-    csf_s = min(harness.run_csf(xyz)[0] for _ in range(REPEAT))
+    pysmrf_s = harness.time_call(lambda: PEERS["pysmrf"].run(xyz), repeat=REPEAT, warmup=0)[0].min_s
+    csf_s = harness.time_call(lambda: PEERS["cloth-simulation-filter"].run(xyz), repeat=REPEAT, warmup=0)[0].min_s
     cli = {}
     if not args.no_cli:
         with tempfile.TemporaryDirectory() as tmp:
@@ -71,7 +82,7 @@ def main(argv=None) -> int:
         "speedup_vs_pysmrf": pysmrf_s / warm_s, "speedup_vs_csf": csf_s / warm_s,
         "gfjax_filter_process": cli, "cell_m": result.diagnostics.cell_m,
         "basal_iterations": result.diagnostics.basal_iterations, "config": str(dmf.Config()),
-        "environment_start": env_start, "load_avg_1min_end": harness.environment()["load_avg_1min"],
+        "environment_start": env_start, "load_avg_1min_end": _environment()["load_avg_1min"],
     }
     if cli:
         figures["process_over_pysmrf"] = cli["warm_cache_s"] / pysmrf_s
