@@ -19,19 +19,9 @@ import json
 import sys
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
 def add_parser(subparsers) -> argparse.ArgumentParser:
     from gfjax.bench.peers import PEERS
-    from gfjax.cli._common import add_units_option, positive_float
+    from gfjax.cli._common import add_units_option, positive_float, positive_int
     from gfjax.methods import METHODS
 
     parser = subparsers.add_parser("bench", help="compare the speed and accuracy of methods and peers",
@@ -43,12 +33,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--peers", default=None, metavar="NAME,...",
                         help=f"peer packages, comma-separated ({', '.join(PEERS)}), or none "
                              "(default: every installed peer)")
-    parser.add_argument("--repeat", type=_positive_int, default=1, metavar="N",
+    parser.add_argument("--repeat", type=positive_int, default=1, metavar="N",
                         help="timed whole jobs per (file, filter) after the warm-up (default 1)")
     parser.add_argument("--json", default=None, metavar="OUT.json", help="write every figure as JSON")
     parser.add_argument("--plot", default=None, metavar="PNG",
                         help="draw total error against points per second (labelled files)")
-    parser.add_argument("--threads", type=_positive_int, default=None, metavar="N",
+    parser.add_argument("--threads", type=positive_int, default=None, metavar="N",
                         help="run every filter on the same N CPUs (affinity and OMP_NUM_THREADS; "
                              "default: all CPUs, environment as is)")
     parser.add_argument("--compile-cache", default=None, metavar="DIR",

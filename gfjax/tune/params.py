@@ -4,14 +4,8 @@ Optax works on unconstrained reals `raw`; a parameter with bounds `[lo, hi]` is
 `lo + (hi - lo) * sigmoid(raw)` (SPEC section 7), so no step can leave its bounds. The prior
 toward the defaults is measured on the bounded scale, `((value - default) / (hi - lo))^2`.
 
-`params.json` (read by `gfjax.io.params_file.read_params`, so by `gfjax filter --params`):
-```json
-{"method": "smrf", "gfjax_version": "0.1.0",
- "units": {"slope": "1 (rise over run)", "threshold_m": "m", ...},
- "values": {"slope": 0.17, "threshold_m": 0.45, "scalar": 1.3, "window_m": 18.0},
- "fitted": ["slope", ...], "validation": {...}}
-```
-`values` holds only keys of the method's `Config`/`Params`; the rest is a report.
+`write_params` writes the `params.json` whose layout `gfjax.io.params_file` documents and
+reads (so `gfjax filter --params` applies it).
 """
 from __future__ import annotations
 
