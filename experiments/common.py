@@ -26,7 +26,7 @@ from gfjax.io.cloud import Cloud
 from gfjax.metrics import point_metrics
 
 __all__ = ["ROOT", "DATA", "ISPRS_REFERENCE", "RESULTS", "KEYS", "isprs_samples", "files_parser",
-           "first_and_again", "score", "write_json"]
+           "first_and_again", "score", "write_json", "write_markdown"]
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("GFJAX_SHARED_DATA", ROOT.parent / "shared" / "data"))
@@ -56,6 +56,13 @@ def write_json(path: Path, environment: dict, summary: dict, rows: list[dict]) -
     """Write `{"environment", "summary", "files"}` as indented JSON to `path` (folders made)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps({"environment": environment, "summary": summary, "files": rows}, indent=1))
+
+
+def write_markdown(path: Path, lines: list[str]) -> None:
+    """Write a results report (one line per item) to `path` (folders made) and say so."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    print(f"wrote {path}")
 
 
 def first_and_again(fn: Callable[[], T]) -> tuple[float, float, T, T]:

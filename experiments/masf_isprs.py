@@ -24,11 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
-import gfjax
-from gfjax import masf, methods, metrics
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-ROOT = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("GFJAX_SHARED_DATA", ROOT / ".." / "shared" / "data")).resolve()
+import gfjax  # noqa: E402
+from experiments.common import DATA, ISPRS_REFERENCE, ROOT, write_markdown  # noqa: E402
+from experiments.common import score as score_points  # noqa: E402
+from gfjax import masf, methods  # noqa: E402
 SAMPLES = ["samp12", "samp21", "samp22", "samp24", "samp31", "samp41", "samp42", "samp51", "samp52",
            "samp54", "samp71"]
 
@@ -74,14 +75,14 @@ ALTERNATIVE = {"layer_passes": 3}     # the reading compared in leave-one-out (s
 
 
 def score(sample: str, preset: str | None, changes: dict | None = None) -> dict:
-    cloud = gfjax.read(DATA / "isprs_filtertest" / "reference" / f"{sample}-utm.laz")
+    cloud = gfjax.read(ISPRS_REFERENCE / f"{sample}-utm.laz")
     config, params = methods.make_config_and_params(masf, preset=preset)
     if changes:
         config = dataclasses.replace(config, **changes)
     start = time.perf_counter()
     result = masf.filter(cloud, config=config, params=params)
     seconds = time.perf_counter() - start
-    m = metrics.point_metrics(result.ground, cloud.classification == 2)
+    m = score_points(result.ground, cloud)
     return {"te": 100 * m["total_error"], "t1": 100 * m["type1"], "t2": 100 * m["type2"],
             "kappa": 100 * m["kappa"], "seconds": seconds}
 
@@ -202,9 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         lines += accuracy_section() + [""]
     if not args.skip_speed:
         lines += speed_section(args.repeat) + [""]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text("\n".join(lines) + "\n")
-    print(f"wrote {args.out}")
+    write_markdown(args.out, lines)
     return 0
 
 

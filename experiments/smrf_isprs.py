@@ -26,7 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import gfjax  # noqa: E402
-from experiments.common import ISPRS_REFERENCE, KEYS, ROOT, first_and_again, isprs_samples, score  # noqa: E402
+from experiments.common import ISPRS_REFERENCE, KEYS, ROOT, first_and_again, isprs_samples, score, write_markdown  # noqa: E402
 from gfjax import smrf  # noqa: E402
 
 
@@ -116,9 +116,7 @@ def main(argv=None) -> int:
     ]
     for name, _, _, _, t_first, t_again, t_peer in rows:
         lines.append(f"| {name} | {t_first:.1f} | {t_again:.2f} | {t_peer:.2f} |")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text("\n".join(lines) + "\n")
-    print(f"wrote {args.out}")
+    write_markdown(args.out, lines)
     return 0
 
 
