@@ -18,12 +18,13 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-__all__ = ["Config", "Params", "PRESETS", "BASAL_STOPS", "FINAL_RULES", "HOLE_TESTS", "SUPPORT_Z"]
+__all__ = ["Config", "Params", "PRESETS", "BASAL_STOPS", "FINAL_RULES", "HOLE_TESTS", "SUPPORT_Z", "SUPPORT_ELEVATIONS"]
 
 BASAL_STOPS = ("global", "per_node")
-FINAL_RULES = ("m_nearest", "height")
+FINAL_RULES = ("m_nearest", "height", "both")
 HOLE_TESTS = ("patch", "hole")
 SUPPORT_Z = ("ndng", "ndce")
+SUPPORT_ELEVATIONS = ("centroid", "lowest")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,9 +61,17 @@ class Config:
         nearest TP_G nodes (Sec. 2.6: 24).
       support_z: (R) elevation of TP_G nodes: "ndng" from the column's ND_CE only when it is
         in ND_NG, else interpolated (the paper); "ndce": from every ground column's ND_CE.
+      support_elevation: (R) what elevation a TP_G node "determined by the node sharing the
+        same (x, y) index in the ND_NG" (Sec. 2.6) takes: "centroid" (default): that ND_CE's
+        z, the centroid of the column's lowest voxel (the paper); "lowest": the lowest point
+        of that voxel, the lower envelope of the column (the centroid sits up to W/2 above
+        it where understory fills the voxel). Interpolated nodes average whichever it is.
       final_rule: (R) "m_nearest": the paper's bidirectional KD-tree rule (Sec. 2.6; SPEC);
         "height" (default, LOO): a point is ground when it is at most
-        `Params.height_threshold_m` above the (not lowered) support surface.
+        `Params.threshold_m(W)` above the (not lowered) support surface; "both": ground
+        only when both rules say so (the M-nearest points of Sec. 2.6, cut at the height
+        threshold: the paper's Sec. 5.2 names understory taken by the M-nearest search as
+        its main error on vegetated slopes).
       raster_tile_m, raster_buffer_m: the NGNEM is cut into tiles of this core size and buffer
         for the batched (vmap) raster stages [m].
     """
@@ -85,6 +94,7 @@ class Config:
     border_patches: bool = True
     fill_neighbours: int = 24
     support_z: str = "ndng"
+    support_elevation: str = "centroid"
     final_rule: str = "height"
     raster_tile_m: float = 500.0
     raster_buffer_m: float = 50.0
@@ -106,6 +116,8 @@ class Config:
             raise ValueError(f"hole_test must be one of {HOLE_TESTS}, got {self.hole_test!r}")
         if self.support_z not in SUPPORT_Z:
             raise ValueError(f"support_z must be one of {SUPPORT_Z}, got {self.support_z!r}")
+        if self.support_elevation not in SUPPORT_ELEVATIONS:
+            raise ValueError(f"support_elevation must be one of {SUPPORT_ELEVATIONS}, got {self.support_elevation!r}")
         if self.final_rule not in FINAL_RULES:
             raise ValueError(f"final_rule must be one of {FINAL_RULES}, got {self.final_rule!r}")
         if self.basal_sink_cap_w is not None and not self.basal_sink_cap_w >= 0:
@@ -133,16 +145,34 @@ def _positive(config: Config, *names: str) -> None:
             raise ValueError(f"{name} must be > 0, got {value}")
 
 
+def _f32(value) -> Array:
+    return jnp.asarray(value, jnp.float32)
+
+
 class Params(eqx.Module):
     """Traced DMF thresholds (optax may tune them; none changes a shape).
 
+    The height rule's threshold is affine in the voxel size W (`threshold_m`):
+    `height_threshold_m + height_threshold_w * W`. The paper sets every length from W (Eq. 1;
+    the R_HC step of Eq. 2 and the lowering `v1 W` of Sec. 2.6; Sec. 5.2: "We set W as the
+    elevation-difference threshold"), and the support surface (a voxel centroid) sits higher
+    above the lowest ground the larger W is, so a threshold in multiples of W (R) carries
+    from the sparse ISPRS samples (W = 2-5 m) to dense forest tiles (W = 1 m), where a fixed
+    0.5 m took understory as ground (`experiments/results/dmf_readings.md`).
+
     Attributes:
-      height_threshold_m: with `final_rule="height"`, the largest height of a ground point
-        above the support surface [m]. Unused by the paper's rule.
+      height_threshold_m: the fixed part of the threshold [m].
+      height_threshold_w: the part in multiples of W [-].
+    Both are unused by the paper's rule (`final_rule="m_nearest"`).
     """
 
-    height_threshold_m: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(0.5, jnp.float32),
-                                                     converter=lambda v: jnp.asarray(v, jnp.float32))
+    height_threshold_m: Float[Array, ""] = eqx.field(default_factory=lambda: _f32(0.5), converter=_f32)
+    height_threshold_w: Float[Array, ""] = eqx.field(default_factory=lambda: _f32(0.0), converter=_f32)
+
+    def threshold_m(self, cell_m: float) -> Float[Array, ""]:
+        """The largest height of a ground point above the support surface for voxel size
+        `cell_m` = W [m]: `height_threshold_m + height_threshold_w * W`, float32 [m]."""
+        return self.height_threshold_m + self.height_threshold_w * _f32(cell_m)
 
 
 PRESETS: dict[str, dict] = {

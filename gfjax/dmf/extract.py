@@ -3,15 +3,19 @@
 Support nodes sit at the centres of the NGNEM cells that hold an ND_CE: TP_G on ground cells,
 TPN on object cells (NGNEM_RC). A TP_G whose column's ND_CE is in ND_NG takes that node's
 elevation; every other node takes the mean of its `fill_neighbours` (24) nearest such TP_G
-(2D). All nodes are lowered by `v1 * W`. Host part: the KD-tree queries (scipy). The per-point
+(2D). All nodes are lowered by `v1 * W`. A node's own elevation is its ND_CE's (the centroid of
+the column's lowest voxel, the paper) or, as a reading (R), the column's lowest point
+(`column_lowest_z`). Host part: the KD-tree queries (scipy). The per-point
 bookkeeping is jitted JAX.
 
 Final rules (`Config.final_rule`, R):
 * "m_nearest" (the paper's bidirectional KD-tree engine): each point finds its 3D-nearest
   support node; M = ceil(mean points per node that is someone's nearest); each TP_G takes its M
   nearest points; a point is ground when it is among those and its own nearest node is a TP_G.
-* "height": a point is ground when it lies at most `height_threshold_m` above the support
-  surface (nodes not lowered; bilinear between cell centres, empty cells from the nearest node).
+* "height": a point is ground when it lies at most a threshold (`Params.threshold_m(W)`) above
+  the support surface (nodes not lowered; bilinear between cell centres, empty cells from the
+  nearest node).
+* "both": ground when both rules say so.
 """
 from __future__ import annotations
 
@@ -25,10 +29,11 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 from scipy.spatial import cKDTree
 
+from gfjax.dmf.config import Config, Params
 from gfjax.dmf.voxels import Voxels
 from gfjax.raster import inpaint_nearest, sample_bilinear
 
-__all__ = ["SupportNodes", "support_nodes", "m_nearest_ground", "height_ground", "mark_ground"]
+__all__ = ["extract_ground", "SupportNodes", "support_nodes", "column_lowest_z", "m_nearest_ground", "height_ground", "mark_ground"]
 
 
 class SupportNodes(NamedTuple):
@@ -49,8 +54,21 @@ class SupportNodes(NamedTuple):
     from_ndng: np.ndarray
 
 
+def column_lowest_z(points: np.ndarray, vox: Voxels) -> np.ndarray:
+    """The lowest point of each ND_CE's column (so of its lowest voxel), float64 `(m,)` [m].
+
+    Args:
+      points: the local coordinates `vox` was binned from, float64 `(n, 3)` metres.
+      vox: voxel columns (`bin_voxels(points, W)`).
+    """
+    h, w = vox.shape
+    lowest = np.full(h * w, np.inf)
+    np.minimum.at(lowest, vox.point_cell, points[:, 2])
+    return lowest[vox.cell]
+
+
 def support_nodes(vox: Voxels, object_cell: np.ndarray, in_ndng: np.ndarray, *, v1: float,
-                  fill_neighbours: int, support_z: str = "ndng") -> SupportNodes:
+                  fill_neighbours: int, support_z: str = "ndng", own_z: np.ndarray | None = None) -> SupportNodes:
     """Build the GF-support node layer (Sec. 2.6, first two paragraphs).
 
     Args:
@@ -60,6 +78,8 @@ def support_nodes(vox: Voxels, object_cell: np.ndarray, in_ndng: np.ndarray, *, 
       v1: lowering factor (paper: 2); fill_neighbours: 24 in the paper.
       support_z: (R) "ndng": a TP_G keeps its own elevation only when its column's ND_CE is
         in ND_NG (the paper); "ndce": every TP_G keeps its column's ND_CE elevation.
+      own_z: the elevation a node takes from its own column, float64 `(m,)` [m] (default: the
+        ND_CE centroid's z, the paper; `column_lowest_z` for `support_elevation="lowest"`).
 
     Returns: `SupportNodes`.
     """
@@ -70,7 +90,7 @@ def support_nodes(vox: Voxels, object_cell: np.ndarray, in_ndng: np.ndarray, *, 
     y = (h - 1 - row + 0.5) * cell_m
     ground = ~object_cell[vox.cell]
     known = ground & in_ndng if support_z == "ndng" else ground
-    z = vox.centroid[:, 2].copy()
+    z = np.array(vox.centroid[:, 2] if own_z is None else own_z, dtype=np.float64)
     if known.any() and not known.all():
         xy = np.stack([x, y], axis=1)
         k = min(fill_neighbours, int(known.sum()))
@@ -141,3 +161,27 @@ def height_ground(points: np.ndarray, nodes: SupportNodes, vox: Voxels, threshol
     out = _height_rule(jnp.asarray(surface.reshape(h, w)), jnp.asarray(valid.reshape(h, w)),
                        jnp.asarray(points, jnp.float32), jnp.asarray(threshold_m, jnp.float32), cell_m=float(vox.cell_m))
     return np.asarray(out)
+
+
+def extract_ground(points: np.ndarray, vox: Voxels, object_cell: np.ndarray, in_ndng: np.ndarray, config: Config,
+                   params: Params, *, points_tree: cKDTree | None = None) -> tuple[SupportNodes, np.ndarray, int]:
+    """Step 7 (Sec. 2.6) as `config` reads it: support nodes, then the final rule.
+
+    Args:
+      points: the local coordinates `vox` was binned from, float64 `(n, 3)` metres.
+      vox, object_cell, in_ndng: as for `support_nodes`.
+      config: `v1`, `fill_neighbours`, `support_z`, `support_elevation`, `final_rule`.
+      params: the height rule's threshold (`Params.threshold_m(W)`).
+      points_tree: a `cKDTree` of `points`, reused if given.
+
+    Returns: `(nodes, ground bool (n,), M)`; M = 0 when the M-nearest rule is not used.
+    """
+    own_z = column_lowest_z(points, vox) if config.support_elevation == "lowest" else None
+    nodes = support_nodes(vox, object_cell, in_ndng, v1=config.v1, fill_neighbours=config.fill_neighbours,
+                          support_z=config.support_z, own_z=own_z)
+    ground, m_points = np.ones(len(points), bool), 0
+    if config.final_rule in ("m_nearest", "both"):
+        ground, m_points = m_nearest_ground(points, nodes, points_tree=points_tree)
+    if config.final_rule in ("height", "both"):
+        ground = ground & height_ground(points, nodes, vox, params.threshold_m(vox.cell_m))
+    return nodes, ground, m_points

@@ -243,12 +243,7 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
 
     # Step 7: support nodes and the final rule.
     object_cell = np.asarray(rs.ngnem_rc).reshape(-1)
-    nodes = extract.support_nodes(vox, object_cell, in_ndng, v1=config.v1, fill_neighbours=config.fill_neighbours,
-                                  support_z=config.support_z)
-    if config.final_rule == "m_nearest":
-        ground, m_points = extract.m_nearest_ground(local, nodes, points_tree=tree)
-    else:
-        ground, m_points = extract.height_ground(local, nodes, vox, params.height_threshold_m), 0
+    nodes, ground, m_points = extract.extract_ground(local, vox, object_cell, in_ndng, config, params, points_tree=tree)
     instance = np.asarray(rs.instances).reshape(-1)[vox.point_cell].astype(np.uint32)
     instance[ground] = 0
     lap("extract")

@@ -42,3 +42,26 @@ def ramp_scene(seed: int = 0, slope: float = 0.3) -> tuple[Cloud, np.ndarray]:
     z = 50.0 + slope * xy[:, 0] + rng.normal(0, 0.02, len(xy))
     xyz = np.column_stack([xy + 300_000.0, z])
     return Cloud.from_xyz(xyz, classification=np.full(len(xy), 2)), np.ones(len(xy), bool)
+
+
+SHRUB_PATCH = (8.0, 40.0, 8.0, 40.0)   # understory footprint x0, x1, y0, y1 [m]
+SHRUB_HEIGHT_M = 0.45
+
+
+def shrub_scene(seed: int = 0) -> tuple[Cloud, np.ndarray]:
+    """Flat ground (z ~ 100 m, 2 cm noise) under a patch of low understory: inside
+    `SHRUB_PATCH` half of the 1 m cells (a checkerboard) hold one point `SHRUB_HEIGHT_M` above
+    the ground among their four. Same x, y as `box_scene`.
+
+    Returns: `(cloud, shrub)`: the cloud and the understory flag per point (all else ground).
+    """
+    rng = np.random.default_rng(seed + 3)
+    xy = _grid(seed)
+    x0, x1, y0, y1 = SHRUB_PATCH
+    inside = (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
+    n_side = round(SIZE_M / SPACING_M)
+    row, col = np.divmod(np.arange(len(xy)), n_side)               # grid indices (y, x)
+    shrub = inside & (row % 2 == 0) & (col % 2 == 0) & ((row // 2 + col // 2) % 2 == 0)
+    z = 100.0 + rng.normal(0, 0.02, len(xy)) + np.where(shrub, SHRUB_HEIGHT_M, 0.0)
+    xyz = np.column_stack([xy + 700_000.0, z])
+    return Cloud.from_xyz(xyz, classification=np.where(shrub, 1, 2)), shrub

@@ -75,7 +75,8 @@ def test_basal_layer_keeps_flat_ground(ramp):
 
 def test_height_rule_on_the_box(box):
     cloud, ground, roof, _ = box
-    result = dmf.filter(cloud, config=dmf.Config(final_rule="height"), params=dmf.Params(height_threshold_m=0.5))
+    result = dmf.filter(cloud, config=dmf.Config(final_rule="height"),
+                         params=dmf.Params(height_threshold_m=0.5, height_threshold_w=0.0))
     assert not result.ground[roof].any()
     assert result.ground[ground].mean() > 0.97
 
