@@ -88,11 +88,12 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as err:
             raise InputError(f"--tile-size/--buffer: {err}") from None
 
-    from tqdm.auto import tqdm
+    jobs, say = list(zip(inputs, targets, dtm_targets)), print
+    if len(inputs) > 1:                     # a progress bar over files (tqdm: 40 ms to import)
+        from tqdm.auto import tqdm
 
-    several = len(inputs) > 1
-    for source, target, dtm_target in tqdm(list(zip(inputs, targets, dtm_targets)), desc="files",
-                                           unit="file", disable=not several):
+        jobs, say = tqdm(jobs, desc="files", unit="file"), tqdm.write
+    for source, target, dtm_target in jobs:
         start = time.perf_counter()
         cloud = las_io.read(source, units=args.units)
         result = setup.module.filter(cloud, config=setup.config, params=setup.params,
@@ -113,5 +114,5 @@ def run(args: argparse.Namespace) -> int:
         message = (f"{source} -> {target}: {setup.name}, {n_ground:,} ground of {cloud.n_points:,} points "
                    f"({100.0 * n_ground / cloud.n_points:.1f} %), {seconds:.1f} s "
                    f"({cloud.n_points / max(seconds, 1e-9):,.0f} points/s)")
-        (tqdm.write if several else print)(message)
+        say(message)
     return 0
