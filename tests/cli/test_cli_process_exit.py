@@ -1,0 +1,56 @@
+"""The `gfjax` program ends without interpreter teardown (`cli.main._end_process`): outputs
+are complete, the standard streams flushed, the exit code kept."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from cli_helpers import SCENE_CLASSES, write_scene
+
+REPO = Path(__file__).resolve().parents[2]
+
+# `gfjax filter` as the program (`main()` without argv), with the fake method of the in-process
+# tests registered first (no JAX compile in a subprocess test).
+_PROGRAM = """
+import sys, types
+import cli_helpers
+from gfjax import methods
+module = cli_helpers._fake_module("fake", instances=False)
+sys.modules["_gfjax_test_fake"] = module
+methods.METHODS["fake"] = "_gfjax_test_fake"
+from gfjax.cli import main as cli_main
+cli_main.enable_compilation_cache = lambda: None
+sys.argv = ["gfjax", *sys.argv[1:]]
+print("x" * 100_000, end="")                     # a large buffered write must still come out
+cli_main.main()
+raise SystemExit("main() returned")
+"""
+
+
+def _program(*argv) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", _PROGRAM, *map(str, argv)], capture_output=True, text=True,
+                          cwd=REPO, env={**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "tests" / "cli"), str(REPO)])}, timeout=120)
+
+
+def test_program_writes_its_output_and_flushes_before_exiting(tmp_path):
+    source = write_scene(tmp_path / "in.las")
+    target = tmp_path / "out.laz"
+    done = _program("filter", source, "-o", target, "--method", "fake")
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("x" * 100_000) and f"-> {target}: fake," in done.stdout
+    assert "main() returned" not in done.stderr
+    out = laspy.read(target)
+    assert len(out.points) == len(SCENE_CLASSES)
+    np.testing.assert_array_equal(out.intensity, laspy.read(source).intensity)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.las", "out.laz"]     # no temporary left
+
+
+def test_program_keeps_the_error_exit_code_and_message(tmp_path):
+    done = _program("filter", tmp_path / "nope.las", "-o", tmp_path / "out.las", "--method", "fake")
+    assert done.returncode == 2
+    assert done.stderr.endswith(f"gfjax: error: {tmp_path / 'nope.las'}: no such file or folder\n")
