@@ -2,13 +2,17 @@
 
 (a) defaults; (b) tuned per sample on its own labels (no prior, no validation: the papers'
 protocol); (c) half split: tuned on the west half (x < median x) of each sample, scored on the
-east half, and the reverse, with `gfjax tune`'s guard (prior + k-fold block validation);
-(d) leave-one-out across samples: one parameter set tuned on 10 samples (prior), scored on
-the 11th; (e) gradient tuning vs a grid search of 5 values per parameter over the same bounds
+east half, and the reverse, with `gfjax tune`'s guard (`gfjax.tune.guard.validate`: prior,
+k-fold by 50 m block of the training half, shrink level and sign-flip test against the
+defaults); (d) leave-one-out across samples: one parameter set tuned on 10 samples with the
+same guard, validated k-fold by sample over the 10, scored on the 11th; (e) gradient tuning vs a grid search of 5 values per parameter over the same bounds
 and window grid, both scored on the hard total error, cost in forward-pass equivalents and
 wall time.
 
     nice .venv/bin/python experiments/tune_isprs.py [--steps N] [--skip-loo]
+
+The prepared problem (openings to 24 m of all 11 samples) is cached under --cache
+(default /tmp/gfjax_tune_isprs), keyed by the data and the gfjax sources it depends on.
 
 Writes experiments/results/tune_isprs_<phases>.json after every phase, and tune_isprs.md from
 all such files (so (b)/(e) and (c)/(d) may run as two processes).
@@ -17,8 +21,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import itertools
 import json
+import pickle
 import platform
 import sys
 import time
@@ -31,6 +37,7 @@ import numpy as np
 import gfjax
 from gfjax.smrf import Config
 from gfjax.tune import fit as tfit
+from gfjax.tune import guard
 from gfjax.tune import smrf as tsmrf
 from gfjax.tune.problem import Problem, Sample
 
@@ -44,6 +51,34 @@ def pct(x):
     return f"{100 * x:.2f}"
 
 
+def prepared(names: list[str], cache: Path) -> tuple[Problem, float]:
+    """The prepared `Problem` of the named samples, from a pickle under `cache` when one exists
+    for the same files and gfjax sources (the openings to 24 m dominate the run otherwise);
+    returns it and the seconds spent preparing it (read from the cache when loaded)."""
+    files = [DATA / f"{n}-utm.laz" for n in names]
+    key = hashlib.sha256()
+    for f in files:
+        key.update(f.read_bytes())
+    for src in sorted((Path(gfjax.__file__).parent).glob("**/*.py")):
+        if src.parent.name in ("smrf", "raster", "io") or src.name in ("smrf.py", "relax.py"):
+            key.update(src.read_bytes())
+    path = cache / f"problem_{key.hexdigest()[:16]}.pkl"
+    if path.exists():
+        with path.open("rb") as fh:
+            problem, seconds = pickle.load(fh)
+        return problem, seconds
+    t = time.perf_counter()
+    samples = [Sample.from_cloud(gfjax.read(f)) for f in files]
+    problem = Problem(samples, config=Config(), max_window_m=max(tsmrf.GRID["window_m"]))
+    seconds = time.perf_counter() - t
+    cache.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    with tmp.open("wb") as fh:
+        pickle.dump((problem, seconds), fh)
+    tmp.replace(path)
+    return problem, seconds
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--steps", type=int, default=40)
@@ -54,6 +89,10 @@ def main(argv=None) -> int:
     ap.add_argument("--phases", default="abecd", help="which of a, b, e, c, d to run")
     ap.add_argument("--loo-windows", default="12,18,24", help="window grid of (d)")
     ap.add_argument("--cd-steps", type=int, default=None, help="steps of (c) and (d) (default --steps)")
+    ap.add_argument("--loo-folds", type=int, default=None, help="folds (by sample) of (d)'s guard (default --folds)")
+    ap.add_argument("--d-unguarded", action="store_true",
+                    help="(d): also fit without the guard where the guard keeps the defaults (one more fit each)")
+    ap.add_argument("--cache", default="/tmp/gfjax_tune_isprs", help="folder of the prepared-problem cache")
     args = ap.parse_args(argv)
     jax.config.update("jax_compilation_cache_dir", "/tmp/gfjax_tune_cache")
     res: dict = {"command": "nice .venv/bin/python experiments/tune_isprs.py " + " ".join(sys.argv[1:]),
@@ -61,10 +100,9 @@ def main(argv=None) -> int:
                  "jax": jax.__version__, "samples": list(args.samples)}
     out = Path(args.out)
     t0 = time.perf_counter()
-    samples = [Sample.from_cloud(gfjax.read(DATA / f"{n}-utm.laz")) for n in args.samples]
+    problem, res["prepare_s"] = prepared(args.samples, Path(args.cache))
+    samples = problem.samples
     c = len(samples)
-    problem = Problem(samples, config=Config(), max_window_m=max(tsmrf.GRID["window_m"]))
-    res["prepare_s"] = time.perf_counter() - t0
     per = np.arange(c, dtype=np.int32)
     defaults = np.tile(tfit.DEFAULTS, (c, 1))
     all_masks = problem.masks()
@@ -150,37 +188,54 @@ def main(argv=None) -> int:
 
 def cd(args, res, problem, samples, per, defaults, all_masks, save, t0) -> int:
     c = len(samples)
-    # (c) half split with the tool's guard: prior + k-fold block validation, per sample.
+    # (c) half split with the tool's guard (`gfjax.tune.guard.validate`): per sample, k-fold
+    # by 50 m block of the training half, sign-flip test against the defaults.
     settings = tfit.Settings(steps=args.cd_steps or args.steps)
     res["cd_settings"] = {"steps": settings.steps, "prior": settings.prior, "folds": args.folds,
-                          "block_m": 50.0, "loo_windows": args.loo_windows}
-    res["c"] = {}
+                          "block_m": 50.0, "alpha": 0.05, "shrink": list(guard.SHRINK),
+                          "loo_windows": args.loo_windows, "loo_folds": args.loo_folds or args.folds}
+    if "c" in args.phases:
+        res["c"] = {}
     for train_side in (("west", "east") if "c" in args.phases else ()):
         halves = []
         for s in samples:
             west = s.xyz_m[:, 0] < np.median(s.xyz_m[s.use, 0])
             halves.append(west if train_side == "west" else ~west)
         test_masks = problem.masks([~h for h in halves])
-        v = tfit.validate(problem, settings, point_masks=halves, group=per, folds=args.folds, block_m=50.0)
+        v = guard.validate(problem, settings, point_masks=halves, group=per, folds=args.folds, block_m=50.0)
+        unguarded = v.fit if v.fit is not None else tfit.fit(problem, settings, masks=problem.masks(halves), group=per)
         res["c"][train_side] = {
             "defaults": tfit.hard_errors(problem, defaults, test_masks, per, 18.0).tolist(),
             "guarded": tfit.hard_errors_at(problem, v.values, v.window_m, test_masks, per).tolist(),
-            "unguarded": tfit.hard_errors_at(problem, v.fit.values, v.fit.window_m, test_masks, per).tolist(),
-            "kept": v.kept, "values": v.values, "window_m": v.window_m,
+            "unguarded": tfit.hard_errors_at(problem, unguarded.values, unguarded.window_m, test_masks, per).tolist(),
+            "kept": v.kept, "values": v.values, "window_m": v.window_m, "shrink": v.shrink,
+            "p_value": v.p_value, "units": v.units,
             "val_default": v.default_error, "val_tuned": v.tuned_error}
         save()
 
-    # (d) leave one sample out: one shared set tuned on 10 samples (prior), scored on the 11th.
+    # (d) leave one sample out: one shared set tuned on 10 samples with the guard (k-fold by
+    # sample over the 10), scored on the 11th.
     if "d" in args.phases and not args.skip_loo:
         loo = dataclasses.replace(settings, windows_m=tuple(float(w) for w in args.loo_windows.split(",")))
-        res["d"] = {"defaults": res["a_defaults"], "tuned": [], "values": [], "window_m": []}
+        res["d"] = {"defaults": res["a_defaults"], "tuned": [], "unguarded": [], "values": [], "window_m": [],
+                    "kept": [], "p_value": [], "val_default": [], "val_tuned": []}
         for i in range(c):
             weight = np.where(per == i, 0.0, 1.0 / (c - 1))
-            f = tfit.fit(problem, loo, group=np.zeros(c, np.int32), weight=weight)
-            err = tfit.hard_errors_at(problem, np.tile(f.values, (c, 1)), np.repeat(f.window_m, c), all_masks, per)
-            res["d"]["tuned"].append(float(err[i]))
-            res["d"]["values"].append(f.values[0])
-            res["d"]["window_m"].append(float(f.window_m[0]))
+            shared = np.zeros(c, np.int32)
+            v = guard.validate(problem, loo, group=shared, weight=weight, folds=args.loo_folds or args.folds)
+            runs = [("tuned", v.values, v.window_m)]
+            if v.fit is not None or args.d_unguarded:
+                f = v.fit if v.fit is not None else tfit.fit(problem, loo, group=shared, weight=weight)
+                runs.append(("unguarded", f.values, f.window_m))
+            for key, vals, win in runs:
+                err = tfit.hard_errors_at(problem, np.tile(vals, (c, 1)), np.repeat(win, c), all_masks, per)
+                res["d"][key].append(float(err[i]))
+            res["d"]["values"].append(v.values[0])
+            res["d"]["window_m"].append(float(v.window_m[0]))
+            res["d"]["kept"].append(bool(v.kept[0]))
+            res["d"]["p_value"].append(float(v.p_value[0]))
+            res["d"]["val_default"].append(float(v.default_error[0]))
+            res["d"]["val_tuned"].append(float(v.tuned_error[0]))
             save()
     res["total_s"] = time.perf_counter() - t0
     save()
@@ -207,7 +262,9 @@ def report(res: dict) -> str:
             header += [f"(c) {test} half: defaults", f"(c) {test}: tuned on {side}, guarded",
                        f"(c) {test}: unguarded"]
     if "d" in res and len(res["d"]["tuned"]) == len(names):
-        cols.append(res["d"]["tuned"]); header.append("(d) leave-one-out")
+        cols.append(res["d"]["tuned"]); header.append("(d) leave-one-out, guarded")
+        if len(res["d"].get("unguarded", [])) == len(names):
+            cols.append(res["d"]["unguarded"]); header.append("(d) unguarded")
     lines.append("| " + " | ".join(header) + " |")
     lines.append("|" + "---|" * len(header))
     for i, n in enumerate(names):
@@ -220,6 +277,22 @@ def report(res: dict) -> str:
             worse = int(np.sum(np.asarray(r["guarded"]) > np.asarray(r["defaults"]) + 1e-12))
             lines.append(f"(c) tuned on {side}: guard kept the fit on {int(np.sum(r['kept']))} of "
                          f"{len(names)} samples; better than defaults on {better}, worse on {worse}.")
+            if "p_value" in r:
+                lines.append("")
+                lines.append(f"(c) guard on {side} (out-of-fold total error on the {side} half: defaults -> "
+                             "chosen level; level a on the segment defaults -> fit; sign-flip p over changed "
+                             "50 m blocks, Bonferroni x3): " + "; ".join(
+                                 f"{n}: {pct(d)} -> {pct(t)}, p={p:.3g}/{u} blocks" + (f", kept a={a:.2f}" if k else "")
+                                 for n, d, t, p, u, k, a in zip(names, r["val_default"], r["val_tuned"], r["p_value"],
+                                                               r["units"], r["kept"], r["shrink"])))
+            lines.append("")
+        lines.append("")
+    if "d" in res and res["d"].get("p_value"):
+        d = res["d"]
+        lines.append(f"(d) guard (k-fold by sample over the 10 training samples): kept on {sum(d['kept'])} of "
+                     f"{len(d['kept'])} left-out samples; out-of-fold mean total error defaults -> tuned, p: " + "; ".join(
+                         f"{names[i]}: {pct(a)} -> {pct(b)}, p={p:.3g}" for i, (a, b, p) in
+                         enumerate(zip(d["val_default"], d["val_tuned"], d["p_value"]))))
         lines.append("")
     if "d" in res and res["d"]["tuned"]:
         lines.append("(d) shared values per left-out sample (slope, threshold_m, scalar, window_m): " + "; ".join(

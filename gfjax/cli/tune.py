@@ -4,10 +4,19 @@ The thresholds (SMRF: slope, threshold_m, scalar) are fitted by Adam on a relaxe
 (sigmoid) form of the filter against the files' reference labels (ground = class 2), the
 window on a small grid (SPEC section 7). Several files are tuned together (one parameter set,
 unweighted mean of their losses), batched under `jax.vmap` by tile shape. The fit is
-regularised toward the defaults (`--prior`) and checked by k-fold validation on spatial
-blocks of the labelled points (`--folds`, `--block`): the fitted values are written only when
-they beat the defaults on the held-out blocks; otherwise params.json holds the defaults and
-says so. Use the result with `gfjax filter --params params.json`.
+regularised toward the defaults (`--prior`).
+
+Guard (tuned values are often worse than the defaults on other data): the labelled data are
+cross-validated in `--folds` folds, by file when several files are given, else by square
+spatial blocks of `--block` metres. Each fold is fitted on the other folds; on its held-out
+points the plain filter is scored with the defaults and with points 1/3, 2/3 and all the
+way along the segment defaults -> fit. The level with the lowest out-of-fold total error is
+tested against the defaults with a one-sided sign-flip test over the units (files or blocks)
+of their paired error differences, Bonferroni-corrected for the 3 levels. Only when it is
+significant at `--alpha` (default 0.05) does params.json hold that level of the fit on all
+data; otherwise it holds the defaults and says so. Fewer than 5 units that change can never
+pass. The figures (out-of-fold errors, p-value, level) are printed and stored in params.json.
+Use the result with `gfjax filter --params params.json`.
 """
 from __future__ import annotations
 
@@ -29,6 +38,16 @@ def _windows(text: str) -> tuple[float, ...]:
     return values
 
 
+def _level(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
+    if not 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}")
+    return value
+
+
 def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser("tune", help="fit a method's thresholds against labelled files",
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -43,7 +62,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--folds", type=nonnegative_int, default=3,
                         help="k-fold block validation (default 3; 0 or 1: no validation)")
     parser.add_argument("--block", type=positive_float, default=50.0, metavar="M",
-                        help="side of the validation blocks [m] (default 50)")
+                        help="side of the validation blocks of a single file [m] (default 50)")
+    parser.add_argument("--alpha", type=_level, default=0.05,
+                        help="level of the guard's test, in (0, 1) (default 0.05)")
     parser.add_argument("--windows", type=_windows, default=None, metavar="M,M,...",
                         help="window grid [m] (default 12,18,24)")
     parser.add_argument("--returns", choices=("all", "last"), default="all", help="returns used (default all)")
@@ -74,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
 
     from gfjax.smrf import Config
     from gfjax.tune import fit as tfit
+    from gfjax.tune import guard
     from gfjax.tune import smrf as tsmrf
     from gfjax.tune.params import write_params
     from gfjax.tune.problem import Problem, Sample
@@ -84,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     windows = args.windows or tsmrf.GRID["window_m"]
     settings = tfit.Settings(steps=args.steps, prior=args.prior, loss=args.loss, windows_m=windows)
     problem = Problem(samples, config=Config(), max_window_m=max(windows))
-    v = tfit.validate(problem, settings, folds=args.folds, block_m=args.block, progress=True)
+    v = guard.validate(problem, settings, folds=args.folds, block_m=args.block, alpha=args.alpha, progress=True)
     names = [b.name for b in tsmrf.BOUNDS]
     kept = bool(v.kept[0])
     values = dict(zip(names, map(float, v.values[0]))) | {"window_m": float(v.window_m[0])}
@@ -92,18 +114,25 @@ def run(args: argparse.Namespace) -> int:
     defaults = {b.name: b.default for b in tsmrf.BOUNDS}
     fitted = [k for k in names if kept and abs(values[k] - defaults[k]) > 1e-4 * span[k]]
     kind = "1 - kappa" if args.loss == "kappa" else "total error"
-    validation = {"folds": args.folds, "block_m": args.block, "measure": kind,
+    validation = {"folds": args.folds, "measure": "total error" if args.folds >= 2 else kind,
+                  "units": ("files" if v.by_sample[0] else f"blocks of {args.block:g} m") if args.folds >= 2 else None,
                   "default": float(v.default_error[0]), "tuned": float(v.tuned_error[0]),
-                  "kept": kept, "per_fold": v.fold_errors[:, 0, :].tolist()}
+                  "shrink": float(v.shrink[0]), "p_value": float(v.p_value[0]), "alpha": args.alpha,
+                  "changed_units": int(v.units[0]), "kept": kept, "per_fold": v.fold_errors[:, 0, :].tolist()}
     extra = {"fitted": fitted, "grid": {"window_m": list(windows)},
              "window_chosen_from_grid": kept and values["window_m"] != Config().window_m,
              "not_differentiable": {"window_m": "loop count of the progressive opening: grid search"},
              "validation": validation, "loss": args.loss, "prior": args.prior, "steps": args.steps,
              "training_files": [str(p) for p in inputs]}
     write_params(out, method=args.method, values=values, units=tsmrf.UNITS, extra=extra)
-    where = "held-out blocks" if args.folds >= 2 else "training points (no validation)"
     print(f"{out}: {args.method} " + ", ".join(f"{k}={values[k]:.4g}" for k in [*names, "window_m"]))
-    print(f"validation on {where}: {kind} defaults {validation['default']:.4f}, tuned {validation['tuned']:.4f}"
-          f" -> {'fitted values kept' if kept else 'defaults kept (tuning did not help)'}; "
-          f"fitted: {', '.join(fitted) or 'none'}")
+    if args.folds >= 2:
+        print(f"validation ({args.folds} folds by {validation['units']}): out-of-fold total error defaults "
+              f"{validation['default']:.4f}, tuned {validation['tuned']:.4f} (shrink {v.shrink[0]:.2f}), "
+              f"p = {validation['p_value']:.3g} over {validation['changed_units']} units -> "
+              f"{'fitted values kept' if kept else 'defaults kept (no significant gain)'}; "
+              f"fitted: {', '.join(fitted) or 'none'}")
+    else:
+        print(f"no validation: training {kind} defaults {validation['default']:.4f}, tuned "
+              f"{validation['tuned']:.4f}; fitted: {', '.join(fitted) or 'none'}")
     return 0

@@ -1,4 +1,4 @@
-"""The optax loop: relaxed SMRF fitted to labelled samples, with a prior and block validation.
+"""The optax loop: relaxed SMRF fitted to labelled samples, with a prior toward the defaults.
 
 `fit` minimises, per parameter group g (one set of thresholds shared by the samples mapped
 to it),
@@ -13,8 +13,8 @@ Every `eval_every` steps the hard (plain-filter) total error is measured and the
 iterate per group is kept, so the result is never worse on the training labels than the
 starting point. The static window is searched on `GRID["window_m"]`: a fit per value.
 
-`validate` adds the out-of-sample guard of issue 9: k-fold by spatial block, tuning on k-1
-folds and scoring the held-out fold with the hard filter, tuned against the defaults.
+The out-of-sample guard of issue 9 (cross-validation and a paired test against the
+defaults) is `gfjax.tune.guard.validate`.
 """
 from __future__ import annotations
 
@@ -35,8 +35,8 @@ from gfjax.tune import relax
 from gfjax.tune import smrf as tsmrf
 from gfjax.tune.problem import Problem
 
-__all__ = ["Settings", "FitResult", "Validation", "fit", "validate", "hard_errors", "hard_errors_at",
-           "soft_loss", "LOSSES"]
+__all__ = ["Settings", "FitResult", "fit", "hard_ground", "hard_errors", "hard_errors_at", "soft_loss",
+           "LOSSES", "DEFAULTS"]
 
 LOSSES = ("total-error", "kappa")
 BOUNDS = tsmrf.BOUNDS
@@ -127,24 +127,49 @@ _soft_value_and_grad = jax.jit(jax.value_and_grad(soft_loss.__wrapped__),
                                static_argnames=("config", "kind", "n_samples"))
 
 
-@functools.partial(jax.jit, static_argnames=("config", "n_samples"))
-def _hard_confusions(values, radius_px, buckets, masks, group, *, config: Config, n_samples: int):
-    return _confusions(values, radius_px, buckets, masks, group, config=config, temperature=None, n_samples=n_samples)
+@functools.partial(jax.jit, static_argnames=("config",))
+def _hard_ground(values, radius_px, buckets, group, *, config: Config):
+    """Plain-filter labels per bucket, bool `(b, cap)`, for values `(g, 3)`."""
+    out = []
+    for prep, _, cloud in buckets:
+        tile_values = values[group[cloud]]
+
+        def one(p, v):
+            return tsmrf.ground_weight(p, tsmrf.make_params(v), config=config, radius_px=radius_px,
+                                       temperature=None)
+
+        out.append(jax.vmap(one)(prep, tile_values))
+    return tuple(out)
 
 
 def _arrays(problem: Problem):
     return tuple((b.prep, b.ref, b.cloud) for b in problem.buckets)
 
 
+def hard_ground(problem: Problem, values: np.ndarray, group: np.ndarray, window_m: float) -> list[np.ndarray]:
+    """Plain-filter ground labels per bucket, bool `(b, cap)` (numpy), for values `(g, 3)`
+    (ordered as `BOUNDS`) with one window for all groups; `problem.labels` maps them to points."""
+    radius = jnp.asarray(tsmrf.radius_for(problem.config, window_m), jnp.int32)
+    out = _hard_ground(jnp.asarray(values, jnp.float32), radius, _arrays(problem), jnp.asarray(group, jnp.int32),
+                       config=problem.config)
+    return [np.asarray(g) for g in out]
+
+
+def _confusion_counts(problem: Problem, ground: list[np.ndarray], masks) -> np.ndarray:
+    """Per sample int64 `(c, 4)` counts (tp, fp, fn, tn) of per-bucket labels on `masks`."""
+    conf = np.zeros((problem.n_samples, 4), np.int64)
+    for bucket, pred, mask in zip(problem.buckets, ground, masks):
+        ref, mask, cloud = np.asarray(bucket.ref), np.asarray(mask), np.asarray(bucket.cloud)
+        cells = np.stack([pred & ref, pred & ~ref, ~pred & ref, ~pred & ~ref], axis=-1) & mask[..., None]
+        np.add.at(conf, cloud, cells.sum(axis=1))
+    return conf
+
+
 def hard_errors(problem: Problem, values: np.ndarray, masks, group: np.ndarray, window_m: float,
                 *, kind: str = "total-error") -> np.ndarray:
     """Plain-filter error per sample, float64 `(c,)`: total error (or 1 - kappa) of the hard
     labels on the masked points, for values `(g, 3)` (ordered as `BOUNDS`)."""
-    radius = jnp.asarray(tsmrf.radius_for(problem.config, window_m), jnp.int32)
-    conf = np.asarray(_hard_confusions(jnp.asarray(values, jnp.float32), radius, _arrays(problem), masks,
-                                       jnp.asarray(group, jnp.int32), config=problem.config,
-                                       n_samples=problem.n_samples), np.float64)
-    conf = np.rint(conf).astype(np.int64)
+    conf = _confusion_counts(problem, hard_ground(problem, values, group, window_m), masks)
     key = "total_error" if kind == "total-error" else "kappa"
     out = np.array([metrics.metrics_from_confusion(*map(int, c))[key] for c in conf])
     return out if kind == "total-error" else 1 - out
@@ -279,84 +304,6 @@ def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=
     return FitResult(best_values, best_window, best_error, start_error, history, passes, grads,
                      time.perf_counter() - t0)
 
-
-
-class Validation(NamedTuple):
-    """Outcome of `validate`, per group g.
-
-    Attributes:
-      values: float32 `(g, 3)` thresholds to use: the fitted ones where kept, else the defaults.
-      window_m: float64 `(g,)` window to use (the default window where not kept).
-      kept: bool `(g,)` whether validation said the fitted values help.
-      default_error, tuned_error: float64 `(g,)` mean over folds of the held-out hard error.
-      fold_errors: float64 `(folds, g, 2)` held-out error (defaults, tuned) per fold.
-      fit: the `FitResult` of the final fit on all training points.
-      hard_evaluations, gradient_calls: summed over all fits and evaluations.
-    """
-
-    values: np.ndarray
-    window_m: np.ndarray
-    kept: np.ndarray
-    default_error: np.ndarray
-    tuned_error: np.ndarray
-    fold_errors: np.ndarray
-    fit: FitResult
-    hard_evaluations: int
-    gradient_calls: int
-
-
-def validate(problem: Problem, settings: Settings = Settings(), *, point_masks=None, group=None,
-             weight=None, folds: int = 3, block_m: float = 50.0, seed: int = 0,
-             progress: bool = False) -> Validation:
-    """Fit, and keep the fit only where k-fold spatial-block validation says it helps.
-
-    The training points (`point_masks`, default all) are split into `folds` folds of square
-    blocks of `block_m` (`block_folds`). For each fold, `fit` runs on the other folds and the
-    hard total error on the held-out fold is measured for the fitted and the default values
-    (pooled per sample, weighted per group as in the fit). A group keeps the final fit (on all
-    training points) only when its mean held-out error is strictly below the defaults'.
-    `folds < 2` skips validation (kept everywhere the fit improved the training objective).
-    """
-    from gfjax.tune.problem import block_folds
-
-    c = problem.n_samples
-    group = np.zeros(c, np.int32) if group is None else np.asarray(group, np.int32)
-    n_groups = int(group.max()) + 1
-    if weight is None:
-        weight = 1.0 / np.bincount(group, minlength=n_groups)[group]
-    weight = np.asarray(weight, np.float64)
-    base = [np.ones(len(s.xyz_m), bool) for s in problem.samples] if point_masks is None else \
-        [np.asarray(m, bool) for m in point_masks]
-    defaults = np.tile(DEFAULTS, (n_groups, 1))
-    default_window = Config().window_m
-    passes = grads = 0
-    fold_errors = np.zeros((max(folds, 0), n_groups, 2))
-    if folds >= 2:
-        fold_id = [block_folds(s.xyz_m, folds=folds, block_m=block_m, seed=seed) for s in problem.samples]
-        for k in range(folds):
-            train = problem.masks([b & (f != k) for b, f in zip(base, fold_id)])
-            held = problem.masks([b & (f == k) for b, f in zip(base, fold_id)])
-            result = fit(problem, settings, masks=train, group=group, weight=weight, progress=progress)
-            passes += result.hard_evaluations
-            grads += result.gradient_calls
-            for col, (vals, wins) in enumerate(((defaults, np.full(n_groups, default_window)),
-                                                (result.values, result.window_m))):
-                for w in np.unique(wins):
-                    errs = hard_errors(problem, vals, held, group, float(w))
-                    passes += 1
-                    fold_errors[k, wins == w, col] = _group_error(errs, group, weight, n_groups)[wins == w]
-    final = fit(problem, settings, masks=problem.masks(base), group=group, weight=weight, progress=progress)
-    passes += final.hard_evaluations
-    grads += final.gradient_calls
-    if folds >= 2:
-        default_error, tuned_error = fold_errors[..., 0].mean(axis=0), fold_errors[..., 1].mean(axis=0)
-        kept = tuned_error < default_error
-    else:
-        default_error, tuned_error = final.start_error, final.train_error
-        kept = final.train_error < final.start_error
-    values = np.where(kept[:, None], final.values, defaults).astype(np.float32)
-    window = np.where(kept, final.window_m, default_window)
-    return Validation(values, window, kept, default_error, tuned_error, fold_errors, final, passes, grads)
 
 
 def hard_errors_at(problem: Problem, values: np.ndarray, window_m: np.ndarray, masks, group: np.ndarray,

@@ -23,7 +23,7 @@ from gfjax.io.cloud import Cloud
 from gfjax.smrf.config import Config
 from gfjax.tune import smrf as tsmrf
 
-__all__ = ["Sample", "Bucket", "Problem", "block_folds"]
+__all__ = ["Sample", "Bucket", "Problem", "block_ids", "block_folds"]
 
 
 class Sample(NamedTuple):
@@ -63,6 +63,19 @@ class Bucket:
     shape: tuple[int, int]
 
 
+def block_ids(xyz_m: np.ndarray, *, block_m: float) -> np.ndarray:
+    """Square spatial block `0..n_blocks-1` of each point (int64 `(n,)`), blocks of side
+    `block_m` [m] anchored at the points' minimum x and y; only occupied blocks are numbered."""
+    if not block_m > 0:
+        raise ValueError(f"block_m must be > 0, got {block_m}")
+    xy = np.asarray(xyz_m)[:, :2]
+    if len(xy) == 0:
+        return np.zeros(0, np.int64)
+    cells = np.floor((xy - xy.min(axis=0)) / block_m).astype(np.int64)
+    _, block = np.unique(cells, axis=0, return_inverse=True)
+    return block.reshape(-1).astype(np.int64)
+
+
 def block_folds(xyz_m: np.ndarray, *, folds: int, block_m: float, seed: int = 0) -> np.ndarray:
     """Fold id `0..folds-1` per point from square spatial blocks of `block_m` (int `(n,)`).
 
@@ -71,12 +84,9 @@ def block_folds(xyz_m: np.ndarray, *, folds: int, block_m: float, seed: int = 0)
     """
     if folds < 2:
         raise ValueError(f"folds must be >= 2, got {folds}")
-    if not block_m > 0:
-        raise ValueError(f"block_m must be > 0, got {block_m}")
-    xy = np.asarray(xyz_m)[:, :2]
-    cells = np.floor((xy - xy.min(axis=0)) / block_m).astype(np.int64)
-    _, block = np.unique(cells, axis=0, return_inverse=True)
-    block = block.reshape(-1)
+    block = block_ids(xyz_m, block_m=block_m)
+    if block.size == 0:
+        return block
     order = np.random.default_rng(seed).permutation(block.max() + 1)
     fold_of_block = np.empty_like(order)
     fold_of_block[order] = np.arange(order.size) % folds
@@ -148,6 +158,16 @@ class Problem:
                     mask[j] &= np.where(idx >= 0, pm[np.maximum(idx, 0)], False)
             out.append(jnp.asarray(mask))
         return tuple(out)
+
+    def covered(self) -> list[np.ndarray]:
+        """Per sample a bool `(n,)`: the points labelled by some tile's core (all used points)."""
+        out = [np.zeros(len(s.xyz_m), bool) for s in self.samples]
+        for bucket in self.buckets:
+            cloud = np.asarray(bucket.cloud)
+            for j in range(cloud.shape[0]):
+                idx = bucket.core_index[j]
+                out[cloud[j]][idx[idx >= 0]] = True
+        return out
 
     def labels(self, per_bucket_ground: Sequence[np.ndarray]) -> list[np.ndarray]:
         """Per sample a bool `(n,)` ground array from per-bucket `(b, cap)` labels (cores)."""

@@ -69,6 +69,18 @@ def synthetic_sample(kind: str, seed: int = 0) -> Sample:
 
 @functools.cache
 def problem(names: tuple[str, ...]) -> Problem:
-    """A Problem over `("crop", "flat", "roof", "mixed")` members (cached per tuple)."""
-    samples = [crop_sample() if n == "crop" else synthetic_sample(n) for n in names]
+    """A Problem over `("crop", "flat", "roof", "mixed", "rough")` members (cached per tuple)."""
+    samples = [crop_sample() if n == "crop" else rough_sample() if n == "rough" else synthetic_sample(n)
+               for n in names]
     return Problem(samples, config=CONFIG, max_window_m=max(WINDOWS))
+
+
+def rough_sample(seed: int = 0) -> Sample:
+    """A 40 x 40 m all-ground tile whose ground is rough (0.4 m noise) on a 0.1 slope: the
+    default threshold (0.5 m) calls many ground points objects, a larger one fixes them
+    everywhere (a case the guard must keep)."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, 40, (1600, 2))
+    z = 100.0 + 0.1 * xy[:, 0] + rng.normal(0, 0.4, len(xy))
+    xyz = np.column_stack([xy + [500_000.0, 5_400_000.0], z])
+    return Sample("rough", xyz, np.ones(len(xy), bool), np.ones(len(xy), bool))

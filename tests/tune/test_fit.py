@@ -41,19 +41,6 @@ def test_per_sample_groups_are_independent():
                                rtol=1e-5, atol=1e-6)
 
 
-def test_validate_keeps_a_fit_only_when_held_out_error_drops():
-    pb = problem(("crop",))
-    v = tfit.validate(pb, SETTINGS, folds=2, block_m=20.0)
-    assert v.fold_errors.shape == (2, 1, 2)
-    np.testing.assert_allclose(v.default_error, v.fold_errors[:, :, 0].mean(axis=0))
-    if v.kept[0]:
-        assert v.tuned_error[0] < v.default_error[0]
-        np.testing.assert_array_equal(v.values, v.fit.values)
-    else:
-        np.testing.assert_array_equal(v.values[0], tfit.DEFAULTS)
-        assert v.window_m[0] == 18.0
-
-
 def test_block_folds_are_whole_blocks_and_balanced():
     rng = np.random.default_rng(0)
     xyz = np.column_stack([rng.uniform(0, 100, 2000), rng.uniform(0, 100, 2000), np.zeros(2000)])
