@@ -9,25 +9,36 @@ Order: read, DMF first call (JIT compilation included), DMF warm calls (per-stag
 with the persistent compilation cache warm. Every warm figure is the best of 3 runs, peers too
 (the machine is shared with other jobs). Wall-clock seconds on this machine; the load average at the
 start and end is recorded (the machine is shared).
+
+Then where the whole process spends its time (`_anatomy`): a fresh interpreter runs the steps of
+`gfjax filter` (the CLI's own calls) with wall-clock marks, JAX's own trace / lower /
+compile-or-cache-load durations (`jax.monitoring`), and the interpreter teardown that the
+`gfjax` program skips (`gfjax.cli.main._end_process`). Last, the speed path of the cylinder table
+(bucket grid) against the KD-tree reference path: time, and DMF labels compared.
 """
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+import os
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+from unittest import mock
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import gfjax  # noqa: E402
 from gfjax import dmf  # noqa: E402
+from gfjax.dmf import neighbours, voxels  # noqa: E402
 from gfjax.bench import harness  # noqa: E402
 from gfjax.bench.peers import PEERS  # noqa: E402
 from gfjax.bench.run import machine  # noqa: E402
+import numpy as np  # noqa: E402
 
 REPEAT = 3
 DATA = (ROOT / ".." / "shared" / "data" / "lasR_bcts" / "bcts_2.laz").resolve()
@@ -38,6 +49,78 @@ def _cli(path: Path, out: Path) -> float:
     subprocess.run([str(ROOT / ".venv" / "bin" / "gfjax"), "filter", str(path), "-o", str(out), "--method", "dmf",
                     "--force"], check=True, capture_output=True)
     return time.perf_counter() - start
+
+
+# The steps of `gfjax filter IN -o OUT --method dmf` (gfjax.cli.filter.run), in a fresh
+# interpreter, with a wall-clock mark after each; prints one JSON line. argv: IN OUT TEARDOWN.
+_ANATOMY_CHILD = r"""
+import time
+marks = [("interpreter start", time.time())]
+import json, sys
+from gfjax.cli import main as cli_main
+cli_main.enable_compilation_cache()
+import jax
+from jax import monitoring
+jit = {}
+def _listen(event, duration_s, **_):
+    jit[event] = jit.get(event, 0.0) + duration_s
+    jit[event + " count"] = jit.get(event + " count", 0) + 1
+monitoring.register_event_duration_secs_listener(_listen)
+marks.append(("import jax", time.time()))
+from gfjax import methods
+from gfjax.io import las as las_io
+module = methods.get("dmf")
+config, params = methods.make_config_and_params(module)
+marks.append(("import gfjax, dmf, laspy, scipy", time.time()))
+cloud = las_io.read(sys.argv[1])
+marks.append(("read", time.time()))
+result = module.filter(cloud, config=config, params=params)
+marks.append(("filter (first call in the process)", time.time()))
+labelled = cloud.with_ground(result.ground, reset_nonground=False, used=cloud.filter_mask("all"))
+las_io.write(labelled, sys.argv[2], force=True)
+marks.append(("write", time.time()))
+print(json.dumps({"marks": marks, "jit": jit, "stage_seconds": result.diagnostics.stage_seconds}), flush=True)
+if sys.argv[3] == "skip":
+    cli_main._end_process(0)
+"""
+
+
+def _anatomy(path: Path, out: Path, teardown: str) -> dict:
+    """Seconds per step of one `gfjax filter --method dmf` process (warm compilation cache):
+    `teardown` "skip" ends it as the `gfjax` program does, "run" with a normal exit."""
+    start = time.time()
+    done = subprocess.run([sys.executable, "-c", _ANATOMY_CHILD, str(path), str(out), teardown], check=True,
+                          capture_output=True, text=True, cwd=ROOT)
+    end = time.time()
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    marks = [("process launch", start), *report["marks"], ("process end", end)]
+    steps = {name: t - marks[i - 1][1] for i, (name, t) in enumerate(marks) if i > 0}
+    steps["interpreter teardown and exit"] = steps.pop("process end")
+    steps = {"python startup" if k == "interpreter start" else k: v for k, v in steps.items()}
+    jit = report["jit"]
+    return {"total_s": end - start, "steps_s": steps, "stage_seconds": report["stage_seconds"],
+            "jit_trace_s": jit.get("/jax/core/compile/jaxpr_trace_duration", 0.0),
+            "jit_lower_s": jit.get("/jax/core/compile/jaxpr_to_mlir_module_duration", 0.0),
+            "jit_compile_or_cache_load_s": jit.get("/jax/core/compile/backend_compile_duration", 0.0),
+            "jit_programs": jit.get("/jax/core/compile/backend_compile_duration count", 0)}
+
+
+def _table_paths(cloud) -> dict:
+    """The cylinder table of bcts_2's ND_CE by the bucket grid (speed path) and by the KD-tree
+    (reference path): best-of-REPEAT seconds, and whether DMF's labels are the same."""
+    config = dmf.Config()
+    local = cloud.xyz_m - cloud.xyz_m.min(axis=0)
+    cell_m, _ = voxels.voxel_size_m(local, v0=config.v0, fraction=config.sample_fraction, minimum=config.sample_min)
+    xy = voxels.bin_voxels(local, cell_m).centroid[:, :2]
+    kwargs = dict(radius_m=config.basal_radius_w * cell_m, k=config.basal_neighbours, max_width=config.basal_table_width)
+    seconds = {method: harness.time_call(lambda: neighbours.cylinder_table(xy, method=method, **kwargs),
+                                         repeat=REPEAT, warmup=1)[0].min_s for method in ("grid", "kdtree")}
+    fast = dmf.filter(cloud)
+    reference_table = functools.partial(neighbours.cylinder_table, method="kdtree")
+    with mock.patch.object(neighbours, "cylinder_table", reference_table):   # the reference path
+        reference = dmf.filter(cloud)
+    same = bool(np.array_equal(fast.ground, reference.ground) and np.array_equal(fast.instance_id, reference.instance_id))
+    return {"grid_s": seconds["grid"], "kdtree_s": seconds["kdtree"], "labels_identical": same, "n_nodes": len(xy)}
 
 
 def _environment() -> dict:
@@ -68,19 +151,23 @@ def main(argv=None) -> int:
     xyz = cloud.xyz_m
     pysmrf_s = harness.time_call(lambda: PEERS["pysmrf"].run(xyz), repeat=REPEAT, warmup=0)[0].min_s
     csf_s = harness.time_call(lambda: PEERS["cloth-simulation-filter"].run(xyz), repeat=REPEAT, warmup=0)[0].min_s
-    cli = {}
+    cli, anatomy = {}, {}
     if not args.no_cli:
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "out.laz"
             cli = {"first_s": _cli(args.data, out)}
             cli["warm_cache_s"] = min(_cli(args.data, out) for _ in range(REPEAT))
+            anatomy = min((_anatomy(args.data, out, "skip") for _ in range(REPEAT)), key=lambda a: a["total_s"])
+            anatomy["teardown_if_run_s"] = _anatomy(args.data, out, "run")["steps_s"]["interpreter teardown and exit"]
+    table = _table_paths(cloud)
     figures = {
         "file": str(args.data.name), "n_points": n, "read_s": read_s,
         "dmf_first_call_s": first_s, "dmf_warm_s": warm_s, "dmf_points_per_s": n / warm_s,
         "dmf_stage_s": stages, "dmf_stage_points_per_s": {k: n / v for k, v in stages.items() if v > 0},
         "peak_rss_mb_after_dmf": rss_mb, "pysmrf_windows18_s": pysmrf_s, "csf_defaults_s": csf_s,
         "speedup_vs_pysmrf": pysmrf_s / warm_s, "speedup_vs_csf": csf_s / warm_s,
-        "gfjax_filter_process": cli, "cell_m": result.diagnostics.cell_m,
+        "gfjax_filter_process": cli, "process_anatomy": anatomy, "cylinder_table": table,
+        "cell_m": result.diagnostics.cell_m,
         "basal_iterations": result.diagnostics.basal_iterations, "config": str(dmf.Config()),
         "environment_start": env_start, "load_avg_1min_end": _environment()["load_avg_1min"],
     }
@@ -106,6 +193,19 @@ def main(argv=None) -> int:
               f"- W = {figures['cell_m']} m, basal iterations {figures['basal_iterations']}"]
     if cli:
         lines.append(f"- whole `gfjax filter` process (warm cache) / pysmrf filter call: **{figures['process_over_pysmrf']:.2f}** (target <= 1.5)")
+    if anatomy:
+        lines += ["", f"Where one `gfjax filter --method dmf` process (warm compilation cache) spends its "
+                      f"{anatomy['total_s']:.2f} s (best of {REPEAT}; the steps of `gfjax.cli.filter.run` with wall-clock marks):", "",
+                  "| step | seconds |", "|---|---:|"]
+        lines += [f"| {k} | {v:.2f} |" for k, v in anatomy["steps_s"].items()]
+        lines += [f"| &nbsp; of which JAX tracing / lowering / compile-or-cache-load of {anatomy['jit_programs']} programs | "
+                  f"{anatomy['jit_trace_s']:.2f} / {anatomy['jit_lower_s']:.2f} / {anatomy['jit_compile_or_cache_load_s']:.2f} |",
+                  f"| &nbsp; of which DMF stages (first call) | "
+                  + ", ".join(f"{k} {v:.2f}" for k, v in anatomy["stage_seconds"].items()) + " |",
+                  f"| interpreter teardown with a normal exit (the `gfjax` program skips it) | {anatomy['teardown_if_run_s']:.2f} |"]
+    lines += ["", f"Cylinder table of the {table['n_nodes']:,} ND_CE (Sec. 2.3), best of {REPEAT}: bucket grid (speed path) "
+                  f"{table['grid_s']:.3f} s, KD-tree (reference path) {table['kdtree_s']:.3f} s; DMF labels of the two paths "
+                  f"identical: **{table['labels_identical']}**"]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines) + "\n")
     args.out.with_suffix(".json").write_text(json.dumps({"command": command, **figures}, indent=1, default=str))
