@@ -10,6 +10,11 @@
    the layer's remaining points are tested again against the TIN that now holds them, until
    a pass adds none (R: classic TIN densification inserts accepted points at once, so the TIN
    climbs ridges and terrace edges within a layer; each point is still accepted only once).
+   The TIN is triangulated once (Qhull) and then grows by batch insertion
+   (`GroundTin.insert`): only the triangles whose circumcircle holds an accepted point change,
+   and a retest measures again only the points over a changed triangle (the others' distance
+   is the same), so extra passes cost a small fraction of a re-triangulation. In general
+   position the labels equal those of re-triangulating everything before each pass (test).
 3. Finally every remaining point of the whole cloud closer than `ft_m` to the TIN is ground.
 """
 from __future__ import annotations
@@ -18,7 +23,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gfjax.masf.tin import GroundTin, nearest_z
+from gfjax.masf.ground_tin import GroundTin
+from gfjax.masf.tin import nearest_z
 
 __all__ = ["Densified", "buffer_cells", "densify"]
 
@@ -31,11 +37,13 @@ class Densified(NamedTuple):
       seed_ground: bool `(p,)`, potential ground points that joined the TIN in some layer.
       added_per_layer: int64 `(L,)`, potential ground points that joined at each layer (the
         top layer's seeds first).
+      tin_rebuilds: insertions that fell back to a full re-triangulation (co-circular ties).
     """
 
     ground: np.ndarray
     seed_ground: np.ndarray
     added_per_layer: np.ndarray
+    tin_rebuilds: int
 
 
 def buffer_cells(shape: tuple[int, int], *, cell_m: float) -> np.ndarray:
@@ -101,7 +109,7 @@ def low_seed_pits(xyz_m: np.ndarray, *, drop_m: float, slope: float, cap_m: floa
 def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_m: np.ndarray, *,
             shape: tuple[int, int], cell_m: float, st: float, ft_m: float,
             pit_drop_m: float = 1.0, pit_slope: float | None = 1.0, pit_cap_m: float = 4.0,
-            nearest_facet: bool = False, layer_passes: int = 1, retest_earlier: bool = False) -> Densified:
+            nearest_facet: bool = False, layer_passes: int = 3, retest_earlier: bool = False) -> Densified:
     """Label ground points by top-down densification of the layer TINs.
 
     Args:
@@ -113,8 +121,9 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
       st: slope threshold ST [-]; ft_m: final threshold FT [m] (Eq. 2).
       pit_drop_m, pit_slope, pit_cap_m: the seed pit test (`low_seed_pits`; slope None: off).
       nearest_facet: distance to the nearest facet instead of the facet under the point.
-      layer_passes: tests of a layer's remaining points against the TIN with the points the
-        previous pass accepted, until a pass accepts none (1: one test per layer).
+      layer_passes: most tests of a layer's remaining points, each against the TIN with the
+        points the previous pass accepted, stopping early when a pass accepts none (1: one
+        test per layer).
       retest_earlier: at each layer, also retest the points of earlier layers that are not yet
         ground, each with the DT of the first layer that held it (no extra triangulation).
     """
@@ -134,33 +143,37 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
     threshold_m = np.full(n_seeds, -np.inf)
     if n_layers:
         threshold_m[layers[0] & in_tin] = st * alphas_m[0] + ft_m
-    tin, tin_size = None, -1
+    tin = GroundTin(np.concatenate([seed_xyz[in_tin], ring]))
     for level in range(1, n_layers):
         dt_m = st * alphas_m[level] + ft_m
         fresh = layers[level] & ~np.isfinite(threshold_m)
         threshold_m[fresh] = dt_m
-        for _ in range(layer_passes):
-            if retest_earlier:
-                candidates = np.flatnonzero(np.isfinite(threshold_m) & ~in_tin)
-                limit_m = threshold_m[candidates]
-            else:
-                candidates = np.flatnonzero(layers[level] & ~in_tin)
-                limit_m = dt_m
-            if len(candidates) == 0:
+        waiting = (np.isfinite(threshold_m) if retest_earlier else layers[level]) & ~in_tin
+        candidates = np.flatnonzero(waiting)
+        limit_m = threshold_m[candidates] if retest_earlier else np.full(len(candidates), dt_m)
+        distance_m, facet = tin.measure(seed_xyz[candidates], nearest_facet=nearest_facet)
+        for pass_ in range(layer_passes):
+            accept = distance_m < limit_m
+            if not accept.any():
                 break
-            size = int(np.count_nonzero(in_tin))
-            if tin is None or size != tin_size:
-                tin, tin_size = GroundTin(np.concatenate([seed_xyz[in_tin], ring])), size
-            accepted = candidates[tin.distance_m(seed_xyz[candidates], nearest_facet=nearest_facet) < limit_m]
-            in_tin[accepted] = True
-            added[level] += len(accepted)
-            if len(accepted) == 0:
+            old, keep = tin, ~accept
+            tin, changed = old.insert(seed_xyz[candidates[accept]], facet[accept])
+            in_tin[candidates[accept]] = True
+            added[level] += np.count_nonzero(accept)
+            candidates, limit_m, distance_m, facet = candidates[keep], limit_m[keep], distance_m[keep], facet[keep]
+            if pass_ + 1 == layer_passes:
                 break
+            # Only points over a replaced triangle (or next to one, for nearest_facet) can change.
+            stale = (facet >= 0) & changed[np.maximum(facet, 0)]
+            if nearest_facet:
+                around = old.neighbours[facet]
+                stale |= (changed[np.maximum(around, 0)] & (around >= 0)).any(axis=1)
+            start = tin.vertex_to_simplex[old.simplices[facet[stale], 0]]
+            distance_m[stale], facet[stale] = tin.measure(seed_xyz[candidates[stale]], nearest_facet=nearest_facet,
+                                                          start=start)
     ground = np.zeros(len(points_m), dtype=bool)
     ground[seeds[in_tin]] = True
     rest = np.flatnonzero(~ground)
     if len(rest):
-        if tin is None or int(np.count_nonzero(in_tin)) != tin_size:
-            tin = GroundTin(np.concatenate([seed_xyz[in_tin], ring]))
         ground[rest[tin.distance_m(points_m[rest], nearest_facet=nearest_facet) < ft_m]] = True
-    return Densified(ground, in_tin, added)
+    return Densified(ground, in_tin, added, tin.rebuilds)

@@ -18,10 +18,11 @@ Our readings where the paper is silent (R), beside SPEC section 4's:
   window (`preprocess`), and a second test drops pits of low outliers from the top-layer seeds
   (`densify.low_seed_pits`): patches of multipath points that hold each other up;
 - the pyramid stops at the last `alpha_k >= alpha_min` (alpha_min itself is not appended);
+- a layer's rejected points are retested against the TIN holding the points just accepted, up
+  to `layer_passes = 3` tests per layer (chosen by leave-one-out over 1 pass; the TIN grows
+  by batch insertion, so a retest costs a fraction of a triangulation);
 - alternatives kept as `Config` values, measured in `experiments/masf_isprs.py`:
-  `layer_passes` (retest a layer's rejected points against the TIN holding the points just
-  accepted; 3 passes lower the mean total error but cost one triangulation per pass),
-  `retest_earlier`, `distance="nearest_facet"` (the paper's "nearest TIN facet").
+  `layer_passes=1`, `retest_earlier`, `distance="nearest_facet"` (the paper's "nearest TIN facet").
 
 Defined results on degenerate input (SPEC section 1): no used point -> no ground; when the
 potential ground points span no tetrahedron (fewer than 4, or all coplanar or collinear) the
@@ -56,6 +57,7 @@ class MASFDiagnostics(NamedTuple):
       neighbour_outliers: bool `(h, w)` cells whose point the neighbourhood test removed.
       occupied_cells: number of occupied grid cells (the unit of MASF's cost).
       n_triangles: triangles of the 3D Delaunay triangulation (0 when skipped).
+      tin_rebuilds: TIN insertions that fell back to a full re-triangulation (ties; see `insertion`).
       origin_m: float64 `(3,)` the local origin; the grid's south-west corner is its x, y.
       seconds: dict stage -> wall-clock seconds.
     """
@@ -68,6 +70,7 @@ class MASFDiagnostics(NamedTuple):
     neighbour_outliers: np.ndarray
     occupied_cells: int
     n_triangles: int
+    tin_rebuilds: int
     origin_m: np.ndarray
     seconds: dict
 
@@ -98,7 +101,7 @@ def classify_points(xyz_m: np.ndarray, config: Config, params: Params) -> tuple[
     if len(pre.index) == 0:
         return np.zeros(len(xyz_m), dtype=bool), MASFDiagnostics(
             layers=np.zeros((len(alphas), 0), dtype=bool), added_per_layer=np.zeros(len(alphas), dtype=np.int64),
-            bottom_z_m=np.zeros(pre.shape), n_triangles=0, **empty_diag)
+            bottom_z_m=np.zeros(pre.shape), n_triangles=0, tin_rebuilds=0, **empty_diag)
 
     clock = time.perf_counter()
     faces = tin.delaunay_faces(seed_xyz)
@@ -123,7 +126,8 @@ def classify_points(xyz_m: np.ndarray, config: Config, params: Params) -> tuple[
                                  layer_passes=config.layer_passes, retest_earlier=config.retest_earlier)
     seconds["densify"] = time.perf_counter() - clock
     return result.ground, MASFDiagnostics(layers=layers, added_per_layer=result.added_per_layer,
-                                          bottom_z_m=bottom_z + origin[2], n_triangles=n_triangles, **empty_diag)
+                                          bottom_z_m=bottom_z + origin[2], n_triangles=n_triangles,
+                                          tin_rebuilds=result.tin_rebuilds, **empty_diag)
 
 
 def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None = None,

@@ -3,8 +3,6 @@
 - `delaunay_faces`: the unique triangles of the 3D Delaunay triangulation (Qhull) of the
   potential ground points, each with the one or two vertices opposite it in its adjacent
   tetrahedra; `alpha_shape.triangle_geometry` turns these into alpha intervals.
-- `GroundTin`: the 2D TIN (Delaunay in x, y) of the ground points of the multiscale TIN
-  densification (Sec. 2.4), with the perpendicular distance of points to the facet under them.
 - `nearest_z`: z of the nearest point in x, y (cKDTree), for the buffer cells.
 - `bottom_surface`: the rasterised bottom TIN of the alpha shape's "below" test.
 
@@ -17,7 +15,7 @@ import numpy as np
 from scipy import ndimage as ndi
 from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
-__all__ = ["delaunay_faces", "GroundTin", "nearest_z", "bottom_surface"]
+__all__ = ["delaunay_faces", "nearest_z", "bottom_surface"]
 
 
 def delaunay_faces(xyz_m: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -53,123 +51,6 @@ def delaunay_faces(xyz_m: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     back = np.argmax(neighbours[other[inner]] == tet[inner, None], axis=1)
     opposite[inner, 1] = simplices[other[inner], back]
     return faces, opposite
-
-
-class GroundTin:
-    """2D Delaunay TIN of ground points and the point-to-facet distance (Sec. 2.4, Fig. 7a).
-
-    Point location is a vectorised visibility walk (start at a triangle of the nearest
-    vertex, step across the edge with the most negative barycentric coordinate) in plain
-    numpy: scipy's `find_simplex` first computes barycentric transforms with one LAPACK call
-    per triangle, which is slow, and very slow under a threaded BLAS on a busy machine.
-
-    Args:
-      xyz_m: float64 `(k, 3)` local metres, `k >= 3` and not all collinear in x, y (the
-        densification always includes the buffer cells around the grid, so it never is).
-    """
-
-    MAX_STEPS = 256
-
-    def __init__(self, xyz_m: np.ndarray) -> None:
-        self.xyz_m = np.asarray(xyz_m, dtype=np.float64)
-        self._tri = Delaunay(self.xyz_m[:, :2])
-        self._tree = cKDTree(self.xyz_m[:, :2])
-
-    def locate(self, xy_m: np.ndarray) -> np.ndarray:
-        """Index of the triangle holding each point `(q, 2)`, `-1` outside the hull; int64 `(q,)`."""
-        simplices, neighbours = self._tri.simplices, self._tri.neighbors
-        xy = self.xyz_m[:, :2]
-        _, nearest = self._tree.query(xy_m, k=1)
-        current = self._tri.vertex_to_simplex[nearest].astype(np.int64)
-        found = np.full(len(xy_m), -1, dtype=np.int64)
-        active = np.arange(len(xy_m))
-        for _ in range(self.MAX_STEPS):
-            if len(active) == 0:
-                break
-            corners = xy[simplices[current[active]]]                       # (a, 3, 2)
-            q = xy_m[active][:, None, :]
-            nxt, after = np.roll(corners, -1, axis=1), np.roll(corners, -2, axis=1)
-            # orientation of (v_{j+1}, v_{j+2}, q): the barycentric weight of vertex j, unnormalised
-            weight = ((nxt[..., 0] - q[..., 0]) * (after[..., 1] - q[..., 1])
-                      - (nxt[..., 1] - q[..., 1]) * (after[..., 0] - q[..., 0]))
-            area = weight.sum(axis=1, keepdims=True)
-            weight = weight / area
-            worst = np.argmin(weight, axis=1)
-            inside = weight[np.arange(len(active)), worst] >= -1e-12
-            found[active[inside]] = current[active[inside]]
-            step = active[~inside]
-            current[step] = neighbours[current[step], worst[~inside]]
-            outside = current[step] < 0
-            active = step[~outside]
-        for start in range(0, len(active), 16):              # not reached in MAX_STEPS: rare
-            chunk = active[start:start + 16]
-            found[chunk] = self._brute_force(xy_m[chunk])
-        return found
-
-    def _brute_force(self, xy_m: np.ndarray) -> np.ndarray:
-        corners = self.xyz_m[:, :2][self._tri.simplices]                   # (t, 3, 2)
-        nxt, after = np.roll(corners, -1, axis=1)[None], np.roll(corners, -2, axis=1)[None]
-        q = xy_m[:, None, None, :]
-        weight = ((nxt[..., 0] - q[..., 0]) * (after[..., 1] - q[..., 1])
-                  - (nxt[..., 1] - q[..., 1]) * (after[..., 0] - q[..., 0]))   # (c, t, 3)
-        weight = weight / weight.sum(axis=2, keepdims=True)
-        inside = (weight >= -1e-12).all(axis=2)
-        return np.where(inside.any(axis=1), np.argmax(inside, axis=1), -1)
-
-    def distance_m(self, xyz_m: np.ndarray, *, nearest_facet: bool = False) -> np.ndarray:
-        """Distance of each point to the TIN (Sec. 2.4, Fig. 7a).
-
-        Args:
-          xyz_m: float64 `(q, 3)` local metres.
-          nearest_facet: False (SPEC 4.4): perpendicular distance to the plane of the facet
-            under the point. True (the paper's words, "the distance between P and its nearest
-            TIN facet"): the 3D point-to-triangle distance, smallest over the facet under the
-            point and its three edge neighbours.
-
-        Returns:
-          float64 `(q,)` [m], `inf` for a point outside the TIN's x, y hull.
-        """
-        xyz_m = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
-        distance = np.full(len(xyz_m), np.inf)
-        if len(xyz_m) == 0:
-            return distance
-        simplex = self.locate(xyz_m[:, :2])
-        inside = simplex >= 0
-        points = xyz_m[inside]
-        under = simplex[inside]
-        if not nearest_facet:
-            corners = self.xyz_m[self._tri.simplices[under]]                    # (q', 3, 3)
-            normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-            normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-            distance[inside] = np.abs(np.einsum("qk,qk->q", points - corners[:, 0], normal))
-            return distance
-        best = _point_triangle_distance(points, self.xyz_m[self._tri.simplices[under]])
-        for side in range(3):
-            other = self._tri.neighbors[under, side]
-            has = other >= 0
-            d = _point_triangle_distance(points[has], self.xyz_m[self._tri.simplices[other[has]]])
-            best[has] = np.minimum(best[has], d)
-        distance[inside] = best
-        return distance
-
-
-def _point_triangle_distance(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
-    """3D distance from points `(q, 3)` to triangles `(q, 3, 3)` (the closest point may lie on
-    the face, an edge or a vertex), float64 `(q,)`."""
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    normal = np.cross(b - a, c - a)
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    height = np.einsum("qk,qk->q", points - a, normal)
-    foot = points - height[:, None] * normal
-    over_face = np.ones(len(points), dtype=bool)
-    for u, v in ((a, b), (b, c), (c, a)):
-        over_face &= np.einsum("qk,qk->q", np.cross(v - u, foot - u), normal) >= 0
-    edge = np.full(len(points), np.inf)
-    for u, v in ((a, b), (b, c), (c, a)):
-        uv = v - u
-        t = np.clip(np.einsum("qk,qk->q", points - u, uv) / np.einsum("qk,qk->q", uv, uv), 0.0, 1.0)
-        edge = np.minimum(edge, np.linalg.norm(points - (u + t[:, None] * uv), axis=1))
-    return np.where(over_face, np.abs(height), edge)
 
 
 def nearest_z(xy_query_m: np.ndarray, xyz_m: np.ndarray) -> np.ndarray:

@@ -28,3 +28,16 @@ def town(seed: int = 0, size_m: float = 56.0, density_per_m2: float = 1.2):
         roof_id[inside] = i + 1
     xyz = np.column_stack([xy + np.array([512_000.0, 5_403_000.0]), z])
     return xyz, roof_id == 0, roof_id
+
+
+def hilly_town(seed: int = 0, size_m: float = 48.0):
+    """`town` on a 10 m hill and a 3 m terrace step, with 5 % of the points lifted 1-6 m (low
+    vegetation): terrain where the TIN climbs within a layer, so extra test passes accept
+    points (the densification's retests have work to do). Returns `(xyz, ground, roof_id)`."""
+    xyz, ground, roof_id = town(seed=seed, size_m=size_m)
+    rng = np.random.default_rng(seed)
+    x, y = xyz[:, 0] - 512_000.0, xyz[:, 1] - 5_403_000.0
+    xyz[:, 2] += 10.0 * np.exp(-((x - 30.0) / 6.0) ** 2 - ((y - 12.0) / 8.0) ** 2) + 3.0 * np.clip((y - 24.0) / 3.0, 0, 1)
+    lifted = rng.random(len(xyz)) < 0.05
+    xyz[lifted, 2] += rng.uniform(1.0, 6.0, lifted.sum())
+    return xyz, ground & ~lifted, roof_id
