@@ -59,6 +59,9 @@ class Config:
         passes cost little.
       retest_earlier: at each layer, points of earlier layers not yet ground are tested again
         against the current TIN with the DT of the first layer that held them (R).
+      retriangulate: the reference path of the densification: triangulate the TIN again with
+        Qhull after every pass instead of inserting the accepted points (slow; the same labels
+        in general position, `experiments/masf_isprs.py` counts the differences on ties).
       empty_tol_m: tolerance of the empty-sphere test along the dual Voronoi edge [m].
     """
 
@@ -75,6 +78,7 @@ class Config:
     distance: str = "under"
     layer_passes: int = 3
     retest_earlier: bool = False
+    retriangulate: bool = False
     empty_tol_m: float = 1e-3
 
     def __post_init__(self) -> None:

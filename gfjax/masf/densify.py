@@ -109,7 +109,8 @@ def low_seed_pits(xyz_m: np.ndarray, *, drop_m: float, slope: float, cap_m: floa
 def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_m: np.ndarray, *,
             shape: tuple[int, int], cell_m: float, st: float, ft_m: float,
             pit_drop_m: float = 1.0, pit_slope: float | None = 1.0, pit_cap_m: float = 4.0,
-            nearest_facet: bool = False, layer_passes: int = 3, retest_earlier: bool = False) -> Densified:
+            nearest_facet: bool = False, layer_passes: int = 3, retest_earlier: bool = False,
+            retriangulate: bool = False) -> Densified:
     """Label ground points by top-down densification of the layer TINs.
 
     Args:
@@ -126,6 +127,8 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
         test per layer).
       retest_earlier: at each layer, also retest the points of earlier layers that are not yet
         ground, each with the DT of the first layer that held it (no extra triangulation).
+      retriangulate: the reference path: triangulate the TIN again with Qhull after each pass
+        instead of inserting the accepted points, and retest every waiting point.
     """
     n_layers, n_seeds = layers.shape
     seed_xyz = points_m[seeds]
@@ -157,7 +160,7 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
             if not accept.any():
                 break
             old, keep = tin, ~accept
-            tin, changed = old.insert(seed_xyz[candidates[accept]], facet[accept])
+            tin, changed = old.insert(seed_xyz[candidates[accept]], facet[accept], retriangulate=retriangulate)
             in_tin[candidates[accept]] = True
             added[level] += np.count_nonzero(accept)
             candidates, limit_m, distance_m, facet = candidates[keep], limit_m[keep], distance_m[keep], facet[keep]

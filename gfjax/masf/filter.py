@@ -123,7 +123,8 @@ def classify_points(xyz_m: np.ndarray, config: Config, params: Params) -> tuple[
                                  st=float(params.st), ft_m=float(params.ft_m),
                                  pit_drop_m=config.neighbour_drop_m, pit_slope=config.pit_slope,
                                  pit_cap_m=config.pit_cap_m, nearest_facet=config.distance == "nearest_facet",
-                                 layer_passes=config.layer_passes, retest_earlier=config.retest_earlier)
+                                 layer_passes=config.layer_passes, retest_earlier=config.retest_earlier,
+                                 retriangulate=config.retriangulate)
     seconds["densify"] = time.perf_counter() - clock
     return result.ground, MASFDiagnostics(layers=layers, added_per_layer=result.added_per_layer,
                                           bottom_z_m=bottom_z + origin[2], n_triangles=n_triangles,

@@ -54,12 +54,14 @@ class GroundTin:
     def _tree(self) -> cKDTree:
         return cKDTree(self.xyz_m[:, :2])
 
-    def insert(self, xyz_m: np.ndarray, facet: np.ndarray) -> tuple[GroundTin, np.ndarray]:
+    def insert(self, xyz_m: np.ndarray, facet: np.ndarray, *,
+               retriangulate: bool = False) -> tuple[GroundTin, np.ndarray]:
         """The TIN with the points `xyz_m` (float64 `(m, 3)`) added as vertices.
 
         Args:
           xyz_m: new vertices, strictly inside the TIN's x, y hull, none at the x, y of a vertex.
           facet: int64 `(m,)` the triangle under each (from `locate` or `measure`).
+          retriangulate: triangulate all vertices again with Qhull (the reference path).
 
         Returns:
           `(tin, changed)`: the new TIN (old vertices keep their ids, the new ones follow) and
@@ -71,11 +73,12 @@ class GroundTin:
         if len(xyz_all) == len(self.xyz_m):
             out._set(self.xyz_m, self.simplices, self.neighbours, rebuilds=self.rebuilds)
             return out, np.zeros(len(self.simplices), dtype=bool)
-        spliced = insertion.insert(xyz_all[:, :2], self.simplices, self.neighbours, len(xyz_all) - len(self.xyz_m),
-                                   np.asarray(facet, dtype=np.int64))
+        spliced = None if retriangulate else insertion.insert(
+            xyz_all[:, :2], self.simplices, self.neighbours, len(xyz_all) - len(self.xyz_m),
+            np.asarray(facet, dtype=np.int64))
         if spliced is None:
             out = GroundTin(xyz_all)
-            out.rebuilds = self.rebuilds + 1
+            out.rebuilds = self.rebuilds + (not retriangulate)
             return out, np.ones(len(self.simplices), dtype=bool)
         out._set(xyz_all, spliced.simplices, spliced.neighbours, rebuilds=self.rebuilds)
         return out, spliced.destroyed

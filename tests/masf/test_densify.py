@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gfjax import masf
+from gfjax.io.cloud import Cloud
 from gfjax.masf.densify import buffer_cells, densify, low_seed_pits
 from gfjax.masf.ground_tin import GroundTin
 from gfjax.masf.tin import nearest_z
@@ -64,6 +65,8 @@ def test_densify_matches_full_retriangulation(inputs, layer_passes, nearest_face
     np.testing.assert_array_equal(got.seed_ground, in_tin)
     np.testing.assert_array_equal(got.ground, ground)
     assert got.added_per_layer.sum() == in_tin.sum()
+    qhull_path = densify(local, diag.potential_ground, diag.layers, diag.alphas_m, retriangulate=True, **kw)
+    np.testing.assert_array_equal(qhull_path.ground, ground)
 
 
 
@@ -74,3 +77,12 @@ def test_the_scene_needs_retests(inputs):
     one = densify(local, diag.potential_ground, diag.layers, diag.alphas_m, layer_passes=1, **kw)
     three = densify(local, diag.potential_ground, diag.layers, diag.alphas_m, layer_passes=3, **kw)
     assert (one.seed_ground != three.seed_ground).sum() >= 10
+
+
+def test_filter_reference_path_gives_the_same_labels():
+    xyz, truth, _ = hilly_town(seed=3, size_m=40.0)
+    cloud = Cloud.from_xyz(xyz)
+    fast = masf.filter(cloud)
+    reference = masf.filter(cloud, config=masf.Config(retriangulate=True))
+    np.testing.assert_array_equal(fast.ground, reference.ground)
+    assert fast.diagnostics.tin_rebuilds == 0 and fast.ground[truth].mean() > 0.9
