@@ -76,8 +76,10 @@ def main(argv=None) -> int:
     worst = {name: float(max(rows[name][s]["total_error"] for s in SAMPLES)) for name in methods}
     command = "nice .venv/bin/python experiments/dmf_isprs.py"
     config = dmf.Config()
+    params = {k: round(float(getattr(dmf.Params(), k)), 6) for k in ("height_threshold_m", "height_threshold_w")}
     lines = ["# DMF on the ISPRS reference samples and the BCTS tiles\n", f"Command: `{command}`  ",
-             f"DMF config (defaults): `{config}`\n",
+             f"DMF config (defaults): `{config}`  ",
+             f"DMF params (defaults): `{params}` (height threshold = height_threshold_m + height_threshold_w * W)\n",
              "## ISPRS: per-sample total error, type I, type II, kappa (%)\n",
              "| sample | " + " | ".join(f"{n} TE | {n} T1 | {n} T2 | {n} kappa" for n in methods) + " |",
              "|---|" + "---:|" * (4 * len(methods))]
@@ -96,8 +98,9 @@ def main(argv=None) -> int:
                          f"{100 * f['type2']:.2f} | {f['seconds']:.1f} |")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines) + "\n")
-    args.out.with_suffix(".json").write_text(json.dumps({"command": command, "config": str(config), "isprs": rows,
-                                                         "isprs_mean": mean, "bcts": forest}, indent=1, default=float))
+    args.out.with_suffix(".json").write_text(json.dumps({"command": command, "config": str(config), "params": params,
+                                                         "isprs": rows, "isprs_mean": mean, "bcts": forest},
+                                                        indent=1, default=float))
     print("\n".join(lines))
     return 0
 

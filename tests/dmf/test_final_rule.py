@@ -36,10 +36,12 @@ def test_threshold_is_affine_in_w_and_traced():
     assert float(grad.height_threshold_m) == 1.0 and float(grad.height_threshold_w) == 3.0
 
 
-def test_threshold_in_w_rejects_the_understory_and_keeps_the_ground(shrub):
+def test_default_rejects_the_understory_and_keeps_the_ground(shrub):
+    """Default: the height rule at 0.15 W = 0.15 m; the understory stands 0.45 m high."""
     flag, _, d = shrub
     cloud, _ = scenes.shrub_scene()
-    result = dmf.filter(cloud, params=dmf.Params(height_threshold_m=0.0, height_threshold_w=0.15))
+    result = dmf.filter(cloud)
+    assert float(dmf.Params().threshold_m(d.cell_m)) == pytest.approx(0.15)
     assert d.cell_m == 1.0 and not d.ngnem_rc.any()                 # no object: all cells TP_G
     assert not result.ground[flag].any() and result.ground[~flag].all()
 
