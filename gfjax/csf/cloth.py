@@ -1,4 +1,4 @@
-"""The cloth simulation of CSF (Zhang et al. 2016, Sec. 2.2-2.3) as one jitted `lax.while_loop`.
+"""The cloth simulation of CSF (Zhang et al. 2016, Sec. 2.2-2.3), replayed exactly and pipelined.
 
 Frame: the package's. The cloud is turned upside down (`u = -z`, metres), the cloth starts
 0.05 m above the highest inverted point and falls toward decreasing `u` onto the inverted
@@ -9,23 +9,27 @@ package's particle order `j * w + i`; diagnostics are flipped to north-up by the
 One step (Cloth.cpp `Cloth::timeStep`, `Cloth::terrCollision`; Particle.cpp):
 1. Verlet: movable particles `u <- u + (1 - DAMPING)(u - u_old) - GRAVITY * dt**4`
    (the package scales gravity by dt^2 in `addForce` and again in `Particle::timeStep`).
-2. Springs: every particle is tied to its 16 neighbours at offsets (1, 0), (0, 1), (1, +-1),
-   (2, 0), (0, 2), (2, +-2) (both signs). Relaxing a spring moves two movable ends toward each
-   other by `double_move(rigidness)` of their height gap each, or one movable end toward a
-   fixed one by `single_move(rigidness)` (Particle.cpp `satisfyConstraintSelf`).
+2. Springs: one in-place sweep over the particles in `j * w + i` order, each relaxing its 16
+   springs (`wavefront.relax_block`; Particle.cpp `satisfyConstraintSelf`).
 3. The largest height change of a movable particle over the step (Verlet plus springs).
 4. Collision: a movable particle below `h` is put on `h` and fixed.
 The loop stops after `iterations` steps, or after the collision of a step whose largest
 displacement is in (0, 0.005) m: the package's cap and rule (CSF.cpp `do_cloth`).
 
-Solver (`wavefront_sweep`). The package relaxes springs in place, particle after particle in
-`j * w + i` order, each particle walking its 16 springs in its neighbour-list order: a one-sided
-Gauss-Seidel sweep that carries a displacement along a whole row and up the whole grid within
-one step, far stiffer than a parallel (Jacobi) sweep. That order is replayed exactly, as a
-`lax.scan` over the wavefronts `t = i + 4 j` vectorised over `j`: particles on one wavefront
-never touch a common particle, and every pair that does is met in the package's order. The
-cloth therefore matches the package's to float32 rounding, step for step, and stops at the
-same step.
+Pipelining. The sweep is a sequence of wavefronts `t = i + 4 j` (`gfjax.csf.wavefront`), and a
+particle's steps 3-4 and the next step's 1 depend on that particle alone. So step `s + 1` may
+start on the first wavefronts while step `s` is still sweeping the later ones, as long as it
+stays `PERIOD = 21` wavefronts behind: then the two never touch a common particle out of the
+package's order. At iteration `T = PERIOD * b + phase` the loop relaxes every wavefront
+`t = PERIOD * g + phase`, for step `b - g` (blocks `g = 0 .. groups - 1`), as one vectorised
+`relax_block`; then finishes the step of each block's first row (`t - REACH`: no later
+wavefront of that step touches it): displacement, collision, the next step's Verlet. A step
+takes `PERIOD` iterations instead of `w + 4 h`, and about `groups = (w + 4 h) / 21` steps are
+in flight. The result is the package's cloth, step for step, to float32 rounding.
+
+The stopping rule needs a step's largest displacement, known once its last row is finished;
+by then later steps have moved the first rows. Each finished row is therefore also written
+to a ring of `groups` snapshots, from which the cloth at the stopping step is read back.
 """
 from __future__ import annotations
 
@@ -34,128 +38,131 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax import lax
 from jaxtyping import Array, Bool, Float, Int
 
 from gfjax._types import Mask, Raster
-from gfjax.csf.config import (DAMPING, GRAVITY, STOP_DISPLACEMENT_M, Config, double_move,
-                              single_move)
+from gfjax.csf.config import DAMPING, GRAVITY, STOP_DISPLACEMENT_M, Config, double_move, single_move
+from gfjax.csf.wavefront import PERIOD, Layout, layout, relax_block
 
-__all__ = ["ClothState", "SPRINGS", "wavefront_sweep", "relax_springs", "simulate"]
-
-# A particle's 16 springs as (di, dj), in the order Cloth.cpp's constructor appends them to its
-# neighbour list (the order `satisfyConstraintSelf` walks them).
-SPRINGS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (1, -1), (1, 0), (0, 1), (1, 1),
-           (-2, -2), (-2, 0), (-2, 2), (0, -2), (2, -2), (2, 0), (0, 2), (2, 2))
-EXACT_SKEW = 4
-
-
-@functools.lru_cache(maxsize=32)
-def _skew_index(shape: tuple[int, int], skew: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """Gather indices between the grid `[j, i]` and the skewed layout `[t, j]`, `t = i + skew j`.
-
-    Returns:
-      `(to_skew, from_skew, n_t)`: flat indices into the padded grid (`h * w` = a dummy cell)
-      of shape `(n_t, h)`, flat indices into the skewed array of shape `(h, w)`, and `n_t`.
-    """
-    h, w = shape
-    n_t = w + skew * (h - 1)
-    t, j = np.indices((n_t, h))
-    i = t - skew * j
-    to_skew = np.where((i >= 0) & (i < w), j * w + i, h * w)
-    jj, ii = np.indices((h, w))
-    from_skew = (ii + skew * jj) * h + jj
-    return to_skew.astype(np.int32), from_skew.astype(np.int32), n_t
-
-
-def wavefront_sweep(u: Raster, movable: Mask, exists: Mask, *, rigidness: int, unroll: int = 1) -> Raster:
-    """One pass of the package's spring relaxation, in wavefronts `t = i + 4 j`.
-
-    The package walks particles in `j * w + i` order, each relaxing its 16 springs in place.
-    Particle `p` touches `p` and its 16 neighbours; two particles whose touched sets overlap are
-    at most 4 apart in `i` and `j`, and none is at `(4, -1)`. So the particles of a wavefront
-    `t = i + 4 j` touch disjoint sets, and every overlapping pair is met in the package's order:
-    the sweep is the package's, exactly (same operations on the same values in the same order).
-    It costs `w + 4 (h - 1)` dependent scan steps, each vectorised over the `h` lanes `j`.
-
-    Args:
-      u: heights `(h, w)` [m] (`[j, i]`, row 0 south).
-      movable, exists: bool `(h, w)`; fixed particles never move, springs to particles that do
-        not exist (padding) are skipped.
-      rigidness: static; sets `double_move` / `single_move` (Particle.h).
-      unroll: static unroll factor of the scan (speed only).
-
-    Returns:
-      Heights `(h, w)` [m] after the pass.
-    """
-    both, single = double_move(rigidness), single_move(rigidness)
-    skew = EXACT_SKEW
-    h, w = u.shape
-    to_skew, from_skew, n_t = _skew_index((h, w), skew)
-    reach = 2 + 2 * skew                                   # largest |t| offset of a spring
-    span = 2 * reach + 1                                    # rows t - reach .. t + reach
-
-    def skewed(a: Array, fill) -> Array:                    # (n_t + 2 reach, h + 4)
-        flat = jnp.concatenate([a.reshape(-1), jnp.full((1,), fill, a.dtype)])
-        return jnp.pad(flat[to_skew], ((reach, reach), (2, 2)), constant_values=fill)
-
-    su, sm, se = skewed(u, 0.0), skewed(movable, False), skewed(exists, False)
-
-    def step(carry, x):
-        rows_u, rows_m, rows_e = ([*c, xi] for c, xi in zip(carry, x))
-        c = reach
-        for di, dj in SPRINGS:
-            r = c + di + skew * dj
-            p, q = _lanes(rows_u[c], 0, h), _lanes(rows_u[r], dj, h)
-            mov_p, mov_q = _lanes(rows_m[c], 0, h), _lanes(rows_m[r], dj, h)
-            live = _lanes(rows_e[c], 0, h) & _lanes(rows_e[r], dj, h)
-            gap = q - p
-            coef_p = jnp.where(live & mov_p, jnp.where(mov_q, both, single), 0.0).astype(u.dtype)
-            coef_q = jnp.where(live & mov_q, jnp.where(mov_p, both, single), 0.0).astype(u.dtype)
-            rows_u[c] = rows_u[c] + jnp.pad(coef_p * gap, (2, 2))
-            rows_u[r] = rows_u[r] - jnp.pad(coef_q * gap, (2 + dj, 2 - dj))
-        out = (rows_u[0], rows_m[0], rows_e[0])
-        return (tuple(rows_u[1:]), tuple(rows_m[1:]), tuple(rows_e[1:])), out[0]
-
-    init = tuple(tuple(a[d] for d in range(span - 1)) for a in (su, sm, se))
-    xs = tuple(a[span - 1:] for a in (su, sm, se))
-    carry, done = lax.scan(step, init, xs, unroll=unroll)
-    rows = jnp.concatenate([done, jnp.stack(carry[0])], axis=0)[reach:reach + n_t, 2:h + 2]
-    return rows.reshape(-1)[from_skew]
-
-
-def _lanes(line: Array, dl: int, n: int) -> Array:
-    """`line[2 + dl : 2 + dl + n]` of a line padded by 2 lanes on each side."""
-    return lax.slice_in_dim(line, 2 + dl, 2 + dl + n, axis=0)
-
-
-def relax_springs(u: Raster, movable: Mask, exists: Mask, *, rigidness: int, unroll: int = 1) -> Raster:
-    """One step's spring relaxation (Cloth.cpp `timeStep`, the `satisfyConstraintSelf` loop)."""
-    return wavefront_sweep(u, movable, exists, rigidness=rigidness, unroll=unroll)
+__all__ = ["ClothState", "simulate", "sweep"]
 
 
 class ClothState(NamedTuple):
-    """Loop state of the simulation (one cloth; vmap adds a leading axis).
+    """The cloth when the simulation stops (one cloth; vmap adds a leading axis).
 
     Attributes:
       u: particle heights in the inverted frame, `(h, w)` [m].
-      u_old: heights one step earlier (Verlet), `(h, w)` [m].
       movable: particles still falling, bool `(h, w)`.
       max_step_m: largest movable-particle displacement of the last step [m].
-      steps: steps done, int32 scalar.
+      steps: steps run (<= the cap), int32 scalar.
     """
 
     u: Raster
-    u_old: Raster
     movable: Mask
     max_step_m: Float[Array, ""]
     steps: Int[Array, ""]
 
 
+class _Carry(NamedTuple):
+    """Loop state. Slot arrays `(rows, lanes)`; phase-major `(PERIOD, groups, lanes)`."""
+
+    block: Int[Array, ""]                     # b: iteration T = PERIOD * b + phase
+    u: Array                                  # slots, heights [m]
+    movable: Array                            # slots, bool
+    u_prev: Array                             # phase-major, height at the start of the step [m]
+    hit_step: Array                           # phase-major int32, step of collision (cap: none)
+    ring: Array                               # (groups, PERIOD, groups, lanes) finished rows [m]
+    max_step: Array                           # (groups,) running max displacement per step [m]
+    stopped: Bool[Array, ""]
+    last_step: Int[Array, ""]
+    last_max: Float[Array, ""]
+
+
 def _displacement_stops(max_step_m: Float[Array, ""]) -> Bool[Array, ""]:
     """The package's early stop: `maxDiff != 0 && maxDiff < 0.005` (CSF.cpp `do_cloth`)."""
     return (max_step_m != 0) & (max_step_m < STOP_DISPLACEMENT_M)
+
+
+def _phase(lay: Layout, present: Array, heights: Array, accel: Float[Array, ""], *, iterations: int,
+           rigidness: int, phase: Int[Array, ""], c: _Carry) -> _Carry:
+    """One iteration: relax the wavefronts `PERIOD g + phase`, finish the blocks' first rows."""
+    groups, lanes = lay.groups, lay.lanes
+    group = jnp.arange(groups, dtype=jnp.int32)
+    step = c.block - group                                          # (groups,) step of each block
+    active = ((step >= 0) & (step < iterations))[:, None, None]
+
+    def blocks(a: Array) -> Array:
+        return lax.dynamic_slice_in_dim(a, phase, groups * PERIOD, axis=0).reshape(groups, PERIOD, lanes)
+
+    mov_all = blocks(c.movable)
+    mov = mov_all & active
+    u = relax_block(blocks(c.u), mov, blocks(present), double_move=double_move(rigidness),
+                    single_move=single_move(rigidness))
+    # Finish this step on each block's first row (Cloth.cpp: maxDiff, terrCollision, timeStep).
+    u0, mov0, prev0, h0 = u[:, 0], mov[:, 0], c.u_prev[phase], heights[phase]
+    moved = jnp.max(jnp.where(mov0, jnp.abs(u0 - prev0), 0.0), axis=1)
+    hit = mov0 & (u0 < h0)
+    u0 = jnp.where(hit, h0, u0)
+    free = mov0 & ~hit
+    ring = lax.dynamic_update_slice(c.ring, u0[None, None], (c.block % groups, phase, 0, 0))
+    hit_step = lax.dynamic_update_slice(
+        c.hit_step, jnp.where(hit, step[:, None], c.hit_step[phase])[None], (phase, 0, 0))
+    u_prev = lax.dynamic_update_slice(c.u_prev, jnp.where(free, u0, prev0)[None], (phase, 0, 0))
+    u0 = jnp.where(free, u0 + (u0 - prev0) * (1.0 - DAMPING) + accel, u0)   # next step's Verlet
+    u = jnp.concatenate([u0[:, None], u[:, 1:]], axis=1)
+    mov_all = jnp.concatenate([(mov_all[:, 0] & ~hit)[:, None], mov_all[:, 1:]], axis=1)
+    slots_u = lax.dynamic_update_slice_in_dim(c.u, u.reshape(groups * PERIOD, lanes), phase, axis=0)
+    slots_mov = lax.dynamic_update_slice_in_dim(c.movable, mov_all.reshape(groups * PERIOD, lanes),
+                                                phase, axis=0)
+    # Per-step displacement maxima; a step is done when its last particle row is finished.
+    max_step = jnp.where(phase == 0, c.max_step.at[c.block % groups].set(0.0), c.max_step)
+    max_step = max_step.at[step % groups].max(moved)
+    done = c.block - lay.last_group
+    check = (phase == lay.last_phase) & (done >= 0) & (done < iterations) & ~c.stopped
+    done_max = max_step[done % groups]
+    stop = check & (_displacement_stops(done_max) | (done == iterations - 1))
+    return _Carry(block=c.block, u=slots_u, movable=slots_mov, u_prev=u_prev, hit_step=hit_step,
+                  ring=ring, max_step=max_step, stopped=c.stopped | stop,
+                  last_step=jnp.where(stop, done, c.last_step),
+                  last_max=jnp.where(stop, done_max, c.last_max))
+
+
+def _run(u: Raster, u_prev: Raster, movable: Mask, present: Mask, heights: Raster,
+         accel: Float[Array, ""], *, iterations: int, rigidness: int) -> ClothState:
+    """Steps 2-4 of step 0, then whole steps, until the cap or the stopping rule.
+
+    Args:
+      u: heights after step 0's Verlet `(h, w)` [m]; u_prev: heights before it [m].
+      movable: particles free to move; present: particles of the cloud's grid. Bool `(h, w)`.
+      heights: inverted surface `(h, w)` [m]; accel: Verlet gravity term [m per step].
+      iterations, rigidness: static cap and spring stiffness.
+    """
+    lay = layout(u.shape)
+    groups, lanes, dtype = lay.groups, lay.lanes, u.dtype
+    slots_present = lay.to_slot_array(present, False)
+    heights_pm = lay.by_phase(lay.to_slot_array(heights, -jnp.inf))
+    init = _Carry(
+        block=jnp.int32(0), u=lay.to_slot_array(u, 0.0), movable=lay.to_slot_array(movable, False),
+        u_prev=lay.by_phase(lay.to_slot_array(u_prev, 0.0)),
+        hit_step=jnp.full((PERIOD, groups, lanes), iterations, jnp.int32),
+        ring=jnp.zeros((groups, PERIOD, groups, lanes), dtype), max_step=jnp.zeros(groups, dtype),
+        stopped=jnp.array(False), last_step=jnp.int32(iterations - 1),
+        last_max=jnp.asarray(jnp.inf, dtype))
+    phase = functools.partial(_phase, lay, slots_present, heights_pm, accel, iterations=iterations,
+                              rigidness=rigidness)
+
+    def block(c: _Carry) -> _Carry:
+        c = lax.fori_loop(0, PERIOD, lambda k, cc: phase(phase=k, c=cc), c)
+        return c._replace(block=c.block + 1)
+
+    c = lax.while_loop(lambda c: ~c.stopped, block, init)
+    group = jnp.arange(groups)
+    final = c.ring[(c.last_step + group) % groups, :, group, :]          # (groups, PERIOD, lanes)
+    hit_step = c.hit_step.transpose(1, 0, 2)
+    u_end = lay.to_grid(final.reshape(groups * PERIOD, lanes))
+    fixed = lay.to_grid(hit_step.reshape(groups * PERIOD, lanes)) <= c.last_step
+    return ClothState(u=u_end, movable=movable & ~fixed, max_step_m=c.last_max, steps=c.last_step + 1)
 
 
 @functools.partial(jax.jit, static_argnames="config")
@@ -168,7 +175,7 @@ def simulate(heights: Raster, exists: Mask, start_u: Float[Array, ""], time_step
       exists: particles of this cloth, bool `(h, w)` (False on padding for batched tiles).
       start_u: initial cloth height, scalar [m] (highest inverted point + 0.05 m).
       time_step: Verlet time step (traced); gravity moves a free particle `0.2 dt^4` per step.
-      config: static; `iterations`, `rigidness`, `scan_unroll` are used.
+      config: static; `iterations` and `rigidness` are used.
 
     Returns:
       The final `ClothState`; `steps` says how many steps ran (<= `config.iterations`).
@@ -176,19 +183,24 @@ def simulate(heights: Raster, exists: Mask, start_u: Float[Array, ""], time_step
     dtype = heights.dtype
     accel = (-GRAVITY * time_step ** 4).astype(dtype)
     u0 = jnp.where(exists, start_u.astype(dtype), heights)
-    state = ClothState(u=u0, u_old=u0, movable=exists, max_step_m=jnp.asarray(jnp.inf, dtype),
-                       steps=jnp.int32(0))
+    u1 = jnp.where(exists, u0 + (u0 - u0) * (1.0 - DAMPING) + accel, u0)     # step 0's Verlet
+    return _run(u1, u0, exists, exists, heights, accel, iterations=config.iterations,
+                rigidness=config.rigidness)
 
-    def cond(s: ClothState) -> Bool[Array, ""]:
-        return (s.steps < config.iterations) & ~_displacement_stops(s.max_step_m)
 
-    def body(s: ClothState) -> ClothState:
-        u = jnp.where(s.movable, s.u + (s.u - s.u_old) * (1.0 - DAMPING) + accel, s.u)
-        u_old = jnp.where(s.movable, s.u, s.u_old)
-        u = relax_springs(u, s.movable, exists, rigidness=config.rigidness, unroll=config.scan_unroll)
-        max_step = jnp.max(jnp.where(s.movable, jnp.abs(u - s.u), 0.0))
-        hit = s.movable & (u < heights)
-        return ClothState(u=jnp.where(hit, heights, u), u_old=u_old, movable=s.movable & ~hit,
-                          max_step_m=max_step, steps=s.steps + 1)
+@functools.partial(jax.jit, static_argnames="rigidness")
+def sweep(u: Raster, movable: Mask, exists: Mask, *, rigidness: int) -> Raster:
+    """One spring sweep alone (Cloth.cpp `timeStep`'s `satisfyConstraintSelf` loop).
 
-    return lax.while_loop(cond, body, state)
+    Args:
+      u: heights `(h, w)` [m]; movable, exists: bool `(h, w)` (fixed particles never move,
+        springs to particles that do not exist are skipped).
+      rigidness: static; sets `double_move` / `single_move` (Particle.h).
+
+    Returns:
+      Heights `(h, w)` [m] after the sweep (the pipelined loop, one step, no gravity or surface).
+    """
+    no_surface = jnp.full(u.shape, -jnp.inf, u.dtype)
+    state = _run(u, u, movable & exists, exists, no_surface, jnp.zeros((), u.dtype), iterations=1,
+                 rigidness=rigidness)
+    return state.u

@@ -61,19 +61,17 @@ class Config:
       iterations: cap on simulation steps (`interations`); the loop also stops as soon as the
         largest movable-particle displacement of a step is in (0, 0.005) m, as the package does.
       slope_smooth: post-process movable particles next to fixed ones (`bSloopSmooth`).
-      scan_unroll: unroll factor of the sweep's scan (speed only; results are identical).
     """
 
     cell_m: float = 1.0
     rigidness: int = 3
     iterations: int = 500
     slope_smooth: bool = True
-    scan_unroll: int = 1
 
     def __post_init__(self) -> None:
         if not (isinstance(self.cell_m, (int, float)) and math.isfinite(self.cell_m) and self.cell_m > 0):
             raise ValueError(f"cell_m must be finite and > 0, got {self.cell_m!r}")
-        for name, low in (("rigidness", 1), ("iterations", 1), ("scan_unroll", 1)):
+        for name, low in (("rigidness", 1), ("iterations", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an int >= {low}, got {value!r}")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gfjax import csf
-from gfjax.csf import cloth, stages
+from gfjax.csf import cloth, stages, wavefront
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
 
@@ -80,8 +80,7 @@ def test_wavefront_sweep_is_the_package_sweep(name, shape, rigidness):
     rng = np.random.default_rng(len(name))
     u = rng.normal(size=shape).astype(np.float32)
     movable = rng.random(shape) > 0.3
-    out = jax.jit(cloth.wavefront_sweep, static_argnames=("rigidness", "unroll"))(
-        jnp.asarray(u), jnp.asarray(movable), jnp.ones(shape, bool), rigidness=rigidness)
+    out = cloth.sweep(jnp.asarray(u), jnp.asarray(movable), jnp.ones(shape, bool), rigidness=rigidness)
     expected = reference.sweep(u.astype(np.float64), movable, rigidness=rigidness)
     np.testing.assert_allclose(np.asarray(out), expected, atol=2e-6)
     assert np.array_equal(np.asarray(out)[~movable], u[~movable])      # fixed particles stay
@@ -189,7 +188,8 @@ def test_jit_matches_eager():
     xy = jnp.asarray(rng.uniform(2.0, 3.0, (9, 2)), jnp.float32)
     pu = jnp.asarray(rng.normal(size=9), jnp.float32)
     calls = [
-        lambda: cloth.wavefront_sweep(u, movable, exists, rigidness=3),
+        lambda: wavefront.relax_block(jnp.stack([u[:, :4]] * 21, axis=1), jnp.stack([movable[:, :4]] * 21, axis=1),
+                                      jnp.ones((4, 21, 4), bool), double_move=0.468, single_move=0.657),
         lambda: stages.smooth_slopes(u, movable, exists, u * 0.5),
         lambda: stages.scanline_fill(*stages.particle_heights(xy, pu, jnp.ones(9, bool), cell_m=1.0, shape=shape)),
         lambda: stages.height_above_cloth(xy, pu, u, cell_m=1.0),

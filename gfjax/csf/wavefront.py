@@ -1,0 +1,159 @@
+"""The package's sequential spring sweep, laid out as parallel wavefronts (Cloth.cpp `timeStep`).
+
+The package relaxes springs in place, particle after particle in `p = j * w + i` order, each
+particle walking its 16 springs in its neighbour-list order (`SPRINGS`): a one-sided
+Gauss-Seidel sweep. Particle `p` touches itself and its 16 neighbours, all within 2 cells in
+`i` and `j`, so two particles touch a common particle only when they are at most 4 apart in
+`i` and `j` (and never at `(+-4, +-1)` or `(+-4, +-3)`: spring offsets differ by even `j` when
+their `i` differ by 4). Hence on a wavefront `t = i + 4 j` no two particles touch a common
+one, and any two that do lie on different wavefronts in the package's order. Sweeping the
+wavefronts `t = 0, 1, ...` in turn, each vectorised over its particles, replays the package's
+sweep exactly: the same float operations on the same values in the same order.
+
+Slots. Particle `(j, i)` sits at row `p = t + REACH` and lane `j mod lanes` of a `(rows, lanes)`
+slot array. Folding rows `j` and `j + lanes` onto one lane is safe when `4 lanes >= w + 2`: the
+two never share a wavefront, and a spring never reaches a particle of another fold (see
+`Layout`). A spring `(di, dj)` from slot `(p, l)` lands on `(p + di + 4 dj, (l + dj) mod lanes)`,
+row offsets in `[-REACH, REACH]`, all 16 distinct.
+
+Blocks. Wavefronts `REACH + 1 = 11` or more apart touch disjoint rows, so the `PERIOD = 21`-row
+windows centred on wavefronts `phase, phase + 21, phase + 42, ...` tile the slot array:
+`slots[phase : phase + 21 groups].reshape(groups, 21, lanes)`, each window's centre row (local
+`REACH`) the wavefront, its first row (local 0) the row no later wavefront of this sweep
+touches. `relax_block` relaxes the springs of every window's wavefront at once.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax.numpy as jnp
+from jax import lax
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+__all__ = ["SPRINGS", "SKEW", "REACH", "PERIOD", "Layout", "layout", "relax_block"]
+
+# A particle's 16 springs as (di, dj), in the order Cloth.cpp's constructor appends them to its
+# neighbour list (the order `Particle::satisfyConstraintSelf` walks them).
+SPRINGS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (1, -1), (1, 0), (0, 1), (1, 1),
+           (-2, -2), (-2, 0), (-2, 2), (0, -2), (2, -2), (2, 0), (0, 2), (2, 2))
+SKEW = 4                                     # wavefront t = i + SKEW * j
+REACH = 2 + 2 * SKEW                         # largest row offset of a spring: 10
+PERIOD = 2 * REACH + 1                       # rows of a block: 21
+
+Block = Float[Array, "g r l"]                 # (groups, PERIOD, lanes)
+
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    """Static map between the particle grid `(h, w)` and the slot array `(rows, lanes)`.
+
+    Attributes:
+      shape: grid `(h, w)`, `[j, i]`.
+      lanes: slot lanes `min(ceil((w + 2) / 4), h + 2)`; a particle `(j, i)` is at lane
+        `j mod lanes` and row `i + 4 j + REACH`. With `4 lanes >= w + 2`, a spring from a
+        particle at lane `l` to a lane `l'` reached through the wrap holds either the true
+        neighbour or no particle (the particle `j + dj + k lanes`, `k != 0`, would have
+        `i + di - 4 k lanes` outside `[0, w)`); with `lanes >= h + 2` nothing folds.
+      groups: blocks per phase, `ceil((n_wavefronts + REACH) / PERIOD)`, so that the last
+        particle row is the first row of some block.
+      rows: slot rows `(groups + 1) * PERIOD` (a block read at phase `PERIOD - 1` fits).
+      last_group, last_phase: the block and phase whose first row is the last particle row: a
+        sweep is complete once that block at that phase is done.
+      to_slots: int32 `(rows * lanes,)` flat grid index of each slot (`h * w`: empty slot).
+      from_slots: int32 `(h * w,)` flat slot index of each particle.
+    """
+
+    shape: tuple[int, int]
+    lanes: int
+    groups: int
+    rows: int
+    last_group: int
+    last_phase: int
+    to_slots: np.ndarray
+    from_slots: np.ndarray
+
+    def to_slot_array(self, grid: Array, fill) -> Array:
+        """Grid `(h, w)` -> slots `(rows, lanes)`, `fill` in empty slots."""
+        flat = jnp.concatenate([grid.reshape(-1), jnp.full((1,), fill, grid.dtype)])
+        return flat[self.to_slots].reshape(self.rows, self.lanes)
+
+    def to_grid(self, slots: Array) -> Array:
+        """Slots `(>= last particle row + 1, lanes)` -> grid `(h, w)`."""
+        return slots.reshape(-1)[self.from_slots].reshape(self.shape)
+
+    def by_phase(self, slots: Array) -> Array:
+        """Slots `(rows, lanes)` -> phase-major `(PERIOD, groups, lanes)`: `[r, g]` is row
+        `g * PERIOD + r`, so the first rows of all blocks at one phase are one slice."""
+        head = slots[: self.groups * PERIOD]
+        return head.reshape(self.groups, PERIOD, self.lanes).transpose(1, 0, 2)
+
+
+@functools.lru_cache(maxsize=32)
+def layout(shape: tuple[int, int]) -> Layout:
+    """The `Layout` of a particle grid `(h, w)` (numpy, cached per shape)."""
+    h, w = shape
+    lanes = min(-(-(w + 2) // SKEW), h + 2)
+    n_wavefronts = w + SKEW * (h - 1)
+    groups = -(-(n_wavefronts + REACH) // PERIOD)
+    rows = (groups + 1) * PERIOD
+    j, i = np.indices(shape)
+    slot = (i + SKEW * j + REACH) * lanes + j % lanes
+    to_slots = np.full(rows * lanes, h * w, np.int64)
+    to_slots[slot.reshape(-1)] = np.arange(h * w)
+    last_row = n_wavefronts - 1 + REACH
+    return Layout(shape=(h, w), lanes=lanes, groups=groups, rows=rows,
+                  last_group=last_row // PERIOD, last_phase=last_row % PERIOD,
+                  to_slots=to_slots.astype(np.int32), from_slots=slot.reshape(-1).astype(np.int32))
+
+
+def _lane_shift(x: Array, dl: int) -> Array:
+    """`out[..., l] = x[..., (l + dl) mod lanes]`."""
+    return jnp.roll(x, -dl, axis=-1)
+
+
+def relax_block(u: Block, movable: Bool[Array, "g r l"], present: Bool[Array, "g r l"], *,
+                double_move: float, single_move: float) -> Block:
+    """Relax the 16 springs of each block's centre wavefront (`Particle::satisfyConstraintSelf`).
+
+    For every block `g` and lane `l` at once: the centre particle `p` (local row `REACH`) walks
+    its springs in `SPRINGS` order; spring `k = (di, dj)` reaches `q_k` at local row
+    `REACH + di + 4 dj`, lane `l + dj`. With `gap = u_q - u_p`, a movable `p` moves by
+    `c_p gap` and a movable `q_k` by `-c_q gap`, `c = double_move` when both ends are movable,
+    `single_move` toward a fixed end (Particle.cpp). The far ends are 16 distinct rows, each
+    written once; only `u_p` is carried from spring to spring, so the walk is a `lax.scan` over
+    the 16 springs of `(groups, lanes)` vectors (a Python loop would let XLA recompute the chain
+    in every row it writes).
+
+    Args:
+      u: heights `(groups, PERIOD, lanes)` [m].
+      movable: particles free to move; present: slots that hold a particle of the cloud's grid
+        (springs to other slots are skipped). Bool, same shape.
+      double_move, single_move: static fractions (config.double_move / single_move).
+
+    Returns:
+      Heights `(groups, PERIOD, lanes)` [m] after the centre particles' springs.
+    """
+    c = REACH
+    far = [(c + di + SKEW * dj, dj) for di, dj in SPRINGS]
+
+    def ends(a: Array) -> Array:                                    # (16, groups, lanes)
+        return jnp.stack([_lane_shift(a[:, r], dj) for r, dj in far])
+
+    q, mov_q, has_q = ends(u), ends(movable), ends(present)
+    mov_p, has_p = movable[:, c][None], present[:, c][None]
+    coef_p = jnp.where(mov_p & has_q, jnp.where(mov_q, double_move, single_move), 0.0).astype(u.dtype)
+    coef_q = jnp.where(mov_q & has_p, jnp.where(mov_p, double_move, single_move), 0.0).astype(u.dtype)
+
+    def spring(p: Array, x: tuple[Array, Array, Array]) -> tuple[Array, Array]:
+        q_k, cp_k, cq_k = x
+        gap = q_k - p
+        return p + cp_k * gap, q_k - cq_k * gap
+
+    p, q = lax.scan(spring, u[:, c], (q, coef_p, coef_q))
+    rows = [u[:, k] for k in range(PERIOD)]
+    for k, (r, dj) in enumerate(far):
+        rows[r] = _lane_shift(q[k], -dj)
+    rows[c] = p
+    return jnp.stack(rows, axis=1)
