@@ -53,8 +53,10 @@ class Config:
         and its edge neighbours).
       layer_passes: most passes of the densification test per layer (1: one pass; more: the
         layer's remaining points are retested against the TIN holding the points just
-        accepted, until a pass adds none) (R). 3 won leave-one-out against 1 on the 11 ISPRS
-        samples with both the default set and the paper's values
+        accepted, until a pass adds none) (R; the paper calls its densification
+        "noniterative", "ground points are only identified once in each layer": a point is
+        still accepted at most once, but a rejected one is tested again). 3 won leave-one-out
+        against 1 on the 11 ISPRS samples with both the default set and the paper's values
         (`experiments/results/masf_isprs.md`); the TIN grows by batch insertion, so the extra
         passes cost little.
       retest_earlier: at each layer, points of earlier layers not yet ground are tested again
