@@ -35,10 +35,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import gfjax
-from gfjax.smrf import Config
 from gfjax.tune import fit as tfit
 from gfjax.tune import guard
-from gfjax.tune import smrf as tsmrf
+from gfjax.tune import methods as tmethods
 from gfjax.tune.problem import Problem, Sample
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "isprs_filtertest" / "reference"
@@ -51,7 +50,7 @@ def pct(x):
     return f"{100 * x:.2f}"
 
 
-def prepared(names: list[str], cache: Path) -> tuple[Problem, float]:
+def prepared(names: list[str], cache: Path, method: tmethods.Method = tmethods.SMRF) -> tuple[Problem, float]:
     """The prepared `Problem` of the named samples, from a pickle under `cache` when one exists
     for the same files and gfjax sources (the openings to 24 m dominate the run otherwise);
     returns it and the seconds spent preparing it (read from the cache when loaded)."""
@@ -59,17 +58,20 @@ def prepared(names: list[str], cache: Path) -> tuple[Problem, float]:
     key = hashlib.sha256()
     for f in files:
         key.update(f.read_bytes())
+    deps = ("smrf", "raster", "io") if method is tmethods.SMRF else ("pmf", "raster", "io")
     for src in sorted((Path(gfjax.__file__).parent).glob("**/*.py")):
-        if src.parent.name in ("smrf", "raster", "io") or src.name in ("smrf.py", "relax.py"):
+        if src.parent.name in deps or src.name in (f"{method.name}.py", "relax.py"):
             key.update(src.read_bytes())
-    path = cache / f"problem_{key.hexdigest()[:16]}.pkl"
+    prefix = "problem" if method is tmethods.SMRF else f"problem_{method.name}"
+    path = cache / f"{prefix}_{key.hexdigest()[:16]}.pkl"
     if path.exists():
         with path.open("rb") as fh:
             problem, seconds = pickle.load(fh)
         return problem, seconds
     t = time.perf_counter()
     samples = [Sample.from_cloud(gfjax.read(f)) for f in files]
-    problem = Problem(samples, config=Config(), max_window_m=max(tsmrf.GRID["window_m"]))
+    problem = Problem(samples, config=method.config_type(), max_window_m=max(method.grid, default=None),
+                      method=method)
     seconds = time.perf_counter() - t
     cache.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
@@ -87,6 +89,8 @@ def main(argv=None) -> int:
     ap.add_argument("--samples", nargs="*", default=NAMES, help="subset (smoke tests)")
     ap.add_argument("--out", default=str(OUT))
     ap.add_argument("--phases", default="abecd", help="which of a, b, e, c, d to run")
+    ap.add_argument("--method", default="smrf", choices=("smrf", "pmf"),
+                    help="tuned method (pmf: files tune_isprs_pmf_*; its window series is not searched)")
     ap.add_argument("--loo-windows", default="12,18,24", help="window grid of (d)")
     ap.add_argument("--cd-steps", type=int, default=None, help="steps of (c) and (d) (default --steps)")
     ap.add_argument("--loo-folds", type=int, default=None, help="folds (by sample) of (d)'s guard (default --folds)")
@@ -100,41 +104,48 @@ def main(argv=None) -> int:
                  "jax": jax.__version__, "samples": list(args.samples)}
     out = Path(args.out)
     t0 = time.perf_counter()
-    problem, res["prepare_s"] = prepared(args.samples, Path(args.cache))
+    method = tmethods.get(args.method)
+    stem = "tune_isprs" if method is tmethods.SMRF else f"tune_isprs_{method.name}"
+    res["method"] = method.name
+    res["param_names"] = [b.name for b in method.bounds] + [method.static or "max_window_m (fixed)"]
+    problem, res["prepare_s"] = prepared(args.samples, Path(args.cache), method)
     samples = problem.samples
     c = len(samples)
     per = np.arange(c, dtype=np.int32)
-    defaults = np.tile(tfit.DEFAULTS, (c, 1))
+    defaults = np.tile(method.defaults, (c, 1))
+    w0 = method.default_static(problem.config)                   # SMRF: the 18 m window
     all_masks = problem.masks()
 
     def save():
-        (out / f"tune_isprs_{args.phases}.json").write_text(
+        (out / f"{stem}_{args.phases}.json").write_text(
             json.dumps(res, indent=1, default=lambda a: np.asarray(a).tolist()))
         merged: dict = {}
         commands = []
-        for part in sorted(out.glob("tune_isprs_*.json")):
+        for part in sorted(out.glob(f"{stem}_*.json")):
+            if method is tmethods.SMRF and any(part.name.startswith(f"tune_isprs_{m}_") for m in tmethods.METHODS):
+                continue
             data = json.loads(part.read_text())
             commands.append(data["command"])
             merged.update(data)
         merged["command"] = "`; `".join(commands)
-        (out / "tune_isprs.md").write_text(report(merged))
+        (out / f"{stem}.md").write_text(report(merged))
         print(f"[{time.perf_counter() - t0:.0f}s] saved", flush=True)
 
     # (a) defaults
-    res["a_defaults"] = tfit.hard_errors(problem, defaults, all_masks, per, 18.0).tolist()
+    res["a_defaults"] = tfit.hard_errors(problem, defaults, all_masks, per, w0).tolist()
     save()
     if "b" not in args.phases:
         return cd(args, res, problem, samples, per, defaults, all_masks, save, t0)
 
     # timing of one hard evaluation and one value-and-grad call (all 11 samples), warm.
-    radius = jnp.asarray(tsmrf.radius_for(problem.config, 18.0), jnp.int32)
+    radius = jnp.asarray(method.static_px(problem.config, w0), jnp.int32)
     arrays = tfit._arrays(problem)
     raw = jnp.zeros((c, 3), jnp.float32)
     args_vg = (raw, radius, jnp.float32(0.1), arrays, all_masks, jnp.asarray(per), jnp.ones(c, jnp.float32),
                jnp.float32(0.0))
-    kw = dict(config=problem.config, kind="total-error", n_samples=c)
+    kw = dict(config=problem.config, kind="total-error", n_samples=c, method=method)
     jax.block_until_ready(tfit._soft_value_and_grad(*args_vg, **kw))
-    tfit.hard_errors(problem, defaults, all_masks, per, 18.0)
+    tfit.hard_errors(problem, defaults, all_masks, per, w0)
     reps = 5
     t = time.perf_counter()
     for _ in range(reps):
@@ -142,7 +153,7 @@ def main(argv=None) -> int:
     t_vg = (time.perf_counter() - t) / reps
     t = time.perf_counter()
     for _ in range(reps):
-        tfit.hard_errors(problem, defaults, all_masks, per, 18.0)
+        tfit.hard_errors(problem, defaults, all_masks, per, w0)
     t_hard = (time.perf_counter() - t) / reps
     res["timing"] = {"hard_eval_s": t_hard, "value_and_grad_s": t_vg, "grad_in_forward_passes": t_vg / t_hard}
     save()
@@ -162,12 +173,12 @@ def main(argv=None) -> int:
     save()
 
     # (e) grid search: 5 values per parameter over the same bounds, the same window grid.
-    grids = [np.linspace(b.lo, b.hi, 5) for b in tsmrf.BOUNDS]
+    grids = [np.linspace(b.lo, b.hi, 5) for b in method.bounds]
     best = np.full(c, np.inf)
     best_at = np.zeros((c, 4))
     t = time.perf_counter()
     n_eval = 0
-    for w in tsmrf.GRID["window_m"]:
+    for w in method.grid_values(problem.config, None):
         for combo in itertools.product(*grids):
             vals = np.tile(np.asarray(combo, np.float32), (c, 1))
             errs = tfit.hard_errors(problem, vals, all_masks, per, w)
@@ -188,6 +199,7 @@ def main(argv=None) -> int:
 
 def cd(args, res, problem, samples, per, defaults, all_masks, save, t0) -> int:
     c = len(samples)
+    w0 = problem.method.default_static(problem.config)
     # (c) half split with the tool's guard (`gfjax.tune.guard.validate`): per sample, k-fold
     # by 50 m block of the training half, sign-flip test against the defaults.
     settings = tfit.Settings(steps=args.cd_steps or args.steps)
@@ -205,7 +217,7 @@ def cd(args, res, problem, samples, per, defaults, all_masks, save, t0) -> int:
         v = guard.validate(problem, settings, point_masks=halves, group=per, folds=args.folds, block_m=50.0)
         unguarded = v.fit if v.fit is not None else tfit.fit(problem, settings, masks=problem.masks(halves), group=per)
         res["c"][train_side] = {
-            "defaults": tfit.hard_errors(problem, defaults, test_masks, per, 18.0).tolist(),
+            "defaults": tfit.hard_errors(problem, defaults, test_masks, per, w0).tolist(),
             "guarded": tfit.hard_errors_at(problem, v.values, v.window_m, test_masks, per).tolist(),
             "unguarded": tfit.hard_errors_at(problem, unguarded.values, unguarded.window_m, test_masks, per).tolist(),
             "kept": v.kept, "values": v.values, "window_m": v.window_m, "shrink": v.shrink,
@@ -244,7 +256,9 @@ def cd(args, res, problem, samples, per, defaults, all_masks, save, t0) -> int:
 
 def report(res: dict) -> str:
     names = res["samples"]
-    lines = ["# SMRF tuning on the 11 ISPRS reference samples (issue 9, protocol a-e)", "",
+    method = res.get("method", "smrf")
+    pnames = ", ".join(res.get("param_names", ["slope", "threshold_m", "scalar", "window_m"]))
+    lines = [f"# {method.upper()} tuning on the 11 ISPRS reference samples (issue 9, protocol a-e)", "",
              f"Command: `{res['command']}`  ", f"Device: {res['device']}, JAX {res['jax']}. "
              "Total error in percent (hard labels, plain-filter pipeline), unweighted mean over samples.", ""]
     cols, header = [], ["sample"]
@@ -295,7 +309,7 @@ def report(res: dict) -> str:
                          enumerate(zip(d["val_default"], d["val_tuned"], d["p_value"]))))
         lines.append("")
     if "d" in res and res["d"]["tuned"]:
-        lines.append("(d) shared values per left-out sample (slope, threshold_m, scalar, window_m): " + "; ".join(
+        lines.append(f"(d) shared values per left-out sample ({pnames}): " + "; ".join(
             f"{names[i]}: {', '.join(f'{x:.3f}' for x in v)}, {w:g}"
             for i, (v, w) in enumerate(zip(res["d"]["values"], res["d"]["window_m"]))))
         lines.append("")
@@ -317,7 +331,7 @@ def report(res: dict) -> str:
         lines.append(f"| grid 5x5x5 x windows | {pct(np.mean(e['best']))} | {e['forward_equivalents']} | "
                      f"{e['wall_s']:.0f} |")
         lines.append("")
-        lines.append("(b) fitted values (slope, threshold_m, scalar, window_m): " + "; ".join(
+        lines.append(f"(b) fitted values ({pnames}): " + "; ".join(
             f"{n}: {', '.join(f'{x:.3f}' for x in v)}, {w:g}"
             for n, v, w in zip(names, res["b_values"], res["b_window_m"])))
         lines.append("")
@@ -325,7 +339,7 @@ def report(res: dict) -> str:
             f"{n}: {', '.join(f'{x:.3g}' for x in v)}" for n, v in zip(names, res["e_grid"]["best_at"])))
     if "prepare_s" in res:
         lines.append("")
-        lines.append(f"Reading and preparing (ZImin, low outliers, openings to 24 m, compile): {res['prepare_s']:.0f} s.")
+        lines.append(f"Reading and preparing (rasters, openings up to the largest window, compile): {res['prepare_s']:.0f} s.")
     return "\n".join(lines) + "\n"
 
 

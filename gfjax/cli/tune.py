@@ -1,9 +1,10 @@
-"""`gfjax tune TRAIN... --method smrf -o params.json`: fit a filter's thresholds to labelled files.
+"""`gfjax tune TRAIN... --method smrf|pmf -o params.json`: fit a filter's thresholds to labelled files.
 
-The thresholds (SMRF: slope, threshold_m, scalar) are fitted by Adam on a relaxed
-(sigmoid) form of the filter against the files' reference labels (ground = class 2), the
-window on a small grid (SPEC section 7). Several files are tuned together (one parameter set,
-unweighted mean of their losses), batched under `jax.vmap` by tile shape. The fit is
+The thresholds (SMRF: slope, threshold_m, scalar; PMF: slope, initial_distance_m,
+max_distance_m) are fitted by Adam on a relaxed (sigmoid) form of the filter against the
+files' reference labels (ground = class 2), SMRF's window on a small grid (SPEC section
+7). Several files are tuned together (one parameter set, unweighted mean of their losses),
+batched under `jax.vmap` by tile shape. The fit is
 regularised toward the defaults (`--prior`).
 
 Guard (tuned values are often worse than the defaults on other data): the labelled data are
@@ -25,7 +26,7 @@ import argparse
 from gfjax.cli._common import add_units_option, nonnegative_float, nonnegative_int, positive_float, positive_int
 from gfjax.errors import InputError
 
-TUNABLE = ("smrf",)
+TUNABLE = ("smrf", "pmf")          # gfjax.tune.methods.METHODS (not imported: no JAX at parse time)
 
 
 def _windows(text: str) -> tuple[float, ...]:
@@ -66,7 +67,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--alpha", type=_level, default=0.05,
                         help="level of the guard's test, in (0, 1) (default 0.05)")
     parser.add_argument("--windows", type=_windows, default=None, metavar="M,M,...",
-                        help="window grid [m] (default 12,18,24)")
+                        help="SMRF's window grid [m] (default 12,18,24; PMF keeps its window series)")
     parser.add_argument("--returns", choices=("all", "last"), default="all", help="returns used (default all)")
     add_units_option(parser)
     parser.add_argument("--force", action="store_true", help="overwrite an existing params file")
@@ -93,25 +94,30 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from gfjax.smrf import Config
     from gfjax.tune import fit as tfit
     from gfjax.tune import guard
-    from gfjax.tune import smrf as tsmrf
+    from gfjax.tune import methods as tmethods
     from gfjax.tune.params import write_params
     from gfjax.tune.problem import Problem, Sample
 
+    method = tmethods.get(args.method)
+    if args.windows and method.static is None:
+        raise InputError(f"--windows: {args.method} has no window grid (its window series is fixed)")
     samples = [Sample.from_cloud(las_io.read(p, units=args.units), returns=args.returns) for p in inputs]
     if not any(np.any(s.ref_ground[s.use]) for s in samples):
         raise InputError(f"{', '.join(map(str, inputs))}: no reference ground (class 2) to tune on")
-    windows = args.windows or tsmrf.GRID["window_m"]
+    config = method.config_type()
+    windows = method.grid_values(config, args.windows)
     settings = tfit.Settings(steps=args.steps, prior=args.prior, loss=args.loss, windows_m=windows)
-    problem = Problem(samples, config=Config(), max_window_m=max(windows))
+    problem = Problem(samples, config=config, max_window_m=max(windows), method=method)
     v = guard.validate(problem, settings, folds=args.folds, block_m=args.block, alpha=args.alpha, progress=True)
-    names = [b.name for b in tsmrf.BOUNDS]
+    names = [b.name for b in method.bounds]
     kept = bool(v.kept[0])
-    values = dict(zip(names, map(float, v.values[0]))) | {"window_m": float(v.window_m[0])}
-    span = {b.name: b.hi - b.lo for b in tsmrf.BOUNDS}
-    defaults = {b.name: b.default for b in tsmrf.BOUNDS}
+    values = dict(zip(names, map(float, v.values[0])))
+    if method.static:
+        values[method.static] = float(v.window_m[0])
+    span = {b.name: b.hi - b.lo for b in method.bounds}
+    defaults = {b.name: b.default for b in method.bounds}
     fitted = [k for k in names if kept and abs(values[k] - defaults[k]) > 1e-4 * span[k]]
     kind = "1 - kappa" if args.loss == "kappa" else "total error"
     validation = {"folds": args.folds, "measure": "total error" if args.folds >= 2 else kind,
@@ -119,13 +125,14 @@ def run(args: argparse.Namespace) -> int:
                   "default": float(v.default_error[0]), "tuned": float(v.tuned_error[0]),
                   "shrink": float(v.shrink[0]), "p_value": float(v.p_value[0]), "alpha": args.alpha,
                   "changed_units": int(v.units[0]), "kept": kept, "per_fold": v.fold_errors[:, 0, :].tolist()}
-    extra = {"fitted": fitted, "grid": {"window_m": list(windows)},
-             "window_chosen_from_grid": kept and values["window_m"] != Config().window_m,
-             "not_differentiable": {"window_m": "loop count of the progressive opening: grid search"},
-             "validation": validation, "loss": args.loss, "prior": args.prior, "steps": args.steps,
+    extra = {"fitted": fitted, "validation": validation, "loss": args.loss, "prior": args.prior, "steps": args.steps,
              "training_files": [str(p) for p in inputs]}
-    write_params(out, method=args.method, values=values, units=tsmrf.UNITS, extra=extra)
-    print(f"{out}: {args.method} " + ", ".join(f"{k}={values[k]:.4g}" for k in [*names, "window_m"]))
+    if method.static:
+        extra |= {"grid": {method.static: list(windows)},
+                  "window_chosen_from_grid": kept and values[method.static] != method.default_static(config),
+                  "not_differentiable": {method.static: "loop count of the progressive opening: grid search"}}
+    write_params(out, method=args.method, values=values, units=method.units, extra=extra)
+    print(f"{out}: {args.method} " + ", ".join(f"{k}={values[k]:.4g}" for k in values))
     if args.folds >= 2:
         print(f"validation ({args.folds} folds by {validation['units']}): out-of-fold total error defaults "
               f"{validation['default']:.4f}, tuned {validation['tuned']:.4f} (shrink {v.shrink[0]:.2f}), "

@@ -9,14 +9,15 @@ result = fit.fit(problem, Settings(steps=60))       # module `fit`, function `fi
 checked = validate(problem, Settings(), folds=3)    # keep it only where held-out data say so
 ```
 `relax` holds the soft thresholds, `params` the bounded parametrisation and params.json,
-`smrf` the relaxed SMRF pipeline, `pmf` the relaxed PMF point test (not yet driven by `fit`),
-`fit` the optax loop, `guard` the cross-validated test against the defaults.
+`smrf` the relaxed SMRF pipeline, `pmf` the relaxed PMF point test, `methods` what the loop
+needs of each (`Problem(..., method=methods.PMF)`), `fit` the optax loop, `guard` the
+cross-validated test against the defaults.
 """
-from gfjax.tune import fit, guard, relax
+from gfjax.tune import fit, guard, methods, relax
 from gfjax.tune.fit import FitResult, Settings, hard_errors
 from gfjax.tune.guard import Validation, validate
 from gfjax.tune.params import read_params, write_params
 from gfjax.tune.problem import Problem, Sample, block_folds
 
-__all__ = ["relax", "fit", "guard", "Sample", "Problem", "Settings", "FitResult", "Validation", "fit", "validate",
+__all__ = ["relax", "fit", "guard", "methods", "Sample", "Problem", "Settings", "FitResult", "Validation", "fit", "validate",
            "hard_errors", "block_folds", "read_params", "write_params"]

@@ -29,18 +29,18 @@ import numpy as np
 import optax
 
 from gfjax import metrics
-from gfjax.smrf.config import Config
 from gfjax.tune import params as tparams
 from gfjax.tune import relax
 from gfjax.tune import smrf as tsmrf
+from gfjax.tune.methods import SMRF, Method
 from gfjax.tune.problem import Problem
 
 __all__ = ["Settings", "FitResult", "fit", "hard_ground", "hard_errors", "hard_errors_at", "soft_loss",
            "LOSSES", "DEFAULTS"]
 
 LOSSES = ("total-error", "kappa")
-BOUNDS = tsmrf.BOUNDS
-DEFAULTS = np.asarray([b.default for b in BOUNDS], np.float32)
+BOUNDS = tsmrf.BOUNDS          # SMRF's (the default method); a problem's own: `problem.method.bounds`
+DEFAULTS = SMRF.defaults
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,7 +53,8 @@ class Settings:
       temperature_start_m, temperature_end_m: geometric annealing of the relaxation [m].
       prior: weight of the squared distance to the defaults (bounded scale).
       loss: "total-error" (expected total error) or "kappa" (1 - soft kappa).
-      windows_m: the window grid (static parameter).
+      windows_m: the grid of the method's static parameter (SMRF: window [m]); None: the
+        method's default grid (`Method.grid`); ignored by methods without one (PMF).
       eval_every: steps between hard evaluations (best iterate kept).
     """
 
@@ -63,7 +64,7 @@ class Settings:
     temperature_end_m: float = 0.01
     prior: float = 0.01
     loss: str = "total-error"
-    windows_m: tuple[float, ...] = tsmrf.GRID["window_m"]
+    windows_m: tuple[float, ...] | None = None
     eval_every: int = 10
 
     def __post_init__(self):
@@ -73,20 +74,19 @@ class Settings:
             raise ValueError(f"loss must be one of {LOSSES}, got {self.loss!r}")
         if not (self.prior >= 0 and np.isfinite(self.prior)):
             raise ValueError(f"prior must be finite and >= 0, got {self.prior}")
-        if not self.windows_m or any(w <= 0 for w in self.windows_m):
+        if self.windows_m is not None and (not self.windows_m or any(not w > 0 for w in self.windows_m)):
             raise ValueError(f"windows_m must hold values > 0, got {self.windows_m}")
         if self.eval_every < 1:
             raise ValueError(f"eval_every must be >= 1, got {self.eval_every}")
 
 
-def _bucket_confusions(values, radius_px, bucket_prep, ref, cloud, mask, group, *, config, temperature,
+def _bucket_confusions(values, radius_px, bucket_prep, ref, cloud, mask, group, *, method, config, temperature,
                        n_samples):
     """Per-sample (soft or hard) confusion counts `(n_samples, 4)` of one bucket."""
     tile_values = values[group[cloud]]                                   # (b, p)
 
     def one(prep, vals):
-        return tsmrf.ground_weight(prep, tsmrf.make_params(vals), config=config, radius_px=radius_px,
-                                   temperature=temperature)
+        return method.ground_weight(prep, vals, config=config, static_px=radius_px, temperature=temperature)
 
     weight = jax.vmap(one)(bucket_prep, tile_values)                     # (b, cap)
     weight = weight.astype(jnp.float32)
@@ -95,11 +95,11 @@ def _bucket_confusions(values, radius_px, bucket_prep, ref, cloud, mask, group, 
     return jax.ops.segment_sum(stacked, cloud, num_segments=n_samples)
 
 
-def _confusions(values, radius_px, buckets, masks, group, *, config, temperature, n_samples):
+def _confusions(values, radius_px, buckets, masks, group, *, method, config, temperature, n_samples):
     total = jnp.zeros((n_samples, 4), jnp.float32)
     for (prep, ref, cloud), mask in zip(buckets, masks):
-        total = total + _bucket_confusions(values, radius_px, prep, ref, cloud, mask, group, config=config,
-                                           temperature=temperature, n_samples=n_samples)
+        total = total + _bucket_confusions(values, radius_px, prep, ref, cloud, mask, group, method=method,
+                                           config=config, temperature=temperature, n_samples=n_samples)
     return total
 
 
@@ -110,33 +110,32 @@ def _sample_loss(conf, kind: str):
     return jax.vmap(metrics.expected_total_error)(c)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "kind", "n_samples"))
-def soft_loss(raw, radius_px, temperature, buckets, masks, group, weight, prior, *, config: Config,
-              kind: str, n_samples: int):
-    """Relaxed objective (scalar) for unconstrained `raw` `(g, 3)` at a window of `radius_px`
-    openings (traced int32); `group` int32 `(c,)` maps samples to rows of `raw`, `weight`
-    float32 `(c,)` weighs their losses."""
-    values = tparams.from_raw(raw, BOUNDS)
-    conf = _confusions(values, radius_px, buckets, masks, group, config=config, temperature=temperature,
-                       n_samples=n_samples)
+@functools.partial(jax.jit, static_argnames=("config", "kind", "n_samples", "method"))
+def soft_loss(raw, radius_px, temperature, buckets, masks, group, weight, prior, *, config, kind: str,
+              n_samples: int, method: Method = SMRF):
+    """Relaxed objective (scalar) for unconstrained `raw` `(g, 3)` (ordered as `method.bounds`)
+    with the static parameter at `radius_px` (SMRF: openings, traced int32); `group` int32
+    `(c,)` maps samples to rows of `raw`, `weight` float32 `(c,)` weighs their losses."""
+    values = tparams.from_raw(raw, method.bounds)
+    conf = _confusions(values, radius_px, buckets, masks, group, method=method, config=config,
+                       temperature=temperature, n_samples=n_samples)
     data = jnp.sum(weight * _sample_loss(conf, kind))
-    return data + prior * jnp.sum(tparams.prior_penalty(raw, BOUNDS))
+    return data + prior * jnp.sum(tparams.prior_penalty(raw, method.bounds))
 
 
 _soft_value_and_grad = jax.jit(jax.value_and_grad(soft_loss.__wrapped__),
-                               static_argnames=("config", "kind", "n_samples"))
+                               static_argnames=("config", "kind", "n_samples", "method"))
 
 
-@functools.partial(jax.jit, static_argnames=("config",))
-def _hard_ground(values, radius_px, buckets, group, *, config: Config):
+@functools.partial(jax.jit, static_argnames=("config", "method"))
+def _hard_ground(values, radius_px, buckets, group, *, config, method: Method):
     """Plain-filter labels per bucket, bool `(b, cap)`, for values `(g, 3)`."""
     out = []
     for prep, _, cloud in buckets:
         tile_values = values[group[cloud]]
 
         def one(p, v):
-            return tsmrf.ground_weight(p, tsmrf.make_params(v), config=config, radius_px=radius_px,
-                                       temperature=None)
+            return method.ground_weight(p, v, config=config, static_px=radius_px, temperature=None)
 
         out.append(jax.vmap(one)(prep, tile_values))
     return tuple(out)
@@ -148,10 +147,12 @@ def _arrays(problem: Problem):
 
 def hard_ground(problem: Problem, values: np.ndarray, group: np.ndarray, window_m: float) -> list[np.ndarray]:
     """Plain-filter ground labels per bucket, bool `(b, cap)` (numpy), for values `(g, 3)`
-    (ordered as `BOUNDS`) with one window for all groups; `problem.labels` maps them to points."""
-    radius = jnp.asarray(tsmrf.radius_for(problem.config, window_m), jnp.int32)
+    (ordered as `problem.method.bounds`) with one static value (SMRF: window [m]) for all
+    groups; `problem.labels` maps them to points."""
+    method = problem.method
+    radius = jnp.asarray(method.static_px(problem.config, window_m), jnp.int32)
     out = _hard_ground(jnp.asarray(values, jnp.float32), radius, _arrays(problem), jnp.asarray(group, jnp.int32),
-                       config=problem.config)
+                       config=problem.config, method=method)
     return [np.asarray(g) for g in out]
 
 
@@ -168,7 +169,7 @@ def _confusion_counts(problem: Problem, ground: list[np.ndarray], masks) -> np.n
 def hard_errors(problem: Problem, values: np.ndarray, masks, group: np.ndarray, window_m: float,
                 *, kind: str = "total-error") -> np.ndarray:
     """Plain-filter error per sample, float64 `(c,)`: total error (or 1 - kappa) of the hard
-    labels on the masked points, for values `(g, 3)` (ordered as `BOUNDS`)."""
+    labels on the masked points, for values `(g, 3)` (ordered as `problem.method.bounds`)."""
     conf = _confusion_counts(problem, hard_ground(problem, values, group, window_m), masks)
     key = "total_error" if kind == "total-error" else "kappa"
     out = np.array([metrics.metrics_from_confusion(*map(int, c))[key] for c in conf])
@@ -179,8 +180,10 @@ class FitResult(NamedTuple):
     """Outcome of `fit`, per group g.
 
     Attributes:
-      values: float32 `(g, 3)` thresholds ordered as `BOUNDS` (the best hard iterate).
-      window_m: float64 `(g,)` chosen window.
+      values: float32 `(g, 3)` thresholds ordered as `problem.method.bounds` (the best hard
+        iterate).
+      window_m: float64 `(g,)` chosen static value (SMRF: window [m]; PMF: the config's max
+        window, not searched).
       train_error: float64 `(g,)` hard training objective of the result: the weighted error
         over its samples plus `prior` times the distance to the defaults.
       start_error: float64 `(g,)` the same for the starting values.
@@ -208,15 +211,16 @@ def _group_error(per_sample: np.ndarray, group: np.ndarray, weight: np.ndarray, 
     return out
 
 
-def _penalty(values: np.ndarray) -> np.ndarray:
+def _penalty(values: np.ndarray, method: Method) -> np.ndarray:
     """`params.prior_penalty` on bounded values `(g, 3)` (numpy), `(g,)`."""
-    span = np.asarray([b.hi - b.lo for b in BOUNDS])
-    return np.sum(np.square((np.asarray(values, np.float64) - DEFAULTS) / span), axis=-1)
+    span = np.asarray([b.hi - b.lo for b in method.bounds])
+    return np.sum(np.square((np.asarray(values, np.float64) - method.defaults) / span), axis=-1)
 
 
 def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=None, weight=None,
         start: np.ndarray | None = None, progress: bool = False) -> FitResult:
-    """Fit SMRF's slope, threshold and scalar (gradient) and window (grid) to labels.
+    """Fit a method's three thresholds (gradient) and static parameter (grid) to labels:
+    SMRF's slope, threshold and scalar and its window; PMF's slope, initial and max distance.
 
     Args:
       problem: the prepared samples.
@@ -241,7 +245,9 @@ def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=
         counts = np.bincount(group, minlength=n_groups)
         weight = 1.0 / counts[group]
     weight = np.asarray(weight, np.float64)
-    start = np.tile(DEFAULTS, (n_groups, 1)) if start is None else np.asarray(start, np.float32)
+    method = problem.method
+    bounds = method.bounds
+    start = np.tile(method.defaults, (n_groups, 1)) if start is None else np.asarray(start, np.float32)
     arrays = _arrays(problem)
     group_j, weight_j = jnp.asarray(group), jnp.asarray(weight, jnp.float32)
     temps = relax.geometric_schedule(settings.temperature_start_m, settings.temperature_end_m, settings.steps)
@@ -253,10 +259,11 @@ def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=
         nonlocal passes
         passes += 1
         errs = hard_errors(problem, values, masks, group, window_m, kind=settings.loss)
-        return _group_error(errs, group, weight, n_groups) + settings.prior * _penalty(values)
+        return _group_error(errs, group, weight, n_groups) + settings.prior * _penalty(values, method)
 
-    default_window = Config().window_m
-    start_window = default_window if default_window in settings.windows_m else settings.windows_m[0]
+    grid = method.grid_values(problem.config, settings.windows_m)
+    default_window = method.default_static(problem.config)
+    start_window = default_window if default_window in grid else grid[0]
     best_values = start.copy()
     best_window = np.full(n_groups, start_window)
     start_error = evaluate(start, start_window)
@@ -265,27 +272,28 @@ def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=
     bar = None
     if progress:
         from tqdm.auto import tqdm
-        bar = tqdm(total=settings.steps * len(settings.windows_m), desc="tune smrf", unit="step")
-    for window_m in settings.windows_m:
-        radius = jnp.asarray(tsmrf.radius_for(problem.config, window_m), jnp.int32)
+        bar = tqdm(total=settings.steps * len(grid), desc=f"tune {method.name}", unit="step")
+    for window_m in grid:
+        radius = jnp.asarray(method.static_px(problem.config, window_m), jnp.int32)
         if window_m != start_window:
             errs = evaluate(start, window_m)
             better = errs < best_error
             best_error = np.where(better, errs, best_error)
             best_window = np.where(better, window_m, best_window)
             best_values[better] = start[better]
-        raw = jnp.stack([tparams.to_raw(dict(zip([b.name for b in BOUNDS], row)), BOUNDS) for row in start])
+        raw = jnp.stack([tparams.to_raw(dict(zip([b.name for b in bounds], row)), bounds) for row in start])
         with jax.numpy_dtype_promotion("standard"):
             state = optimiser.init(raw)
         losses, trail = [], []
         for step in range(settings.steps):
             loss, g = _soft_value_and_grad(raw, radius, temps[step], arrays, masks, group_j, weight_j,
-                                           prior, config=problem.config, kind=settings.loss, n_samples=c)
+                                           prior, config=problem.config, kind=settings.loss, n_samples=c,
+                                           method=method)
             grads += 1
             with jax.numpy_dtype_promotion("standard"):   # optax: float ** int32 step count
                 updates, state = optimiser.update(g, state, raw)
                 raw = optax.apply_updates(raw, updates)
-            values = np.asarray(tparams.from_raw(raw, BOUNDS))
+            values = np.asarray(tparams.from_raw(raw, bounds))
             losses.append(float(loss))
             trail.append(values)
             if (step + 1) % settings.eval_every == 0 or step == settings.steps - 1:
@@ -296,14 +304,13 @@ def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=
                 best_values[better] = values[better]
             if bar is not None:
                 bar.update(1)
-                bar.set_postfix(window_m=window_m, loss=f"{float(loss):.4f}")
+                bar.set_postfix({method.static or "static": window_m, "loss": f"{float(loss):.4f}"})
         history[float(window_m)] = {"loss": np.asarray(losses), "values": np.stack(trail),
                                     "temperature": np.asarray(temps)}
     if bar is not None:
         bar.close()
     return FitResult(best_values, best_window, best_error, start_error, history, passes, grads,
                      time.perf_counter() - t0)
-
 
 
 def hard_errors_at(problem: Problem, values: np.ndarray, window_m: np.ndarray, masks, group: np.ndarray,

@@ -40,7 +40,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gfjax.smrf.config import Config
 from gfjax.tune import fit as tfit
 from gfjax.tune.problem import Problem, block_folds, block_ids
 
@@ -55,7 +54,7 @@ class Validation(NamedTuple):
     """Outcome of `validate`, per group g.
 
     Attributes:
-      values: float32 `(g, 3)` thresholds to use (ordered as `tune.smrf.BOUNDS`).
+      values: float32 `(g, 3)` thresholds to use (ordered as `problem.method.bounds`).
       window_m: float64 `(g,)` window to use (the default window where not kept).
       kept: bool `(g,)` whether the test said the (shrunken) fit beats the defaults.
       shrink: float64 `(g,)` chosen level a* on the segment defaults -> fit (0 where not kept).
@@ -178,8 +177,8 @@ def validate(problem: Problem, settings: tfit.Settings = tfit.Settings(), *, poi
     weight = np.asarray(weight, np.float64)
     covered = problem.covered()
     base = covered if point_masks is None else [np.asarray(m, bool) & cv for m, cv in zip(point_masks, covered)]
-    defaults = np.tile(tfit.DEFAULTS, (n_groups, 1))
-    default_window = np.full(n_groups, Config().window_m)
+    defaults = np.tile(problem.method.defaults, (n_groups, 1))
+    default_window = np.full(n_groups, problem.method.default_static(problem.config))
     passes = grads = 0
     n_levels = len(shrink)
     if folds < 2:

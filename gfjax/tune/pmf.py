@@ -13,7 +13,8 @@ only through the windows whose threshold is capped, `initial_distance_m` and `sl
 the others). With `temperature=None` the labels are `stages.classify_points` itself, so they
 equal the plain filter bit for bit (tested).
 
-Status: the relaxed stage only; `gfjax.tune.fit` and `gfjax tune` drive SMRF so far.
+`gfjax.tune.methods.PMF` plugs it into `gfjax.tune.fit`, the guard and `gfjax tune --method pmf`
+(the window series is not searched).
 """
 from __future__ import annotations
 

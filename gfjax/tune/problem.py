@@ -1,7 +1,7 @@
 """Labelled samples cut into tiles, prepared once, in fixed-shape buckets for the tuning loop.
 
 A `Problem` holds, for a list of labelled clouds, the parameter-free part of a method's
-pipeline (`gfjax.tune.smrf.prepare_tile`) per shape bucket of `gfjax.io.tiles`, with the
+pipeline (`Method.prepare_tile`: SMRF's openings, PMF's openings) per shape bucket of `gfjax.io.tiles`, with the
 reference labels padded alike. Which labelled points count (a training half, a fold) is an
 array argument (`Problem.masks`), not part of the compiled shapes, so every protocol of a
 run reuses the same preparation and the same compiled loss.
@@ -20,8 +20,7 @@ import numpy as np
 from gfjax.errors import InputError
 from gfjax.io import tiles as tiling
 from gfjax.io.cloud import Cloud
-from gfjax.smrf.config import Config
-from gfjax.tune import smrf as tsmrf
+from gfjax.tune import methods as tmethods
 
 __all__ = ["Sample", "Bucket", "Problem", "block_ids", "block_folds"]
 
@@ -56,7 +55,7 @@ class Sample(NamedTuple):
 class Bucket:
     """Tiles of one shape bucket, prepared (`Prepared` fields carry a leading `b` axis)."""
 
-    prep: tsmrf.Prepared
+    prep: tuple                 # the method's Prepared
     ref: jax.Array              # bool (b, cap) reference ground
     cloud: jax.Array            # int32 (b,) sample index of each tile
     core_index: np.ndarray      # int64 (b, cap) cloud point index of core points, -1 elsewhere
@@ -93,28 +92,36 @@ def block_folds(xyz_m: np.ndarray, *, folds: int, block_m: float, seed: int = 0)
     return fold_of_block[block]
 
 
-@functools.partial(jax.jit, static_argnames=("config", "shape"))
-def _prepare_batch(xyz, valid, hw, *, config: Config, shape):
-    fn = functools.partial(tsmrf.prepare_tile.__wrapped__, config=config, shape=shape)
+@functools.partial(jax.jit, static_argnames=("method", "config", "shape"))
+def _prepare_batch(xyz, valid, hw, *, method: tmethods.Method, config, shape):
+    fn = functools.partial(method.prepare_tile, config=config, shape=shape)
     return jax.vmap(fn)(xyz, valid, hw)
 
 
 class Problem:
-    """Labelled samples prepared for tuning SMRF at windows up to `max(window grid)`.
+    """Labelled samples prepared for tuning a method (SMRF: at windows up to `max_window_m`).
 
     Args:
       samples: labelled clouds.
-      config: static SMRF settings (cell, tiling; the window is replaced by `max_window_m`).
-      max_window_m: the largest window tried (openings are computed up to it).
+      config: the method's static settings (cell, tiling; SMRF's window is replaced by
+        `max(max_window_m, config.window_m)`).
+      max_window_m: SMRF: the largest window tried (openings are computed up to it);
+        ignored by methods without a static grid (PMF).
+      method: `gfjax.tune.methods.SMRF` (default) or `PMF`.
       max_batch: tiles per vmapped batch.
     """
 
-    def __init__(self, samples: Sequence[Sample], *, config: Config, max_window_m: float,
-                 max_batch: int = 8):
+    method: tmethods.Method = tmethods.SMRF      # also for problems pickled before methods existed
+
+    def __init__(self, samples: Sequence[Sample], *, config, max_window_m: float | None = None,
+                 method: tmethods.Method = tmethods.SMRF, max_batch: int = 8):
         if not samples:
             raise InputError("no labelled samples to tune on")
+        if not isinstance(config, method.config_type):
+            raise InputError(f"config: expected a {method.name} Config, got {type(config).__name__}")
         self.samples = list(samples)
-        self.config = dataclasses.replace(config, window_m=float(max(max_window_m, config.window_m)))
+        self.method = method
+        self.config = method.prepared_config(config, (max_window_m,) if max_window_m else method.grid)
         tiles, owner = [], {}
         for i, s in enumerate(self.samples):
             for tile in tiling.split(s.xyz_m, tile_size_m=config.tile_size_m, buffer_m=config.buffer_m,
@@ -125,7 +132,8 @@ class Problem:
             raise InputError("the labelled samples hold no usable point")
         self.buckets: list[Bucket] = []
         for batch in tiling.batches(tiles, max_batch=max_batch):
-            prep = _prepare_batch(batch.xyz, batch.valid, batch.hw, config=self.config, shape=batch.shape)
+            prep = _prepare_batch(batch.xyz, batch.valid, batch.hw, method=method, config=self.config,
+                                  shape=batch.shape)
             b, cap = batch.valid.shape
             ref = np.zeros((b, cap), bool)
             core_index = np.full((b, cap), -1, np.int64)

@@ -34,9 +34,9 @@ def test_fit_stays_in_bounds_and_never_worsens_training_error():
 
 
 def test_per_sample_groups_are_independent():
-    pb = problem(("flat", "roof"))
-    r = tfit.fit(pb, SETTINGS, group=np.array([0, 1]))
-    alone = tfit.fit(pb, SETTINGS, group=np.array([0, 1]), weight=np.array([1.0, 0.0]))
+    pb = problem(("flat", "roof", "rough"))
+    r = tfit.fit(pb, SETTINGS, group=np.array([0, 1, 2]))
+    alone = tfit.fit(pb, SETTINGS, group=np.array([0, 1, 2]), weight=np.array([1.0, 0.0, 0.0]))
     np.testing.assert_allclose(alone.history[WINDOWS[0]]["values"][:, 0], r.history[WINDOWS[0]]["values"][:, 0],
                                rtol=1e-5, atol=1e-6)
 

@@ -100,7 +100,7 @@ def _loss_and_grad(pb, raw, kind, temperature=0.1):
     c = pb.n_samples
     return tfit._soft_value_and_grad(raw, jnp.int32(6), jnp.float32(temperature), tfit._arrays(pb), pb.masks(),
                                      jnp.zeros(c, jnp.int32), jnp.full(c, 1.0 / c, jnp.float32), jnp.float32(0.0),
-                                     config=pb.config, kind=kind, n_samples=c)
+                                     config=pb.config, kind=kind, n_samples=c, method=pb.method)
 
 
 def test_every_fitted_parameter_has_a_nonzero_gradient_on_labelled_sample():
@@ -115,7 +115,7 @@ def test_every_fitted_parameter_has_a_nonzero_gradient_on_labelled_sample():
 
 @pytest.mark.parametrize("kind", tfit.LOSSES)
 def test_losses_finite_on_all_ground_and_no_ground_tiles(kind):
-    pb = problem(("flat", "roof"))
+    pb = problem(("flat", "roof", "rough"))          # all-ground, no-ground, rough ground
     for raw in (jnp.zeros((1, 3), jnp.float32), jnp.full((1, 3), 4.0, jnp.float32)):
         loss, grad = _loss_and_grad(pb, raw, kind)
         assert np.isfinite(float(loss))

@@ -1,0 +1,105 @@
+"""What the tuning loop needs to know of a method: its bounds, its parameter-free preparation,
+its relaxed (or hard) ground weight, and its static grid parameter (SPEC section 7).
+
+A `Method` is a static argument of the jitted losses (hashed by identity: use the module
+constants `SMRF` and `PMF`). The values vector `(3,)` is ordered as `Method.bounds`.
+
+* SMRF (`gfjax.tune.smrf`): slope, threshold_m, scalar fitted; `window_m` searched on a grid
+  (`static="window_m"`), its openings prepared once up to the largest window.
+* PMF (`gfjax.tune.pmf`): slope, initial_distance_m, max_distance_m fitted; the window
+  series stays the config's (`static=None`): the loop's single "grid value" is the config's
+  `max_window_m`, reported but never written to params.json.
+"""
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import numpy as np
+
+from gfjax import pmf as pmf_method
+from gfjax import smrf as smrf_method
+from gfjax.tune import pmf as tpmf
+from gfjax.tune import smrf as tsmrf
+from gfjax.tune.params import Bound
+
+__all__ = ["Method", "SMRF", "PMF", "METHODS", "get"]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Method:
+    """A tunable method.
+
+    Attributes:
+      name: the method's name in `gfjax.methods` and params.json.
+      bounds: fitted scalars, their defaults and bounds.
+      units: unit of every value written to params.json.
+      config_type: the method's static `Config` class.
+      static: name of the grid-searched static parameter ("window_m") or None.
+      grid: default grid of the static parameter (empty when `static` is None).
+      prepare_tile: `(xyz, valid, hw, *, config, shape) -> prepared` (unjitted).
+      ground_weight: `(prep, values (3,), *, config, static_px, temperature) -> (n,)`.
+      static_px: `(config, value) -> int` traced count for `ground_weight` (0 if unused).
+      default_static: `(config) -> float` the static parameter's default (the plain filter's).
+      prepared_config: `(config, grid) -> config` the config the preparation runs under.
+    """
+
+    name: str
+    bounds: tuple[Bound, ...]
+    units: dict
+    config_type: type
+    static: str | None
+    grid: tuple[float, ...]
+    prepare_tile: Callable
+    ground_weight: Callable
+    static_px: Callable
+    default_static: Callable
+    prepared_config: Callable
+
+    @property
+    def defaults(self) -> np.ndarray:
+        """float32 `(3,)` the plain filter's defaults, ordered as `bounds`."""
+        return np.asarray([b.default for b in self.bounds], np.float32)
+
+    def __reduce__(self):
+        """Pickled by name (a problem cached to disk refers to the module's constant)."""
+        return (get, (self.name,))
+
+    def grid_values(self, config, requested: tuple[float, ...] | None) -> tuple[float, ...]:
+        """The static values a fit searches: `requested` (or `grid`) for a grid method, else
+        the config's own value."""
+        if self.static is None:
+            return (float(self.default_static(config)),)
+        return tuple(requested) if requested else self.grid
+
+
+def _smrf_weight(prep, values, *, config, static_px, temperature):
+    return tsmrf.ground_weight(prep, tsmrf.make_params(values), config=config, radius_px=static_px,
+                               temperature=temperature)
+
+
+def _pmf_weight(prep, values, *, config, static_px, temperature):
+    del static_px                       # the window series is static (config.windows_px)
+    return tpmf.ground_weight(prep, tpmf.make_params(values), config=config, temperature=temperature)
+
+
+SMRF = Method(
+    name="smrf", bounds=tsmrf.BOUNDS, units=tsmrf.UNITS, config_type=smrf_method.Config, static="window_m",
+    grid=tsmrf.GRID["window_m"], prepare_tile=tsmrf.prepare_tile.__wrapped__, ground_weight=_smrf_weight,
+    static_px=tsmrf.radius_for, default_static=lambda config: smrf_method.Config().window_m,
+    prepared_config=lambda config, grid: dataclasses.replace(
+        config, window_m=float(max(max(grid), config.window_m))))
+PMF = Method(
+    name="pmf", bounds=tpmf.BOUNDS, units=tpmf.UNITS, config_type=pmf_method.Config, static=None, grid=(),
+    prepare_tile=tpmf.prepare_tile.__wrapped__, ground_weight=_pmf_weight,
+    static_px=lambda config, value: 0, default_static=lambda config: config.max_window_m,
+    prepared_config=lambda config, grid: config)
+METHODS = {m.name: m for m in (SMRF, PMF)}
+
+
+def get(name: str) -> Method:
+    """The tunable method called `name` (ValueError naming the tunable ones otherwise)."""
+    try:
+        return METHODS[name]
+    except KeyError:
+        raise ValueError(f"{name!r} cannot be tuned; tunable: {', '.join(METHODS)}") from None
