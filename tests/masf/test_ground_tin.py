@@ -49,18 +49,28 @@ def assert_valid_triangulation(t: GroundTin):
     assert gap.min() > -1e-9 * radius.max()
 
 
-def test_walk_locates_like_scipy():
+def contains(corners, q, tol=1e-9):
+    """Brute force: bool `(q, t)`, triangle `(t, 3, 2)` (counter-clockwise) holds point `q` `(q, 2)`."""
+    a, b = corners[None, :, :, :], np.roll(corners, -1, axis=1)[None]
+    cross = ((b[..., 0] - a[..., 0]) * (q[:, None, None, 1] - a[..., 1])
+             - (b[..., 1] - a[..., 1]) * (q[:, None, None, 0] - a[..., 0]))
+    return (cross >= -tol).all(axis=2)
+
+
+def test_walk_finds_the_triangle_holding_each_point():
     rng = np.random.default_rng(1)
     pts = np.column_stack([rng.uniform(0, 50, (400, 2)), rng.normal(0, 1, 400)])
-    queries = rng.uniform(-2, 52, (3000, 2))
+    queries = np.concatenate([rng.uniform(-2, 52, (3000, 2)), pts[:20, :2]])     # and on vertices
     t = GroundTin(pts)
     found = t.locate(queries)
-    expected = Delaunay(pts[:, :2]).find_simplex(queries)      # same Qhull call: same triangle ids
-    inside = expected >= 0
-    np.testing.assert_array_equal(found[inside], expected[inside])
+    holders = contains(pts[:, :2][t.simplices], queries)
+    inside = holders.any(axis=1)
+    assert inside.sum() > 2000 and (~inside).sum() > 50
+    assert holders[np.flatnonzero(inside), found[inside]].all()
     assert (found[~inside] < 0).all()
-    far_start = np.full(len(queries), len(t.simplices) - 1)
-    np.testing.assert_array_equal(t.locate(queries, start=far_start), found)
+    far_start = np.full(300, len(t.simplices) - 1)                 # long walks from one triangle
+    np.testing.assert_array_equal(t.locate(queries[:300], start=far_start), found[:300])
+    assert triangle_set(t.simplices) == triangle_set(Delaunay(pts[:, :2]).simplices)
 
 
 def brute_force_distance(p, tri, n=200):
@@ -157,3 +167,21 @@ def test_insert_nothing_is_the_same_tin():
     same, changed = t.insert(np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
     np.testing.assert_array_equal(same.simplices, t.simplices)
     assert not changed.any()
+
+
+@pytest.mark.parametrize("max_growth, rebuilds", [(0, 1), (4, 0)])
+def test_strict_conflicts_on_a_lattice_grow_the_cavity_or_fall_back(monkeypatch, max_growth, rebuilds):
+    """With strict conflicts (ties left out) the lattice leaves cavity walls that DT(S) does
+    not keep: growing the cavity across them fixes that; with no growth allowed `insert`
+    re-triangulates everything, says so, and marks every old triangle changed."""
+    from gfjax.masf import insertion
+    monkeypatch.setattr(insertion, "MAX_GROWTH", max_growth)
+    monkeypatch.setattr(insertion, "TIE_TOL", 0.0)
+    g = np.arange(12.0)
+    xx, yy = np.meshgrid(g, g)
+    lattice = np.column_stack([xx.ravel(), yy.ravel()])
+    first = (lattice == 0).any(axis=1) | (lattice == 11).any(axis=1) | (np.random.default_rng(5).random(len(lattice)) < 0.3)
+    t = GroundTin(with_z(lattice[first]))
+    grown, changed = t.insert(with_z(lattice[~first]), t.locate(lattice[~first]))
+    assert grown.rebuilds == rebuilds and changed.all() == (rebuilds == 1)
+    assert_valid_triangulation(grown)
