@@ -169,8 +169,8 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
             # Only points over a replaced triangle (or next to one, for nearest_facet) can change.
             stale = (facet >= 0) & changed[np.maximum(facet, 0)]
             if nearest_facet:
-                around = old.neighbours[facet]
-                stale |= (changed[np.maximum(around, 0)] & (around >= 0)).any(axis=1)
+                around = old.neighbours[np.maximum(facet, 0)]
+                stale |= (facet >= 0) & (changed[np.maximum(around, 0)] & (around >= 0)).any(axis=1)
             start = tin.vertex_to_simplex[old.simplices[facet[stale], 0]]
             distance_m[stale], facet[stale] = tin.measure(seed_xyz[candidates[stale]], nearest_facet=nearest_facet,
                                                           start=start)
