@@ -90,7 +90,13 @@ def masked_median(values: Float[Array, "m k"], use: Bool[Array, "m k"]) -> tuple
 def _nearest_t(z: Float[Array, " m"], z0_table: Float[Array, "k m"], dxy2: Float[Array, "k m"],
                index: Int[Array, "k m"], valid: Bool[Array, "k m"]) -> Int[Array, " m"]:
     d2 = jnp.where(valid, dxy2 + (z0_table - z[None, :]) ** 2, jnp.inf)
-    slot = jnp.argmin(d2, axis=0)
+    # `jnp.argmin(d2, axis=0)` as a running minimum over the k rows: elementwise selects along
+    # contiguous rows of length m. XLA's CPU argmin (a variadic reduce) took 10.8 ms for
+    # k = 32, m = 56,796 (bcts_2), this 0.8 ms. Strict `<`: ties keep the earlier slot.
+    best, slot = d2[0], jnp.zeros(d2.shape[1], jnp.int32)
+    for k in range(1, d2.shape[0]):
+        closer = d2[k] < best
+        best, slot = jnp.where(closer, d2[k], best), jnp.where(closer, jnp.int32(k), slot)
     return jnp.take_along_axis(index, slot[None, :], axis=0)[0]
 
 

@@ -4,8 +4,8 @@
   radius (the cylinder C_p of Wu et al. 2025, Sec. 2.3), read by the JAX basal iteration.
   Built on a uniform grid of buckets of side `radius / 3`: every neighbour lies in the 7 x 7
   buckets around a node, so one vectorised gather and one row sort replace a KD-tree query
-  (bcts_2, 56,796 ND_CE, r = 3 W: 4x faster than `cKDTree.query(k=33, distance_upper_bound)`,
-  the same table; `experiments/dmf_speed.py` times both). Clouds whose grid would be much
+  (bcts_2, 56,796 ND_CE, r = 3 W: 1.7x faster than `cKDTree.query(k=33, distance_upper_bound)`,
+  the same DMF labels; `experiments/dmf_speed.py` times both and compares the labels). Clouds whose grid would be much
   larger than the node count (sparse nodes over a large extent) use the KD-tree.
 * `nearest_node`: the 3D-nearest node of each query point (ND_NG in Sec. 2.3; the point ->
   support-node search of the bidirectional KD-tree engine in Sec. 2.6).
@@ -136,7 +136,7 @@ def _kdtree_rows(xy: np.ndarray, bound_m: float, k: int) -> tuple[np.ndarray, np
     the tree's order)."""
     m = len(xy)
     kq = min(k, m)
-    dist, idx = cKDTree(xy).query(xy, k=kq, distance_upper_bound=bound_m)
+    dist, idx = cKDTree(xy).query(xy, k=kq, distance_upper_bound=bound_m, workers=-1)
     dist, idx = np.asarray(dist).reshape(m, kq), np.asarray(idx).reshape(m, kq)
     found = np.isfinite(dist)
     return np.where(found, idx, 0), found.sum(axis=1)
@@ -200,7 +200,8 @@ def cylinder_table(xy: np.ndarray, *, radius_m: float, k: int, shrink: bool = Tr
 
 
 def nearest_node(nodes: np.ndarray, queries: np.ndarray, *, tree: cKDTree | None = None) -> np.ndarray:
-    """Index of the 3D-nearest node of each query (ties: scipy's order).
+    """Index of the 3D-nearest node of each query (ties: scipy's order). The query runs on
+    every core (`workers=-1`; the same result).
 
     Args:
       nodes: float64 `(m, 3)` metres; queries: float64 `(q, 3)` metres.
@@ -208,5 +209,5 @@ def nearest_node(nodes: np.ndarray, queries: np.ndarray, *, tree: cKDTree | None
     Returns: int64 `(q,)` indices into `nodes`.
     """
     tree = cKDTree(nodes) if tree is None else tree
-    _, idx = tree.query(queries, k=1)
+    _, idx = tree.query(queries, k=1, workers=-1)
     return np.asarray(idx, dtype=np.int64)

@@ -68,7 +68,7 @@ def voxel_size_m(xyz: np.ndarray, *, v0: float, fraction: float, minimum: int,
         return 1.0, 0.0
     tree = cKDTree(xyz) if tree is None else tree
     sample = nn_sample(n, xyz, fraction=fraction, minimum=minimum)
-    dist, _ = tree.query(xyz[sample], k=2)
+    dist, _ = tree.query(xyz[sample], k=2, workers=-1)         # every core: the same distances
     mean_m = float(dist[:, 1].mean())
     return float(max(1, math.ceil(v0 * mean_m - 1e-9))), mean_m
 
