@@ -47,21 +47,23 @@ PIPELINE = [dict(zip(_KEYS, values)) for values in (
     ("global", None, "patch", False, 1.0), ("global", 2.0, "hole", False, 1.0),
     ("per_node", None, "hole", False, 1.0), ("per_node", None, "hole", True, 1.0),
     ("per_node", None, "hole", False, 0.5), ("per_node", None, "hole", True, 0.5))]
-# Step-7 readings on the same diagnostics: (final_rule, support_elevation, threshold m, threshold in W).
-# The paper's rule; the height rule with a fixed threshold (the previous readings); with a
-# threshold in multiples of W; against the columns' lowest points; both rules together.
-FINAL = ([("m_nearest", "centroid", None, None)]
-         + [("height", "centroid", t, 0.0) for t in (0.25, 0.5, 1.0)]
-         + [("height", "centroid", 0.0, a) for a in (0.1, 0.15, 0.2, 0.25, 0.3)]
-         + [("height", "lowest", 0.5, 0.0)] + [("height", "lowest", 0.0, a) for a in (0.2, 0.3, 0.4)]
-         + [("both", "centroid", 0.5, 0.0)] + [("both", "centroid", 0.0, a) for a in (0.15, 0.3)])
+# Step-7 readings on the same diagnostics: (final_rule, support_z, support_elevation, threshold
+# m, threshold in W). The paper's rule; the height rule with a fixed threshold (the previous
+# readings); with a threshold in multiples of W; against the columns' lowest points; both rules
+# together; TP_G elevations from every ground column's ND_CE ("ndce") instead of ND_NG only.
+FINAL = ([("m_nearest", "ndng", "centroid", None, None)]
+         + [("height", "ndng", "centroid", t, 0.0) for t in (0.25, 0.5, 1.0)]
+         + [("height", "ndng", "centroid", 0.0, a) for a in (0.1, 0.15, 0.2, 0.25, 0.3)]
+         + [("height", "ndng", "lowest", 0.5, 0.0)] + [("height", "ndng", "lowest", 0.0, a) for a in (0.2, 0.3, 0.4)]
+         + [("both", "ndng", "centroid", 0.5, 0.0)] + [("both", "ndng", "centroid", 0.0, a) for a in (0.15, 0.3)]
+         + [("m_nearest", "ndce", "centroid", None, None), ("height", "ndce", "centroid", 0.0, 0.15)])
 SPEC_READING = {"basal_stop": "global", "basal_sink_cap_w": None, "hole_test": "patch", "close_all": False,
-                "rc_min_share": 1.0, "final_rule": "m_nearest", "support_elevation": "centroid",
+                "rc_min_share": 1.0, "final_rule": "m_nearest", "support_z": "ndng", "support_elevation": "centroid",
                 "height_threshold_m": None, "height_threshold_w": None}
 PREVIOUS_DEFAULT = {"basal_stop": "per_node", "basal_sink_cap_w": None, "hole_test": "hole", "close_all": True,
-                    "rc_min_share": 1.0, "final_rule": "height", "support_elevation": "centroid",
+                    "rc_min_share": 1.0, "final_rule": "height", "support_z": "ndng", "support_elevation": "centroid",
                     "height_threshold_m": 0.5, "height_threshold_w": 0.0}
-_STEP7 = ("final_rule", "support_elevation", "height_threshold_m", "height_threshold_w")
+_STEP7 = ("final_rule", "support_z", "support_elevation", "height_threshold_m", "height_threshold_w")
 POINT_KEYS = ("total_error", "type1", "type2", "kappa")
 DTM_KEYS = ("rmse_m", "mean_diff_m", "r_o", "r_m")
 
@@ -90,9 +92,10 @@ def _params_defaults() -> dict:
     return {k: float(getattr(dmf.Params(), k)) for k in ("height_threshold_m", "height_threshold_w")}
 
 
-def _is_default_step7(rule, elevation, t_m, t_w) -> bool:
+def _is_default_step7(rule, support_z, elevation, t_m, t_w) -> bool:
     config, params = dmf.Config(), _params_defaults()
-    return ((rule, elevation) == (config.final_rule, config.support_elevation) and t_m is not None
+    step7 = (config.final_rule, config.support_z, config.support_elevation)
+    return ((rule, support_z, elevation) == step7 and t_m is not None
             and np.isclose(t_m, params["height_threshold_m"]) and np.isclose(t_w, params["height_threshold_w"]))
 
 
@@ -108,26 +111,27 @@ def run_file(name: str) -> dict[str, dict]:
         local = cloud.xyz_m[use] - d.origin_m
         object_cell = d.ngnem_rc.reshape(-1)
         nodes, nearest = {}, {}
-        for rule, elevation, t_m, t_w in FINAL:
-            if elevation not in nodes:
+        for rule, support_z, elevation, t_m, t_w in FINAL:
+            surface = (support_z, elevation)
+            if surface not in nodes:
                 own_z = extract.column_lowest_z(local, d.voxels) if elevation == "lowest" else None
-                nodes[elevation] = extract.support_nodes(d.voxels, object_cell, d.in_ndng, v1=config.v1,
-                                                         fill_neighbours=config.fill_neighbours,
-                                                         support_z=config.support_z, own_z=own_z)
+                nodes[surface] = extract.support_nodes(d.voxels, object_cell, d.in_ndng, v1=config.v1,
+                                                       fill_neighbours=config.fill_neighbours, support_z=support_z,
+                                                       own_z=own_z)
             ground = np.ones(len(local), bool)
             if rule in ("m_nearest", "both"):
-                if elevation not in nearest:
-                    nearest[elevation] = extract.m_nearest_ground(local, nodes[elevation])[0]
-                ground = nearest[elevation]
+                if surface not in nearest:
+                    nearest[surface] = extract.m_nearest_ground(local, nodes[surface])[0]
+                ground = nearest[surface]
             if rule in ("height", "both"):
                 params = dmf.Params(height_threshold_m=t_m, height_threshold_w=t_w)
-                ground = ground & extract.height_ground(local, nodes[elevation], d.voxels, params.threshold_m(d.cell_m))
+                ground = ground & extract.height_ground(local, nodes[surface], d.voxels, params.threshold_m(d.cell_m))
             ground_all = np.zeros(cloud.n_points, bool)
             ground_all[use] = ground
-            if _is_default_step7(rule, elevation, t_m, t_w):           # same answer as the filter itself
+            if _is_default_step7(rule, support_z, elevation, t_m, t_w):       # same answer as the filter itself
                 assert np.array_equal(ground_all, result.ground), (name, pipe)
-            reading = dict(pipe, final_rule=rule, support_elevation=elevation, height_threshold_m=t_m,
-                           height_threshold_w=t_w)
+            reading = dict(pipe, final_rule=rule, support_z=support_z, support_elevation=elevation,
+                           height_threshold_m=t_m, height_threshold_w=t_w)
             out[reading_key(reading)] = _score(name, cloud, ground_all) | {"cell_m": d.cell_m}
     return out
 
@@ -181,8 +185,10 @@ def select(table: dict[str, dict[str, dict]]) -> dict:
 
 
 def _row_md(r: dict) -> str:
-    forest = " | ".join(f"{r[f'{t}_rmse_m']:.3f} | {r[f'{t}_mean_diff_m']:+.3f} | {100 * r[f'{t}_r_o']:.2f}" for t in BCTS)
-    return f"| `{r['reading']}` | {100 * r['mean_te']:.2f} | {100 * r['worst_te']:.2f} | {forest} | {'yes' if r['forest_feasible'] else 'no'} |"
+    forest = " | ".join(f"{r[f'{t}_rmse_m']:.3f} | {r[f'{t}_mean_diff_m']:+.3f} | {100 * r[f'{t}_r_o']:.2f}"
+                        for t in BCTS)
+    ok = "yes" if r["forest_feasible"] else "no"
+    return f"| `{r['reading']}` | {100 * r['mean_te']:.2f} | {100 * r['worst_te']:.2f} | {forest} | {ok} |"
 
 
 def report(sel: dict, command: str, seconds: float) -> list[str]:
@@ -195,9 +201,11 @@ def report(sel: dict, command: str, seconds: float) -> list[str]:
              f"{sel['n_readings']} readings ({len(PIPELINE)} pipelines x {len(FINAL)} step-7 readings); "
              f"{sel['n_forest_feasible']} are forest-feasible (both BCTS tiles: DTM RMSE <= {FOREST_RMSE_M} m, "
              f"R_O <= {100 * FOREST_R_O:.0f} %).\n",
-             "## Summary\n", head, sep, _row_md(sel["spec"]) + " SPEC reading", _row_md(sel["previous_default"]) + " previous default",
+             "## Summary\n", head, sep, _row_md(sel["spec"]) + " SPEC reading",
+             _row_md(sel["previous_default"]) + " previous default",
              "",
-             f"- LOO among forest-feasible readings (choose on 10, score the 11th): mean total error **{100 * c['loo_mean_te']:.2f} %**",
+             "- LOO among forest-feasible readings (choose on 10, score the 11th): mean total error "
+             f"**{100 * c['loo_mean_te']:.2f} %**",
              f"- chosen on all 11 among forest-feasible readings: `{c['chosen_on_all_11']}`: "
              f"{100 * c['chosen_mean_te']:.2f} % (worst sample {100 * c['chosen_worst_te']:.2f} %)",
              f"- LOO on ISPRS alone (the previous selection, forest ignored): {100 * u['loo_mean_te']:.2f} %; "

@@ -33,7 +33,8 @@ from gfjax.dmf.config import Config, Params
 from gfjax.dmf.voxels import Voxels
 from gfjax.raster import inpaint_nearest, sample_bilinear
 
-__all__ = ["extract_ground", "SupportNodes", "support_nodes", "column_lowest_z", "m_nearest_ground", "height_ground", "mark_ground"]
+__all__ = ["extract_ground", "SupportNodes", "support_nodes", "column_lowest_z", "m_nearest_ground", "height_ground",
+           "mark_ground"]
 
 
 class SupportNodes(NamedTuple):
