@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     v = guard.validate(problem, settings, folds=args.folds, block_m=args.block, alpha=args.alpha, progress=True)
     names = [b.name for b in method.bounds]
     kept = bool(v.kept[0])
-    values = dict(zip(names, map(float, v.values[0])))
+    values = {b.name: float(x) if kept else b.default for b, x in zip(method.bounds, v.values[0])}   # exact defaults
     if method.static:
         values[method.static] = float(v.window_m[0])
     span = {b.name: b.hi - b.lo for b in method.bounds}

@@ -77,6 +77,29 @@ def test_cli_tune_writes_params_that_filter_reads(tmp_path, capsys):
     setup = method_setup(argparse.Namespace(params=str(out), method=None, preset=None, set_values=[]))
     assert setup.config.window_m == data["values"]["window_m"]                # what `filter --params` uses
     assert np.float32(setup.params.slope) == np.float32(data["values"]["slope"])
+    assert data["validation"]["units"] is None                                # --folds 0: no guard
+    guarded = tmp_path / "guarded.json"
+    code = cli_main.main(["tune", str(laz), "-o", str(guarded), "--steps", "2", "--folds", "2", "--block", "14",
+                          "--windows", "18"])
+    assert code == 0, capsys.readouterr()
+    report = json.loads(guarded.read_text())["validation"]
+    assert report["units"] == "blocks of 14 m" and 0 <= report["p_value"] <= 1 and len(report["per_fold"]) == 2
+    if not report["kept"]:
+        assert json.loads(guarded.read_text())["values"] == {b.name: b.default for b in tsmrf.BOUNDS} | {"window_m": 18.0}
+    else:
+        assert report["p_value"] < 0.05 and report["tuned"] < report["default"]
     assert cli_main.main(["tune", str(laz), "-o", str(out), "--steps", "2"]) == 2          # exists
     assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "p.json"), "--method", "masf"]) == 2
     assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "p.txt")]) == 2
+    assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "q.json"), "--alpha", "1.5"]) == 2
+
+
+def test_methods_are_looked_up_and_pickled_by_name():
+    import pickle
+
+    from gfjax.tune import methods
+
+    assert methods.get("pmf") is methods.PMF
+    assert pickle.loads(pickle.dumps(methods.SMRF)) is methods.SMRF
+    with pytest.raises(ValueError, match="masf"):
+        methods.get("masf")
