@@ -43,7 +43,8 @@ from jaxtyping import Array, Bool, Float, Int
 
 from gfjax._types import Mask, Raster
 from gfjax.csf.config import DAMPING, GRAVITY, STOP_DISPLACEMENT_M, Config, double_move, single_move
-from gfjax.csf.wavefront import PERIOD, Layout, layout, relax_block
+from gfjax.csf.wavefront import (EMPTY, FIXED, HALO, MOVABLE, PERIOD, Layout, add_halo, layout,
+                                 relax_block)
 
 __all__ = ["ClothState", "simulate", "sweep"]
 
@@ -68,8 +69,8 @@ class _Carry(NamedTuple):
     """Loop state. Slot arrays `(rows, lanes)`; phase-major `(PERIOD, groups, lanes)`."""
 
     block: Int[Array, ""]                     # b: iteration T = PERIOD * b + phase
-    u: Array                                  # slots, heights [m]
-    movable: Array                            # slots, bool
+    u: Array                                  # slots (haloed lanes), heights [m]
+    kind: Array                               # slots (haloed lanes), int8 EMPTY / FIXED / MOVABLE
     u_prev: Array                             # phase-major, height at the start of the step [m]
     hit_step: Array                           # phase-major int32, step of collision (cap: none)
     ring: Array                               # (groups, PERIOD, groups, lanes) finished rows [m]
@@ -84,23 +85,26 @@ def _displacement_stops(max_step_m: Float[Array, ""]) -> Bool[Array, ""]:
     return (max_step_m != 0) & (max_step_m < STOP_DISPLACEMENT_M)
 
 
-def _phase(lay: Layout, present: Array, heights: Array, accel: Float[Array, ""], *, iterations: int,
-           rigidness: int, phase: Int[Array, ""], c: _Carry) -> _Carry:
+def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: int, rigidness: int,
+           phase: Int[Array, ""], c: _Carry) -> _Carry:
     """One iteration: relax the wavefronts `PERIOD g + phase`, finish the blocks' first rows."""
     groups, lanes = lay.groups, lay.lanes
     group = jnp.arange(groups, dtype=jnp.int32)
     step = c.block - group                                          # (groups,) step of each block
-    active = ((step >= 0) & (step < iterations))[:, None, None]
+    active = (step >= 0) & (step < iterations)
 
     def blocks(a: Array) -> Array:
-        return lax.dynamic_slice_in_dim(a, phase, groups * PERIOD, axis=0).reshape(groups, PERIOD, lanes)
+        rows = lax.dynamic_slice_in_dim(a, phase, groups * PERIOD, axis=0)
+        return rows.reshape(groups, PERIOD, a.shape[-1])
 
-    mov_all = blocks(c.movable)
-    mov = mov_all & active
-    u = relax_block(blocks(c.u), mov, blocks(present), double_move=double_move(rigidness),
+    kind = blocks(c.kind)
+    frozen = jnp.where(active[:, None, None] | (kind != MOVABLE), kind, jnp.int8(FIXED))
+    u = relax_block(blocks(c.u), frozen, double_move=double_move(rigidness),
                     single_move=single_move(rigidness))
     # Finish this step on each block's first row (Cloth.cpp: maxDiff, terrCollision, timeStep).
-    u0, mov0, prev0, h0 = u[:, 0], mov[:, 0], c.u_prev[phase], heights[phase]
+    kind0 = kind[:, 0, HALO: HALO + lanes]
+    u0, prev0, h0 = u[:, 0], c.u_prev[phase], heights[phase]
+    mov0 = (kind0 == MOVABLE) & active[:, None]
     moved = jnp.max(jnp.where(mov0, jnp.abs(u0 - prev0), 0.0), axis=1)
     hit = mov0 & (u0 < h0)
     u0 = jnp.where(hit, h0, u0)
@@ -111,10 +115,11 @@ def _phase(lay: Layout, present: Array, heights: Array, accel: Float[Array, ""],
     u_prev = lax.dynamic_update_slice(c.u_prev, jnp.where(free, u0, prev0)[None], (phase, 0, 0))
     u0 = jnp.where(free, u0 + (u0 - prev0) * (1.0 - DAMPING) + accel, u0)   # next step's Verlet
     u = jnp.concatenate([u0[:, None], u[:, 1:]], axis=1)
-    mov_all = jnp.concatenate([(mov_all[:, 0] & ~hit)[:, None], mov_all[:, 1:]], axis=1)
-    slots_u = lax.dynamic_update_slice_in_dim(c.u, u.reshape(groups * PERIOD, lanes), phase, axis=0)
-    slots_mov = lax.dynamic_update_slice_in_dim(c.movable, mov_all.reshape(groups * PERIOD, lanes),
-                                                phase, axis=0)
+    kind = jnp.concatenate([jnp.where(hit, jnp.int8(FIXED), kind0)[:, None],
+                            kind[:, 1:, HALO: HALO + lanes]], axis=1)
+    slots_u = lax.dynamic_update_slice_in_dim(c.u, add_halo(u).reshape(groups * PERIOD, -1), phase, axis=0)
+    slots_kind = lax.dynamic_update_slice_in_dim(c.kind, add_halo(kind).reshape(groups * PERIOD, -1),
+                                                 phase, axis=0)
     # Per-step displacement maxima; a step is done when its last particle row is finished.
     max_step = jnp.where(phase == 0, c.max_step.at[c.block % groups].set(0.0), c.max_step)
     max_step = max_step.at[step % groups].max(moved)
@@ -122,7 +127,7 @@ def _phase(lay: Layout, present: Array, heights: Array, accel: Float[Array, ""],
     check = (phase == lay.last_phase) & (done >= 0) & (done < iterations) & ~c.stopped
     done_max = max_step[done % groups]
     stop = check & (_displacement_stops(done_max) | (done == iterations - 1))
-    return _Carry(block=c.block, u=slots_u, movable=slots_mov, u_prev=u_prev, hit_step=hit_step,
+    return _Carry(block=c.block, u=slots_u, kind=slots_kind, u_prev=u_prev, hit_step=hit_step,
                   ring=ring, max_step=max_step, stopped=c.stopped | stop,
                   last_step=jnp.where(stop, done, c.last_step),
                   last_max=jnp.where(stop, done_max, c.last_max))
@@ -140,16 +145,17 @@ def _run(u: Raster, u_prev: Raster, movable: Mask, present: Mask, heights: Raste
     """
     lay = layout(u.shape)
     groups, lanes, dtype = lay.groups, lay.lanes, u.dtype
-    slots_present = lay.to_slot_array(present, False)
+    kind = jnp.where(movable, jnp.int8(MOVABLE), jnp.where(present, jnp.int8(FIXED), jnp.int8(EMPTY)))
     heights_pm = lay.by_phase(lay.to_slot_array(heights, -jnp.inf))
     init = _Carry(
-        block=jnp.int32(0), u=lay.to_slot_array(u, 0.0), movable=lay.to_slot_array(movable, False),
+        block=jnp.int32(0), u=add_halo(lay.to_slot_array(u, 0.0)),
+        kind=add_halo(lay.to_slot_array(kind, jnp.int8(EMPTY))),
         u_prev=lay.by_phase(lay.to_slot_array(u_prev, 0.0)),
         hit_step=jnp.full((PERIOD, groups, lanes), iterations, jnp.int32),
         ring=jnp.zeros((groups, PERIOD, groups, lanes), dtype), max_step=jnp.zeros(groups, dtype),
         stopped=jnp.array(False), last_step=jnp.int32(iterations - 1),
         last_max=jnp.asarray(jnp.inf, dtype))
-    phase = functools.partial(_phase, lay, slots_present, heights_pm, accel, iterations=iterations,
+    phase = functools.partial(_phase, lay, heights_pm, accel, iterations=iterations,
                               rigidness=rigidness)
 
     def block(c: _Carry) -> _Carry:

@@ -30,9 +30,10 @@ import functools
 import jax.numpy as jnp
 from jax import lax
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Float, Int
 
-__all__ = ["SPRINGS", "SKEW", "REACH", "PERIOD", "Layout", "layout", "relax_block"]
+__all__ = ["SPRINGS", "SKEW", "REACH", "PERIOD", "HALO", "EMPTY", "FIXED", "MOVABLE", "Layout", "layout",
+           "add_halo", "relax_block"]
 
 # A particle's 16 springs as (di, dj), in the order Cloth.cpp's constructor appends them to its
 # neighbour list (the order `Particle::satisfyConstraintSelf` walks them).
@@ -41,6 +42,8 @@ SPRINGS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (1, -1), (1, 0), (0, 1), (1, 1),
 SKEW = 4                                     # wavefront t = i + SKEW * j
 REACH = 2 + 2 * SKEW                         # largest row offset of a spring: 10
 PERIOD = 2 * REACH + 1                       # rows of a block: 21
+HALO = 4                                     # lanes wrapped on each side: 2 for the centre, 2 more for its springs
+EMPTY, FIXED, MOVABLE = 0, 1, 2              # int8 kinds of a slot
 
 Block = Float[Array, "g r l"]                 # (groups, PERIOD, lanes)
 
@@ -108,13 +111,16 @@ def layout(shape: tuple[int, int]) -> Layout:
                   to_slots=to_slots.astype(np.int32), from_slots=slot.reshape(-1).astype(np.int32))
 
 
-def _lane_shift(x: Array, dl: int) -> Array:
-    """`out[..., l] = x[..., (l + dl) mod lanes]`."""
-    return jnp.roll(x, -dl, axis=-1)
+def add_halo(a: Array) -> Array:
+    """`(..., lanes)` -> `(..., lanes + 2 HALO)`: the lanes wrapped around by `HALO` on each side,
+    so that every lane shift of a spring is a plain slice."""
+    lanes = a.shape[-1]
+    k = -(-HALO // lanes)
+    tiled = jnp.concatenate([a] * (2 * k + 1), axis=-1)
+    return tiled[..., k * lanes - HALO: k * lanes + lanes + HALO]
 
 
-def relax_block(u: Block, movable: Bool[Array, "g r l"], present: Bool[Array, "g r l"], *,
-                double_move: float, single_move: float) -> Block:
+def relax_block(u: Block, kind: Int[Array, "g r l"], *, double_move: float, single_move: float) -> Block:
     """Relax the 16 springs of each block's centre wavefront (`Particle::satisfyConstraintSelf`).
 
     For every block `g` and lane `l` at once: the centre particle `p` (local row `REACH`) walks
@@ -123,26 +129,32 @@ def relax_block(u: Block, movable: Bool[Array, "g r l"], present: Bool[Array, "g
     `c_p gap` and a movable `q_k` by `-c_q gap`, `c = double_move` when both ends are movable,
     `single_move` toward a fixed end (Particle.cpp). The far ends are 16 distinct rows, each
     written once; only `u_p` is carried from spring to spring, so the walk is a `lax.scan` over
-    the 16 springs of `(groups, lanes)` vectors (a Python loop would let XLA recompute the chain
-    in every row it writes).
+    the 16 springs of `(groups, lanes)` vectors (unrolled, XLA recomputes the chain wherever a
+    row is written). The centre is also computed on the 2 halo lanes on each side, copies of
+    lanes at the other end, so that every far-end row is a plain slice of the result.
 
     Args:
-      u: heights `(groups, PERIOD, lanes)` [m].
-      movable: particles free to move; present: slots that hold a particle of the cloud's grid
-        (springs to other slots are skipped). Bool, same shape.
+      u: heights `(groups, PERIOD, lanes + 2 HALO)` [m], lanes haloed (`add_halo`).
+      kind: int8, same shape: `EMPTY` (no particle of the cloud's grid: springs skipped),
+        `FIXED` or `MOVABLE`.
       double_move, single_move: static fractions (config.double_move / single_move).
 
     Returns:
-      Heights `(groups, PERIOD, lanes)` [m] after the centre particles' springs.
+      Heights `(groups, PERIOD, lanes)` [m] (no halo) after the centre particles' springs.
     """
+    lanes = u.shape[-1] - 2 * HALO
+    centre = lanes + 4                                              # lanes -2 .. lanes + 1
     c = REACH
     far = [(c + di + SKEW * dj, dj) for di, dj in SPRINGS]
 
-    def ends(a: Array) -> Array:                                    # (16, groups, lanes)
-        return jnp.stack([_lane_shift(a[:, r], dj) for r, dj in far])
+    def at(a: Array, row: int, dl: int) -> Array:                   # lanes l + dl of a row
+        return a[:, row, HALO - 2 + dl: HALO - 2 + dl + centre]
 
-    q, mov_q, has_q = ends(u), ends(movable), ends(present)
-    mov_p, has_p = movable[:, c][None], present[:, c][None]
+    q = jnp.stack([at(u, r, dj) for r, dj in far])                  # (16, groups, centre)
+    kind_q = jnp.stack([at(kind, r, dj) for r, dj in far])
+    kind_p = at(kind, c, 0)[None]
+    mov_p, has_p = kind_p == MOVABLE, kind_p != EMPTY
+    mov_q, has_q = kind_q == MOVABLE, kind_q != EMPTY
     coef_p = jnp.where(mov_p & has_q, jnp.where(mov_q, double_move, single_move), 0.0).astype(u.dtype)
     coef_q = jnp.where(mov_q & has_p, jnp.where(mov_p, double_move, single_move), 0.0).astype(u.dtype)
 
@@ -151,9 +163,9 @@ def relax_block(u: Block, movable: Bool[Array, "g r l"], present: Bool[Array, "g
         gap = q_k - p
         return p + cp_k * gap, q_k - cq_k * gap
 
-    p, q = lax.scan(spring, u[:, c], (q, coef_p, coef_q))
-    rows = [u[:, k] for k in range(PERIOD)]
+    p, q = lax.scan(spring, at(u, c, 0), (q, coef_p, coef_q))
+    rows = [u[:, k, HALO: HALO + lanes] for k in range(PERIOD)]
     for k, (r, dj) in enumerate(far):
-        rows[r] = _lane_shift(q[k], -dj)
-    rows[c] = p
+        rows[r] = q[k][:, 2 - dj: 2 - dj + lanes]                  # far lane m = centre m - dj
+    rows[c] = p[:, 2: 2 + lanes]
     return jnp.stack(rows, axis=1)

@@ -1,0 +1,91 @@
+"""gfjax.csf.wavefront: the folded slot layout reaches the true neighbours, and `relax_block`
+is the package's per-particle spring walk (numpy, one particle at a time), under jit and vmap."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gfjax.csf import wavefront as wf
+
+LAYOUT_SHAPES = [(1, 1), (4, 5), (9, 13), (3, 20), (30, 7), (17, 64)]
+
+
+@pytest.mark.parametrize("shape", LAYOUT_SHAPES, ids=str)
+def test_layout_reaches_true_neighbours(shape):
+    h, w = shape
+    lay = wf.layout(shape)
+    slots = lay.to_slots.reshape(lay.rows, lay.lanes)
+    empty = h * w
+    assert np.array_equal(np.sort(slots[slots != empty]), np.arange(h * w))    # one slot each
+    for j in range(h):
+        for i in range(w):
+            row, lane = divmod(int(lay.from_slots[j * w + i]), lay.lanes)
+            assert slots[row, lane] == j * w + i
+            for di, dj in wf.SPRINGS:
+                reached = slots[row + di + wf.SKEW * dj, (lane + dj) % lay.lanes]
+                inside = 0 <= i + di < w and 0 <= j + dj < h
+                assert reached == ((j + dj) * w + i + di if inside else empty), (j, i, di, dj)
+    last = lay.last_group * wf.PERIOD + lay.last_phase
+    assert (slots[last] != empty).any() and (slots[last + 1:] == empty).all()
+
+
+@pytest.mark.parametrize("lanes", [1, 3, 4, 9])
+def test_add_halo_wraps_lanes(lanes):
+    a = np.arange(2 * lanes).reshape(2, lanes)
+    expected = np.take(a, np.arange(-wf.HALO, lanes + wf.HALO), axis=-1, mode="wrap")
+    np.testing.assert_array_equal(np.asarray(wf.add_halo(jnp.asarray(a))), expected)
+
+
+def random_block(seed: int, groups: int = 3, lanes: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(groups, wf.PERIOD, lanes)).astype(np.float32)
+    kind = rng.choice([wf.EMPTY, wf.FIXED, wf.MOVABLE], p=[0.1, 0.3, 0.6],
+                      size=(groups, wf.PERIOD, lanes)).astype(np.int8)
+    return u, kind
+
+
+def reference_relax(u: np.ndarray, kind: np.ndarray, both: float, single: float) -> np.ndarray:
+    """Each block's centre particles one after another (lanes in any order: they touch disjoint
+    particles), each walking its springs as Particle.cpp `satisfyConstraintSelf`, in float64."""
+    out = u.astype(np.float64)
+    groups, _, lanes = u.shape
+    for g in range(groups):
+        for lane in range(lanes):
+            c = (wf.REACH, lane)
+            for di, dj in wf.SPRINGS:
+                q = (wf.REACH + di + wf.SKEW * dj, (lane + dj) % lanes)
+                if kind[g][c] == wf.EMPTY or kind[g][q] == wf.EMPTY:
+                    continue
+                mov_p, mov_q = kind[g][c] == wf.MOVABLE, kind[g][q] == wf.MOVABLE
+                gap = out[g][q] - out[g][c]
+                if mov_p:
+                    out[g][c] += gap * (both if mov_q else single)
+                if mov_q:
+                    out[g][q] -= gap * (both if mov_p else single)
+    return out
+
+
+@pytest.fixture(scope="module")
+def relax():
+    return jax.jit(lambda u, kind: wf.relax_block(wf.add_halo(u), wf.add_halo(kind), double_move=0.468,
+                                                  single_move=0.657))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_relax_block_is_the_sequential_walk(relax, seed):
+    u, kind = random_block(seed)
+    expected = reference_relax(u, kind, 0.468, 0.657)
+    np.testing.assert_allclose(np.asarray(relax(jnp.asarray(u), jnp.asarray(kind))), expected, atol=2e-6)
+
+
+def test_relax_block_eager_and_vmap(relax):
+    blocks = [random_block(seed) for seed in (2, 3)]
+    u, kind = (jnp.asarray(np.stack(a)) for a in zip(*blocks))
+    batched = jax.jit(jax.vmap(relax))(u, kind)
+    with jax.disable_jit():
+        eager = wf.relax_block(wf.add_halo(u[0]), wf.add_halo(kind[0]), double_move=0.468, single_move=0.657)
+    np.testing.assert_allclose(np.asarray(eager), np.asarray(relax(u[0], kind[0])), atol=1e-6)
+    for k in range(len(blocks)):
+        np.testing.assert_array_equal(np.asarray(batched[k]), np.asarray(relax(u[k], kind[k])))
