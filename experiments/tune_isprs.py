@@ -15,7 +15,14 @@ The prepared problem (openings to 24 m of all 11 samples) is cached under --cach
 (default /tmp/gfjax_tune_isprs), keyed by the data and the gfjax sources it depends on.
 
 Writes experiments/results/tune_isprs_<phases>.json after every phase, and tune_isprs.md from
-all such files (so (b)/(e) and (c)/(d) may run as two processes).
+all such files (so (b)/(e) and (c)/(d) may run as two processes); `--method pmf` writes
+tune_isprs_pmf_<phases>.json and tune_isprs_pmf.md; `--report-only` rewrites the .md alone.
+The runs behind the committed results (one command each; the first prepares the cache):
+
+    nice .venv/bin/python experiments/tune_isprs.py --phases abe --steps 40
+    nice .venv/bin/python experiments/tune_isprs.py --phases c --steps 30 --folds 3
+    nice .venv/bin/python experiments/tune_isprs.py --phases d --steps 30 --folds 3 --loo-folds 2 --loo-windows 18
+    nice .venv/bin/python experiments/tune_isprs.py --method pmf --phases abecd --steps 60 --folds 3
 """
 from __future__ import annotations
 
@@ -81,6 +88,21 @@ def prepared(names: list[str], cache: Path, method: tmethods.Method = tmethods.S
     return problem, seconds
 
 
+def write_report(out: Path, method: tmethods.Method) -> None:
+    """`<stem>.md` from every `<stem>_<phases>.json` of the method under `out` (merged in name order)."""
+    stem = "tune_isprs" if method is tmethods.SMRF else f"tune_isprs_{method.name}"
+    merged: dict = {}
+    commands = []
+    for part in sorted(out.glob(f"{stem}_*.json")):
+        if method is tmethods.SMRF and any(part.name.startswith(f"tune_isprs_{m}_") for m in tmethods.METHODS):
+            continue
+        data = json.loads(part.read_text())
+        commands.append(data["command"])
+        merged.update(data)
+    merged["command"] = "`; `".join(commands)
+    (out / f"{stem}.md").write_text(report(merged))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--steps", type=int, default=40)
@@ -97,7 +119,11 @@ def main(argv=None) -> int:
     ap.add_argument("--d-unguarded", action="store_true",
                     help="(d): also fit without the guard where the guard keeps the defaults (one more fit each)")
     ap.add_argument("--cache", default="/tmp/gfjax_tune_isprs", help="folder of the prepared-problem cache")
+    ap.add_argument("--report-only", action="store_true", help="only rewrite the .md from the .json files")
     args = ap.parse_args(argv)
+    if args.report_only:
+        write_report(Path(args.out), tmethods.get(args.method))
+        return 0
     jax.config.update("jax_compilation_cache_dir", "/tmp/gfjax_tune_cache")
     res: dict = {"command": "nice .venv/bin/python experiments/tune_isprs.py " + " ".join(sys.argv[1:]),
                  "device": f"{jax.devices()[0].platform} ({platform.processor() or platform.machine()})",
@@ -119,16 +145,7 @@ def main(argv=None) -> int:
     def save():
         (out / f"{stem}_{args.phases}.json").write_text(
             json.dumps(res, indent=1, default=lambda a: np.asarray(a).tolist()))
-        merged: dict = {}
-        commands = []
-        for part in sorted(out.glob(f"{stem}_*.json")):
-            if method is tmethods.SMRF and any(part.name.startswith(f"tune_isprs_{m}_") for m in tmethods.METHODS):
-                continue
-            data = json.loads(part.read_text())
-            commands.append(data["command"])
-            merged.update(data)
-        merged["command"] = "`; `".join(commands)
-        (out / f"{stem}.md").write_text(report(merged))
+        write_report(out, method)
         print(f"[{time.perf_counter() - t0:.0f}s] saved", flush=True)
 
     # (a) defaults
@@ -300,6 +317,13 @@ def report(res: dict) -> str:
                                  for n, d, t, p, u, k, a in zip(names, r["val_default"], r["val_tuned"], r["p_value"],
                                                                r["units"], r["kept"], r["shrink"])))
             lines.append("")
+        lines.append("")
+    if len(res.get("c", {})) == 2:
+        both = [np.mean([res["c"][side][col] for side in ("west", "east")], axis=0) for col in ("defaults", "guarded")]
+        better = int(np.sum(both[1] < both[0] - 1e-12))
+        worse = int(np.sum(both[1] > both[0] + 1e-12))
+        lines.append(f"(c) both directions (per sample, the mean of its two test halves): guarded {pct(np.mean(both[1]))} "
+                     f"vs defaults {pct(np.mean(both[0]))}; better on {better} of {len(names)} samples, worse on {worse}.")
         lines.append("")
     if "d" in res and res["d"].get("p_value"):
         d = res["d"]
