@@ -44,7 +44,7 @@ from jaxtyping import Array, Bool, Float, Int
 from gfjax._types import Mask, Raster
 from gfjax.csf.config import DAMPING, GRAVITY, STOP_DISPLACEMENT_M, Config, double_move, single_move
 from gfjax.csf.wavefront import (EMPTY, FIXED, HALO, MOVABLE, PERIOD, Layout, add_halo, layout,
-                                 relax_block)
+                                 refresh_halo, relax_block)
 
 __all__ = ["ClothState", "simulate", "sweep"]
 
@@ -98,12 +98,11 @@ def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: 
         return rows.reshape(groups, PERIOD, a.shape[-1])
 
     kind = blocks(c.kind)
-    frozen = jnp.where(active[:, None, None] | (kind != MOVABLE), kind, jnp.int8(FIXED))
-    u = relax_block(blocks(c.u), frozen, double_move=double_move(rigidness),
+    u = relax_block(blocks(c.u), kind, active, double_move=double_move(rigidness),
                     single_move=single_move(rigidness))
     # Finish this step on each block's first row (Cloth.cpp: maxDiff, terrCollision, timeStep).
     kind0 = kind[:, 0, HALO: HALO + lanes]
-    u0, prev0, h0 = u[:, 0], c.u_prev[phase], heights[phase]
+    u0, prev0, h0 = u[:, 0, HALO: HALO + lanes], c.u_prev[phase], heights[phase]
     mov0 = (kind0 == MOVABLE) & active[:, None]
     moved = jnp.max(jnp.where(mov0, jnp.abs(u0 - prev0), 0.0), axis=1)
     hit = mov0 & (u0 < h0)
@@ -114,11 +113,10 @@ def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: 
         c.hit_step, jnp.where(hit, step[:, None], c.hit_step[phase])[None], (phase, 0, 0))
     u_prev = lax.dynamic_update_slice(c.u_prev, jnp.where(free, u0, prev0)[None], (phase, 0, 0))
     u0 = jnp.where(free, u0 + (u0 - prev0) * (1.0 - DAMPING) + accel, u0)   # next step's Verlet
-    u = jnp.concatenate([u0[:, None], u[:, 1:]], axis=1)
-    kind = jnp.concatenate([jnp.where(hit, jnp.int8(FIXED), kind0)[:, None],
-                            kind[:, 1:, HALO: HALO + lanes]], axis=1)
-    slots_u = lax.dynamic_update_slice_in_dim(c.u, add_halo(u).reshape(groups * PERIOD, -1), phase, axis=0)
-    slots_kind = lax.dynamic_update_slice_in_dim(c.kind, add_halo(kind).reshape(groups * PERIOD, -1),
+    u = refresh_halo(lax.dynamic_update_slice(u, u0[:, None], (0, 0, HALO)))
+    kind = lax.dynamic_update_slice(kind, jnp.where(hit, jnp.int8(FIXED), kind0)[:, None], (0, 0, HALO))
+    slots_u = lax.dynamic_update_slice_in_dim(c.u, u.reshape(groups * PERIOD, -1), phase, axis=0)
+    slots_kind = lax.dynamic_update_slice_in_dim(c.kind, refresh_halo(kind).reshape(groups * PERIOD, -1),
                                                  phase, axis=0)
     # Per-step displacement maxima; a step is done when its last particle row is finished.
     max_step = jnp.where(phase == 0, c.max_step.at[c.block % groups].set(0.0), c.max_step)

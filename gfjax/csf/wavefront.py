@@ -30,10 +30,10 @@ import functools
 import jax.numpy as jnp
 from jax import lax
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 __all__ = ["SPRINGS", "SKEW", "REACH", "PERIOD", "HALO", "EMPTY", "FIXED", "MOVABLE", "Layout", "layout",
-           "add_halo", "relax_block"]
+           "add_halo", "refresh_halo", "relax_block"]
 
 # A particle's 16 springs as (di, dj), in the order Cloth.cpp's constructor appends them to its
 # neighbour list (the order `Particle::satisfyConstraintSelf` walks them).
@@ -120,7 +120,20 @@ def add_halo(a: Array) -> Array:
     return tiled[..., k * lanes - HALO: k * lanes + lanes + HALO]
 
 
-def relax_block(u: Block, kind: Int[Array, "g r l"], *, double_move: float, single_move: float) -> Block:
+def refresh_halo(a: Array) -> Array:
+    """Rewrite the halo lanes of a haloed array `(..., lanes + 2 HALO)` from its lanes (after the
+    lanes changed); the same as `add_halo(a[..., HALO:-HALO])`, written in place."""
+    lanes = a.shape[-1] - 2 * HALO
+    if lanes < HALO:
+        return add_halo(a[..., HALO: HALO + lanes])
+    low = lax.slice_in_dim(a, lanes, lanes + HALO, axis=-1)            # lanes - HALO .. lanes - 1
+    high = lax.slice_in_dim(a, HALO, 2 * HALO, axis=-1)                # lanes 0 .. HALO - 1
+    a = lax.dynamic_update_slice_in_dim(a, low, 0, axis=-1)
+    return lax.dynamic_update_slice_in_dim(a, high, lanes + HALO, axis=-1)
+
+
+def relax_block(u: Block, kind: Int[Array, "g r l"], live: Bool[Array, " g"], *, double_move: float,
+                single_move: float) -> Block:
     """Relax the 16 springs of each block's centre wavefront (`Particle::satisfyConstraintSelf`).
 
     For every block `g` and lane `l` at once: the centre particle `p` (local row `REACH`) walks
@@ -128,44 +141,46 @@ def relax_block(u: Block, kind: Int[Array, "g r l"], *, double_move: float, sing
     `REACH + di + 4 dj`, lane `l + dj`. With `gap = u_q - u_p`, a movable `p` moves by
     `c_p gap` and a movable `q_k` by `-c_q gap`, `c = double_move` when both ends are movable,
     `single_move` toward a fixed end (Particle.cpp). The far ends are 16 distinct rows, each
-    written once; only `u_p` is carried from spring to spring, so the walk is a `lax.scan` over
-    the 16 springs of `(groups, lanes)` vectors (unrolled, XLA recomputes the chain wherever a
-    row is written). The centre is also computed on the 2 halo lanes on each side, copies of
-    lanes at the other end, so that every far-end row is a plain slice of the result.
+    read and written once, and only `u_p` is carried from spring to spring: the walk is a
+    `lax.scan` over the springs, reading each far row from the input and writing it in place
+    into the output. The centre is also walked on the 2 halo lanes on each side (copies of
+    lanes at the other end), so that each far row, shifted by `dj`, is a slice of the result.
 
     Args:
       u: heights `(groups, PERIOD, lanes + 2 HALO)` [m], lanes haloed (`add_halo`).
       kind: int8, same shape: `EMPTY` (no particle of the cloud's grid: springs skipped),
         `FIXED` or `MOVABLE`.
+      live: bool `(groups,)`: blocks to relax (the others are left as they are).
       double_move, single_move: static fractions (config.double_move / single_move).
 
     Returns:
-      Heights `(groups, PERIOD, lanes)` [m] (no halo) after the centre particles' springs.
+      Heights `(groups, PERIOD, lanes + 2 HALO)` [m] after the centre particles' springs; the
+      halo lanes are stale (`refresh_halo`).
     """
-    lanes = u.shape[-1] - 2 * HALO
+    groups, _, width = u.shape
+    lanes = width - 2 * HALO
     centre = lanes + 4                                              # lanes -2 .. lanes + 1
     c = REACH
-    far = [(c + di + SKEW * dj, dj) for di, dj in SPRINGS]
+    far_rows = jnp.asarray([c + di + SKEW * dj for di, dj in SPRINGS], jnp.int32)
+    far_shift = jnp.asarray([dj for _, dj in SPRINGS], jnp.int32)
 
-    def at(a: Array, row: int, dl: int) -> Array:                   # lanes l + dl of a row
-        return a[:, row, HALO - 2 + dl: HALO - 2 + dl + centre]
+    def window(a: Array, row, dl, size: int) -> Array:              # (groups, size) from lane dl
+        return lax.dynamic_slice(a, (0, row, HALO + dl), (groups, 1, size))[:, 0]
 
-    q = jnp.stack([at(u, r, dj) for r, dj in far])                  # (16, groups, centre)
-    kind_q = jnp.stack([at(kind, r, dj) for r, dj in far])
-    kind_p = at(kind, c, 0)[None]
-    mov_p, has_p = kind_p == MOVABLE, kind_p != EMPTY
-    mov_q, has_q = kind_q == MOVABLE, kind_q != EMPTY
-    coef_p = jnp.where(mov_p & has_q, jnp.where(mov_q, double_move, single_move), 0.0).astype(u.dtype)
-    coef_q = jnp.where(mov_q & has_p, jnp.where(mov_p, double_move, single_move), 0.0).astype(u.dtype)
+    kind_p = window(kind, c, -2, centre)
+    mov_p, has_p = (kind_p == MOVABLE) & live[:, None], (kind_p != EMPTY) & live[:, None]
 
-    def spring(p: Array, x: tuple[Array, Array, Array]) -> tuple[Array, Array]:
-        q_k, cp_k, cq_k = x
-        gap = q_k - p
-        return p + cp_k * gap, q_k - cq_k * gap
+    def spring(carry: tuple[Array, Array], x: tuple[Array, Array]) -> tuple[tuple[Array, Array], None]:
+        p, out = carry
+        row, dj = x
+        q, kind_q = window(u, row, dj - 2, centre), window(kind, row, dj - 2, centre)
+        mov_q, has_q = kind_q == MOVABLE, kind_q != EMPTY
+        coef_p = jnp.where(mov_p & has_q, jnp.where(mov_q, double_move, single_move), 0.0).astype(u.dtype)
+        coef_q = jnp.where(mov_q & has_p, jnp.where(mov_p, double_move, single_move), 0.0).astype(u.dtype)
+        gap = q - p
+        q_new = lax.dynamic_slice_in_dim(q - coef_q * gap, 2 - dj, lanes, axis=1)   # lanes 0 .. lanes-1
+        out = lax.dynamic_update_slice(out, q_new[:, None], (0, row, HALO))
+        return (p + coef_p * gap, out), None
 
-    p, q = lax.scan(spring, at(u, c, 0), (q, coef_p, coef_q))
-    rows = [u[:, k, HALO: HALO + lanes] for k in range(PERIOD)]
-    for k, (r, dj) in enumerate(far):
-        rows[r] = q[k][:, 2 - dj: 2 - dj + lanes]                  # far lane m = centre m - dj
-    rows[c] = p[:, 2: 2 + lanes]
-    return jnp.stack(rows, axis=1)
+    (p, u), _ = lax.scan(spring, (window(u, c, -2, centre), u), (far_rows, far_shift))
+    return lax.dynamic_update_slice(u, p[:, None, 2: 2 + lanes], (0, c, HALO))

@@ -32,10 +32,14 @@ def test_layout_reaches_true_neighbours(shape):
 
 
 @pytest.mark.parametrize("lanes", [1, 3, 4, 9])
-def test_add_halo_wraps_lanes(lanes):
+def test_halo_wraps_lanes(lanes):
     a = np.arange(2 * lanes).reshape(2, lanes)
     expected = np.take(a, np.arange(-wf.HALO, lanes + wf.HALO), axis=-1, mode="wrap")
     np.testing.assert_array_equal(np.asarray(wf.add_halo(jnp.asarray(a))), expected)
+    stale = expected.copy()
+    stale[:, :wf.HALO] = -1
+    stale[:, -wf.HALO:] = -2
+    np.testing.assert_array_equal(np.asarray(jax.jit(wf.refresh_halo)(jnp.asarray(stale))), expected)
 
 
 def random_block(seed: int, groups: int = 3, lanes: int = 6) -> tuple[np.ndarray, np.ndarray]:
@@ -46,12 +50,13 @@ def random_block(seed: int, groups: int = 3, lanes: int = 6) -> tuple[np.ndarray
     return u, kind
 
 
-def reference_relax(u: np.ndarray, kind: np.ndarray, both: float, single: float) -> np.ndarray:
-    """Each block's centre particles one after another (lanes in any order: they touch disjoint
-    particles), each walking its springs as Particle.cpp `satisfyConstraintSelf`, in float64."""
+def reference_relax(u: np.ndarray, kind: np.ndarray, live: np.ndarray, both: float, single: float) -> np.ndarray:
+    """Each live block's centre particles one after another (lanes in any order: they touch
+    disjoint particles), each walking its springs as Particle.cpp `satisfyConstraintSelf`, in
+    float64."""
     out = u.astype(np.float64)
     groups, _, lanes = u.shape
-    for g in range(groups):
+    for g in np.flatnonzero(live):
         for lane in range(lanes):
             c = (wf.REACH, lane)
             for di, dj in wf.SPRINGS:
@@ -69,23 +74,28 @@ def reference_relax(u: np.ndarray, kind: np.ndarray, both: float, single: float)
 
 @pytest.fixture(scope="module")
 def relax():
-    return jax.jit(lambda u, kind: wf.relax_block(wf.add_halo(u), wf.add_halo(kind), double_move=0.468,
-                                                  single_move=0.657))
+    return jax.jit(lambda u, kind, live: wf.relax_block(wf.add_halo(u), wf.add_halo(kind), live, double_move=0.468,
+                                                        single_move=0.657)[..., wf.HALO:-wf.HALO])
 
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_relax_block_is_the_sequential_walk(relax, seed):
     u, kind = random_block(seed)
-    expected = reference_relax(u, kind, 0.468, 0.657)
-    np.testing.assert_allclose(np.asarray(relax(jnp.asarray(u), jnp.asarray(kind))), expected, atol=2e-6)
+    live = np.array([True, seed == 0, True])
+    expected = reference_relax(u, kind, live, 0.468, 0.657)
+    out = relax(jnp.asarray(u), jnp.asarray(kind), jnp.asarray(live))
+    np.testing.assert_allclose(np.asarray(out), expected, atol=2e-6)
+    np.testing.assert_array_equal(np.asarray(out)[~live], u[~live])
 
 
 def test_relax_block_eager_and_vmap(relax):
     blocks = [random_block(seed) for seed in (2, 3)]
     u, kind = (jnp.asarray(np.stack(a)) for a in zip(*blocks))
-    batched = jax.jit(jax.vmap(relax))(u, kind)
+    live = jnp.ones((len(blocks), u.shape[1]), bool)
+    batched = jax.jit(jax.vmap(relax))(u, kind, live)
     with jax.disable_jit():
-        eager = wf.relax_block(wf.add_halo(u[0]), wf.add_halo(kind[0]), double_move=0.468, single_move=0.657)
-    np.testing.assert_allclose(np.asarray(eager), np.asarray(relax(u[0], kind[0])), atol=1e-6)
+        eager = wf.relax_block(wf.add_halo(u[0]), wf.add_halo(kind[0]), live[0], double_move=0.468,
+                               single_move=0.657)[..., wf.HALO:-wf.HALO]
+    np.testing.assert_allclose(np.asarray(eager), np.asarray(relax(u[0], kind[0], live[0])), atol=1e-6)
     for k in range(len(blocks)):
-        np.testing.assert_array_equal(np.asarray(batched[k]), np.asarray(relax(u[k], kind[k])))
+        np.testing.assert_array_equal(np.asarray(batched[k]), np.asarray(relax(u[k], kind[k], live[k])))
