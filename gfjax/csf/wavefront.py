@@ -16,11 +16,17 @@ two never share a wavefront, and a spring never reaches a particle of another fo
 `Layout`). A spring `(di, dj)` from slot `(p, l)` lands on `(p + di + 4 dj, (l + dj) mod lanes)`,
 row offsets in `[-REACH, REACH]`, all 16 distinct.
 
-Blocks. Wavefronts `REACH + 1 = 11` or more apart touch disjoint rows, so the `PERIOD = 21`-row
-windows centred on wavefronts `phase, phase + 21, phase + 42, ...` tile the slot array:
+Blocks. Wavefronts `PERIOD = 2 REACH + 1 = 21` or more apart touch disjoint rows, so the
+21-row windows centred on wavefronts `phase, phase + 21, phase + 42, ...` tile the slot array:
 `slots[phase : phase + 21 groups].reshape(groups, 21, lanes)`, each window's centre row (local
 `REACH`) the wavefront, its first row (local 0) the row no later wavefront of this sweep
 touches. `relax_block` relaxes the springs of every window's wavefront at once.
+
+Halo and kinds. The slot arrays the simulation carries have `HALO = 4` extra lanes on each side
+holding copies of the lanes at the other end (`add_halo`, `refresh_halo`), so that every lane
+shift `dj` of a spring is a plain slice (XLA on CPU materialises every operand of a
+concatenate, which a wrapped roll is). A slot's state is one int8: `EMPTY` (no particle of the
+cloud's grid: springs to it are skipped), `FIXED` or `MOVABLE`.
 """
 from __future__ import annotations
 
@@ -28,8 +34,8 @@ import dataclasses
 import functools
 
 import jax.numpy as jnp
-from jax import lax
 import numpy as np
+from jax import lax
 from jaxtyping import Array, Bool, Float, Int
 
 __all__ = ["SPRINGS", "SKEW", "REACH", "PERIOD", "HALO", "EMPTY", "FIXED", "MOVABLE", "Layout", "layout",
