@@ -4,8 +4,8 @@ The thresholds (SMRF: slope, threshold_m, scalar; PMF: slope, initial_distance_m
 max_distance_m) are fitted by Adam on a relaxed (sigmoid) form of the filter against the
 files' reference labels (ground = class 2), SMRF's window on a small grid (SPEC section
 7). Several files are tuned together (one parameter set, unweighted mean of their losses),
-batched under `jax.vmap` by tile shape. The fit is
-regularised toward the defaults (`--prior`).
+batched under `jax.vmap` by tile shape. The fit is regularised toward the defaults
+(`--prior`).
 
 Guard (tuned values are often worse than the defaults on other data): the labelled data are
 cross-validated in `--folds` folds, by file when several files are given, else by square
@@ -15,8 +15,8 @@ way along the segment defaults -> fit. The level with the lowest out-of-fold tot
 tested against the defaults with a one-sided sign-flip test over the units (files or blocks)
 of their paired error differences, Bonferroni-corrected for the 3 levels. Only when it is
 significant at `--alpha` (default 0.05) does params.json hold that level of the fit on all
-data; otherwise it holds the defaults and says so. Fewer than 5 units that change can never
-pass. The figures (out-of-fold errors, p-value, level) are printed and stored in params.json.
+data; otherwise it holds the defaults and says so. Fewer than 6 units that change can never
+pass (3 x 2^-5 > 0.05). The figures (out-of-fold errors, p-value, level) are printed and stored in params.json.
 Use the result with `gfjax filter --params params.json`.
 """
 from __future__ import annotations
@@ -61,7 +61,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="weight of the pull toward the defaults (default 0.01)")
     parser.add_argument("--steps", type=positive_int, default=60, help="Adam steps per window (default 60)")
     parser.add_argument("--folds", type=nonnegative_int, default=3,
-                        help="k-fold block validation (default 3; 0 or 1: no validation)")
+                        help="folds of the guard's cross-validation, by file or by block (default 3; "
+                             "0 or 1: no guard, the fit is kept where it lowered the training error)")
     parser.add_argument("--block", type=positive_float, default=50.0, metavar="M",
                         help="side of the validation blocks of a single file [m] (default 50)")
     parser.add_argument("--alpha", type=_level, default=0.05,

@@ -28,8 +28,8 @@ points only, by cross-validation and a paired test:
 5. The group keeps `D + a* (theta - D)`, theta and its window fitted on all its labelled
    points, only when the summed gain is positive and the adjusted p-value is below `alpha`
    (default 0.05); else it keeps the defaults. No other rule is used: in particular the
-   training error is never consulted. With fewer than 5 non-zero units no p-value reaches
-   0.05 (2^-5 = 0.031): small labelled sets keep the defaults.
+   training error is never consulted. With the 3 default levels, fewer than 6 non-zero
+   units can never pass at 0.05 (3 x 2^-5 = 0.094): small labelled sets keep the defaults.
 
 `folds < 2` skips validation: the fit is kept wherever it lowered the training objective.
 """
