@@ -19,6 +19,7 @@ compile-or-cache-load durations (`jax.monitoring`), and the interpreter teardown
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import json
 import os
@@ -34,7 +35,7 @@ sys.path.insert(0, str(ROOT))
 
 import gfjax  # noqa: E402
 from gfjax import dmf  # noqa: E402
-from gfjax.dmf import neighbours, voxels  # noqa: E402
+from gfjax.dmf import basal, neighbours, voxels  # noqa: E402
 from gfjax.bench import harness  # noqa: E402
 from gfjax.bench.peers import PEERS  # noqa: E402
 from gfjax.bench.run import machine  # noqa: E402
@@ -123,6 +124,61 @@ def _table_paths(cloud) -> dict:
     return {"grid_s": seconds["grid"], "kdtree_s": seconds["kdtree"], "labels_identical": same, "n_nodes": len(xy)}
 
 
+IDENTITY_REVISION = "8f9433f"     # the DMF host and basal modules before the speed work
+IDENTITY_MODULES = ("neighbours", "basal")
+
+
+def _identity(revision: str, out: Path) -> int:
+    """DMF labels, instance ids, basal layer and iteration count of the current code against the
+    same code with `gfjax/dmf/{neighbours,basal}.py` as at git `revision`, on every shared LAS
+    file, with the default config and each preset. Writes `out` (Markdown); returns the number
+    of differences."""
+    import importlib.util
+
+    from experiments.common import DATA as SHARED
+
+    reference = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in IDENTITY_MODULES:
+            source = subprocess.run(["git", "show", f"{revision}:gfjax/dmf/{name}.py"], check=True, capture_output=True,
+                                    text=True, cwd=ROOT).stdout
+            path = Path(tmp) / f"_reference_{name}.py"
+            path.write_text(source)
+            spec = importlib.util.spec_from_file_location(path.stem, path)
+            reference[name] = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(reference[name])
+    swaps = [(neighbours, "cylinder_table", reference["neighbours"].cylinder_table),
+             (neighbours, "nearest_node", reference["neighbours"].nearest_node),
+             (basal, "basal_layer", reference["basal"].basal_layer)]
+    configs = {"default": dmf.Config(), **{name: dmf.Config(**over) for name, over in dmf.PRESETS.items()}}
+    files = sorted(SHARED.glob("*/*.laz")) + sorted(SHARED.glob("*/*/*.laz"))
+    files = [f for f in files if "sites" not in f.parts]
+    lines = [f"# DMF speed paths vs `gfjax/dmf/{{{','.join(IDENTITY_MODULES)}}}.py` at git {revision}\n",
+             f"Command: `nice .venv/bin/python experiments/dmf_speed.py --identity`. Same: ground labels, instance ids, "
+             "basal elevations and basal iteration count all equal (bit for bit).\n",
+             "| file | points | " + " | ".join(configs) + " |", "|---|---:|" + "---|" * len(configs)]
+    differences = 0
+    for path in files:
+        cloud = gfjax.read(path)
+        row = []
+        for config in configs.values():
+            fast = dmf.filter(cloud, config=config)
+            with contextlib.ExitStack() as stack:
+                for module, attribute, value in swaps:
+                    stack.enter_context(mock.patch.object(module, attribute, value))
+                ref = dmf.filter(cloud, config=config)
+            same = (np.array_equal(fast.ground, ref.ground) and np.array_equal(fast.instance_id, ref.instance_id)
+                    and np.array_equal(fast.diagnostics.basal_z, ref.diagnostics.basal_z)
+                    and fast.diagnostics.basal_iterations == ref.diagnostics.basal_iterations)
+            differences += not same
+            row.append("same" if same else "**different**")
+        lines.append(f"| {path.name} | {cloud.n_points:,} | " + " | ".join(row) + " |")
+        print(lines[-1], flush=True)
+    lines += ["", f"{differences} of {len(files) * len(configs)} runs differ."]
+    out.write_text("\n".join(lines) + "\n")
+    return differences
+
+
 def _environment() -> dict:
     """What the figures were measured on (`gfjax.bench.run.machine`), under this script's keys."""
     facts = machine()
@@ -135,7 +191,12 @@ def main(argv=None) -> int:
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--out", type=Path, default=ROOT / "experiments" / "results" / "dmf_speed.md")
     parser.add_argument("--no-cli", action="store_true", help="skip the whole-process `gfjax filter` timing")
+    parser.add_argument("--identity", action="store_true",
+                        help=f"only compare DMF's output with its modules at git {IDENTITY_REVISION} on every shared "
+                             "file (writes results/dmf_speed_identity.md)")
     args = parser.parse_args(argv)
+    if args.identity:
+        return int(_identity(IDENTITY_REVISION, args.out.with_name("dmf_speed_identity.md")) > 0)
     env_start = _environment()
     read_timing, cloud = harness.time_call(lambda: gfjax.read(args.data), repeat=1, warmup=0)
     read_s = read_timing.min_s
