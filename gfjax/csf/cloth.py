@@ -87,6 +87,13 @@ def _displacement_stops(max_step_m: Float[Array, ""]) -> Bool[Array, ""]:
     return (max_step_m != 0) & (max_step_m < STOP_DISPLACEMENT_M)
 
 
+def _set_first_rows(slots: Array, rows: Array, phase: Int[Array, ""]) -> Array:
+    """Write `rows` `(groups, width)` to the slot rows `PERIOD g + phase` of `slots` `(rows, width)`."""
+    groups = rows.shape[0]
+    blocked = slots.reshape(groups + 1, PERIOD, slots.shape[-1])
+    return lax.dynamic_update_slice(blocked, rows[:, None], (0, phase, 0)).reshape(slots.shape)
+
+
 def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: int, rigidness: int,
            phase: Int[Array, ""], c: _Carry) -> _Carry:
     """One iteration: relax the wavefronts `PERIOD g + phase`, finish the blocks' first rows."""
@@ -115,11 +122,11 @@ def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: 
         c.hit_step, jnp.where(hit, step[:, None], c.hit_step[phase])[None], (phase, 0, 0))
     u_prev = lax.dynamic_update_slice(c.u_prev, jnp.where(free, u0, prev0)[None], (phase, 0, 0))
     u0 = jnp.where(free, u0 + (u0 - prev0) * (1.0 - DAMPING) + accel, u0)   # next step's Verlet
-    u = refresh_halo(lax.dynamic_update_slice(u, u0[:, None], (0, 0, HALO)))
-    kind = lax.dynamic_update_slice(kind, jnp.where(hit, jnp.int8(FIXED), kind0)[:, None], (0, 0, HALO))
-    slots_u = lax.dynamic_update_slice_in_dim(c.u, u.reshape(groups * PERIOD, -1), phase, axis=0)
-    slots_kind = lax.dynamic_update_slice_in_dim(c.kind, refresh_halo(kind).reshape(groups * PERIOD, -1),
-                                                 phase, axis=0)
+    slots_u = refresh_halo(lax.dynamic_update_slice_in_dim(c.u, u.reshape(groups * PERIOD, -1), phase, axis=0))
+    # The first rows `PERIOD g + phase` are `[g, phase]` of the slots seen as
+    # `(groups + 1, PERIOD, width)`: one slice.
+    slots_u = _set_first_rows(slots_u, add_halo(u0), phase)
+    slots_kind = _set_first_rows(c.kind, add_halo(jnp.where(hit, jnp.int8(FIXED), kind0)), phase)
     # Per-step displacement maxima; a step is done when its last particle row is finished.
     max_step = jnp.where(phase == 0, c.max_step.at[c.block % groups].set(0.0), c.max_step)
     max_step = max_step.at[step % groups].max(moved)
