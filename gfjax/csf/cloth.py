@@ -87,6 +87,12 @@ def _displacement_stops(max_step_m: Float[Array, ""]) -> Bool[Array, ""]:
     return (max_step_m != 0) & (max_step_m < STOP_DISPLACEMENT_M)
 
 
+def _first_rows(slots: Array, phase: Int[Array, ""], groups: int) -> Array:
+    """The slot rows `PERIOD g + phase`, `(groups, width)`."""
+    blocked = slots.reshape(groups + 1, PERIOD, slots.shape[-1])
+    return lax.dynamic_slice_in_dim(blocked, phase, 1, axis=1)[:groups, 0]
+
+
 def _set_first_rows(slots: Array, rows: Array, phase: Int[Array, ""]) -> Array:
     """Write `rows` `(groups, width)` to the slot rows `PERIOD g + phase` of `slots` `(rows, width)`."""
     groups = rows.shape[0]
@@ -102,16 +108,12 @@ def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: 
     step = c.block - group                                          # (groups,) step of each block
     active = (step >= 0) & (step < iterations)
 
-    def blocks(a: Array) -> Array:
-        rows = lax.dynamic_slice_in_dim(a, phase, groups * PERIOD, axis=0)
-        return rows.reshape(groups, PERIOD, a.shape[-1])
-
-    kind = blocks(c.kind)
-    u = relax_block(blocks(c.u), kind, active, double_move=double_move(rigidness),
-                    single_move=single_move(rigidness))
+    slots_u = relax_block(c.u, c.kind, active, phase, double_move=double_move(rigidness),
+                          single_move=single_move(rigidness))
     # Finish this step on each block's first row (Cloth.cpp: maxDiff, terrCollision, timeStep).
-    kind0 = kind[:, 0, HALO: HALO + lanes]
-    u0, prev0, h0 = u[:, 0, HALO: HALO + lanes], c.u_prev[phase], heights[phase]
+    kind0 = _first_rows(c.kind, phase, groups)[:, HALO: HALO + lanes]
+    u0 = _first_rows(slots_u, phase, groups)[:, HALO: HALO + lanes]
+    prev0, h0 = c.u_prev[phase], heights[phase]
     mov0 = (kind0 == MOVABLE) & active[:, None]
     moved = jnp.max(jnp.where(mov0, jnp.abs(u0 - prev0), 0.0), axis=1)
     hit = mov0 & (u0 < h0)
@@ -122,7 +124,7 @@ def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: 
         c.hit_step, jnp.where(hit, step[:, None], c.hit_step[phase])[None], (phase, 0, 0))
     u_prev = lax.dynamic_update_slice(c.u_prev, jnp.where(free, u0, prev0)[None], (phase, 0, 0))
     u0 = jnp.where(free, u0 + (u0 - prev0) * (1.0 - DAMPING) + accel, u0)   # next step's Verlet
-    slots_u = refresh_halo(lax.dynamic_update_slice_in_dim(c.u, u.reshape(groups * PERIOD, -1), phase, axis=0))
+    slots_u = refresh_halo(slots_u)
     # The first rows `PERIOD g + phase` are `[g, phase]` of the slots seen as
     # `(groups + 1, PERIOD, width)`: one slice.
     slots_u = _set_first_rows(slots_u, add_halo(u0), phase)

@@ -138,55 +138,66 @@ def refresh_halo(a: Array) -> Array:
     return lax.dynamic_update_slice_in_dim(a, high, lanes + HALO, axis=-1)
 
 
-def relax_block(u: Block, kind: Int[Array, "g r l"], live: Bool[Array, " g"], *, double_move: float,
-                single_move: float) -> Block:
-    """Relax the 16 springs of each block's centre wavefront (`Particle::satisfyConstraintSelf`).
+def relax_block(u: Array, kind: Array, live: Bool[Array, " g"], phase: Int[Array, ""], *,
+                double_move: float, single_move: float) -> Array:
+    """Relax the 16 springs of the wavefronts `PERIOD g + phase` (`Particle::satisfyConstraintSelf`).
 
-    For every block `g` and lane `l` at once: the centre particle `p` (local row `REACH`) walks
-    its springs in `SPRINGS` order; spring `k = (di, dj)` reaches `q_k` at local row
-    `REACH + di + 4 dj`, lane `l + dj`. With `gap = u_q - u_p`, a movable `p` moves by
-    `c_p gap` and a movable `q_k` by `-c_q gap`, `c = double_move` when both ends are movable,
-    `single_move` toward a fixed end (Particle.cpp). The far ends are 16 distinct rows, each
-    read and written once, and only `u_p` is carried from spring to spring: the walk is a
-    `lax.scan` over the springs, reading each far row from the input and writing it in place
-    into the output. The centre is also walked on the 2 halo lanes on each side (copies of
-    lanes at the other end), so that each far row, shifted by `dj`, is a slice of the result.
+    For every block `g` and lane `l` at once: the centre particle `p` (block row `REACH`, slot
+    row `PERIOD g + phase + REACH`) walks its springs in `SPRINGS` order; spring `k = (di, dj)`
+    reaches `q_k` at block row `REACH + di + 4 dj`, lane `l + dj`. With `gap = u_q - u_p`, a
+    movable `p` moves by `c_p gap` and a movable `q_k` by `-c_q gap`, `c = double_move` when
+    both ends are movable, `single_move` toward a fixed end (Particle.cpp). The far ends are 16
+    distinct rows, each read and written once, and only `u_p` is carried from spring to spring:
+    the walk is a `lax.scan` over the springs, reading each far row (for all blocks: one slice
+    of the slots seen as `(groups + 1, PERIOD, width)`) and writing it back in place. The centre
+    is also walked on the 2 halo lanes on each side (copies of lanes at the other end), so that
+    each far row, shifted by `dj`, is a slice of the result.
 
     Args:
-      u: heights `(groups, PERIOD, lanes + 2 HALO)` [m], lanes haloed (`add_halo`).
-      kind: int8, same shape: `EMPTY` (no particle of the cloud's grid: springs skipped),
+      u: heights `(rows, lanes + 2 HALO)` [m], slots with haloed lanes (`add_halo`),
+        `rows = (groups + 1) * PERIOD`.
+      kind: int8 slots, same shape: `EMPTY` (no particle of the cloud's grid: springs skipped),
         `FIXED` or `MOVABLE`.
       live: bool `(groups,)`: blocks to relax (the others are left as they are).
+      phase: int32 scalar in `[0, PERIOD)`.
       double_move, single_move: static fractions (config.double_move / single_move).
 
     Returns:
-      Heights `(groups, PERIOD, lanes + 2 HALO)` [m] after the centre particles' springs; the
-      halo lanes are stale (`refresh_halo`).
+      Heights, slots like `u`, after the centre particles' springs; halo lanes stale
+      (`refresh_halo`).
     """
-    groups, _, width = u.shape
+    rows, width = u.shape
+    groups = rows // PERIOD - 1
     lanes = width - 2 * HALO
     centre = lanes + 4                                              # lanes -2 .. lanes + 1
     c = REACH
     far_rows = jnp.asarray([c + di + SKEW * dj for di, dj in SPRINGS], jnp.int32)
     far_shift = jnp.asarray([dj for _, dj in SPRINGS], jnp.int32)
 
-    def window(a: Array, row, dl, size: int) -> Array:              # (groups, size) from lane dl
-        return lax.dynamic_slice(a, (0, row, HALO + dl), (groups, 1, size))[:, 0]
+    def blocked(a: Array) -> Array:
+        return a.reshape(groups + 1, PERIOD, width)
 
-    kind_p = window(kind, c, -2, centre)
+    def start(row, dl) -> tuple:                                     # block row, lane dl
+        r = phase + row
+        return r // PERIOD, r % PERIOD, HALO + dl
+
+    def window(a: Array, row, dl) -> Array:                          # (groups, centre)
+        return lax.dynamic_slice(blocked(a), start(row, dl), (groups, 1, centre))[:, 0]
+
+    kind_p = window(kind, c, -2)
     mov_p, has_p = (kind_p == MOVABLE) & live[:, None], (kind_p != EMPTY) & live[:, None]
 
     def spring(carry: tuple[Array, Array], x: tuple[Array, Array]) -> tuple[tuple[Array, Array], None]:
         p, out = carry
         row, dj = x
-        q, kind_q = window(u, row, dj - 2, centre), window(kind, row, dj - 2, centre)
+        q, kind_q = window(u, row, dj - 2), window(kind, row, dj - 2)
         mov_q, has_q = kind_q == MOVABLE, kind_q != EMPTY
         coef_p = jnp.where(mov_p & has_q, jnp.where(mov_q, double_move, single_move), 0.0).astype(u.dtype)
         coef_q = jnp.where(mov_q & has_p, jnp.where(mov_p, double_move, single_move), 0.0).astype(u.dtype)
         gap = q - p
         q_new = lax.dynamic_slice_in_dim(q - coef_q * gap, 2 - dj, lanes, axis=1)   # lanes 0 .. lanes-1
-        out = lax.dynamic_update_slice(out, q_new[:, None], (0, row, HALO))
+        out = lax.dynamic_update_slice(out, q_new[:, None], start(row, 0))
         return (p + coef_p * gap, out), None
 
-    (p, u), _ = lax.scan(spring, (window(u, c, -2, centre), u), (far_rows, far_shift))
-    return lax.dynamic_update_slice(u, p[:, None, 2: 2 + lanes], (0, c, HALO))
+    (p, out), _ = lax.scan(spring, (window(u, c, -2), blocked(u)), (far_rows, far_shift))
+    return lax.dynamic_update_slice(out, p[:, None, 2: 2 + lanes], start(c, 0)).reshape(u.shape)

@@ -42,60 +42,72 @@ def test_halo_wraps_lanes(lanes):
     np.testing.assert_array_equal(np.asarray(jax.jit(wf.refresh_halo)(jnp.asarray(stale))), expected)
 
 
-def random_block(seed: int, groups: int = 3, lanes: int = 6) -> tuple[np.ndarray, np.ndarray]:
+GROUPS, LANES = 3, 6
+
+
+def random_slots(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Heights and kinds of `(GROUPS + 1) * PERIOD` slot rows of `LANES` lanes (no halo)."""
     rng = np.random.default_rng(seed)
-    u = rng.normal(size=(groups, wf.PERIOD, lanes)).astype(np.float32)
-    kind = rng.choice([wf.EMPTY, wf.FIXED, wf.MOVABLE], p=[0.1, 0.3, 0.6],
-                      size=(groups, wf.PERIOD, lanes)).astype(np.int8)
+    shape = ((GROUPS + 1) * wf.PERIOD, LANES)
+    u = rng.normal(size=shape).astype(np.float32)
+    kind = rng.choice([wf.EMPTY, wf.FIXED, wf.MOVABLE], p=[0.1, 0.3, 0.6], size=shape).astype(np.int8)
     return u, kind
 
 
-def reference_relax(u: np.ndarray, kind: np.ndarray, live: np.ndarray, both: float, single: float) -> np.ndarray:
-    """Each live block's centre particles one after another (lanes in any order: they touch
-    disjoint particles), each walking its springs as Particle.cpp `satisfyConstraintSelf`, in
-    float64."""
+def reference_relax(u: np.ndarray, kind: np.ndarray, live: np.ndarray, phase: int, both: float,
+                    single: float) -> np.ndarray:
+    """Each live block's centre particles (slot row `PERIOD g + phase + REACH`) one after
+    another (lanes in any order: they touch disjoint particles), each walking its springs as
+    Particle.cpp `satisfyConstraintSelf`, in float64."""
     out = u.astype(np.float64)
-    groups, _, lanes = u.shape
     for g in np.flatnonzero(live):
-        for lane in range(lanes):
-            c = (wf.REACH, lane)
+        centre = wf.PERIOD * g + phase + wf.REACH
+        for lane in range(LANES):
+            c = (centre, lane)
             for di, dj in wf.SPRINGS:
-                q = (wf.REACH + di + wf.SKEW * dj, (lane + dj) % lanes)
-                if kind[g][c] == wf.EMPTY or kind[g][q] == wf.EMPTY:
+                q = (centre + di + wf.SKEW * dj, (lane + dj) % LANES)
+                if kind[c] == wf.EMPTY or kind[q] == wf.EMPTY:
                     continue
-                mov_p, mov_q = kind[g][c] == wf.MOVABLE, kind[g][q] == wf.MOVABLE
-                gap = out[g][q] - out[g][c]
+                mov_p, mov_q = kind[c] == wf.MOVABLE, kind[q] == wf.MOVABLE
+                gap = out[q] - out[c]
                 if mov_p:
-                    out[g][c] += gap * (both if mov_q else single)
+                    out[c] += gap * (both if mov_q else single)
                 if mov_q:
-                    out[g][q] -= gap * (both if mov_p else single)
+                    out[q] -= gap * (both if mov_p else single)
     return out
+
+
+def relax_unhaloed(u, kind, live, phase):
+    out = wf.relax_block(wf.add_halo(u), wf.add_halo(kind), live, phase, double_move=0.468, single_move=0.657)
+    return out[:, wf.HALO:-wf.HALO]
 
 
 @pytest.fixture(scope="module")
 def relax():
-    return jax.jit(lambda u, kind, live: wf.relax_block(wf.add_halo(u), wf.add_halo(kind), live, double_move=0.468,
-                                                        single_move=0.657)[..., wf.HALO:-wf.HALO])
+    return jax.jit(relax_unhaloed)
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_relax_block_is_the_sequential_walk(relax, seed):
-    u, kind = random_block(seed)
-    live = np.array([True, seed == 0, True])
-    expected = reference_relax(u, kind, live, 0.468, 0.657)
-    out = relax(jnp.asarray(u), jnp.asarray(kind), jnp.asarray(live))
-    np.testing.assert_allclose(np.asarray(out), expected, atol=2e-6)
-    np.testing.assert_array_equal(np.asarray(out)[~live], u[~live])
+@pytest.mark.parametrize("seed,phase", [(0, 0), (1, 13), (2, wf.PERIOD - 1)])
+def test_relax_block_is_the_sequential_walk(relax, seed, phase):
+    u, kind = random_slots(seed)
+    live = np.array([True, seed != 1, True])
+    expected = reference_relax(u, kind, live, phase, 0.468, 0.657)
+    out = np.asarray(relax(jnp.asarray(u), jnp.asarray(kind), jnp.asarray(live), jnp.int32(phase)))
+    np.testing.assert_allclose(out, expected, atol=2e-6)
+    if not live.all():
+        untouched = np.ones(len(u), bool)
+        untouched[wf.PERIOD * 1 + phase: wf.PERIOD * 2 + phase] = False
+        np.testing.assert_array_equal(out[~untouched], u[~untouched])
 
 
 def test_relax_block_eager_and_vmap(relax):
-    blocks = [random_block(seed) for seed in (2, 3)]
-    u, kind = (jnp.asarray(np.stack(a)) for a in zip(*blocks))
-    live = jnp.ones((len(blocks), u.shape[1]), bool)
-    batched = jax.jit(jax.vmap(relax))(u, kind, live)
+    slots = [random_slots(seed) for seed in (3, 4)]
+    u, kind = (jnp.asarray(np.stack(a)) for a in zip(*slots))
+    live = jnp.ones((len(slots), GROUPS), bool)
+    phase = jnp.asarray([5, 17], jnp.int32)
+    batched = jax.jit(jax.vmap(relax))(u, kind, live, phase)
     with jax.disable_jit():
-        eager = wf.relax_block(wf.add_halo(u[0]), wf.add_halo(kind[0]), live[0], double_move=0.468,
-                               single_move=0.657)[..., wf.HALO:-wf.HALO]
-    np.testing.assert_allclose(np.asarray(eager), np.asarray(relax(u[0], kind[0], live[0])), atol=1e-6)
-    for k in range(len(blocks)):
-        np.testing.assert_array_equal(np.asarray(batched[k]), np.asarray(relax(u[k], kind[k], live[k])))
+        eager = relax_unhaloed(u[0], kind[0], live[0], phase[0])
+    np.testing.assert_allclose(np.asarray(eager), np.asarray(relax(u[0], kind[0], live[0], phase[0])), atol=1e-6)
+    for k in range(len(slots)):
+        np.testing.assert_array_equal(np.asarray(batched[k]), np.asarray(relax(u[k], kind[k], live[k], phase[k])))
