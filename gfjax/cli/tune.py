@@ -1,9 +1,12 @@
-"""`gfjax tune TRAIN... --method smrf|pmf -o params.json`: fit a filter's thresholds to labelled files.
+"""`gfjax tune TRAIN... --method smrf|pmf|csf -o params.json`: fit a filter's thresholds to labelled files.
 
 The thresholds (SMRF: slope, threshold_m, scalar; PMF: slope, initial_distance_m,
-max_distance_m) are fitted by Adam on a relaxed (sigmoid) form of the filter against the
-files' reference labels (ground = class 2), SMRF's window on a small grid (SPEC section
-7). Several files are tuned together (one parameter set, unweighted mean of their losses),
+max_distance_m; CSF: class_threshold_m) are fitted by Adam on a relaxed (sigmoid) form of the
+filter against the files' reference labels (ground = class 2), SMRF's window on a small grid
+(SPEC section 7). CSF's time step and rigidness act through the cloth simulation (a while
+loop: no gradient), so they are chosen from a grid (`--time-steps` x `--rigidness`, default
+0.5,0.65,0.8 x 1,2,3): each cloth is simulated once per file, then the threshold is fitted on
+each; params.json lists them as grid-searched, never as fitted by gradient. Several files are tuned together (one parameter set, unweighted mean of their losses),
 batched under `jax.vmap` by tile shape. The fit is regularised toward the defaults
 (`--prior`).
 
@@ -26,7 +29,7 @@ import argparse
 from gfjax.cli._common import add_units_option, nonnegative_float, nonnegative_int, positive_float, positive_int
 from gfjax.errors import InputError
 
-TUNABLE = ("smrf", "pmf")          # gfjax.tune.methods.METHODS (not imported: no JAX at parse time)
+TUNABLE = ("smrf", "pmf", "csf")          # gfjax.tune.methods.METHODS (not imported: no JAX at parse time)
 
 
 def _windows(text: str) -> tuple[float, ...]:
@@ -36,6 +39,16 @@ def _windows(text: str) -> tuple[float, ...]:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
     if not values or any(not v > 0 for v in values):
         raise argparse.ArgumentTypeError(f"windows must be > 0, got {text!r}")
+    return values
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+    if not values or any(v < 1 for v in values):
+        raise argparse.ArgumentTypeError(f"values must be >= 1, got {text!r}")
     return values
 
 
@@ -69,6 +82,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="level of the guard's test, in (0, 1) (default 0.05)")
     parser.add_argument("--windows", type=_windows, default=None, metavar="M,M,...",
                         help="SMRF's window grid [m] (default 12,18,24; PMF keeps its window series)")
+    parser.add_argument("--time-steps", type=_windows, default=None, metavar="DT,DT,...",
+                        help="CSF's time-step grid, each in (0, 10) (default 0.5,0.65,0.8)")
+    parser.add_argument("--rigidness", type=_ints, default=None, metavar="R,R,...",
+                        help="CSF's rigidness grid (default 1,2,3)")
     parser.add_argument("--returns", choices=("all", "last"), default="all", help="returns used (default all)")
     add_units_option(parser)
     parser.add_argument("--force", action="store_true", help="overwrite an existing params file")
@@ -102,21 +119,32 @@ def run(args: argparse.Namespace) -> int:
     from gfjax.tune.problem import Problem, Sample
 
     method = tmethods.get(args.method)
-    if args.windows and method.static is None:
-        raise InputError(f"--windows: {args.method} has no window grid (its window series is fixed)")
+    if args.windows and method.static != "window_m":
+        raise InputError(f"--windows: {args.method} has no window grid")
+    for option, value in (("--time-steps", args.time_steps), ("--rigidness", args.rigidness)):
+        if value and method.name != "csf":
+            raise InputError(f"{option}: only CSF has a cloth grid, not {args.method}")
+    if args.time_steps and any(not t < 10 for t in args.time_steps):
+        raise InputError(f"--time-steps: each time step must be < 10, got {args.time_steps}")
     samples = [Sample.from_cloud(las_io.read(p, units=args.units), returns=args.returns) for p in inputs]
     if not any(np.any(s.ref_ground[s.use]) for s in samples):
         raise InputError(f"{', '.join(map(str, inputs))}: no reference ground (class 2) to tune on")
     config = method.config_type()
-    windows = method.grid_values(config, args.windows)
+    if method.name == "csf":
+        from gfjax.tune import csf as tcsf
+
+        windows = tuple(tcsf.encode(t, r) for r in args.rigidness or tcsf.RIGIDNESS
+                        for t in args.time_steps or tcsf.TIME_STEPS)
+    else:
+        windows = method.grid_values(config, args.windows)
     settings = tfit.Settings(steps=args.steps, prior=args.prior, loss=args.loss, windows_m=windows)
-    problem = Problem(samples, config=config, max_window_m=max(windows), method=method)
+    problem = Problem(samples, config=config, max_window_m=max(windows), method=method, grid=windows)
     v = guard.validate(problem, settings, folds=args.folds, block_m=args.block, alpha=args.alpha, progress=True)
     names = [b.name for b in method.bounds]
     kept = bool(v.kept[0])
     values = {b.name: float(x) if kept else b.default for b, x in zip(method.bounds, v.values[0])}   # exact defaults
-    if method.static:
-        values[method.static] = float(v.window_m[0])
+    static_values = method.params_values(float(v.window_m[0])) if method.static else {}
+    values |= static_values
     span = {b.name: b.hi - b.lo for b in method.bounds}
     defaults = {b.name: b.default for b in method.bounds}
     fitted = [k for k in names if kept and abs(values[k] - defaults[k]) > 1e-4 * span[k]]
@@ -128,10 +156,16 @@ def run(args: argparse.Namespace) -> int:
                   "changed_units": int(v.units[0]), "kept": kept, "per_fold": v.fold_errors[:, 0, :].tolist()}
     extra = {"fitted": fitted, "validation": validation, "loss": args.loss, "prior": args.prior, "steps": args.steps,
              "training_files": [str(p) for p in inputs]}
-    if method.static:
+    if method.static == "window_m":
         extra |= {"grid": {method.static: list(windows)},
                   "window_chosen_from_grid": kept and values[method.static] != method.default_static(config),
-                  "not_differentiable": {method.static: "loop count of the progressive opening: grid search"}}
+                  "not_differentiable": {method.static: method.static_note}}
+    elif method.static:
+        chosen = kept and float(v.window_m[0]) != method.default_static(config)
+        grid = [method.params_values(w) for w in windows]
+        extra |= {"grid": {k: sorted({g[k] for g in grid}) for k in static_values},
+                  "grid_chosen": {k: chosen for k in static_values},
+                  "not_differentiable": {k: method.static_note for k in static_values}}
     write_params(out, method=args.method, values=values, units=method.units, extra=extra)
     print(f"{out}: {args.method} " + ", ".join(f"{k}={values[k]:.4g}" for k in values))
     if args.folds >= 2:

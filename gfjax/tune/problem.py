@@ -1,7 +1,8 @@
 """Labelled samples cut into tiles, prepared once, in fixed-shape buckets for the tuning loop.
 
 A `Problem` holds, for a list of labelled clouds, the parameter-free part of a method's
-pipeline (`Method.prepare_tile`: SMRF's openings, PMF's openings) per shape bucket of `gfjax.io.tiles`, with the
+pipeline (`Method.prepare_tile`: SMRF's openings, PMF's openings; CSF: whole samples and
+their point-to-cloth distances, `Method.prepare_samples`) per shape bucket of `gfjax.io.tiles`, with the
 reference labels padded alike. Which labelled points count (a training half, a fold) is an
 array argument (`Problem.masks`), not part of the compiled shapes, so every protocol of a
 run reuses the same preparation and the same compiled loss.
@@ -107,21 +108,30 @@ class Problem:
         `max(max_window_m, config.window_m)`).
       max_window_m: SMRF: the largest window tried (openings are computed up to it);
         ignored by methods without a static grid (PMF).
-      method: `gfjax.tune.methods.SMRF` (default) or `PMF`.
+      method: `gfjax.tune.methods.SMRF` (default), `PMF` or `CSF`.
       max_batch: tiles per vmapped batch.
+      grid: the static grid to prepare (CSF: cloth codes, default `gfjax.tune.csf.GRID`;
+        SMRF: openings up to its largest value); overrides `max_window_m`.
     """
 
     method: tmethods.Method = tmethods.SMRF      # also for problems pickled before methods existed
 
     def __init__(self, samples: Sequence[Sample], *, config, max_window_m: float | None = None,
-                 method: tmethods.Method = tmethods.SMRF, max_batch: int = 8):
+                 method: tmethods.Method = tmethods.SMRF, max_batch: int = 8, grid: tuple[float, ...] | None = None):
         if not samples:
             raise InputError("no labelled samples to tune on")
         if not isinstance(config, method.config_type):
             raise InputError(f"config: expected a {method.name} Config, got {type(config).__name__}")
         self.samples = list(samples)
         self.method = method
-        self.config = method.prepared_config(config, (max_window_m,) if max_window_m else method.grid)
+        grid = tuple(grid) if grid else (max_window_m,) if max_window_m else method.grid
+        self.config = method.prepared_config(config, grid)
+        if method.prepare_samples is not None:          # whole clouds (CSF), not tiles
+            if not any(np.any(s.use) for s in self.samples):
+                raise InputError("the labelled samples hold no usable point")
+            self.buckets = [Bucket(prep, ref, cloud, core, shape) for prep, ref, cloud, core, shape in
+                            method.prepare_samples(self.samples, self.config, max_batch=max_batch)]
+            return
         tiles, owner = [], {}
         for i, s in enumerate(self.samples):
             for tile in tiling.split(s.xyz_m, tile_size_m=config.tile_size_m, buffer_m=config.buffer_m,
