@@ -17,10 +17,12 @@ two never share a wavefront, and a spring never reaches a particle of another fo
 row offsets in `[-REACH, REACH]`, all 16 distinct.
 
 Blocks. Wavefronts `PERIOD = 2 REACH + 1 = 21` or more apart touch disjoint rows, so the
-21-row windows centred on wavefronts `phase, phase + 21, phase + 42, ...` tile the slot array:
-`slots[phase : phase + 21 groups].reshape(groups, 21, lanes)`, each window's centre row (local
-`REACH`) the wavefront, its first row (local 0) the row no later wavefront of this sweep
-touches. `relax_block` relaxes the springs of every window's wavefront at once.
+21-row windows (blocks) centred on wavefronts `phase, phase + 21, phase + 42, ...` tile the
+slot array: block `g` is slot rows `21 g + phase + [0, 21)`, its centre row (`+ REACH`) the
+wavefront, its first row the row no later wavefront of this sweep touches. With `rows =
+(groups + 1) * 21`, the same row of every block is one slice of the slots seen as
+`(groups + 1, 21, width)`. `relax_block` relaxes the springs of every block's wavefront at
+once, in place.
 
 Halo and kinds. The slot arrays the simulation carries have `HALO = 4` extra lanes on each side
 holding copies of the lanes at the other end (`add_halo`, `refresh_halo`), so that every lane
@@ -36,7 +38,7 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Int
 
 __all__ = ["SPRINGS", "SKEW", "REACH", "PERIOD", "HALO", "EMPTY", "FIXED", "MOVABLE", "Layout", "layout",
            "add_halo", "refresh_halo", "relax_block"]
@@ -50,8 +52,6 @@ REACH = 2 + 2 * SKEW                         # largest row offset of a spring: 1
 PERIOD = 2 * REACH + 1                       # rows of a block: 21
 HALO = 4                                     # lanes wrapped on each side: 2 for the centre, 2 more for its springs
 EMPTY, FIXED, MOVABLE = 0, 1, 2              # int8 kinds of a slot
-
-Block = Float[Array, "g r l"]                 # (groups, PERIOD, lanes)
 
 
 @dataclasses.dataclass(frozen=True)
