@@ -23,6 +23,13 @@ The runs behind the committed results (one command each; the first prepares the 
     nice .venv/bin/python experiments/tune_isprs.py --phases c --steps 30 --folds 3
     nice .venv/bin/python experiments/tune_isprs.py --phases d --steps 30 --folds 3 --loo-folds 2 --loo-windows 18
     nice .venv/bin/python experiments/tune_isprs.py --method pmf --phases abecd --steps 60 --folds 3
+    nice .venv/bin/python experiments/tune_isprs.py --method csf --phases abecd --steps 40 --folds 3
+
+CSF (`--method csf`): the class threshold is fitted by gradient; time step and rigidness
+(grid `gfjax.tune.csf.GRID`, 3 x 3 cloths) are searched on the grid, each cloth simulated
+once per sample and its point-to-cloth distances cached under --cloth-cache. (e)'s grid is
+5 thresholds x the same 9 cloths. `--check-filter` also runs `gfjax.csf.filter` on every
+sample and records whether its labels equal the tuned pipeline's hard labels at the defaults.
 """
 from __future__ import annotations
 
@@ -42,6 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import gfjax
+from gfjax.tune import csf as tcsf
 from gfjax.tune import fit as tfit
 from gfjax.tune import guard
 from gfjax.tune import methods as tmethods
@@ -57,7 +65,8 @@ def pct(x):
     return f"{100 * x:.2f}"
 
 
-def prepared(names: list[str], cache: Path, method: tmethods.Method = tmethods.SMRF) -> tuple[Problem, float]:
+def prepared(names: list[str], cache: Path, method: tmethods.Method = tmethods.SMRF,
+             cloth_cache: Path | None = None) -> tuple[Problem, float]:
     """The prepared `Problem` of the named samples, from a pickle under `cache` when one exists
     for the same files and gfjax sources (the openings to 24 m dominate the run otherwise);
     returns it and the seconds spent preparing it (read from the cache when loaded)."""
@@ -65,10 +74,12 @@ def prepared(names: list[str], cache: Path, method: tmethods.Method = tmethods.S
     key = hashlib.sha256()
     for f in files:
         key.update(f.read_bytes())
-    deps = ("smrf", "raster", "io") if method is tmethods.SMRF else ("pmf", "raster", "io")
+    deps = {"smrf": ("smrf", "raster", "io"), "pmf": ("pmf", "raster", "io"), "csf": ("csf", "io")}[method.name]
     for src in sorted((Path(gfjax.__file__).parent).glob("**/*.py")):
         if src.parent.name in deps or src.name in (f"{method.name}.py", "relax.py"):
             key.update(src.read_bytes())
+    if method is tmethods.CSF:
+        key.update(repr(method.grid).encode())
     prefix = "problem" if method is tmethods.SMRF else f"problem_{method.name}"
     path = cache / f"{prefix}_{key.hexdigest()[:16]}.pkl"
     if path.exists():
@@ -77,8 +88,9 @@ def prepared(names: list[str], cache: Path, method: tmethods.Method = tmethods.S
         return problem, seconds
     t = time.perf_counter()
     samples = [Sample.from_cloud(gfjax.read(f)) for f in files]
-    problem = Problem(samples, config=method.config_type(), max_window_m=max(method.grid, default=None),
-                      method=method)
+    with tcsf.cloth_cache(cloth_cache):
+        problem = Problem(samples, config=method.config_type(), max_window_m=max(method.grid, default=None),
+                          method=method, grid=method.grid if method is tmethods.CSF else None)
     seconds = time.perf_counter() - t
     cache.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
@@ -111,9 +123,13 @@ def main(argv=None) -> int:
     ap.add_argument("--samples", nargs="*", default=NAMES, help="subset (smoke tests)")
     ap.add_argument("--out", default=str(OUT))
     ap.add_argument("--phases", default="abecd", help="which of a, b, e, c, d to run")
-    ap.add_argument("--method", default="smrf", choices=("smrf", "pmf"),
-                    help="tuned method (pmf: files tune_isprs_pmf_*; its window series is not searched)")
-    ap.add_argument("--loo-windows", default="12,18,24", help="window grid of (d)")
+    ap.add_argument("--method", default="smrf", choices=("smrf", "pmf", "csf"),
+                    help="tuned method (pmf, csf: files tune_isprs_<method>_*; PMF's window series is not "
+                         "searched; CSF's time step x rigidness grid is)")
+    ap.add_argument("--loo-windows", default=None, help="static grid of (d) (default SMRF 12,18,24; CSF all cloths)")
+    ap.add_argument("--cloth-cache", default="/tmp/gfjax_tune_csf_cloths", help="CSF: folder of cached cloths")
+    ap.add_argument("--check-filter", action="store_true",
+                    help="CSF: compare the hard labels at the defaults with gfjax.csf.filter on every sample")
     ap.add_argument("--cd-steps", type=int, default=None, help="steps of (c) and (d) (default --steps)")
     ap.add_argument("--loo-folds", type=int, default=None, help="folds (by sample) of (d)'s guard (default --folds)")
     ap.add_argument("--d-unguarded", action="store_true",
@@ -133,8 +149,9 @@ def main(argv=None) -> int:
     method = tmethods.get(args.method)
     stem = "tune_isprs" if method is tmethods.SMRF else f"tune_isprs_{method.name}"
     res["method"] = method.name
-    res["param_names"] = [b.name for b in method.bounds] + [method.static or "max_window_m (fixed)"]
-    problem, res["prepare_s"] = prepared(args.samples, Path(args.cache), method)
+    static_name = {"smrf": "window_m", "pmf": "max_window_m (fixed)", "csf": "cloth (10 rigidness + time_step)"}
+    res["param_names"] = [b.name for b in method.bounds] + [static_name[method.name]]
+    problem, res["prepare_s"] = prepared(args.samples, Path(args.cache), method, Path(args.cloth_cache))
     samples = problem.samples
     c = len(samples)
     per = np.arange(c, dtype=np.int32)
@@ -150,6 +167,12 @@ def main(argv=None) -> int:
 
     # (a) defaults
     res["a_defaults"] = tfit.hard_errors(problem, defaults, all_masks, per, w0).tolist()
+    if args.check_filter and method is tmethods.CSF:
+        hard = problem.labels(tfit.hard_ground(problem, defaults, per, w0))
+        t = time.perf_counter()
+        same = [bool(np.array_equal(h, gfjax.csf.filter(gfjax.read(DATA / f"{n}-utm.laz")).ground))
+                for h, n in zip(hard, args.samples)]
+        res["a_equals_filter"] = {"labels_equal": same, "filter_s": time.perf_counter() - t}
     save()
     if "b" not in args.phases:
         return cd(args, res, problem, samples, per, defaults, all_masks, save, t0)
@@ -157,7 +180,7 @@ def main(argv=None) -> int:
     # timing of one hard evaluation and one value-and-grad call (all 11 samples), warm.
     radius = jnp.asarray(method.static_px(problem.config, w0), jnp.int32)
     arrays = tfit._arrays(problem)
-    raw = jnp.zeros((c, 3), jnp.float32)
+    raw = jnp.zeros((c, len(method.bounds)), jnp.float32)
     args_vg = (raw, radius, jnp.float32(0.1), arrays, all_masks, jnp.asarray(per), jnp.ones(c, jnp.float32),
                jnp.float32(0.0))
     kw = dict(config=problem.config, kind="total-error", n_samples=c, method=method)
@@ -192,7 +215,7 @@ def main(argv=None) -> int:
     # (e) grid search: 5 values per parameter over the same bounds, the same window grid.
     grids = [np.linspace(b.lo, b.hi, 5) for b in method.bounds]
     best = np.full(c, np.inf)
-    best_at = np.zeros((c, 4))
+    best_at = np.zeros((c, len(method.bounds) + 1))
     t = time.perf_counter()
     n_eval = 0
     for w in method.grid_values(problem.config, None):
@@ -245,7 +268,9 @@ def cd(args, res, problem, samples, per, defaults, all_masks, save, t0) -> int:
     # (d) leave one sample out: one shared set tuned on 10 samples with the guard (k-fold by
     # sample over the 10), scored on the 11th.
     if "d" in args.phases and not args.skip_loo:
-        loo = dataclasses.replace(settings, windows_m=tuple(float(w) for w in args.loo_windows.split(",")))
+        loo_windows = args.loo_windows or ("12,18,24" if problem.method is tmethods.SMRF else None)
+        loo = dataclasses.replace(settings, windows_m=tuple(float(w) for w in loo_windows.split(","))
+                                  if loo_windows else None)
         res["d"] = {"defaults": res["a_defaults"], "tuned": [], "unguarded": [], "values": [], "window_m": [],
                     "kept": [], "p_value": [], "val_default": [], "val_tuned": []}
         for i in range(c):
@@ -339,7 +364,8 @@ def report(res: dict) -> str:
         lines.append("")
     if "timing" in res:
         t = res["timing"]
-        lines.append(f"Cost unit: one hard evaluation of all 11 samples from the prepared openings = "
+        prepared_what = "cloth distances" if method == "csf" else "openings"
+        lines.append(f"Cost unit: one hard evaluation of all 11 samples from the prepared {prepared_what} = "
                      f"{t['hard_eval_s']:.3f} s; one relaxed value-and-grad call = {t['value_and_grad_s']:.3f} s "
                      f"= {t['grad_in_forward_passes']:.2f} forward passes (measured, warm).")
         lines.append("")
@@ -349,10 +375,12 @@ def report(res: dict) -> str:
         lines.append("")
         lines.append("| | mean total error | forward-pass equivalents | wall time [s] |")
         lines.append("|---|---|---|---|")
-        lines.append(f"| gradient (Adam, {len(res['b_history'])} windows) | {pct(np.mean(res['b_tuned']))} | "
+        static = "cloths" if method == "csf" else "windows"
+        n_fitted = len(res["b_values"][0])
+        lines.append(f"| gradient (Adam, {len(res['b_history'])} {static}) | {pct(np.mean(res['b_tuned']))} | "
                      f"{b['forward_equivalents']:.0f} ({b['gradient_calls']} grad + {b['hard_evaluations']} hard) | "
                      f"{b['wall_s']:.0f} |")
-        lines.append(f"| grid 5x5x5 x windows | {pct(np.mean(e['best']))} | {e['forward_equivalents']} | "
+        lines.append(f"| grid {'x'.join(['5'] * n_fitted)} x {static} | {pct(np.mean(e['best']))} | {e['forward_equivalents']} | "
                      f"{e['wall_s']:.0f} |")
         lines.append("")
         lines.append(f"(b) fitted values ({pnames}): " + "; ".join(
@@ -363,7 +391,14 @@ def report(res: dict) -> str:
             f"{n}: {', '.join(f'{x:.3g}' for x in v)}" for n, v in zip(names, res["e_grid"]["best_at"])))
     if "prepare_s" in res:
         lines.append("")
-        lines.append(f"Reading and preparing (rasters, openings up to the largest window, compile): {res['prepare_s']:.0f} s.")
+        what = ("9 cloths per sample simulated (or read from the cloth cache), distances, compile" if method == "csf"
+                else "rasters, openings up to the largest window, compile")
+        lines.append(f"Reading and preparing ({what}): {res['prepare_s']:.0f} s.")
+    if "a_equals_filter" in res:
+        same = res["a_equals_filter"]["labels_equal"]
+        lines.append("")
+        lines.append(f"Hard labels at the defaults equal `gfjax.csf.filter`'s on {sum(same)} of {len(same)} samples "
+                     f"(filter runs: {res['a_equals_filter']['filter_s']:.0f} s).")
     return "\n".join(lines) + "\n"
 
 
