@@ -9,8 +9,8 @@ result = fit.fit(problem, Settings(steps=60))       # module `fit`, function `fi
 checked = validate(problem, Settings(), folds=3)    # keep it only where held-out data say so
 ```
 `relax` holds the soft thresholds, `params` the bounded parametrisation and params.json,
-`smrf` the relaxed SMRF pipeline, `pmf` the relaxed PMF point test, `methods` what the loop
-needs of each (`Problem(..., method=methods.PMF)`), `fit` the optax loop, `guard` the
+`smrf` the relaxed SMRF pipeline, `pmf` the relaxed PMF point test, `csf` CSF's relaxed class
+test on cached grid cloths, `methods` what the loop needs of each (`Problem(..., method=methods.PMF)`), `fit` the optax loop, `guard` the
 cross-validated test against the defaults.
 """
 from gfjax.tune import fit, guard, methods, relax
