@@ -31,7 +31,11 @@ The stopping rule needs a step's largest displacement, known once its last row i
 by then later steps have moved the first rows. Each finished row is therefore also written
 to a ring of `groups` snapshots, from which the cloth at the stopping step is read back.
 Cost: `PERIOD * (steps + groups)` iterations of `groups * lanes` particles each (about
-`h * w / 21 * 1.25` for a square grid); memory: the ring holds `groups` copies of the grid.
+`h * w / 21 * 1.25` for a square grid); memory: the ring holds `groups + 1` copies of the grid.
+
+Batches (`jax.vmap`): the cloths share the block counter, so every slice stays a slice (a
+batched counter would turn them into gathers), and the loop runs until the last cloth stops; a
+stopped cloth is frozen (no block is live, its ring writes go to a spare slot).
 """
 from __future__ import annotations
 
@@ -68,14 +72,14 @@ class ClothState(NamedTuple):
 
 
 class _Carry(NamedTuple):
-    """Loop state. Slot arrays `(rows, lanes)`; phase-major `(PERIOD, groups, lanes)`."""
+    """Loop state of one cloth (the block counter `b`, shared by a batch, is kept apart).
+    Slot arrays `(rows, lanes + 2 HALO)`; phase-major `(PERIOD, groups, lanes)`."""
 
-    block: Int[Array, ""]                     # b: iteration T = PERIOD * b + phase
     u: Array                                  # slots (haloed lanes), heights [m]
     kind: Array                               # slots (haloed lanes), int8 EMPTY / FIXED / MOVABLE
     u_prev: Array                             # phase-major, height at the start of the step [m]
     hit_step: Array                           # phase-major int32, step of collision (cap: none)
-    ring: Array                               # (groups, PERIOD, groups, lanes) finished rows [m]
+    ring: Array                               # (groups + 1, PERIOD, groups, lanes) finished rows [m]
     max_step: Array                           # (groups,) running max displacement per step [m]
     stopped: Bool[Array, ""]
     last_step: Int[Array, ""]
@@ -101,12 +105,13 @@ def _set_first_rows(slots: Array, rows: Array, phase: Int[Array, ""]) -> Array:
 
 
 def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: int, rigidness: int,
-           phase: Int[Array, ""], c: _Carry) -> _Carry:
-    """One iteration: relax the wavefronts `PERIOD g + phase`, finish the blocks' first rows."""
+           block: Int[Array, ""], phase: Int[Array, ""], c: _Carry) -> _Carry:
+    """Iteration `T = PERIOD * block + phase`: relax the wavefronts `PERIOD g + phase`, finish
+    the blocks' first rows. A stopped cloth is left as it is (for batches that run on)."""
     groups, lanes = lay.groups, lay.lanes
     group = jnp.arange(groups, dtype=jnp.int32)
-    step = c.block - group                                          # (groups,) step of each block
-    active = (step >= 0) & (step < iterations)
+    step = block - group                                            # (groups,) step of each block
+    active = (step >= 0) & (step < iterations) & ~c.stopped
 
     slots_u = relax_block(c.u, c.kind, active, phase, double_move=double_move(rigidness),
                           single_move=single_move(rigidness))
@@ -119,7 +124,9 @@ def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: 
     hit = mov0 & (u0 < h0)
     u0 = jnp.where(hit, h0, u0)
     free = mov0 & ~hit
-    ring = lax.dynamic_update_slice(c.ring, u0[None, None], (c.block % groups, phase, 0, 0))
+    slot = block % groups
+    scratch = jnp.where(c.stopped, groups, slot)              # a stopped cloth writes to the spare slot
+    ring = lax.dynamic_update_slice(c.ring, u0[None, None], (scratch, phase, 0, 0))
     hit_step = lax.dynamic_update_slice(
         c.hit_step, jnp.where(hit, step[:, None], c.hit_step[phase])[None], (phase, 0, 0))
     u_prev = lax.dynamic_update_slice(c.u_prev, jnp.where(free, u0, prev0)[None], (phase, 0, 0))
@@ -130,16 +137,86 @@ def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: 
     slots_u = _set_first_rows(slots_u, add_halo(u0), phase)
     slots_kind = _set_first_rows(c.kind, add_halo(jnp.where(hit, jnp.int8(FIXED), kind0)), phase)
     # Per-step displacement maxima; a step is done when its last particle row is finished.
-    max_step = jnp.where(phase == 0, c.max_step.at[c.block % groups].set(0.0), c.max_step)
+    max_step = jnp.where(phase == 0, c.max_step.at[slot].set(0.0), c.max_step)
     max_step = max_step.at[step % groups].max(moved)
-    done = c.block - lay.last_group
+    done = block - lay.last_group
     check = (phase == lay.last_phase) & (done >= 0) & (done < iterations) & ~c.stopped
     done_max = max_step[done % groups]
     stop = check & (_displacement_stops(done_max) | (done == iterations - 1))
-    return _Carry(block=c.block, u=slots_u, kind=slots_kind, u_prev=u_prev, hit_step=hit_step,
+    return _Carry(u=slots_u, kind=slots_kind, u_prev=u_prev, hit_step=hit_step,
                   ring=ring, max_step=max_step, stopped=c.stopped | stop,
                   last_step=jnp.where(stop, done, c.last_step),
                   last_max=jnp.where(stop, done_max, c.last_max))
+
+
+def _init(u: Raster, u_prev: Raster, movable: Mask, present: Mask, heights: Raster, *,
+          iterations: int) -> tuple[_Carry, Array]:
+    """Loop state before step 0's springs, and the surface in phase-major slots."""
+    lay = layout(u.shape)
+    groups, lanes, dtype = lay.groups, lay.lanes, u.dtype
+    kind = jnp.where(movable, jnp.int8(MOVABLE), jnp.where(present, jnp.int8(FIXED), jnp.int8(EMPTY)))
+    init = _Carry(
+        u=add_halo(lay.to_slot_array(u, 0.0)), kind=add_halo(lay.to_slot_array(kind, jnp.int8(EMPTY))),
+        u_prev=lay.by_phase(lay.to_slot_array(u_prev, 0.0)),
+        hit_step=jnp.full((PERIOD, groups, lanes), iterations, jnp.int32),
+        ring=jnp.zeros((groups + 1, PERIOD, groups, lanes), dtype), max_step=jnp.zeros(groups, dtype),
+        stopped=jnp.array(False), last_step=jnp.int32(iterations - 1),
+        last_max=jnp.asarray(jnp.inf, dtype))
+    return init, lay.by_phase(lay.to_slot_array(heights, -jnp.inf))
+
+
+def _block(heights: Array, accel: Float[Array, ""], c: _Carry, block: Int[Array, ""], *, lay: Layout,
+           iterations: int, rigidness: int) -> _Carry:
+    """The `PERIOD` iterations of one block counter."""
+    phase = functools.partial(_phase, lay, heights, accel, iterations=iterations, rigidness=rigidness,
+                              block=block)
+    return lax.fori_loop(0, PERIOD, lambda k, cc: phase(phase=k, c=cc), c)
+
+
+def _result(c: _Carry, movable: Mask, *, lay: Layout) -> ClothState:
+    """The cloth at the stopping step, read back from the ring."""
+    groups, lanes = lay.groups, lay.lanes
+    group = jnp.arange(groups)
+    final = c.ring[(c.last_step + group) % groups, :, group, :]          # (groups, PERIOD, lanes)
+    u_end = lay.to_grid(final.reshape(groups * PERIOD, lanes))
+    hit_step = c.hit_step.transpose(1, 0, 2).reshape(groups * PERIOD, lanes)
+    fixed = lay.to_grid(hit_step) <= c.last_step
+    return ClothState(u=u_end, movable=movable & ~fixed, max_step_m=c.last_max, steps=c.last_step + 1)
+
+
+@functools.lru_cache(maxsize=None)
+def _runner(iterations: int, rigidness: int):
+    """`run(u, u_prev, movable, present, heights, accel) -> ClothState`: steps 2-4 of step 0,
+    then whole steps, until the cap or the stopping rule (`u`: heights after step 0's Verlet,
+    `u_prev` before it). Under `jax.vmap` the cloths of a batch share the block counter (so
+    every slice stays a slice) and the loop runs until the last one stops."""
+    static = {"iterations": iterations, "rigidness": rigidness}
+
+    @jax.custom_batching.custom_vmap
+    def run(u, u_prev, movable, present, heights, accel):
+        lay = layout(u.shape)
+        init, surface = _init(u, u_prev, movable, present, heights, iterations=iterations)
+        body = functools.partial(_block, surface, accel, lay=lay, **static)
+        _, c = lax.while_loop(lambda bc: ~bc[1].stopped, lambda bc: (bc[0] + 1, body(bc[1], bc[0])),
+                              (jnp.int32(0), init))
+        return _result(c, movable, lay=lay)
+
+    @run.def_vmap
+    def run_batched(axis_size, in_batched, *args):
+        args = [a if batched else jnp.broadcast_to(a, (axis_size, *a.shape))
+                for a, batched in zip(args, in_batched)]
+        u, u_prev, movable, present, heights, accel = args
+        lay = layout(u.shape[1:])
+        init, surface = jax.vmap(functools.partial(_init, iterations=iterations))(
+            u, u_prev, movable, present, heights)
+        body = jax.vmap(functools.partial(_block, lay=lay, **static), in_axes=(0, 0, 0, None))
+        _, c = lax.while_loop(lambda bc: jnp.any(~bc[1].stopped),
+                              lambda bc: (bc[0] + 1, body(surface, accel, bc[1], bc[0])),
+                              (jnp.int32(0), init))
+        out = jax.vmap(functools.partial(_result, lay=lay))(c, movable)
+        return out, jax.tree_util.tree_map(lambda _: True, out)
+
+    return run
 
 
 def _run(u: Raster, u_prev: Raster, movable: Mask, present: Mask, heights: Raster,
@@ -152,32 +229,7 @@ def _run(u: Raster, u_prev: Raster, movable: Mask, present: Mask, heights: Raste
       heights: inverted surface `(h, w)` [m]; accel: Verlet gravity term [m per step].
       iterations, rigidness: static cap and spring stiffness.
     """
-    lay = layout(u.shape)
-    groups, lanes, dtype = lay.groups, lay.lanes, u.dtype
-    kind = jnp.where(movable, jnp.int8(MOVABLE), jnp.where(present, jnp.int8(FIXED), jnp.int8(EMPTY)))
-    heights_pm = lay.by_phase(lay.to_slot_array(heights, -jnp.inf))
-    init = _Carry(
-        block=jnp.int32(0), u=add_halo(lay.to_slot_array(u, 0.0)),
-        kind=add_halo(lay.to_slot_array(kind, jnp.int8(EMPTY))),
-        u_prev=lay.by_phase(lay.to_slot_array(u_prev, 0.0)),
-        hit_step=jnp.full((PERIOD, groups, lanes), iterations, jnp.int32),
-        ring=jnp.zeros((groups, PERIOD, groups, lanes), dtype), max_step=jnp.zeros(groups, dtype),
-        stopped=jnp.array(False), last_step=jnp.int32(iterations - 1),
-        last_max=jnp.asarray(jnp.inf, dtype))
-    phase = functools.partial(_phase, lay, heights_pm, accel, iterations=iterations,
-                              rigidness=rigidness)
-
-    def block(c: _Carry) -> _Carry:
-        c = lax.fori_loop(0, PERIOD, lambda k, cc: phase(phase=k, c=cc), c)
-        return c._replace(block=c.block + 1)
-
-    c = lax.while_loop(lambda c: ~c.stopped, block, init)
-    group = jnp.arange(groups)
-    final = c.ring[(c.last_step + group) % groups, :, group, :]          # (groups, PERIOD, lanes)
-    hit_step = c.hit_step.transpose(1, 0, 2)
-    u_end = lay.to_grid(final.reshape(groups * PERIOD, lanes))
-    fixed = lay.to_grid(hit_step.reshape(groups * PERIOD, lanes)) <= c.last_step
-    return ClothState(u=u_end, movable=movable & ~fixed, max_step_m=c.last_max, steps=c.last_step + 1)
+    return _runner(iterations, rigidness)(u, u_prev, movable, present, heights, accel)
 
 
 @functools.partial(jax.jit, static_argnames="config")
