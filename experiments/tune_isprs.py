@@ -397,8 +397,17 @@ def report(res: dict) -> str:
     if "a_equals_filter" in res:
         same = res["a_equals_filter"]["labels_equal"]
         lines.append("")
+        filter_s = res["a_equals_filter"]["filter_s"]
         lines.append(f"Hard labels at the defaults equal `gfjax.csf.filter`'s on {sum(same)} of {len(same)} samples "
-                     f"(filter runs: {res['a_equals_filter']['filter_s']:.0f} s).")
+                     f"(filter runs: {filter_s:.0f} s).")
+        if "b_cost" in res and "e_grid" in res:
+            n_cloths = len(res["b_history"])
+            lines.append("")
+            lines.append(f"CSF cost: (b) and (e) share the {n_cloths} cloths per sample simulated once in the "
+                         f"preparation; one plain-filter run of the {len(same)} samples (one cloth each, same run) took "
+                         f"{filter_s:.0f} s, so the cloths cost about {n_cloths} x {filter_s:.0f} s, against "
+                         f"{res['b_cost']['wall_s']:.0f} s of gradient tuning and {res['e_grid']['wall_s']:.0f} s of grid search "
+                         "on the cached distances.")
     return "\n".join(lines) + "\n"
 
 
