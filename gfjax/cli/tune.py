@@ -161,10 +161,10 @@ def run(args: argparse.Namespace) -> int:
                   "window_chosen_from_grid": kept and values[method.static] != method.default_static(config),
                   "not_differentiable": {method.static: method.static_note}}
     elif method.static:
-        chosen = kept and float(v.window_m[0]) != method.default_static(config)
+        static_defaults = method.params_values(method.default_static(config))
         grid = [method.params_values(w) for w in windows]
         extra |= {"grid": {k: sorted({g[k] for g in grid}) for k in static_values},
-                  "grid_chosen": {k: chosen for k in static_values},
+                  "grid_chosen": {k: kept and static_values[k] != static_defaults[k] for k in static_values},
                   "not_differentiable": {k: method.static_note for k in static_values}}
     write_params(out, method=args.method, values=values, units=method.units, extra=extra)
     print(f"{out}: {args.method} " + ", ".join(f"{k}={values[k]:.4g}" for k in values))
