@@ -128,14 +128,10 @@ IDENTITY_REVISION = "8f9433f"     # the DMF host and basal modules before the sp
 IDENTITY_MODULES = ("neighbours", "basal")
 
 
-def _identity(revision: str, out: Path) -> int:
-    """DMF labels, instance ids, basal layer and iteration count of the current code against the
-    same code with `gfjax/dmf/{neighbours,basal}.py` as at git `revision`, on every shared LAS
-    file, with the default config and each preset. Writes `out` (Markdown); returns the number
-    of differences."""
+def _reference_swaps(revision: str) -> list[tuple]:
+    """`(module, attribute, function)` that put back the table, ND_NG and basal functions of
+    `gfjax/dmf/{neighbours,basal}.py` as at git `revision` (the reference paths)."""
     import importlib.util
-
-    from experiments.common import DATA as SHARED
 
     reference = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -147,9 +143,45 @@ def _identity(revision: str, out: Path) -> int:
             spec = importlib.util.spec_from_file_location(path.stem, path)
             reference[name] = importlib.util.module_from_spec(spec)
             spec.loader.exec_module(reference[name])
-    swaps = [(neighbours, "cylinder_table", reference["neighbours"].cylinder_table),
-             (neighbours, "nearest_node", reference["neighbours"].nearest_node),
-             (basal, "basal_layer", reference["basal"].basal_layer)]
+    return [(neighbours, "cylinder_table", reference["neighbours"].cylinder_table),
+            (neighbours, "nearest_node", reference["neighbours"].nearest_node),
+            (basal, "basal_layer", reference["basal"].basal_layer)]
+
+
+@contextlib.contextmanager
+def _swapped(swaps):
+    with contextlib.ExitStack() as stack:
+        for module, attribute, value in swaps:
+            stack.enter_context(mock.patch.object(module, attribute, value))
+        yield
+
+
+def _versus_reference(cloud, revision: str) -> dict:
+    """Warm DMF calls of the current code and of the reference modules (`_reference_swaps`),
+    interleaved, best of REPEAT each: total and per-stage seconds."""
+    swaps = _reference_swaps(revision)
+    with _swapped(swaps):
+        dmf.filter(cloud)                                      # compile the reference basal loop
+    best = {"now": {}, "reference": {}}
+    for _ in range(REPEAT):
+        for name in best:
+            with _swapped(swaps) if name == "reference" else contextlib.nullcontext():
+                start = time.perf_counter()
+                out = dmf.filter(cloud)
+                total = time.perf_counter() - start
+            for key, value in {"total": total, **out.diagnostics.stage_seconds}.items():
+                best[name][key] = min(best[name].get(key, float("inf")), value)
+    return best
+
+
+def _identity(revision: str, out: Path) -> int:
+    """DMF labels, instance ids, basal layer and iteration count of the current code against the
+    same code with `gfjax/dmf/{neighbours,basal}.py` as at git `revision`, on every shared LAS
+    file, with the default config and each preset. Writes `out` (Markdown); returns the number
+    of differences."""
+    from experiments.common import DATA as SHARED
+
+    swaps = _reference_swaps(revision)
     configs = {"default": dmf.Config(), **{name: dmf.Config(**over) for name, over in dmf.PRESETS.items()}}
     files = sorted(SHARED.glob("*/*.laz")) + sorted(SHARED.glob("*/*/*.laz"))
     files = [f for f in files if "sites" not in f.parts]
@@ -163,9 +195,7 @@ def _identity(revision: str, out: Path) -> int:
         row = []
         for config in configs.values():
             fast = dmf.filter(cloud, config=config)
-            with contextlib.ExitStack() as stack:
-                for module, attribute, value in swaps:
-                    stack.enter_context(mock.patch.object(module, attribute, value))
+            with _swapped(swaps):
                 ref = dmf.filter(cloud, config=config)
             same = (np.array_equal(fast.ground, ref.ground) and np.array_equal(fast.instance_id, ref.instance_id)
                     and np.array_equal(fast.diagnostics.basal_z, ref.diagnostics.basal_z)
@@ -221,6 +251,7 @@ def main(argv=None) -> int:
             anatomy = min((_anatomy(args.data, out, "skip") for _ in range(REPEAT)), key=lambda a: a["total_s"])
             anatomy["teardown_if_run_s"] = _anatomy(args.data, out, "run")["steps_s"]["interpreter teardown and exit"]
     table = _table_paths(cloud)
+    versus = _versus_reference(cloud, IDENTITY_REVISION)
     figures = {
         "file": str(args.data.name), "n_points": n, "read_s": read_s,
         "dmf_first_call_s": first_s, "dmf_warm_s": warm_s, "dmf_points_per_s": n / warm_s,
@@ -228,6 +259,7 @@ def main(argv=None) -> int:
         "peak_rss_mb_after_dmf": rss_mb, "pysmrf_windows18_s": pysmrf_s, "csf_defaults_s": csf_s,
         "speedup_vs_pysmrf": pysmrf_s / warm_s, "speedup_vs_csf": csf_s / warm_s,
         "gfjax_filter_process": cli, "process_anatomy": anatomy, "cylinder_table": table,
+        "warm_vs_reference_modules": {"revision": IDENTITY_REVISION, **versus},
         "cell_m": result.diagnostics.cell_m,
         "basal_iterations": result.diagnostics.basal_iterations, "config": str(dmf.Config()),
         "environment_start": env_start, "load_avg_1min_end": _environment()["load_avg_1min"],
@@ -267,6 +299,10 @@ def main(argv=None) -> int:
     lines += ["", f"Cylinder table of the {table['n_nodes']:,} ND_CE (Sec. 2.3), best of {REPEAT}: bucket grid (speed path) "
                   f"{table['grid_s']:.3f} s, KD-tree (reference path) {table['kdtree_s']:.3f} s; DMF labels of the two paths "
                   f"identical: **{table['labels_identical']}**"]
+    stages_of = lambda b: ", ".join(f"{k} {v:.2f}" for k, v in b.items() if k != "total")   # noqa: E731
+    lines += ["", f"Warm DMF call with `gfjax/dmf/{{neighbours,basal}}.py` as at git {IDENTITY_REVISION} (before the speed work; "
+                  f"same output, `--identity`) against now, interleaved, best of {REPEAT}: **{versus['reference']['total']:.2f} s** "
+                  f"({stages_of(versus['reference'])}) vs **{versus['now']['total']:.2f} s** ({stages_of(versus['now'])})."]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines) + "\n")
     args.out.with_suffix(".json").write_text(json.dumps({"command": command, **figures}, indent=1, default=str))
