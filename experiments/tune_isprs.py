@@ -23,11 +23,12 @@ The runs behind the committed results (one command each; the first prepares the 
     nice .venv/bin/python experiments/tune_isprs.py --phases c --steps 30 --folds 3
     nice .venv/bin/python experiments/tune_isprs.py --phases d --steps 30 --folds 3 --loo-folds 2 --loo-windows 18
     nice .venv/bin/python experiments/tune_isprs.py --method pmf --phases abecd --steps 60 --folds 3
-    nice .venv/bin/python experiments/tune_isprs.py --method csf --phases abecd --steps 40 --folds 3
+    nice .venv/bin/python experiments/tune_isprs.py --method csf --phases abecd --steps 40 --folds 3 --check-filter --d-unguarded
 
 CSF (`--method csf`): the class threshold is fitted by gradient; time step and rigidness
 (grid `gfjax.tune.csf.GRID`, 3 x 3 cloths) are searched on the grid, each cloth simulated
-once per sample and its point-to-cloth distances cached under --cloth-cache. (e)'s grid is
+once per sample and its point-to-cloth distances cached under --cloth-cache (in a subfolder
+keyed by the gfjax/csf sources, so a changed simulation is re-run). (e)'s grid is
 5 thresholds x the same 9 cloths. `--check-filter` also runs `gfjax.csf.filter` on every
 sample and records whether its labels equal the tuned pipeline's hard labels at the defaults.
 """
@@ -151,7 +152,10 @@ def main(argv=None) -> int:
     res["method"] = method.name
     static_name = {"smrf": "window_m", "pmf": "max_window_m (fixed)", "csf": "cloth (10 rigidness + time_step)"}
     res["param_names"] = [b.name for b in method.bounds] + [static_name[method.name]]
-    problem, res["prepare_s"] = prepared(args.samples, Path(args.cache), method, Path(args.cloth_cache))
+    csf_sources = hashlib.sha256(b"".join(p.read_bytes() for p in
+                                          sorted((Path(gfjax.__file__).parent / "csf").glob("*.py"))))
+    cloth_cache = Path(args.cloth_cache) / csf_sources.hexdigest()[:12]
+    problem, res["prepare_s"] = prepared(args.samples, Path(args.cache), method, cloth_cache)
     samples = problem.samples
     c = len(samples)
     per = np.arange(c, dtype=np.int32)
