@@ -18,6 +18,7 @@ import math
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 __all__ = ["Config", "Params", "PRESETS", "BASAL_STOPS", "FINAL_RULES", "HOLE_TESTS", "SUPPORT_Z", "SUPPORT_ELEVATIONS"]
@@ -175,7 +176,7 @@ class Params(eqx.Module):
     def threshold_m(self, cell_m: float) -> Float[Array, ""]:
         """The largest height of a ground point above the support surface for voxel size
         `cell_m` = W [m]: `height_threshold_m + height_threshold_w * W`, float32 [m]."""
-        return self.height_threshold_m + self.height_threshold_w * _f32(cell_m)
+        return self.height_threshold_m + self.height_threshold_w * np.float32(cell_m)
 
 
 PRESETS: dict[str, dict] = {

@@ -139,7 +139,7 @@ def m_nearest_ground(points: np.ndarray, nodes: SupportNodes, *, points_tree: cK
         return np.zeros(n, bool), m
     _, taken = tree.query(g_nodes, k=min(m, n))
     taken = np.asarray(taken).reshape(len(g_nodes), -1).astype(np.int32)
-    ground = mark_ground(jnp.asarray(nearest, jnp.int32), jnp.asarray(nodes.ground), jnp.asarray(taken), n_points=n)
+    ground = mark_ground(nearest.astype(np.int32), nodes.ground, taken, n_points=n)
     return np.asarray(ground), m
 
 
@@ -159,8 +159,9 @@ def height_ground(points: np.ndarray, nodes: SupportNodes, vox: Voxels, threshol
     valid = np.zeros(h * w, bool)
     surface[nodes.cell] = nodes.z_surface
     valid[nodes.cell] = True
-    out = _height_rule(jnp.asarray(surface.reshape(h, w)), jnp.asarray(valid.reshape(h, w)),
-                       jnp.asarray(points, jnp.float32), jnp.asarray(threshold_m, jnp.float32), cell_m=float(vox.cell_m))
+    threshold_m = threshold_m if isinstance(threshold_m, jax.Array) else np.float32(threshold_m)
+    out = _height_rule(surface.reshape(h, w), valid.reshape(h, w), points.astype(np.float32), threshold_m,
+                       cell_m=float(vox.cell_m))
     return np.asarray(out)
 
 
@@ -184,5 +185,6 @@ def extract_ground(points: np.ndarray, vox: Voxels, object_cell: np.ndarray, in_
     if config.final_rule in ("m_nearest", "both"):
         ground, m_points = m_nearest_ground(points, nodes, points_tree=points_tree)
     if config.final_rule in ("height", "both"):
-        ground = ground & height_ground(points, nodes, vox, params.threshold_m(vox.cell_m))
+        host = jax.tree.map(np.asarray, params)           # numpy arithmetic: no tiny JAX programs
+        ground = ground & height_ground(points, nodes, vox, host.threshold_m(vox.cell_m))
     return nodes, ground, m_points

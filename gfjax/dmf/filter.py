@@ -115,8 +115,8 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
     core = max(1, math.ceil(config.raster_tile_m / cell_m))
     buf = math.ceil(config.raster_buffer_m / cell_m)
     kwargs = stage_options(config)
-    w_m = jnp.float32(cell_m)
-    share = jnp.float32(config.rc_min_share)
+    w_m = np.float32(cell_m)                 # host scalars and arrays go to the jitted calls as
+    share = np.float32(config.rc_min_share)  # numpy: no conversion program compiles or runs
     if h <= core and w <= core:
         shape = (_round_up(h, SHAPE_QUANTUM_PX), _round_up(w, SHAPE_QUANTUM_PX))
         out = stages.raster_stages(*_pad_tile(z, layer, valid, shape), w_m, share, **kwargs)
@@ -141,14 +141,14 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
         group = windows[s:s + MAX_BATCH]
         tiles = [_pad_tile(z[a:b, c:d], layer[a:b, c:d], valid[a:b, c:d], shape) for _, _, (a, b), (c, d) in group]
         tiles += [tiles[-1]] * (MAX_BATCH - len(tiles))           # one batch shape: one compile
-        out = batched_stages(*[jnp.stack(parts) for parts in zip(*tiles)], w_m, share, **kwargs)
+        out = batched_stages(*[np.stack(parts) for parts in zip(*tiles)], w_m, share, **kwargs)
         converged &= bool(np.all(np.asarray(out.converged)[:len(group)]))
         for i, (r0, c0, (a, _), (c, _)) in enumerate(group):
             r1, c1 = min(h, r0 + core), min(w, c0 + core)
             for name in fields:
                 tile = np.asarray(getattr(out, name)[i])
                 fields[name][r0:r1, c0:c1] = tile[r0 - a:r1 - a, c0 - c:c1 - c]
-    labels, conv = label_components(jnp.asarray(fields["ngnem_rc"]), connectivity=8)
+    labels, conv = label_components(jax.device_put(fields["ngnem_rc"]), connectivity=8)
     instances, _ = relabel_consecutive(labels)
     return stages.RasterStages(**fields, instances=np.asarray(instances), converged=converged and bool(conv))
 
@@ -171,8 +171,8 @@ def _pad_tile(z, layer, valid, shape):
     h, w = z.shape
     pad = ((0, shape[0] - h), (0, shape[1] - w))
     inside = np.pad(np.ones((h, w), bool), pad)
-    return (jnp.asarray(np.pad(z, pad), jnp.float32), jnp.asarray(np.pad(layer, pad), jnp.int32),
-            jnp.asarray(np.pad(valid, pad)), jnp.asarray(inside))
+    return (np.pad(z, pad).astype(np.float32), np.pad(layer, pad).astype(np.int32),
+            np.pad(valid, pad).astype(bool), inside)
 
 
 def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None = None,  # noqa: A001
@@ -223,8 +223,8 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     table = neighbours.cylinder_table(vox.centroid[:, :2], radius_m=config.basal_radius_w * cell_m,
                                       k=config.basal_neighbours, max_width=config.basal_table_width)
     cap = np.inf if config.basal_sink_cap_w is None else config.basal_sink_cap_w * cell_m
-    basal = basal_lib.basal_layer(jnp.asarray(vox.centroid, jnp.float32), jnp.asarray(table.index),
-                                  jnp.asarray(table.valid), jnp.float32(cap), stop=config.basal_stop,
+    basal = basal_lib.basal_layer(vox.centroid.astype(np.float32), table.index, table.valid, np.float32(cap),
+                                  stop=config.basal_stop,
                                   max_iter=config.basal_max_iter)
     basal_z = np.asarray(basal.z)
     basal_xyz = np.concatenate([vox.centroid[:, :2], basal_z[:, None].astype(np.float64)], axis=1)
