@@ -14,10 +14,10 @@ support surface (the previous default, 0.5 m, scored 9.91 % but 0.343 m on bcts_
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
-import equinox as eqx
-import jax.numpy as jnp
+import jax
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -148,11 +148,18 @@ def _positive(config: Config, *names: str) -> None:
             raise ValueError(f"{name} must be > 0, got {value}")
 
 
-def _f32(value) -> Array:
-    return jnp.asarray(value, jnp.float32)
+def _f32(value):
+    """Python and numpy numbers -> float32 0-d numpy arrays; anything else (JAX arrays,
+    tracers, the placeholders pytree utilities unflatten with) unchanged."""
+    if isinstance(value, (int, float, np.number, np.ndarray)) and not isinstance(value, bool):
+        return np.asarray(value, np.float32)
+    return value
 
 
-class Params(eqx.Module):
+@functools.partial(jax.tree_util.register_dataclass, data_fields=["height_threshold_m", "height_threshold_w"],
+                   meta_fields=[])
+@dataclasses.dataclass(frozen=True)
+class Params:
     """Traced DMF thresholds (optax may tune them; none changes a shape).
 
     The height rule's threshold is affine in the voxel size W (`threshold_m`):
@@ -168,10 +175,19 @@ class Params(eqx.Module):
       height_threshold_w: the part in multiples of W [-] (default 0.15, chosen by
         leave-one-out among the readings that meet the forest criterion).
     Both are unused by the paper's rule (`final_rule="m_nearest"`).
+
+    A frozen dataclass registered as a JAX pytree (both fields are leaves: `jax.grad`,
+    `jax.jit`, `jax.vmap` and `dataclasses.replace` see them as with an `eqx.Module`, without
+    importing equinox on the filter path). Python and numpy numbers become float32 0-d numpy
+    arrays (so building the default compiles no JAX program); JAX arrays and tracers are kept.
     """
 
-    height_threshold_m: Float[Array, ""] = eqx.field(default_factory=lambda: _f32(0.0), converter=_f32)
-    height_threshold_w: Float[Array, ""] = eqx.field(default_factory=lambda: _f32(0.15), converter=_f32)
+    height_threshold_m: Float[Array, ""] = 0.0
+    height_threshold_w: Float[Array, ""] = 0.15
+
+    def __post_init__(self):
+        for field in dataclasses.fields(self):
+            object.__setattr__(self, field.name, _f32(getattr(self, field.name)))
 
     def threshold_m(self, cell_m: float) -> Float[Array, ""]:
         """The largest height of a ground point above the support surface for voxel size
