@@ -4,7 +4,9 @@ Every method package (`gfjax.smrf`, `gfjax.dmf`, ...) exposes, at its top level:
 
 - `filter(cloud, *, config=None, params=None, returns="all", progress=False) -> Result`
 - `Config`: a frozen dataclass of static values (shapes, loop counts, cell sizes) [metres].
-- `Params`: an `eqx.Module` of traced scalars (thresholds optax may tune) [metres], or None.
+- `Params`: a pytree dataclass of traced scalars (thresholds optax may tune) [metres]: an
+  `eqx.Module`, or a frozen dataclass registered with `jax.tree_util.register_dataclass`
+  (DMF, which keeps equinox off its import path); or None.
 - `PRESETS`: dict of preset name -> dict of overrides (may be empty).
 
 The registry imports a method lazily, so `gfjax info` does not pay for every method. Bad
