@@ -111,6 +111,14 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
     Returns: `RasterStages` of the whole raster (host numpy); a tile's core comes from that
     tile; instance ids are relabelled over the whole raster.
     """
+    return _dispatch_raster_stages(z, layer, valid, cell_m, config, progress=progress)()
+
+
+def _dispatch_raster_stages(z, layer, valid, cell_m, config, *, progress=False):
+    """`run_raster_stages` in two halves: this call starts the work, the returned function
+    waits for it and returns the host `RasterStages`. A raster that fits one tile is one
+    asynchronous jitted call, so host work between the halves overlaps its execution; a tiled
+    raster (host steps between batches) is done at once."""
     h, w = z.shape
     core = max(1, math.ceil(config.raster_tile_m / cell_m))
     buf = math.ceil(config.raster_buffer_m / cell_m)
@@ -120,7 +128,7 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
     if h <= core and w <= core:
         shape = (_round_up(h, SHAPE_QUANTUM_PX), _round_up(w, SHAPE_QUANTUM_PX))
         out = stages.raster_stages(*_pad_tile(z, layer, valid, shape), w_m, share, **kwargs)
-        return stages.RasterStages(*[np.asarray(a)[:h, :w] if np.ndim(a) == 2 else np.asarray(a) for a in out])
+        return lambda: stages.RasterStages(*[np.asarray(a)[:h, :w] if np.ndim(a) == 2 else np.asarray(a) for a in out])
     windows = []
     for r0 in range(0, h, core):
         for c0 in range(0, w, core):
@@ -150,7 +158,8 @@ def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_
                 fields[name][r0:r1, c0:c1] = tile[r0 - a:r1 - a, c0 - c:c1 - c]
     labels, conv = label_components(jax.device_put(fields["ngnem_rc"]), connectivity=8)
     instances, _ = relabel_consecutive(labels)
-    return stages.RasterStages(**fields, instances=np.asarray(instances), converged=converged and bool(conv))
+    done = stages.RasterStages(**fields, instances=np.asarray(instances), converged=converged and bool(conv))
+    return lambda: done
 
 
 @functools.partial(jax.jit, static_argnames=("max_filter_px", "max_close_px", "border_patches", "hole_test",
@@ -201,9 +210,9 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     clock = [time.perf_counter()]
     seconds = {}
 
-    def lap(name):
+    def lap(name):                           # steps 3 and 4-6 interleave: their laps add up
         now = time.perf_counter()
-        seconds[name] = now - clock[0]
+        seconds[name] = seconds.get(name, 0.0) + now - clock[0]
         clock[0] = now
 
     origin = xyz.min(axis=0)
@@ -227,16 +236,15 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     lap("voxels")
 
     # Step 3: basal layer (JAX loop on the host-built cylinder table), then ND_NG (host).
+    # Steps 3 and 4-6 are independent: the basal loop is dispatched (asynchronous), the raster
+    # stages are traced and dispatched while it runs, and ND_NG (host KD-tree) is found while
+    # the raster stages run.
     table = neighbours.cylinder_table(vox.centroid[:, :2], radius_m=config.basal_radius_w * cell_m,
                                       k=config.basal_neighbours, max_width=config.basal_table_width)
     cap = np.inf if config.basal_sink_cap_w is None else config.basal_sink_cap_w * cell_m
     basal = basal_lib.basal_layer(vox.centroid.astype(np.float32), table.index, table.valid, np.float32(cap),
                                   stop=config.basal_stop,
                                   max_iter=config.basal_max_iter)
-    basal_z = np.asarray(basal.z)
-    basal_xyz = np.concatenate([vox.centroid[:, :2], basal_z[:, None].astype(np.float64)], axis=1)
-    in_ndng = np.zeros(len(vox.cell), bool)
-    in_ndng[neighbours.nearest_node(vox.centroid, basal_xyz)] = True
     lap("basal")
 
     # Steps 4-6: raster stages.
@@ -245,7 +253,16 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     k_r = np.zeros(h * w, np.int32)
     v_r = np.zeros(h * w, bool)
     z_r[vox.cell], k_r[vox.cell], v_r[vox.cell] = vox.centroid[:, 2], vox.layer, True
-    rs = run_raster_stages(z_r.reshape(h, w), k_r.reshape(h, w), v_r.reshape(h, w), cell_m, config, progress=progress)
+    raster_done = _dispatch_raster_stages(z_r.reshape(h, w), k_r.reshape(h, w), v_r.reshape(h, w), cell_m, config,
+                                          progress=progress)
+    lap("raster")
+
+    basal_z = np.asarray(basal.z)
+    basal_xyz = np.concatenate([vox.centroid[:, :2], basal_z[:, None].astype(np.float64)], axis=1)
+    in_ndng = np.zeros(len(vox.cell), bool)
+    in_ndng[neighbours.nearest_node(vox.centroid, basal_xyz)] = True
+    lap("basal")
+    rs = raster_done()
     lap("raster")
 
     # Step 7: support nodes and the final rule.
