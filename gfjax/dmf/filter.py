@@ -55,7 +55,9 @@ class Diagnostics(NamedTuple):
       voxels: the voxel columns (`voxels.Voxels`), for re-running step 7.
       table_overflowed: some cylinder held more ND_CE than `Config.basal_table_width`.
       stage_seconds: wall-clock seconds per step ("voxels", "basal", "raster", "extract"),
-        JAX compilation included on a first call.
+        JAX compilation included on a first call; they sum to the call's time. Steps 3 and
+        4-6 overlap (asynchronous dispatch), so "basal" counts the wait for the basal loop
+        while the raster stages may already run, and "raster" the rest of steps 4-6.
     """
 
     cell_m: float
