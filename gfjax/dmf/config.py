@@ -189,6 +189,13 @@ class Params:
         for field in dataclasses.fields(self):
             object.__setattr__(self, field.name, _f32(getattr(self, field.name)))
 
+    def check(self) -> None:
+        """Range checks on concrete values (call outside jit): raises ValueError naming the key."""
+        for field in dataclasses.fields(self):
+            value = float(getattr(self, field.name))
+            if not math.isfinite(value):
+                raise ValueError(f"{field.name} must be finite, got {value}")
+
     def threshold_m(self, cell_m: float) -> Float[Array, ""]:
         """The largest height of a ground point above the support surface for voxel size
         `cell_m` = W [m]: `height_threshold_m + height_threshold_w * W`, float32 [m]."""

@@ -16,7 +16,6 @@ import time
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -25,6 +24,7 @@ from gfjax.dmf import extract, neighbours, stages, voxels
 from gfjax.dmf.config import Config, Params
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
+from gfjax.io.tiled import checked_options
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
 
@@ -83,18 +83,11 @@ class Diagnostics(NamedTuple):
     table_overflowed: bool
 
 
-def _check(cloud, config, params, returns) -> tuple[Config, Params]:
+def _check(cloud, config, params, returns) -> tuple[Config, Params, np.ndarray]:
     if not isinstance(cloud, Cloud):
         raise InputError(f"dmf.filter: expected a gfjax.Cloud, got {type(cloud).__name__}")
-    config = Config() if config is None else config
-    params = Params() if params is None else params
-    if not isinstance(config, Config):
-        raise InputError(f"{cloud.name}: config must be a gfjax.dmf.Config, got {type(config).__name__}")
-    if not isinstance(params, Params):
-        raise InputError(f"{cloud.name}: params must be a gfjax.dmf.Params, got {type(params).__name__}")
-    if returns not in ("all", "last"):
-        raise InputError(f"{cloud.name}: returns must be 'all' or 'last', got {returns!r}")
-    return config, params
+    return checked_options(cloud, config, params, returns, config_type=Config, params_type=Params,
+                           package="gfjax.dmf")
 
 
 def _round_up(n: int, q: int) -> int:
@@ -201,9 +194,8 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
       instance_id uint32 `(n,)`: the object region (NGNEM_RC instance) of each non-ground
       point's cell, 0 for ground points and points outside every object region.
     """
-    config, params = _check(cloud, config, params, returns)
+    config, params, use = _check(cloud, config, params, returns)
     n_all = cloud.n_points
-    use = cloud.filter_mask(returns)
     xyz = cloud.xyz_m if use.all() else cloud.xyz_m[use]          # no 20 MB copy when every point is used
     ground_all = np.zeros(n_all, bool)
     instance_all = np.zeros(n_all, np.uint32)

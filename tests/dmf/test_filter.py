@@ -112,6 +112,8 @@ def test_bad_input():
         dmf.filter(cloud, returns="first")
     with pytest.raises(InputError, match="Cloud"):
         dmf.filter(np.zeros((3, 3)))
+    with pytest.raises(InputError, match="height_threshold_w must be finite"):
+        dmf.filter(cloud, params=dmf.Params(height_threshold_w=float("nan")))
     with pytest.raises(ValueError, match="basal_stop"):
         dmf.Config(basal_stop="sometimes")
     with pytest.raises(ValueError, match="v0"):
