@@ -25,6 +25,7 @@ Use the result with `gfjax filter --params params.json`.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 
 from gfjax.cli._common import add_units_option, nonnegative_float, nonnegative_int, positive_float, positive_int
 from gfjax.errors import InputError
@@ -32,24 +33,15 @@ from gfjax.errors import InputError
 TUNABLE = ("smrf", "pmf", "csf")          # gfjax.tune.methods.METHODS (not imported: no JAX at parse time)
 
 
-def _windows(text: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-    if not values or any(not v > 0 for v in values):
-        raise argparse.ArgumentTypeError(f"windows must be > 0, got {text!r}")
-    return values
-
-
-def _ints(text: str) -> tuple[int, ...]:
-    try:
-        values = tuple(int(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
-    if not values or any(v < 1 for v in values):
-        raise argparse.ArgumentTypeError(f"values must be >= 1, got {text!r}")
-    return values
+def _positive_list(item: Callable[[str], float | int]) -> Callable[[str], tuple]:
+    """argparse type: a non-empty comma-separated list, each value checked by `item`
+    (`positive_float` for windows and time steps, `positive_int` for rigidness)."""
+    def parse(text: str) -> tuple:
+        values = tuple(item(v) for v in text.split(",") if v.strip())
+        if not values:
+            raise argparse.ArgumentTypeError(f"expected comma-separated values, got {text!r}")
+        return values
+    return parse
 
 
 def _level(text: str) -> float:
@@ -80,11 +72,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="side of the validation blocks of a single file [m] (default 50)")
     parser.add_argument("--alpha", type=_level, default=0.05,
                         help="level of the guard's test, in (0, 1) (default 0.05)")
-    parser.add_argument("--windows", type=_windows, default=None, metavar="M,M,...",
+    parser.add_argument("--windows", type=_positive_list(positive_float), default=None, metavar="M,M,...",
                         help="SMRF's window grid [m] (default 12,18,24; PMF keeps its window series)")
-    parser.add_argument("--time-steps", type=_windows, default=None, metavar="DT,DT,...",
+    parser.add_argument("--time-steps", type=_positive_list(positive_float), default=None, metavar="DT,DT,...",
                         help="CSF's time-step grid, each in (0, 10) (default 0.5,0.65,0.8)")
-    parser.add_argument("--rigidness", type=_ints, default=None, metavar="R,R,...",
+    parser.add_argument("--rigidness", type=_positive_list(positive_int), default=None, metavar="R,R,...",
                         help="CSF's rigidness grid (default 1,2,3)")
     parser.add_argument("--returns", choices=("all", "last"), default="all", help="returns used (default all)")
     add_units_option(parser)
