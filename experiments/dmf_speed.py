@@ -22,7 +22,6 @@ import argparse
 import contextlib
 import functools
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -186,7 +185,7 @@ def _identity(revision: str, out: Path) -> int:
     files = sorted(SHARED.glob("*/*.laz")) + sorted(SHARED.glob("*/*/*.laz"))
     files = [f for f in files if "sites" not in f.parts]
     lines = [f"# DMF speed paths vs `gfjax/dmf/{{{','.join(IDENTITY_MODULES)}}}.py` at git {revision}\n",
-             f"Command: `nice .venv/bin/python experiments/dmf_speed.py --identity`. Same: ground labels, instance ids, "
+             "Command: `nice .venv/bin/python experiments/dmf_speed.py --identity`. Same: ground labels, instance ids, "
              "basal elevations and basal iteration count all equal (bit for bit).\n",
              "| file | points | " + " | ".join(configs) + " |", "|---|---:|" + "---|" * len(configs)]
     differences = 0
@@ -293,7 +292,7 @@ def main(argv=None) -> int:
         lines += [f"| {k} | {v:.2f} |" for k, v in anatomy["steps_s"].items()]
         lines += [f"| &nbsp; of which JAX tracing / lowering / compile-or-cache-load of {anatomy['jit_programs']} programs | "
                   f"{anatomy['jit_trace_s']:.2f} / {anatomy['jit_lower_s']:.2f} / {anatomy['jit_compile_or_cache_load_s']:.2f} |",
-                  f"| &nbsp; of which DMF stages (first call) | "
+                  "| &nbsp; of which DMF stages (first call) | "
                   + ", ".join(f"{k} {v:.2f}" for k, v in anatomy["stage_seconds"].items()) + " |",
                   f"| interpreter teardown with a normal exit (the `gfjax` program skips it) | {anatomy['teardown_if_run_s']:.2f} |"]
     lines += ["", f"Cylinder table of the {table['n_nodes']:,} ND_CE (Sec. 2.3), best of {REPEAT}: bucket grid (speed path) "
