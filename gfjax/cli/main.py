@@ -28,6 +28,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import NoReturn
 
+from gfjax import aot
 from gfjax.errors import InputError
 
 # Subcommand module names, in help order, with their one-line help (shown without importing).
@@ -104,8 +105,18 @@ def cache_folder() -> Path:
     return Path(base) / "gfjax" / "jax"
 
 
+def export_cache_folder() -> Path | None:
+    """`$GFJAX_EXPORT_CACHE` if set (empty or "0": no export cache), else `gfjax/export` beside
+    `cache_folder()`."""
+    setting = os.environ.get("GFJAX_EXPORT_CACHE")
+    if setting is None:
+        return cache_folder().parent / "export"
+    return None if setting in ("", "0") else Path(setting)
+
+
 def enable_compilation_cache() -> Path | None:
-    """Turn on JAX's persistent compilation cache in `cache_folder()` (before any compile).
+    """Turn on JAX's persistent compilation cache in `cache_folder()` (before any compile), and
+    gfjax's cache of exported programs (`gfjax.aot`) beside it, in `export_cache_folder()`.
 
     Every compiled program is kept (`min_compile_time_secs = 0`), up to `CACHE_SIZE_BYTES`
     (JAX needs the `filelock` package to enforce that bound; without it the cache is unbounded).
@@ -117,6 +128,9 @@ def enable_compilation_cache() -> Path | None:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError:
         return None
+    export_folder = export_cache_folder()
+    if export_folder is not None:
+        aot.enable(export_folder)
     settings = {"jax_compilation_cache_dir": str(folder),
                 "jax_persistent_cache_min_compile_time_secs": 0.0,
                 "jax_persistent_cache_min_entry_size_bytes": 0}

@@ -29,6 +29,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 from scipy.spatial import cKDTree
 
+from gfjax import aot
 from gfjax.dmf.config import Config, Params
 from gfjax.dmf.voxels import Voxels
 from gfjax.raster import inpaint_nearest, sample_bilinear
@@ -139,7 +140,7 @@ def m_nearest_ground(points: np.ndarray, nodes: SupportNodes, *, points_tree: cK
         return np.zeros(n, bool), m
     _, taken = tree.query(g_nodes, k=min(m, n))
     taken = np.asarray(taken).reshape(len(g_nodes), -1).astype(np.int32)
-    ground = mark_ground(nearest.astype(np.int32), nodes.ground, taken, n_points=n)
+    ground = aot.call(mark_ground, nearest.astype(np.int32), nodes.ground, taken, n_points=n)
     return np.asarray(ground), m
 
 
@@ -160,8 +161,8 @@ def height_ground(points: np.ndarray, nodes: SupportNodes, vox: Voxels, threshol
     surface[nodes.cell] = nodes.z_surface
     valid[nodes.cell] = True
     threshold_m = threshold_m if isinstance(threshold_m, jax.Array) else np.float32(threshold_m)
-    out = _height_rule(surface.reshape(h, w), valid.reshape(h, w), points.astype(np.float32), threshold_m,
-                       cell_m=float(vox.cell_m))
+    out = aot.call(_height_rule, surface.reshape(h, w), valid.reshape(h, w), points.astype(np.float32), threshold_m,
+                   cell_m=float(vox.cell_m))
     return np.asarray(out)
 
 

@@ -10,6 +10,7 @@ W is computed once per cloud, so every NGNEM tile of a batch shares one cell siz
 """
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import math
 import time
@@ -19,6 +20,7 @@ import jax
 import numpy as np
 from scipy.spatial import cKDTree
 
+from gfjax import aot
 from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import extract, neighbours, stages, voxels
 from gfjax.dmf.config import Config, Params
@@ -29,6 +31,9 @@ from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
 
 __all__ = ["Diagnostics", "filter", "run_raster_stages", "stage_options", "batched_stages", "SHAPE_QUANTUM_PX", "MAX_BATCH"]
+
+aot.serializable(stages.RasterStages)   # outputs of programs kept across processes (gfjax.aot)
+aot.serializable(basal_lib.BasalLayer)
 
 SHAPE_QUANTUM_PX = 16          # tile rasters are padded to multiples of this (few compiles)
 MAX_BATCH = 8                  # tiles per vmap call
@@ -56,8 +61,8 @@ class Diagnostics(NamedTuple):
       table_overflowed: some cylinder held more ND_CE than `Config.basal_table_width`.
       stage_seconds: wall-clock seconds per step ("voxels", "basal", "raster", "extract"),
         JAX compilation included on a first call; they sum to the call's time. Steps 3 and
-        4-6 overlap (asynchronous dispatch), so "basal" counts the wait for the basal loop
-        while the raster stages may already run, and "raster" the rest of steps 4-6.
+        4-6 run at the same time (steps 4-6 from a worker thread), so "basal" is step 3 and
+        "raster" the wait for steps 4-6 after it.
     """
 
     cell_m: float
@@ -122,7 +127,7 @@ def _dispatch_raster_stages(z, layer, valid, cell_m, config, *, progress=False):
     share = np.float32(config.rc_min_share)  # numpy: no conversion program compiles or runs
     if h <= core and w <= core:
         shape = (_round_up(h, SHAPE_QUANTUM_PX), _round_up(w, SHAPE_QUANTUM_PX))
-        out = stages.raster_stages(*_pad_tile(z, layer, valid, shape), w_m, share, **kwargs)
+        out = aot.call(stages.raster_stages, *_pad_tile(z, layer, valid, shape), w_m, share, **kwargs)
         return lambda: stages.RasterStages(*[np.asarray(a)[:h, :w] if np.ndim(a) == 2 else np.asarray(a) for a in out])
     windows = []
     for r0 in range(0, h, core):
@@ -144,7 +149,7 @@ def _dispatch_raster_stages(z, layer, valid, cell_m, config, *, progress=False):
         group = windows[s:s + MAX_BATCH]
         tiles = [_pad_tile(z[a:b, c:d], layer[a:b, c:d], valid[a:b, c:d], shape) for _, _, (a, b), (c, d) in group]
         tiles += [tiles[-1]] * (MAX_BATCH - len(tiles))           # one batch shape: one compile
-        out = batched_stages(*[np.stack(parts) for parts in zip(*tiles)], w_m, share, **kwargs)
+        out = aot.call(batched_stages, *[np.stack(parts) for parts in zip(*tiles)], w_m, share, **kwargs)
         converged &= bool(np.all(np.asarray(out.converged)[:len(group)]))
         for i, (r0, c0, (a, _), (c, _)) in enumerate(group):
             r1, c1 = min(h, r0 + core), min(w, c0 + core)
@@ -229,34 +234,30 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     vox = voxels.bin_voxels(local, cell_m)
     lap("voxels")
 
-    # Step 3: basal layer (JAX loop on the host-built cylinder table), then ND_NG (host).
-    # Steps 3 and 4-6 are independent: the basal loop is dispatched (asynchronous), the raster
-    # stages are traced and dispatched while it runs, and ND_NG (host KD-tree) is found while
-    # the raster stages run.
-    table = neighbours.cylinder_table(vox.centroid[:, :2], radius_m=config.basal_radius_w * cell_m,
-                                      k=config.basal_neighbours, max_width=config.basal_table_width)
-    cap = np.inf if config.basal_sink_cap_w is None else config.basal_sink_cap_w * cell_m
-    basal = basal_lib.basal_layer(vox.centroid.astype(np.float32), table.index, table.valid, np.float32(cap),
-                                  stop=config.basal_stop,
-                                  max_iter=config.basal_max_iter)
-    lap("basal")
-
-    # Steps 4-6: raster stages.
+    # Steps 3 and 4-6 are independent. The raster stages (steps 4-6) are dispatched from a
+    # worker thread, so loading their program (a new process) and running them overlap the
+    # host work of step 3 on this thread: the cylinder table, the basal loop (asynchronous
+    # JAX), then ND_NG (host KD-tree).
     h, w = vox.shape
     z_r = np.zeros(h * w, np.float32)
     k_r = np.zeros(h * w, np.int32)
     v_r = np.zeros(h * w, bool)
     z_r[vox.cell], k_r[vox.cell], v_r[vox.cell] = vox.centroid[:, 2], vox.layer, True
-    raster_done = _dispatch_raster_stages(z_r.reshape(h, w), k_r.reshape(h, w), v_r.reshape(h, w), cell_m, config,
-                                          progress=progress)
+    with concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="gfjax-dmf-raster") as pool:
+        raster_future = pool.submit(_dispatch_raster_stages, z_r.reshape(h, w), k_r.reshape(h, w),
+                                    v_r.reshape(h, w), cell_m, config, progress=progress)
+        table = neighbours.cylinder_table(vox.centroid[:, :2], radius_m=config.basal_radius_w * cell_m,
+                                          k=config.basal_neighbours, max_width=config.basal_table_width)
+        cap = np.inf if config.basal_sink_cap_w is None else config.basal_sink_cap_w * cell_m
+        basal = aot.call(basal_lib.basal_layer, vox.centroid.astype(np.float32), table.index, table.valid,
+                         np.float32(cap), stop=config.basal_stop, max_iter=config.basal_max_iter)
+        basal_z = np.asarray(basal.z)
+        basal_xyz = np.concatenate([vox.centroid[:, :2], basal_z[:, None].astype(np.float64)], axis=1)
+        in_ndng = np.zeros(len(vox.cell), bool)
+        in_ndng[neighbours.nearest_node(vox.centroid, basal_xyz)] = True
+        lap("basal")
+        rs = raster_future.result()()
     lap("raster")
-
-    basal_z = np.asarray(basal.z)
-    basal_xyz = np.concatenate([vox.centroid[:, :2], basal_z[:, None].astype(np.float64)], axis=1)
-    in_ndng = np.zeros(len(vox.cell), bool)
-    in_ndng[neighbours.nearest_node(vox.centroid, basal_xyz)] = True
-    lap("basal")
-    rs = raster_done()
     lap("raster")
 
     # Step 7: support nodes and the final rule.

@@ -1,0 +1,180 @@
+"""`gfjax.aot`: jitted programs kept on disk across processes (`jax.export`)."""
+from __future__ import annotations
+
+import functools
+import os
+import subprocess
+import sys
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gfjax import aot, dmf
+from gfjax.cli import main as cli_main
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "dmf"))
+import dmf_scenes as scenes  # noqa: E402
+
+
+@aot.serializable
+class Pair(NamedTuple):
+    scaled: jax.Array
+    total: jax.Array
+
+
+@functools.partial(jax.jit, static_argnames=("factor",))
+def scale_and_sum(x, mask, *, factor: int = 2) -> Pair:
+    return Pair(scaled=x * factor, total=jnp.sum(jnp.where(mask, x, 0)))
+
+
+@pytest.fixture
+def folder(tmp_path):
+    out = aot.enable(tmp_path / "export")
+    assert out == tmp_path / "export"
+    yield out
+    aot.disable()
+
+
+def _args(n=5, dtype=np.float32):
+    return np.arange(n, dtype=dtype), np.arange(n) % 2 == 0
+
+
+def _files(folder):
+    return sorted(folder.glob("*.jaxexport"))
+
+
+def _same(a, b):
+    assert type(a) is type(b)
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def test_off_by_default_is_the_plain_call(tmp_path):
+    assert aot.enabled_folder() is None
+    out = aot.call(scale_and_sum, *_args(), factor=3)
+    _same(out, scale_and_sum(*_args(), factor=3))
+
+
+def test_exports_once_then_loads_from_disk(folder, monkeypatch):
+    expected = scale_and_sum(*_args(), factor=3)
+    _same(aot.call(scale_and_sum, *_args(), factor=3), expected)
+    assert len(_files(folder)) == 1
+    aot._loaded.clear()                                   # as a new process would start
+
+    def no_export(*_, **__):
+        raise AssertionError("the stored program should have been loaded")
+
+    monkeypatch.setattr(jax.export, "export", no_export)
+    _same(aot.call(scale_and_sum, *_args(), factor=3), expected)
+
+
+def test_a_new_process_loads_the_stored_program(folder):
+    """A second interpreter finds the artifact the first one wrote (no export there)."""
+    script = (
+        "import sys, jax, numpy as np\n"
+        "sys.path.insert(0, sys.argv[2])\n"
+        "from gfjax import aot\n"
+        "import test_aot as t\n"
+        "aot.enable(sys.argv[1])\n"
+        "if sys.argv[3] == 'second':\n"
+        "    jax.export.export = None\n"
+        "out = aot.call(t.scale_and_sum, *t._args(7), factor=4)\n"
+        "print(type(out).__name__, np.asarray(out.scaled).tolist(), int(out.total))\n")
+    here = os.path.dirname(__file__)
+    runs = [subprocess.run([sys.executable, "-c", script, str(folder), here, which], capture_output=True, text=True,
+                           check=True).stdout.strip() for which in ("first", "second")]
+    assert runs[0] == runs[1] == "Pair [0.0, 4.0, 8.0, 12.0, 16.0, 20.0, 24.0] 12"
+    assert len(_files(folder)) == 1
+
+
+def test_key_follows_shapes_dtypes_and_static_arguments():
+    key = aot.program_key(scale_and_sum, _args(5), {"factor": 2})
+    assert key == aot.program_key(scale_and_sum, _args(5), {"factor": 2})
+    assert key != aot.program_key(scale_and_sum, _args(6), {"factor": 2})
+    assert key != aot.program_key(scale_and_sum, _args(5, np.float64), {"factor": 2})
+    assert key != aot.program_key(scale_and_sum, _args(5), {"factor": 3})
+
+
+def test_one_file_per_program(folder):
+    for n, factor in ((5, 2), (5, 3), (6, 2), (5, 2)):
+        _same(aot.call(scale_and_sum, *_args(n), factor=factor), scale_and_sum(*_args(n), factor=factor))
+    assert len(_files(folder)) == 3
+
+
+def test_corrupt_artifact_is_exported_again(folder):
+    aot.call(scale_and_sum, *_args(), factor=3)
+    (path,) = _files(folder)
+    path.write_bytes(b"not a program")
+    aot._loaded.clear()
+    _same(aot.call(scale_and_sum, *_args(), factor=3), scale_and_sum(*_args(), factor=3))
+    assert path.stat().st_size > 100
+
+
+def test_unwritable_folder_is_no_error(folder, monkeypatch):
+    def refuse(*_, **__):
+        raise PermissionError("read-only cache")
+
+    monkeypatch.setattr(aot.tempfile, "mkstemp", refuse)
+    _same(aot.call(scale_and_sum, *_args(), factor=5), scale_and_sum(*_args(), factor=5))
+    assert _files(folder) == []
+
+
+def test_traced_arguments_take_the_plain_path(folder):
+    """Under jit, vmap and grad the arguments are tracers: `call` is `fn(*args)`, no file."""
+    x, mask = _args()
+    jitted = jax.jit(lambda a: aot.call(scale_and_sum, a, mask, factor=2).total)
+    assert float(jitted(x)) == float(scale_and_sum(x, mask).total)
+    batched = jax.vmap(lambda a: aot.call(scale_and_sum, a, mask, factor=2).scaled)(np.stack([x, x + 1]))
+    np.testing.assert_array_equal(batched, np.stack([x * 2, (x + 1) * 2]))
+    grad = jax.grad(lambda a: aot.call(scale_and_sum, a, mask, factor=2).total)(x)
+    np.testing.assert_array_equal(grad, mask.astype(np.float32))
+    assert _files(folder) == []
+
+
+def test_least_recently_used_are_pruned(folder, monkeypatch):
+    monkeypatch.setattr(aot, "MAX_FILES", 2)
+    for n in (3, 4, 5, 6):
+        aot.call(scale_and_sum, *_args(n), factor=2)
+    assert len(_files(folder)) == 2
+
+
+def test_enable_without_flatbuffers_stays_off(tmp_path, monkeypatch):
+    real = aot.importlib.util.find_spec
+    monkeypatch.setattr(aot.importlib.util, "find_spec", lambda name: None if name == "flatbuffers" else real(name))
+    assert aot.enable(tmp_path / "x") is None
+    assert aot.enabled_folder() is None
+
+
+def test_dmf_through_the_cache_equals_the_plain_call(folder):
+    """DMF's programs (basal loop, raster stages, final rule) exported, stored, reloaded:
+    labels, instances and every diagnostic raster equal the plain jitted path."""
+    cloud, _, _ = scenes.box_scene()
+    aot.disable()
+    plain = dmf.filter(cloud)
+    aot.enable(folder)
+    exported = dmf.filter(cloud)
+    assert len(_files(folder)) == 3
+    aot._loaded.clear()
+    loaded = dmf.filter(cloud)
+    for result in (exported, loaded):
+        np.testing.assert_array_equal(result.ground, plain.ground)
+        np.testing.assert_array_equal(result.instance_id, plain.instance_id)
+        for name in ("basal_z", "ngnem", "rhc", "ngnem_bi", "ngnem_rc0", "ngnem_rc", "instances"):
+            np.testing.assert_array_equal(getattr(result.diagnostics, name), getattr(plain.diagnostics, name))
+        assert result.diagnostics.basal_iterations == plain.diagnostics.basal_iterations
+
+
+@pytest.mark.parametrize("setting, expected", [(None, "default"), ("", None), ("0", None), ("/tmp/gfjax-x", "/tmp/gfjax-x")])
+def test_cli_export_cache_folder(monkeypatch, setting, expected):
+    if setting is None:
+        monkeypatch.delenv("GFJAX_EXPORT_CACHE", raising=False)
+    else:
+        monkeypatch.setenv("GFJAX_EXPORT_CACHE", setting)
+    folder = cli_main.export_cache_folder()
+    if expected == "default":
+        assert folder == cli_main.cache_folder().parent / "export"
+    else:
+        assert folder == (None if expected is None else type(folder)(expected))
