@@ -184,6 +184,61 @@ def _pad_tile(z, layer, valid, shape):
             np.pad(valid, pad).astype(bool), inside)
 
 
+def _voxels(local: np.ndarray, config: Config, worker) -> tuple[cKDTree | None, float, float, voxels.Voxels]:
+    """Steps 1-2 (host): W, voxel columns, ND_CE. Returns `(tree, W, D_m, voxels)`.
+
+    A KD-tree of every point serves W's nearest-neighbour sample and the M-nearest rule
+    (Sec. 2.6). It is built on `worker` (scipy builds without the GIL) while the sample is
+    drawn here (bcts_2: 0.08 s instead of 0.12 s). Unbalanced, non-compact: 2.5x faster to
+    build. Leaves of 64 points when only W needs it (bcts_2: build + sample query 0.073 s vs
+    0.087 s with scipy's 16; the M-nearest rule keeps 16, whose order among equidistant points
+    it depends on).
+    """
+    m_rule = config.final_rule in ("m_nearest", "both")
+    pending = None
+    if m_rule or config.voxel_m is None:
+        pending = worker.submit(cKDTree, local, leafsize=16 if m_rule else 64, balanced_tree=False,
+                                compact_nodes=False)
+    if config.voxel_m is not None:
+        tree = pending.result() if pending is not None else None
+        cell_m, mean_nn = float(config.voxel_m), float("nan")
+    else:
+        sample = voxels.nn_sample(len(local), local, fraction=config.sample_fraction, minimum=config.sample_min)
+        tree = pending.result()
+        cell_m, mean_nn = voxels.voxel_size_m(local, v0=config.v0, fraction=config.sample_fraction,
+                                              minimum=config.sample_min, tree=tree, sample=sample)
+    return tree, cell_m, mean_nn, voxels.bin_voxels(local, cell_m)
+
+
+def _layers(vox: voxels.Voxels, cell_m: float, config: Config, worker, lap, progress: bool):
+    """Steps 3 and 4-6, which are independent. The raster stages (steps 4-6) are dispatched on
+    `worker`, so loading their program (a new process) and running them overlap the host work
+    of step 3 here: the cylinder table, the basal loop (asynchronous JAX), then ND_NG (host
+    KD-tree). Returns `(in_ndng, basal layer (host z), raster stages, NGNEM valid mask,
+    cylinder table overflowed)`."""
+    h, w = vox.shape
+    z_r = np.zeros(h * w, np.float32)
+    k_r = np.zeros(h * w, np.int32)
+    v_r = np.zeros(h * w, bool)
+    z_r[vox.cell], k_r[vox.cell], v_r[vox.cell] = vox.centroid[:, 2], vox.layer, True
+    raster_future = worker.submit(_dispatch_raster_stages, z_r.reshape(h, w), k_r.reshape(h, w), v_r.reshape(h, w),
+                                  cell_m, config, progress=progress)
+    table = neighbours.cylinder_table(vox.centroid[:, :2], radius_m=config.basal_radius_w * cell_m,
+                                      k=config.basal_neighbours, max_width=config.basal_table_width)
+    cap = np.inf if config.basal_sink_cap_w is None else config.basal_sink_cap_w * cell_m
+    basal = aot.call(basal_lib.basal_layer, vox.centroid.astype(np.float32), table.index, table.valid,
+                     np.float32(cap), stop=config.basal_stop, max_iter=config.basal_max_iter)
+    node_tree = cKDTree(vox.centroid)                       # while the basal loop runs
+    basal_z = np.asarray(basal.z)
+    basal_xyz = np.concatenate([vox.centroid[:, :2], basal_z[:, None].astype(np.float64)], axis=1)
+    in_ndng = np.zeros(len(vox.cell), bool)
+    in_ndng[neighbours.nearest_node(vox.centroid, basal_xyz, tree=node_tree)] = True
+    lap("basal")
+    rs = raster_future.result()()
+    lap("raster")
+    return in_ndng, basal._replace(z=basal_z), rs, v_r.reshape(h, w), table.overflowed
+
+
 def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None = None,  # noqa: A001
            returns: str = "all", progress: bool = False) -> Result:
     """Classify ground points with DMF (Wu et al. 2025; our readings: SPEC section 3).
@@ -216,49 +271,10 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
 
     origin = xyz.min(axis=0)
     local = xyz - origin
-    # A KD-tree of every point: for W's nearest-neighbour sample, and shared with the M-nearest
-    # rule (Sec. 2.6). Unbalanced, non-compact: 2.5x faster to build. Leaves of 64 points when
-    # only W needs it (bcts_2: build + sample query 0.073 s vs 0.087 s with scipy's 16; the
-    # M-nearest rule keeps 16, whose order among equidistant points it depends on).
-    m_rule = config.final_rule in ("m_nearest", "both")
-    tree = None
-    if m_rule or config.voxel_m is None:
-        tree = cKDTree(local, leafsize=16 if m_rule else 64, balanced_tree=False, compact_nodes=False)
-
-    # Steps 1-2 (host): W, voxel columns, ND_CE.
-    if config.voxel_m is not None:
-        cell_m, mean_nn = float(config.voxel_m), float("nan")
-    else:
-        cell_m, mean_nn = voxels.voxel_size_m(local, v0=config.v0, fraction=config.sample_fraction,
-                                              minimum=config.sample_min, tree=tree)
-    vox = voxels.bin_voxels(local, cell_m)
-    lap("voxels")
-
-    # Steps 3 and 4-6 are independent. The raster stages (steps 4-6) are dispatched from a
-    # worker thread, so loading their program (a new process) and running them overlap the
-    # host work of step 3 on this thread: the cylinder table, the basal loop (asynchronous
-    # JAX), then ND_NG (host KD-tree).
-    h, w = vox.shape
-    z_r = np.zeros(h * w, np.float32)
-    k_r = np.zeros(h * w, np.int32)
-    v_r = np.zeros(h * w, bool)
-    z_r[vox.cell], k_r[vox.cell], v_r[vox.cell] = vox.centroid[:, 2], vox.layer, True
-    with concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="gfjax-dmf-raster") as pool:
-        raster_future = pool.submit(_dispatch_raster_stages, z_r.reshape(h, w), k_r.reshape(h, w),
-                                    v_r.reshape(h, w), cell_m, config, progress=progress)
-        table = neighbours.cylinder_table(vox.centroid[:, :2], radius_m=config.basal_radius_w * cell_m,
-                                          k=config.basal_neighbours, max_width=config.basal_table_width)
-        cap = np.inf if config.basal_sink_cap_w is None else config.basal_sink_cap_w * cell_m
-        basal = aot.call(basal_lib.basal_layer, vox.centroid.astype(np.float32), table.index, table.valid,
-                         np.float32(cap), stop=config.basal_stop, max_iter=config.basal_max_iter)
-        basal_z = np.asarray(basal.z)
-        basal_xyz = np.concatenate([vox.centroid[:, :2], basal_z[:, None].astype(np.float64)], axis=1)
-        in_ndng = np.zeros(len(vox.cell), bool)
-        in_ndng[neighbours.nearest_node(vox.centroid, basal_xyz)] = True
-        lap("basal")
-        rs = raster_future.result()()
-    lap("raster")
-    lap("raster")
+    with concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="gfjax-dmf") as worker:
+        tree, cell_m, mean_nn, vox = _voxels(local, config, worker)
+        lap("voxels")
+        in_ndng, basal, rs, ngnem_valid, overflowed = _layers(vox, cell_m, config, worker, lap, progress)
 
     # Step 7: support nodes and the final rule.
     object_cell = np.asarray(rs.ngnem_rc).reshape(-1)
@@ -269,11 +285,11 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     ground_all[use] = ground
     instance_all[use] = instance
     diagnostics = Diagnostics(
-        cell_m=cell_m, mean_nn_m=mean_nn, origin_m=origin, nd_ce=vox.centroid, basal_z=basal_z,
-        in_ndng=in_ndng, ngnem=np.asarray(rs.ngnem), ngnem_valid=v_r.reshape(h, w), layer=np.asarray(rs.layer),
+        cell_m=cell_m, mean_nn_m=mean_nn, origin_m=origin, nd_ce=vox.centroid, basal_z=basal.z,
+        in_ndng=in_ndng, ngnem=np.asarray(rs.ngnem), ngnem_valid=ngnem_valid, layer=np.asarray(rs.layer),
         rhc=np.asarray(rs.rhc), ngnem_bi=np.asarray(rs.ngnem_bi), ngnem_rc0=np.asarray(rs.ngnem_rc0),
         ngnem_rc=np.asarray(rs.ngnem_rc), instances=np.asarray(rs.instances), support=nodes, m_points=int(m_points),
         basal_iterations=int(basal.iterations), converged=bool(basal.converged) and bool(rs.converged),
-        table_overflowed=table.overflowed,
+        table_overflowed=overflowed,
         voxels=vox, stage_seconds=seconds)
     return Result(ground=ground_all, diagnostics=diagnostics, instance_id=instance_all)

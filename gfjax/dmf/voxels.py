@@ -50,7 +50,7 @@ def nn_sample(n_points: int, xyz: np.ndarray, *, fraction: float, minimum: int) 
 
 
 def voxel_size_m(xyz: np.ndarray, *, v0: float, fraction: float, minimum: int,
-                 tree: cKDTree | None = None) -> tuple[float, float]:
+                 tree: cKDTree | None = None, sample: np.ndarray | None = None) -> tuple[float, float]:
     """Eq. 1: `W = ceil(v0 * D_m)`, D_m the mean 3D nearest-neighbour distance of a sample.
 
     Args:
@@ -58,6 +58,7 @@ def voxel_size_m(xyz: np.ndarray, *, v0: float, fraction: float, minimum: int,
       v0: the factor of Eq. 1 (paper: 2).
       fraction, minimum: sample share and floor (`nn_sample`).
       tree: a `cKDTree` of `xyz`, reused if given.
+      sample: `nn_sample(len(xyz), xyz, fraction=fraction, minimum=minimum)`, if already known.
 
     Returns:
       `(W, D_m)` in metres. W is a whole number of metres, at least 1 (a cloud of duplicate
@@ -66,8 +67,8 @@ def voxel_size_m(xyz: np.ndarray, *, v0: float, fraction: float, minimum: int,
     n = len(xyz)
     if n < 2:
         return 1.0, 0.0
+    sample = nn_sample(n, xyz, fraction=fraction, minimum=minimum) if sample is None else sample
     tree = cKDTree(xyz) if tree is None else tree
-    sample = nn_sample(n, xyz, fraction=fraction, minimum=minimum)
     dist, _ = tree.query(xyz[sample], k=2, workers=-1)         # every core: the same distances
     mean_m = float(dist[:, 1].mean())
     return float(max(1, math.ceil(v0 * mean_m - 1e-9))), mean_m
