@@ -1,53 +1,52 @@
-"""Jitted programs kept across processes: `jax.export` artifacts in an on-disk cache.
+"""Jitted programs kept across processes: compiled executables in an on-disk cache.
 
-A new `gfjax filter` process pays, per jitted program, tracing (Python), lowering (MLIR) and
-loading the compiled executable from JAX's persistent compilation cache. For DMF on an 824 k
-point tile tracing and lowering were 0.3 s of a 1.7 s process. `call(fn, *args, **static)`
-skips both after the first process: the program `fn(*args, **static)` is exported once
-(`jax.export`: StableHLO plus its pytree signature), serialized into `folder`, and later
-processes deserialize it and call it, which lowers only a thin wrapper around the stored
-module. The compiled executable still comes from JAX's compilation cache.
+A new `gfjax filter` process pays, per jitted program, tracing (Python), lowering (MLIR),
+hashing the module for JAX's persistent compilation cache and loading the executable from
+it. For DMF on an 824 k point tile that was 0.5 s of a 1.7 s process. `call(fn, *args,
+**static)` pays it once: the program `fn(*args, **static)` is compiled (through JAX's
+compilation cache when that is on), its executable serialized into `folder`
+(`jax.experimental.serialize_executable`), and later processes load it and call it: no
+tracing, no lowering, no hashing.
 
 Off by default (`call` is then `fn(*args, **static)`); `gfjax.cli` turns it on next to the
 compilation cache, and `enable(folder)` does so in a notebook or a batch script. This module
 imports JAX only when a program is called (`gfjax info` stays fast).
 
 The key of a program: `fn`'s module and name, the static keyword arguments (their `repr`),
-each argument's shape and dtype, the JAX version, the backend, the JAX options that change
-tracing, and a hash of the gfjax source files, so a change of code never runs a stale
-program. Arguments must be concrete (numpy or JAX arrays, numpy scalars): under `jit`,
-`vmap` or `grad`, or with Python scalars, `call` is `fn(*args, **static)`. A missing,
-unreadable or stale artifact is (re)exported; nothing here raises for a cache problem.
+each argument's shape and dtype, the JAX and jaxlib versions, the backend and device kind,
+the host CPU (machine and instruction-set flags: an executable is machine code), `XLA_FLAGS`,
+the JAX options that change tracing, and a hash of the gfjax source files, so a change of
+code, library or machine never runs a stale program. Arguments must be concrete (numpy or JAX
+arrays, numpy scalars): under `jit`, `vmap` or `grad`, or with Python scalars, `call` is
+`fn(*args, **static)`. A missing, unreadable or stale artifact is compiled again; nothing
+here raises for a cache problem.
+
+The files hold pickled pytree definitions next to the executable: like JAX's own cache, the
+folder must be writable by its user only (files are created with mode 0600).
 """
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import os
+import pickle
+import platform
 import tempfile
-import threading
 from pathlib import Path
 from typing import Any, Callable
 
-__all__ = ["enable", "disable", "enabled_folder", "call", "serializable", "program_key", "MAX_FILES"]
+__all__ = ["enable", "disable", "enabled_folder", "call", "program_key", "MAX_FILES"]
 
-MAX_FILES = 512                 # artifacts kept (least recently used go first); each is ~10-100 kB
-_SUFFIX = ".jaxexport"
+MAX_FILES = 512                 # artifacts kept (least recently used go first); each is ~0.1-2 MB
+_SUFFIX = ".gfjaxexe"
 
-_state: dict[str, Any] = {"folder": None, "source_hash": None}
-_loaded: dict[str, Any] = {}    # key -> jax.export.Exported, for this process
-_output_types: list[type] = []
-_registered: set[type] = set()
-_lock = threading.Lock()        # DMF calls programs from two threads
+_state: dict[str, Any] = {"folder": None, "fingerprint": None}
+_loaded: dict[str, Any] = {}    # key -> jax.stages.Compiled, for this process
 
 
 def enable(folder: str | os.PathLike) -> Path | None:
-    """Keep exported programs in `folder` (created if needed). Returns it, or None (and the
-    cache stays off) when it cannot be created or `jax.export` cannot serialize (it needs
-    the `flatbuffers` package)."""
+    """Keep compiled programs in `folder` (created if needed). Returns it, or None (and the
+    cache stays off) when it cannot be created."""
     folder = Path(folder)
-    if importlib.util.find_spec("flatbuffers") is None:     # jax.export's serialization format
-        return None
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError:
@@ -67,34 +66,34 @@ def enabled_folder() -> Path | None:
     return _state["folder"]
 
 
-def serializable(cls: type) -> type:
-    """Class decorator: a `NamedTuple` that a cached program returns (jax.export serializes
-    only the pytree node types it was told about). Returns `cls` unchanged."""
-    _output_types.append(cls)
-    return cls
+def _cpu_flags() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as file:
+            for line in file:
+                if line.startswith(("flags", "Features")):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
 
 
-def _register_output_types() -> None:
-    from jax import export
+def _fingerprint() -> str:
+    """sha256 of what makes an executable valid here, once per process: every
+    `gfjax/**/*.py` (path and bytes), the JAX/jaxlib versions, backend, device kind, CPU."""
+    if _state["fingerprint"] is None:
+        import jax
+        import jaxlib
 
-    for cls in _output_types:
-        if cls not in _registered:
-            try:
-                export.register_namedtuple_serialization(cls, serialized_name=f"{cls.__module__}.{cls.__qualname__}")
-            except ValueError:                              # registered by other code already
-                pass
-            _registered.add(cls)
-
-
-def _source_hash() -> str:
-    """sha256 of every `gfjax/**/*.py` (relative path and bytes), once per process."""
-    if _state["source_hash"] is None:
         root = Path(__file__).resolve().parent
         digest = hashlib.sha256()
         for path in sorted(root.rglob("*.py")):
             digest.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
-        _state["source_hash"] = digest.hexdigest()
-    return _state["source_hash"]
+        device = jax.devices()[0]
+        for part in (jax.__version__, jaxlib.__version__, device.platform, device.device_kind,
+                     platform.machine(), _cpu_flags(), os.environ.get("XLA_FLAGS", "")):
+            digest.update(str(part).encode() + b"\0")
+        _state["fingerprint"] = digest.hexdigest()
+    return _state["fingerprint"]
 
 
 def _concrete(x) -> bool:
@@ -113,24 +112,27 @@ def program_key(fn: Callable, args: tuple, static: dict) -> str:
     options = {name: getattr(jax.config, name) for name in
                ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_dtype_promotion")}
     parts = [f"{fn.__module__}.{getattr(fn, '__qualname__', fn.__name__)}", repr(sorted(static.items())),
-             ";".join(signature), jax.__version__, jax.default_backend(), repr(sorted(options.items())), _source_hash()]
+             ";".join(signature), repr(sorted(options.items())), _fingerprint()]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
 def _load(path: Path):
-    from jax import export
+    from jax.experimental import serialize_executable
 
     try:
-        exported = export.deserialize(bytearray(path.read_bytes()))
+        payload = pickle.loads(path.read_bytes())
+        compiled = serialize_executable.deserialize_and_load(*payload)
         os.utime(path)                                      # least recently used goes first
-        return exported
-    except Exception:                                       # unreadable or from another version: re-export
+        return compiled
+    except Exception:                                       # unreadable or stale: compile again
         return None
 
 
-def _store(exported, folder: Path, key: str) -> None:
+def _store(compiled, folder: Path, key: str) -> None:
+    from jax.experimental import serialize_executable
+
     try:
-        blob = exported.serialize()
+        blob = pickle.dumps(serialize_executable.serialize(compiled), protocol=pickle.HIGHEST_PROTOCOL)
         fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{key[:16]}.", suffix=".tmp")
         with os.fdopen(fd, "wb") as file:
             file.write(blob)
@@ -154,7 +156,7 @@ def call(fn: Callable, *args, **static):
         (hashable; their `repr` enters the key) and whose positional `args` are arrays.
       args: concrete arrays (numpy or JAX) or numpy scalars.
 
-    Returns: what `fn` returns (its output pytree types must be `serializable`).
+    Returns: what `fn` returns.
     """
     import jax
 
@@ -162,25 +164,17 @@ def call(fn: Callable, *args, **static):
     if folder is None or jax.config.jax_disable_jit or not all(_concrete(a) for a in args):
         return fn(*args, **static)
     key = program_key(fn, args, static)
-    exported = _loaded.get(key)
-    if exported is None:
-        exported = _load_or_export(fn, args, static, folder, key)
-    return exported.call(*args)
+    compiled = _loaded.get(key)
+    if compiled is None:
+        compiled = _load_or_compile(fn, args, static, folder, key)
+    return compiled(*args)
 
 
-def _load_or_export(fn, args, static, folder: Path, key: str):
-    import jax
-    import numpy as np
-    from jax import export
-
-    with _lock:
-        _register_output_types()
-        path = folder / f"{key}{_SUFFIX}"
-        exported = _load(path) if path.exists() else None
-    if exported is None:
-        specs = [jax.ShapeDtypeStruct(np.shape(a), np.result_type(a)) for a in args]
-        exported = export.export(fn)(*specs, **static)
-        _store(exported, folder, key)
-    _loaded[key] = exported
-    return exported
-
+def _load_or_compile(fn, args, static, folder: Path, key: str):
+    path = folder / f"{key}{_SUFFIX}"
+    compiled = _load(path) if path.exists() else None
+    if compiled is None:
+        compiled = fn.lower(*args, **static).compile()
+        _store(compiled, folder, key)
+    _loaded[key] = compiled
+    return compiled

@@ -1,4 +1,4 @@
-"""`gfjax.aot`: jitted programs kept on disk across processes (`jax.export`)."""
+"""`gfjax.aot`: compiled programs kept on disk across processes."""
 from __future__ import annotations
 
 import functools
@@ -19,7 +19,6 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), "dmf"))
 import dmf_scenes as scenes  # noqa: E402
 
 
-@aot.serializable
 class Pair(NamedTuple):
     scaled: jax.Array
     total: jax.Array
@@ -43,7 +42,7 @@ def _args(n=5, dtype=np.float32):
 
 
 def _files(folder):
-    return sorted(folder.glob("*.jaxexport"))
+    return sorted(folder.glob("*.gfjaxexe"))
 
 
 def _same(a, b):
@@ -58,21 +57,21 @@ def test_off_by_default_is_the_plain_call(tmp_path):
     _same(out, scale_and_sum(*_args(), factor=3))
 
 
-def test_exports_once_then_loads_from_disk(folder, monkeypatch):
+def test_compiles_once_then_loads_from_disk(folder, monkeypatch):
     expected = scale_and_sum(*_args(), factor=3)
     _same(aot.call(scale_and_sum, *_args(), factor=3), expected)
     assert len(_files(folder)) == 1
     aot._loaded.clear()                                   # as a new process would start
 
-    def no_export(*_, **__):
+    def no_compile(*_, **__):
         raise AssertionError("the stored program should have been loaded")
 
-    monkeypatch.setattr(jax.export, "export", no_export)
+    monkeypatch.setattr(jax.stages.Lowered, "compile", no_compile)
     _same(aot.call(scale_and_sum, *_args(), factor=3), expected)
 
 
 def test_a_new_process_loads_the_stored_program(folder):
-    """A second interpreter finds the artifact the first one wrote (no export there)."""
+    """A second interpreter finds the artifact the first one wrote (no compile there)."""
     script = (
         "import sys, jax, numpy as np\n"
         "sys.path.insert(0, sys.argv[2])\n"
@@ -80,7 +79,7 @@ def test_a_new_process_loads_the_stored_program(folder):
         "import test_aot as t\n"
         "aot.enable(sys.argv[1])\n"
         "if sys.argv[3] == 'second':\n"
-        "    jax.export.export = None\n"
+        "    jax.stages.Lowered.compile = None\n"
         "out = aot.call(t.scale_and_sum, *t._args(7), factor=4)\n"
         "print(type(out).__name__, np.asarray(out.scaled).tolist(), int(out.total))\n")
     here = os.path.dirname(__file__)
@@ -104,7 +103,7 @@ def test_one_file_per_program(folder):
     assert len(_files(folder)) == 3
 
 
-def test_corrupt_artifact_is_exported_again(folder):
+def test_corrupt_artifact_is_compiled_again(folder):
     aot.call(scale_and_sum, *_args(), factor=3)
     (path,) = _files(folder)
     path.write_bytes(b"not a program")
@@ -141,15 +140,17 @@ def test_least_recently_used_are_pruned(folder, monkeypatch):
     assert len(_files(folder)) == 2
 
 
-def test_enable_without_flatbuffers_stays_off(tmp_path, monkeypatch):
-    real = aot.importlib.util.find_spec
-    monkeypatch.setattr(aot.importlib.util, "find_spec", lambda name: None if name == "flatbuffers" else real(name))
-    assert aot.enable(tmp_path / "x") is None
-    assert aot.enabled_folder() is None
+def test_key_follows_the_machine(monkeypatch):
+    """An executable is machine code: another CPU (instruction-set flags) is another key."""
+    key = aot.program_key(scale_and_sum, _args(5), {"factor": 2})
+    monkeypatch.setitem(aot._state, "fingerprint", None)
+    monkeypatch.setattr(aot, "_cpu_flags", lambda: "fpu sse2")
+    assert aot.program_key(scale_and_sum, _args(5), {"factor": 2}) != key
+    monkeypatch.setitem(aot._state, "fingerprint", None)
 
 
 def test_dmf_through_the_cache_equals_the_plain_call(folder):
-    """DMF's programs (basal loop, raster stages, final rule) exported, stored, reloaded:
+    """DMF's programs (basal loop, raster stages, final rule) compiled, stored, reloaded:
     labels, instances and every diagnostic raster equal the plain jitted path."""
     cloud, _, _ = scenes.box_scene()
     aot.disable()

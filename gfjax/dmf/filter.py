@@ -32,9 +32,6 @@ from gfjax.result import Result
 
 __all__ = ["Diagnostics", "filter", "run_raster_stages", "stage_options", "batched_stages", "SHAPE_QUANTUM_PX", "MAX_BATCH"]
 
-aot.serializable(stages.RasterStages)   # outputs of programs kept across processes (gfjax.aot)
-aot.serializable(basal_lib.BasalLayer)
-
 SHAPE_QUANTUM_PX = 16          # tile rasters are padded to multiples of this (few compiles)
 MAX_BATCH = 8                  # tiles per vmap call
 
