@@ -94,6 +94,15 @@ def _listen(event, duration_s, **_):
     jit[event] = jit.get(event, 0.0) + duration_s
     jit[event + " count"] = jit.get(event + " count", 0) + 1
 monitoring.register_event_duration_secs_listener(_listen)
+from gfjax import aot
+_load = aot._load
+def _timed_load(path):
+    start = time.time()
+    out = _load(path)
+    jit["aot load"] = jit.get("aot load", 0.0) + time.time() - start
+    jit["aot load count"] = jit.get("aot load count", 0) + 1
+    return out
+aot._load = _timed_load
 marks.append(("import jax", time.time()))
 from gfjax import methods
 from gfjax.io import las as las_io
@@ -130,7 +139,8 @@ def _anatomy(path: Path, out: Path, teardown: str) -> dict:
             "jit_trace_s": jit.get("/jax/core/compile/jaxpr_trace_duration", 0.0),
             "jit_lower_s": jit.get("/jax/core/compile/jaxpr_to_mlir_module_duration", 0.0),
             "jit_compile_or_cache_load_s": jit.get("/jax/core/compile/backend_compile_duration", 0.0),
-            "jit_programs": jit.get("/jax/core/compile/backend_compile_duration count", 0)}
+            "jit_programs": jit.get("/jax/core/compile/backend_compile_duration count", 0),
+            "aot_load_s": jit.get("aot load", 0.0), "aot_programs": jit.get("aot load count", 0)}
 
 
 def _table_paths(cloud) -> dict:
@@ -328,6 +338,8 @@ def main(argv=None) -> int:
         lines += [f"| {k} | {v:.2f} |" for k, v in anatomy["steps_s"].items()]
         lines += [f"| &nbsp; of which JAX tracing / lowering / compile-or-cache-load of {anatomy['jit_programs']} programs | "
                   f"{anatomy['jit_trace_s']:.2f} / {anatomy['jit_lower_s']:.2f} / {anatomy['jit_compile_or_cache_load_s']:.2f} |",
+                  f"| &nbsp; of which loading {anatomy['aot_programs']} stored executables (`gfjax.aot`; partly on the worker thread) | "
+                  f"{anatomy['aot_load_s']:.2f} |",
                   "| &nbsp; of which DMF stages (first call) | "
                   + ", ".join(f"{k} {v:.2f}" for k, v in anatomy["stage_seconds"].items()) + " |",
                   f"| interpreter teardown with a normal exit (the `gfjax` program skips it) | {anatomy['teardown_if_run_s']:.2f} |"]

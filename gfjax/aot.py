@@ -3,8 +3,8 @@
 A new `gfjax filter` process pays, per jitted program, tracing (Python), lowering (MLIR),
 hashing the module for JAX's persistent compilation cache and loading the executable from
 it. For DMF on an 824 k point tile that was 0.5 s of a 1.7 s process. `call(fn, *args,
-**static)` pays it once: the program `fn(*args, **static)` is compiled (through JAX's
-compilation cache when that is on), its executable serialized into `folder`
+**static)` pays it once: the program `fn(*args, **static)` is compiled (outside JAX's
+compilation cache, see `_compile_fresh`), its executable serialized into `folder`
 (`jax.experimental.serialize_executable`), and later processes load it and call it: no
 tracing, no lowering, no hashing.
 
@@ -31,6 +31,7 @@ import os
 import pickle
 import platform
 import tempfile
+import threading
 from pathlib import Path
 from typing import Any, Callable
 
@@ -41,6 +42,7 @@ _SUFFIX = ".gfjaxexe"
 
 _state: dict[str, Any] = {"folder": None, "fingerprint": None}
 _loaded: dict[str, Any] = {}    # key -> jax.stages.Compiled, for this process
+_lock = threading.Lock()        # one compile at a time (`_compile_fresh`)
 
 
 def enable(folder: str | os.PathLike) -> Path | None:
@@ -172,9 +174,55 @@ def call(fn: Callable, *args, **static):
 
 def _load_or_compile(fn, args, static, folder: Path, key: str):
     path = folder / f"{key}{_SUFFIX}"
-    compiled = _load(path) if path.exists() else None
+    compiled = _load(path) if path.exists() else None          # loads run in parallel (no GIL held)
     if compiled is None:
-        compiled = fn.lower(*args, **static).compile()
-        _store(compiled, folder, key)
+        compiled, fresh = _compile_fresh(fn, args, static)
+        if fresh:
+            _store(compiled, folder, key)
     _loaded[key] = compiled
     return compiled
+
+
+def _compile_fresh(fn, args, static):
+    """Compile `fn(*args, **static)` outside JAX's persistent compilation cache.
+
+    An executable that JAX loaded from its cache serializes incompletely (jaxlib 0.10.2, CPU:
+    a later process fails with "Function ... not found"), so the program is lowered under a
+    name of its own (`gfjax_aot_<name>`: its own cache key, never an entry written by plain
+    `jit`) and compiled with cache writes off, so its key never enters that cache either.
+    Returns `(compiled, fresh)`; `fresh` is False if JAX reports a cache hit all the same
+    (then it is used but not stored).
+    """
+    import jax
+
+    def program(*arrays):
+        return fn(*arrays, **static)
+
+    program.__name__ = program.__qualname__ = f"gfjax_aot_{getattr(fn, '__name__', 'program')}"
+    lowered = jax.jit(program).lower(*args)
+    _watch_cache_hits()
+    _hits.count = 0
+    with _lock:                       # the option is global: one compile at a time changes it
+        before = jax.config.jax_persistent_cache_min_compile_time_secs
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", float("inf"))
+        try:
+            compiled = lowered.compile()
+        finally:
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
+    return compiled, _hits.count == 0
+
+
+_hits = threading.local()             # JAX cache hits seen by this thread's compile
+
+
+def _watch_cache_hits() -> None:
+    if _state.get("watching"):
+        return
+    import jax
+
+    def listen(event: str, **_):
+        if event == "/jax/compilation_cache/cache_hits":
+            _hits.count = getattr(_hits, "count", 0) + 1
+
+    jax.monitoring.register_event_listener(listen)
+    _state["watching"] = True

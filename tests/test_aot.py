@@ -179,3 +179,48 @@ def test_cli_export_cache_folder(monkeypatch, setting, expected):
         assert folder == cli_main.cache_folder().parent / "export"
     else:
         assert folder == (None if expected is None else type(folder)(expected))
+
+
+def test_an_executable_from_jax_cache_is_not_stored(folder, monkeypatch):
+    """JAX's compilation cache gives executables that serialize incompletely: `call` uses
+    them in this process but stores nothing."""
+    compile_ = jax.stages.Lowered.compile
+
+    def from_cache(self, *args, **kwargs):
+        jax.monitoring.record_event("/jax/compilation_cache/cache_hits")
+        return compile_(self, *args, **kwargs)
+
+    monkeypatch.setattr(jax.stages.Lowered, "compile", from_cache)
+    _same(aot.call(scale_and_sum, *_args(9), factor=2), scale_and_sum(*_args(9), factor=2))
+    assert _files(folder) == []
+
+
+_PROCESS = r"""
+import sys, numpy as np, jax
+sys.path.insert(0, sys.argv[3])
+jax.config.update("jax_compilation_cache_dir", sys.argv[1])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+from gfjax import aot, dmf
+import dmf_scenes as scenes
+if sys.argv[2] != "-":
+    aot.enable(sys.argv[2])
+cloud, _, _ = scenes.box_scene()
+result = dmf.filter(cloud)
+print(int(result.ground.sum()), int(result.instance_id.sum()), int(result.diagnostics.ngnem_rc.sum()))
+"""
+
+
+def test_stored_programs_run_in_a_new_process_when_jax_cache_is_warm(tmp_path):
+    """The case that broke: JAX's persistent cache already holds DMF's programs (plain jit), a
+    second process stores them through `aot`, a third loads and runs them."""
+    jax_cache, export = tmp_path / "jax", tmp_path / "export"
+    here = os.path.join(os.path.dirname(__file__), "dmf")
+
+    def run(export_folder):
+        return subprocess.run([sys.executable, "-c", _PROCESS, str(jax_cache), export_folder, here],
+                              capture_output=True, text=True, check=True).stdout.strip()
+
+    plain = run("-")
+    assert run(str(export)) == plain
+    assert len(list(export.glob("*.gfjaxexe"))) == 3
+    assert run(str(export)) == plain
