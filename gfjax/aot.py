@@ -35,7 +35,7 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
-__all__ = ["enable", "disable", "enabled_folder", "call", "program_key", "MAX_FILES"]
+__all__ = ["enable", "disable", "enabled_folder", "call", "prefetch", "program_key", "MAX_FILES"]
 
 MAX_FILES = 512                 # artifacts kept (least recently used go first); each is ~0.1-2 MB
 _SUFFIX = ".gfjaxexe"
@@ -110,7 +110,8 @@ def program_key(fn: Callable, args: tuple, static: dict) -> str:
     import jax
     import numpy as np
 
-    signature = [f"{np.shape(a)}:{np.result_type(a)}" for a in args]
+    signature = [f"{tuple(a.shape)}:{np.dtype(a.dtype)}" if isinstance(a, jax.ShapeDtypeStruct)
+                 else f"{np.shape(a)}:{np.result_type(a)}" for a in args]
     options = {name: getattr(jax.config, name) for name in
                ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_dtype_promotion")}
     parts = [f"{fn.__module__}.{getattr(fn, '__qualname__', fn.__name__)}", repr(sorted(static.items())),
@@ -170,6 +171,22 @@ def call(fn: Callable, *args, **static):
     if compiled is None:
         compiled = _load_or_compile(fn, args, static, folder, key)
     return compiled(*args)
+
+
+def prefetch(fn: Callable, *specs, **static) -> None:
+    """Load (or compile and store) the program `call(fn, *args, **static)` will run for
+    arguments of these shapes and dtypes, without running it: from a worker thread, a
+    program's load overlaps other work (loading holds no GIL). Nothing when the cache is off.
+
+    Args:
+      specs: `jax.ShapeDtypeStruct` (or arrays) standing for the positional arguments.
+    """
+    folder = _state["folder"]
+    if folder is None:
+        return
+    key = program_key(fn, specs, static)
+    if key not in _loaded:
+        _load_or_compile(fn, specs, static, folder, key)
 
 
 def _load_or_compile(fn, args, static, folder: Path, key: str):

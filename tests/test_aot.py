@@ -224,3 +224,16 @@ def test_stored_programs_run_in_a_new_process_when_jax_cache_is_warm(tmp_path):
     assert run(str(export)) == plain
     assert len(list(export.glob("*.gfjaxexe"))) == 3
     assert run(str(export)) == plain
+
+
+def test_prefetch_loads_what_call_runs(folder, monkeypatch):
+    spec = jax.ShapeDtypeStruct
+    aot.prefetch(scale_and_sum, spec((4,), np.float32), spec((4,), np.bool_), factor=3)
+    assert len(_files(folder)) == 1 and len(aot._loaded) == 1
+    monkeypatch.setattr(jax.stages.Lowered, "compile", lambda *_, **__: pytest.fail("prefetched program compiled again"))
+    _same(aot.call(scale_and_sum, *_args(4), factor=3), scale_and_sum(*_args(4), factor=3))
+
+
+def test_prefetch_is_nothing_when_off(tmp_path):
+    aot.prefetch(scale_and_sum, jax.ShapeDtypeStruct((4,), np.float32), jax.ShapeDtypeStruct((4,), np.bool_))
+    assert aot._loaded == {}

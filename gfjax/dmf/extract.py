@@ -152,6 +152,14 @@ def _height_rule(surface: Float[Array, "h w"], valid: Bool[Array, "h w"], points
     return points[:, 2] - s <= threshold_m
 
 
+def prefetch_height_rule(n_points: int, shape: tuple[int, int], cell_m: float) -> None:
+    """Load the stored program `height_ground` will run (`gfjax.aot.prefetch`), for `n_points`
+    points on a raster `shape` of cell `cell_m`."""
+    spec = jax.ShapeDtypeStruct
+    aot.prefetch(_height_rule, spec(shape, np.float32), spec(shape, np.bool_), spec((n_points, 3), np.float32),
+                 spec((), np.float32), cell_m=float(cell_m))
+
+
 def height_ground(points: np.ndarray, nodes: SupportNodes, vox: Voxels, threshold_m) -> np.ndarray:
     """Alternative final rule: ground when `z - S(x, y) <= threshold_m`, S the support surface
     (not lowered) sampled bilinearly between cell centres. Returns bool `(n,)`."""

@@ -204,7 +204,24 @@ def _voxels(local: np.ndarray, config: Config, worker) -> tuple[cKDTree | None, 
         tree = pending.result()
         cell_m, mean_nn = voxels.voxel_size_m(local, v0=config.v0, fraction=config.sample_fraction,
                                               minimum=config.sample_min, tree=tree, sample=sample)
+    # The raster's shape is known from W: its stored program loads while the voxels are binned.
+    shape = tuple(int(v) for v in np.floor(local[:, 1::-1].max(axis=0) / cell_m) + 1)
+    worker.submit(_prefetch_raster_program, shape, cell_m, config)
+    if config.final_rule in ("height", "both"):
+        worker.submit(extract.prefetch_height_rule, len(local), shape, cell_m)
     return tree, cell_m, mean_nn, voxels.bin_voxels(local, cell_m)
+
+
+def _prefetch_raster_program(shape: tuple[int, int], cell_m: float, config: Config) -> None:
+    """`gfjax.aot.prefetch` of the raster stages for an NGNEM of `shape` (one tile only)."""
+    h, w = shape
+    core = max(1, math.ceil(config.raster_tile_m / cell_m))
+    if h > core or w > core:
+        return
+    padded = (_round_up(h, SHAPE_QUANTUM_PX), _round_up(w, SHAPE_QUANTUM_PX))
+    spec = jax.ShapeDtypeStruct
+    aot.prefetch(stages.raster_stages, spec(padded, np.float32), spec(padded, np.int32), spec(padded, np.bool_),
+                 spec(padded, np.bool_), spec((), np.float32), spec((), np.float32), **stage_options(config))
 
 
 def _layers(vox: voxels.Voxels, cell_m: float, config: Config, worker, lap, progress: bool):
