@@ -35,9 +35,10 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
-__all__ = ["enable", "disable", "enabled_folder", "call", "prefetch", "program_key", "MAX_FILES"]
+__all__ = ["enable", "disable", "enabled_folder", "call", "prefetch", "program_key", "MAX_FILES", "MAX_BYTES"]
 
 MAX_FILES = 512                 # artifacts kept (least recently used go first); each is ~0.1-2 MB
+MAX_BYTES = 256 * 2**20         # ... and their total size
 _SUFFIX = ".gfjaxexe"
 
 _state: dict[str, Any] = {"folder": None, "fingerprint": None}
@@ -146,9 +147,21 @@ def _store(compiled, folder: Path, key: str) -> None:
 
 
 def _prune(folder: Path) -> None:
-    files = sorted(folder.glob(f"*{_SUFFIX}"), key=lambda p: p.stat().st_mtime)
-    for path in files[:max(0, len(files) - MAX_FILES)]:
-        path.unlink(missing_ok=True)
+    """Remove the least recently used artifacts beyond `MAX_FILES` or `MAX_BYTES` (programs
+    of older gfjax sources are never used again and go first)."""
+    stats = []
+    for path in folder.glob(f"*{_SUFFIX}"):
+        try:
+            stat = path.stat()
+        except OSError:                                     # removed by another process
+            continue
+        stats.append((stat.st_mtime, stat.st_size, path))
+    stats.sort(key=lambda item: item[0], reverse=True)      # newest first
+    total = 0
+    for count, (_, size, path) in enumerate(stats, start=1):
+        total += size
+        if count > MAX_FILES or total > MAX_BYTES:
+            path.unlink(missing_ok=True)
 
 
 def call(fn: Callable, *args, **static):

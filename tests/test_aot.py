@@ -138,6 +138,19 @@ def test_least_recently_used_are_pruned(folder, monkeypatch):
     for n in (3, 4, 5, 6):
         aot.call(scale_and_sum, *_args(n), factor=2)
     assert len(_files(folder)) == 2
+    newest = {p.name for p in _files(folder)}
+    aot._loaded.clear()
+    aot.call(scale_and_sum, *_args(6), factor=2)               # a load refreshes its file
+    aot.call(scale_and_sum, *_args(7), factor=2)
+    assert len(_files(folder)) == 2 and len(newest & {p.name for p in _files(folder)}) == 1
+
+
+def test_pruned_to_the_byte_bound(folder, monkeypatch):
+    aot.call(scale_and_sum, *_args(3), factor=2)
+    (first,) = _files(folder)
+    monkeypatch.setattr(aot, "MAX_BYTES", int(first.stat().st_size * 1.5))
+    aot.call(scale_and_sum, *_args(4), factor=2)
+    assert len(_files(folder)) == 1 and not first.exists()
 
 
 def test_key_follows_the_machine(monkeypatch):
