@@ -40,9 +40,11 @@ __all__ = ["enable", "disable", "enabled_folder", "call", "prefetch", "program_k
 MAX_FILES = 512                 # artifacts kept (least recently used go first); each is ~0.1-2 MB
 MAX_BYTES = 256 * 2**20         # ... and their total size
 _SUFFIX = ".gfjaxexe"
+_PLAIN_SUFFIX = ".plain" + _SUFFIX   # marker: this program is not stored, run it through plain jit
 
 _state: dict[str, Any] = {"folder": None, "fingerprint": None}
 _loaded: dict[str, Any] = {}    # key -> jax.stages.Compiled, for this process
+_plain: set[str] = set()        # keys of programs that run through plain jit (custom calls)
 _lock = threading.Lock()        # one compile at a time (`_compile_fresh`)
 
 
@@ -62,6 +64,7 @@ def disable() -> None:
     """Turn the cache off (`call` is then `fn(*args, **static)`)."""
     _state["folder"] = None
     _loaded.clear()
+    _plain.clear()
 
 
 def enabled_folder() -> Path | None:
@@ -106,17 +109,20 @@ def _concrete(x) -> bool:
     return isinstance(x, (np.ndarray, np.generic)) or (isinstance(x, jax.Array) and not isinstance(x, jax.core.Tracer))
 
 
-def program_key(fn: Callable, args: tuple, static: dict) -> str:
-    """The cache key of `fn(*args, **static)` (hex sha256; see the module docstring)."""
+def program_key(fn: Callable, args: tuple, static: dict, tag=None) -> str:
+    """The cache key of `fn(*args, **static)` (hex sha256; see the module docstring). `tag`,
+    when given, names the program instead of `fn`'s module and name."""
     import jax
     import numpy as np
 
+    leaves, treedef = jax.tree.flatten(args)
     signature = [f"{tuple(a.shape)}:{np.dtype(a.dtype)}" if isinstance(a, jax.ShapeDtypeStruct)
-                 else f"{np.shape(a)}:{np.result_type(a)}" for a in args]
+                 else f"{np.shape(a)}:{np.result_type(a)}" for a in leaves]
     options = {name: getattr(jax.config, name) for name in
                ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_dtype_promotion")}
-    parts = [f"{fn.__module__}.{getattr(fn, '__qualname__', fn.__name__)}", repr(sorted(static.items())),
-             ";".join(signature), repr(sorted(options.items())), _fingerprint()]
+    name = repr(tag) if tag is not None else f"{fn.__module__}.{getattr(fn, '__qualname__', fn.__name__)}"
+    parts = [name, repr(sorted(static.items())), str(treedef), ";".join(signature), repr(sorted(options.items())),
+             _fingerprint()]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
@@ -164,29 +170,34 @@ def _prune(folder: Path) -> None:
             path.unlink(missing_ok=True)
 
 
-def call(fn: Callable, *args, **static):
+def call(fn: Callable, *args, tag=None, **static):
     """`fn(*args, **static)`, through the on-disk program cache when it is on.
 
     Args:
       fn: a `jax.jit`-wrapped function whose keyword arguments `static` are all static
-        (hashable; their `repr` enters the key) and whose positional `args` are arrays.
-      args: concrete arrays (numpy or JAX) or numpy scalars.
+        (hashable; their `repr` enters the key).
+      args: pytrees of concrete arrays (numpy or JAX) or numpy scalars.
+      tag: names the program in the key instead of `fn`'s module and name; needed when `fn`
+        is a closure or a `functools.partial` (give everything it binds, e.g. its config,
+        with a stable `repr`).
 
     Returns: what `fn` returns.
     """
     import jax
 
     folder = _state["folder"]
-    if folder is None or jax.config.jax_disable_jit or not all(_concrete(a) for a in args):
+    if folder is None or jax.config.jax_disable_jit or not all(_concrete(a) for a in jax.tree.leaves(args)):
         return fn(*args, **static)
-    key = program_key(fn, args, static)
+    key = program_key(fn, args, static, tag)
     compiled = _loaded.get(key)
-    if compiled is None:
+    if compiled is None and key not in _plain:
         compiled = _load_or_compile(fn, args, static, folder, key)
-    return compiled(*args)
+    if compiled is None:                                    # not storable: plain jit
+        return fn(*args, **static)
+    return compiled(*jax.tree.leaves(args))
 
 
-def prefetch(fn: Callable, *specs, **static) -> None:
+def prefetch(fn: Callable, *specs, tag=None, **static) -> None:
     """Load (or compile and store) the program `call(fn, *args, **static)` will run for
     arguments of these shapes and dtypes, without running it: from a worker thread, a
     program's load overlaps other work (loading holds no GIL). Nothing when the cache is off.
@@ -197,20 +208,37 @@ def prefetch(fn: Callable, *specs, **static) -> None:
     folder = _state["folder"]
     if folder is None:
         return
-    key = program_key(fn, specs, static)
-    if key not in _loaded:
+    key = program_key(fn, specs, static, tag)
+    if key not in _loaded and key not in _plain:
         _load_or_compile(fn, specs, static, folder, key)
 
 
 def _load_or_compile(fn, args, static, folder: Path, key: str):
-    path = folder / f"{key}{_SUFFIX}"
+    """The stored program of `key`, loaded or compiled (and stored); None when the program
+    cannot be stored (it then runs through plain jit; a marker file says so to later
+    processes)."""
+    path, marker = folder / f"{key}{_SUFFIX}", folder / f"{key}{_PLAIN_SUFFIX}"
+    if marker.exists():
+        _plain.add(key)
+        return None
     compiled = _load(path) if path.exists() else None          # loads run in parallel (no GIL held)
     if compiled is None:
         compiled, fresh = _compile_fresh(fn, args, static)
+        if compiled is None:
+            _plain.add(key)
+            _write_marker(marker)
+            return None
         if fresh:
             _store(compiled, folder, key)
     _loaded[key] = compiled
     return compiled
+
+
+def _write_marker(marker: Path) -> None:
+    try:
+        marker.touch()
+    except OSError:                                         # a cache that cannot be written is no error
+        pass
 
 
 def _compile_fresh(fn, args, static):
@@ -220,16 +248,25 @@ def _compile_fresh(fn, args, static):
     a later process fails with "Function ... not found"), so the program is lowered under a
     name of its own (`gfjax_aot_<name>`: its own cache key, never an entry written by plain
     `jit`) and compiled with cache writes off, so its key never enters that cache either.
-    Returns `(compiled, fresh)`; `fresh` is False if JAX reports a cache hit all the same
-    (then it is used but not stored).
+    The stored program takes the leaves of `args` (a pickled pytree definition of, say, an
+    equinox module does not unflatten again). A program with XLA custom calls (LAPACK, FFT:
+    bound to the compiling process) is not compiled here: its executable crashes when run in
+    another process (SMRF's harmonic fill, jaxlib 0.10.2 CPU: a segmentation fault).
+
+    Returns: `(compiled, fresh)`: `(None, False)` for a program with custom calls; `fresh` is
+    False if JAX reports a cache hit all the same (then it is used but not stored).
     """
     import jax
 
+    leaves, treedef = jax.tree.flatten(args)
+
     def program(*arrays):
-        return fn(*arrays, **static)
+        return fn(*jax.tree.unflatten(treedef, arrays), **static)
 
     program.__name__ = program.__qualname__ = f"gfjax_aot_{getattr(fn, '__name__', 'program')}"
-    lowered = jax.jit(program).lower(*args)
+    lowered = jax.jit(program).lower(*leaves)
+    if "custom_call" in lowered.as_text():
+        return None, False
     _watch_cache_hits()
     _hits.count = 0
     with _lock:                       # the option is global: one compile at a time changes it

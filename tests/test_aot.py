@@ -42,7 +42,7 @@ def _args(n=5, dtype=np.float32):
 
 
 def _files(folder):
-    return sorted(folder.glob("*.gfjaxexe"))
+    return sorted(p for p in folder.glob("*.gfjaxexe") if not p.name.endswith(".plain.gfjaxexe"))
 
 
 def _same(a, b):
@@ -250,3 +250,20 @@ def test_prefetch_loads_what_call_runs(folder, monkeypatch):
 def test_prefetch_is_nothing_when_off(tmp_path):
     aot.prefetch(scale_and_sum, jax.ShapeDtypeStruct((4,), np.float32), jax.ShapeDtypeStruct((4,), np.bool_))
     assert aot._loaded == {}
+
+
+@jax.jit
+def solve(a, b):
+    return jnp.linalg.solve(a, b)                     # LAPACK custom calls on CPU
+
+
+def test_program_with_custom_calls_runs_through_plain_jit(folder, monkeypatch):
+    """Executables with XLA custom calls (LAPACK, FFT) crash in another process: such a
+    program is not stored; a marker sends later processes straight to plain jit."""
+    a = np.array([[3.0, 1.0], [1.0, 2.0]], np.float32)
+    b = np.array([9.0, 8.0], np.float32)
+    np.testing.assert_allclose(aot.call(solve, a, b), np.linalg.solve(a, b), rtol=1e-6)
+    assert _files(folder) == [] and len(list(folder.glob("*.plain.gfjaxexe"))) == 1
+    aot._plain.clear()                                    # as a new process would start
+    monkeypatch.setattr(aot, "_compile_fresh", lambda *_: pytest.fail("the marker should skip the compile"))
+    np.testing.assert_allclose(aot.call(solve, a, b), np.linalg.solve(a, b), rtol=1e-6)
