@@ -1,4 +1,4 @@
-"""Jitted programs kept across processes: compiled executables in an on-disk cache.
+"""Jitted programs kept across processes: compiled executables (or exported StableHLO) on disk.
 
 A new `gfjax filter` process pays, per jitted program, tracing (Python), lowering (MLIR),
 hashing the module for JAX's persistent compilation cache and loading the executable from
@@ -6,7 +6,9 @@ it. For DMF on an 824 k point tile that was 0.5 s of a 1.7 s process. `call(fn, 
 **static)` pays it once: the program `fn(*args, **static)` is compiled (outside JAX's
 compilation cache, see `_compile_fresh`), its executable serialized into `folder`
 (`jax.experimental.serialize_executable`), and later processes load it and call it: no
-tracing, no lowering, no hashing.
+tracing, no lowering, no hashing. A program with XLA custom calls (LAPACK, FFT) is exported
+instead (`jax.export`, StableHLO): a later process skips tracing and lowers a thin wrapper,
+and compiles through JAX's persistent cache.
 
 Off by default (`call` is then `fn(*args, **static)`); `gfjax.cli` turns it on next to the
 compilation cache, and `enable(folder)` does so in a notebook or a batch script. This module
@@ -27,6 +29,7 @@ folder must be writable by its user only (files are created with mode 0600).
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import os
 import pickle
 import platform
@@ -40,7 +43,8 @@ __all__ = ["enable", "disable", "enabled_folder", "call", "prefetch", "program_k
 MAX_FILES = 512                 # artifacts kept (least recently used go first); each is ~0.1-2 MB
 MAX_BYTES = 256 * 2**20         # ... and their total size
 _SUFFIX = ".gfjaxexe"
-_PLAIN_SUFFIX = ".plain" + _SUFFIX   # marker: this program is not stored, run it through plain jit
+_EXPORT_SUFFIX = ".export" + _SUFFIX  # a program with custom calls: exported StableHLO
+_PLAIN_SUFFIX = ".plain" + _SUFFIX    # marker: this program is not stored, run it through plain jit
 
 _state: dict[str, Any] = {"folder": None, "fingerprint": None}
 _loaded: dict[str, Any] = {}    # key -> jax.stages.Compiled, for this process
@@ -109,6 +113,12 @@ def _concrete(x) -> bool:
     return isinstance(x, (np.ndarray, np.generic)) or (isinstance(x, jax.Array) and not isinstance(x, jax.core.Tracer))
 
 
+def _dtype(x):
+    import numpy as np
+
+    return np.dtype(x.dtype) if hasattr(x, "dtype") else np.result_type(x)
+
+
 def program_key(fn: Callable, args: tuple, static: dict, tag=None) -> str:
     """The cache key of `fn(*args, **static)` (hex sha256; see the module docstring). `tag`,
     when given, names the program instead of `fn`'s module and name."""
@@ -116,8 +126,7 @@ def program_key(fn: Callable, args: tuple, static: dict, tag=None) -> str:
     import numpy as np
 
     leaves, treedef = jax.tree.flatten(args)
-    signature = [f"{tuple(a.shape)}:{np.dtype(a.dtype)}" if isinstance(a, jax.ShapeDtypeStruct)
-                 else f"{np.shape(a)}:{np.result_type(a)}" for a in leaves]
+    signature = [f"{np.shape(a)}:{_dtype(a)}" for a in leaves]
     options = {name: getattr(jax.config, name) for name in
                ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_dtype_promotion")}
     name = repr(tag) if tag is not None else f"{fn.__module__}.{getattr(fn, '__qualname__', fn.__name__)}"
@@ -143,10 +152,18 @@ def _store(compiled, folder: Path, key: str) -> None:
 
     try:
         blob = pickle.dumps(serialize_executable.serialize(compiled), protocol=pickle.HIGHEST_PROTOCOL)
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{key[:16]}.", suffix=".tmp")
+    except Exception:                                       # a program that cannot be stored is no error
+        return
+    _write(folder, f"{key}{_SUFFIX}", blob)
+
+
+def _write(folder: Path, name: str, blob: bytes) -> None:
+    """Write `folder / name` atomically (readers never see half a file), then prune."""
+    try:
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name[:16]}.", suffix=".tmp")
         with os.fdopen(fd, "wb") as file:
             file.write(blob)
-        os.replace(tmp, folder / f"{key}{_SUFFIX}")         # atomic: readers never see half a file
+        os.replace(tmp, folder / name)
         _prune(folder)
     except Exception:                                       # a cache that cannot be written is no error
         return
@@ -214,24 +231,79 @@ def prefetch(fn: Callable, *specs, tag=None, **static) -> None:
 
 
 def _load_or_compile(fn, args, static, folder: Path, key: str):
-    """The stored program of `key`, loaded or compiled (and stored); None when the program
-    cannot be stored (it then runs through plain jit; a marker file says so to later
-    processes)."""
-    path, marker = folder / f"{key}{_SUFFIX}", folder / f"{key}{_PLAIN_SUFFIX}"
+    """The stored program of `key` (a function of the leaves of `args`), loaded or built and
+    stored; None when it cannot be stored (it then runs through plain jit, and a marker file
+    says so to later processes)."""
+    path, exported, marker = (folder / f"{key}{suffix}" for suffix in (_SUFFIX, _EXPORT_SUFFIX, _PLAIN_SUFFIX))
     if marker.exists():
         _plain.add(key)
         return None
-    compiled = _load(path) if path.exists() else None          # loads run in parallel (no GIL held)
-    if compiled is None:
+    program = _load(path) if path.exists() else None          # loads run in parallel (no GIL held)
+    if program is None and exported.exists():
+        program = _load_exported(exported)
+    if program is None:
         compiled, fresh = _compile_fresh(fn, args, static)
-        if compiled is None:
-            _plain.add(key)
-            _write_marker(marker)
-            return None
-        if fresh:
-            _store(compiled, folder, key)
-    _loaded[key] = compiled
-    return compiled
+        if compiled is not None:
+            program = compiled
+            if fresh:
+                _store(compiled, folder, key)
+        else:                                               # custom calls: exported StableHLO
+            program, blob = _export(fn, args, static)
+            if program is None:
+                _plain.add(key)
+                _write_marker(marker)
+                return None
+            _write(folder, exported.name, blob)
+    _loaded[key] = program
+    return program
+
+
+def _export(fn, args, static):
+    """`(program, blob)`: the program exported with `jax.export` (StableHLO; custom calls are
+    kept by name, so it stays valid in another process, which lowers a thin wrapper around it
+    and compiles through JAX's persistent cache), as a function of the leaves of `args`, and
+    its serialized form; `(None, None)` when it cannot be exported or serialized (no
+    `flatbuffers`, or a custom call jax.export does not guarantee)."""
+    import jax
+    import numpy as np
+    from jax import export
+
+    if importlib.util.find_spec("flatbuffers") is None:    # jax.export's serialization format
+        return None, None
+    leaves, treedef = jax.tree.flatten(args)
+    out = {}
+
+    def program(*arrays):
+        result = fn(*jax.tree.unflatten(treedef, arrays), **static)
+        flat, out["tree"] = jax.tree.flatten(result)
+        return flat
+
+    program.__name__ = program.__qualname__ = f"gfjax_aot_{getattr(fn, '__name__', 'program')}"
+    try:
+        specs = [jax.ShapeDtypeStruct(np.shape(a), _dtype(a)) for a in leaves]
+        exported = export.export(jax.jit(program))(*specs)
+        blob = pickle.dumps((bytes(exported.serialize()), out["tree"]), protocol=pickle.HIGHEST_PROTOCOL)
+    except Exception:
+        return None, None
+    return _exported_program(exported, out["tree"]), blob
+
+
+def _exported_program(exported, tree):
+    import jax
+
+    return lambda *leaves: jax.tree.unflatten(tree, exported.call(*leaves))
+
+
+def _load_exported(path: Path):
+    from jax import export
+
+    try:
+        blob, tree = pickle.loads(path.read_bytes())
+        program = _exported_program(export.deserialize(bytearray(blob)), tree)
+        os.utime(path)
+        return program
+    except Exception:                                       # unreadable or stale: build again
+        return None
 
 
 def _write_marker(marker: Path) -> None:

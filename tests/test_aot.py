@@ -41,8 +41,10 @@ def _args(n=5, dtype=np.float32):
     return np.arange(n, dtype=dtype), np.arange(n) % 2 == 0
 
 
-def _files(folder):
-    return sorted(p for p in folder.glob("*.gfjaxexe") if not p.name.endswith(".plain.gfjaxexe"))
+def _files(folder, kind=""):
+    """Stored executables (kind ""), exported programs ("export") or plain-jit markers ("plain")."""
+    return sorted(p for p in folder.glob("*.gfjaxexe") if p.name.count(".") == (2 if kind else 1)
+                  and (not kind or p.name.endswith(f".{kind}.gfjaxexe")))
 
 
 def _same(a, b):
@@ -257,13 +259,45 @@ def solve(a, b):
     return jnp.linalg.solve(a, b)                     # LAPACK custom calls on CPU
 
 
-def test_program_with_custom_calls_runs_through_plain_jit(folder, monkeypatch):
+def test_program_with_custom_calls_is_exported(folder, monkeypatch):
     """Executables with XLA custom calls (LAPACK, FFT) crash in another process: such a
-    program is not stored; a marker sends later processes straight to plain jit."""
+    program is kept as exported StableHLO instead, and a new process skips its tracing."""
     a = np.array([[3.0, 1.0], [1.0, 2.0]], np.float32)
     b = np.array([9.0, 8.0], np.float32)
     np.testing.assert_allclose(aot.call(solve, a, b), np.linalg.solve(a, b), rtol=1e-6)
-    assert _files(folder) == [] and len(list(folder.glob("*.plain.gfjaxexe"))) == 1
-    aot._plain.clear()                                    # as a new process would start
-    monkeypatch.setattr(aot, "_compile_fresh", lambda *_: pytest.fail("the marker should skip the compile"))
+    assert _files(folder) == [] and len(_files(folder, "export")) == 1
+    aot._loaded.clear()                                   # as a new process would start
+    monkeypatch.setattr(jax.export, "export", lambda *_, **__: pytest.fail("the stored export should be loaded"))
+    monkeypatch.setattr(aot, "_compile_fresh", lambda *_: pytest.fail("the stored export should be loaded"))
     np.testing.assert_allclose(aot.call(solve, a, b), np.linalg.solve(a, b), rtol=1e-6)
+
+
+def test_program_that_cannot_be_stored_runs_through_plain_jit(folder, monkeypatch):
+    """Without flatbuffers (jax.export's format) a program with custom calls is not stored;
+    a marker sends later processes straight to plain jit."""
+    real = aot.importlib.util.find_spec
+    monkeypatch.setattr(aot.importlib.util, "find_spec", lambda name: None if name == "flatbuffers" else real(name))
+    a = np.array([[2.0, 0.0], [0.0, 4.0]], np.float32)
+    b = np.array([2.0, 8.0], np.float32)
+    np.testing.assert_allclose(aot.call(solve, a, b), [1.0, 2.0], rtol=1e-6)
+    assert _files(folder) == [] and _files(folder, "export") == [] and len(_files(folder, "plain")) == 1
+    aot._plain.clear()
+    monkeypatch.setattr(aot, "_compile_fresh", lambda *_: pytest.fail("the marker should skip the compile"))
+    np.testing.assert_allclose(aot.call(solve, a, b), [1.0, 2.0], rtol=1e-6)
+
+
+def test_smrf_through_the_cache_equals_the_plain_call(folder):
+    """SMRF's three programs (the harmonic fill holds LAPACK calls: exported, the others
+    stored as executables), reloaded as in a new process: the same labels and rasters."""
+    from gfjax import smrf
+
+    cloud, _, _ = scenes.box_scene()
+    aot.disable()
+    plain = smrf.filter(cloud)
+    aot.enable(folder)
+    first = smrf.filter(cloud)
+    assert len(_files(folder)) == 2 and len(_files(folder, "export")) == 1
+    aot._loaded.clear()
+    loaded = smrf.filter(cloud)
+    for result in (first, loaded):
+        np.testing.assert_array_equal(result.ground, plain.ground)

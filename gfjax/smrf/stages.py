@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from gfjax import aot
 from gfjax._types import Heights, Mask, PointMask, Points, Raster
 from gfjax.io.tiled import domain_mask
 from gfjax.raster.fill import inpaint_harmonic, inpaint_nearest
@@ -240,17 +241,22 @@ def classify_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], params: Pa
     Returns:
       `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and the tile's `Diagnostics`.
     """
-    raster, middle, points = _compiled(raster_config(config), tuple(shape), False)
-    z_min, filled = raster(xyz, valid)
-    diag = middle(z_min, filled, hw, params)
-    return points(xyz, valid, diag.zipro, diag.slope, hw, params), diag
+    return _run(xyz, valid, hw, params, raster_config(config), tuple(shape), batched=False)
 
 
 def classify_batch(xyz: Float[Array, "b n 3"], valid: Bool[Array, "b n"], hw: Int[Array, "b 2"],
                    params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Array, "b n"], Diagnostics]:
     """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared); the
     diagnostics gain a leading batch axis."""
-    raster, middle, points = _compiled(raster_config(config), tuple(shape), True)
-    z_min, filled = raster(xyz, valid)
-    diag = middle(z_min, filled, hw, params)
-    return points(xyz, valid, diag.zipro, diag.slope, hw, params), diag
+    return _run(xyz, valid, hw, params, raster_config(config), tuple(shape), batched=True)
+
+
+def _run(xyz, valid, hw, params, config: Config, shape: tuple[int, int], *, batched: bool):
+    """The three stages of `_compiled`, through `gfjax.aot` (programs kept across processes
+    when it is on; the plain jitted calls otherwise, and under tracing)."""
+    raster, middle, points = _compiled(config, shape, batched)
+    tag = (config, shape, batched)
+    z_min, filled = aot.call(raster, xyz, valid, tag=("gfjax.smrf.rasterize_min", *tag))
+    diag = aot.call(middle, z_min, filled, hw, params, tag=("gfjax.smrf.surfaces", *tag))
+    ground = aot.call(points, xyz, valid, diag.zipro, diag.slope, hw, params, tag=("gfjax.smrf.classify_points", *tag))
+    return ground, diag
