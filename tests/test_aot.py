@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import gfjax
 from gfjax import aot, dmf
 from gfjax.cli import main as cli_main
 
@@ -215,6 +216,7 @@ import sys, numpy as np, jax
 sys.path.insert(0, sys.argv[3])
 jax.config.update("jax_compilation_cache_dir", sys.argv[1])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+import gfjax
 from gfjax import aot, dmf
 import dmf_scenes as scenes
 if sys.argv[2] != "-":
@@ -286,18 +288,18 @@ def test_program_that_cannot_be_stored_runs_through_plain_jit(folder, monkeypatc
     np.testing.assert_allclose(aot.call(solve, a, b), [1.0, 2.0], rtol=1e-6)
 
 
-def test_smrf_through_the_cache_equals_the_plain_call(folder):
-    """SMRF's three programs (the harmonic fill holds LAPACK calls: exported, the others
-    stored as executables), reloaded as in a new process: the same labels and rasters."""
-    from gfjax import smrf
-
+@pytest.mark.parametrize("method, stored", [("smrf", (2, 1)), ("pmf", (1, 0)), ("csf", (1, 0))])
+def test_method_through_the_cache_equals_the_plain_call(folder, method, stored):
+    """A method's programs (SMRF's harmonic fill holds LAPACK calls: exported; the others
+    stored as executables), reloaded as in a new process: the same labels."""
+    module = getattr(gfjax, method)
     cloud, _, _ = scenes.box_scene()
     aot.disable()
-    plain = smrf.filter(cloud)
+    plain = module.filter(cloud)
     aot.enable(folder)
-    first = smrf.filter(cloud)
-    assert len(_files(folder)) == 2 and len(_files(folder, "export")) == 1
+    first = module.filter(cloud)
+    assert (len(_files(folder)), len(_files(folder, "export"))) == stored
     aot._loaded.clear()
-    loaded = smrf.filter(cloud)
+    loaded = module.filter(cloud)
     for result in (first, loaded):
         np.testing.assert_array_equal(result.ground, plain.ground)

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Int
 
+from gfjax import aot
 from gfjax._types import Mask, PointMask, Points, Raster
 from gfjax.csf import stages
 from gfjax.csf.cloth import simulate
@@ -142,8 +143,7 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     origin = xyz_m[use].min(axis=0)
     local = (xyz_m - origin).astype(np.float32)
     shape = grid_shape(local, use, cell_m=config.cell_m)
-    ground, diag = classify_points(jnp.asarray(local), jnp.asarray(use), params, config=config,
-                                   shape=shape)
+    ground, diag = aot.call(classify_points, local, use, params, config=config, shape=shape)
     ground = np.asarray(ground) & use
     xy0 = origin[:2] - BUFFER_PX * config.cell_m
     return Result(ground=ground, diagnostics=CSFDiagnostics(

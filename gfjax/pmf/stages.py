@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from gfjax import aot
 from gfjax._types import Heights, Mask, PointMask, Points, Raster
 from gfjax.io.tiled import domain_mask
 from gfjax.pmf.config import Config, Params
@@ -109,10 +110,17 @@ def _tile(xyz: Points, valid: PointMask, hw: Int[Array, " 2"], params: Params, *
     return ground, Diagnostics(zimin=zimin, empty=domain & ~filled, surface=opened[-1], domain=domain)
 
 
-def _compiled(config: Config, shape: tuple[int, int], batched: bool):
-    """One jitted program per raster setting: the tiling fields do not reach the stages."""
-    return _compiled_raster(dataclasses.replace(config, tile_size_m=Config.tile_size_m,
-                                                buffer_m=Config.buffer_m), shape, batched)
+def _raster_config(config: Config) -> Config:
+    """`config` with the tiling fields (which do not reach the stages) at their defaults."""
+    return dataclasses.replace(config, tile_size_m=Config.tile_size_m, buffer_m=Config.buffer_m)
+
+
+def _run(xyz, valid, hw, params, config: Config, shape: tuple[int, int], *, batched: bool):
+    """The jitted program of `(config, shape, batched)` through `gfjax.aot` (kept across
+    processes when it is on; the plain jitted call otherwise, and under tracing)."""
+    config = _raster_config(config)
+    return aot.call(_compiled_raster(config, shape, batched), xyz, valid, hw, params,
+                    tag=("gfjax.pmf.tile", config, shape, batched))
 
 
 @functools.cache
@@ -137,13 +145,13 @@ def classify_tile(xyz: Points, valid: PointMask, hw: Int[Array, " 2"], params: P
     Returns:
       `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and `Diagnostics`.
     """
-    return _compiled(config, tuple(shape), False)(xyz, valid, hw, params)
+    return _run(xyz, valid, hw, params, config, tuple(shape), batched=False)
 
 
 def classify_batch(xyz: Float[Array, "b n 3"], valid: Bool[Array, "b n"], hw: Int[Array, "b 2"],
                    params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Array, "b n"], Diagnostics]:
     """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared)."""
-    return _compiled(config, tuple(shape), True)(xyz, valid, hw, params)
+    return _run(xyz, valid, hw, params, config, tuple(shape), batched=True)
 
 
 
