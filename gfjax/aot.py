@@ -47,7 +47,7 @@ _EXPORT_SUFFIX = ".export" + _SUFFIX  # a program with custom calls: exported St
 _PLAIN_SUFFIX = ".plain" + _SUFFIX    # marker: this program is not stored, run it through plain jit
 
 _state: dict[str, Any] = {"folder": None, "fingerprint": None}
-_loaded: dict[str, Any] = {}    # key -> jax.stages.Compiled, for this process
+_loaded: dict[str, Any] = {}    # key -> program of the argument leaves, for this process
 _plain: set[str] = set()        # keys of programs that run through plain jit (custom calls)
 _lock = threading.Lock()        # one compile at a time (`_compile_fresh`)
 
@@ -270,15 +270,8 @@ def _export(fn, args, static):
 
     if importlib.util.find_spec("flatbuffers") is None:    # jax.export's serialization format
         return None, None
-    leaves, treedef = jax.tree.flatten(args)
     out = {}
-
-    def program(*arrays):
-        result = fn(*jax.tree.unflatten(treedef, arrays), **static)
-        flat, out["tree"] = jax.tree.flatten(result)
-        return flat
-
-    program.__name__ = program.__qualname__ = f"gfjax_aot_{getattr(fn, '__name__', 'program')}"
+    program, leaves = _leaf_program(fn, args, static, out=out)
     try:
         specs = [jax.ShapeDtypeStruct(np.shape(a), _dtype(a)) for a in leaves]
         exported = export.export(jax.jit(program))(*specs)
@@ -313,6 +306,25 @@ def _write_marker(marker: Path) -> None:
         pass
 
 
+def _leaf_program(fn, args, static, *, out: dict | None = None):
+    """`(program, leaves)`: `fn(*args, **static)` as a function of the leaves of `args`, named
+    `gfjax_aot_<name>`. With `out`, the program returns the leaves of its result and puts their
+    pytree definition in `out["tree"]` when traced."""
+    import jax
+
+    leaves, treedef = jax.tree.flatten(args)
+
+    def program(*arrays):
+        result = fn(*jax.tree.unflatten(treedef, arrays), **static)
+        if out is None:
+            return result
+        flat, out["tree"] = jax.tree.flatten(result)
+        return flat
+
+    program.__name__ = program.__qualname__ = f"gfjax_aot_{getattr(fn, '__name__', 'program')}"
+    return program, leaves
+
+
 def _compile_fresh(fn, args, static):
     """Compile `fn(*args, **static)` outside JAX's persistent compilation cache.
 
@@ -330,12 +342,7 @@ def _compile_fresh(fn, args, static):
     """
     import jax
 
-    leaves, treedef = jax.tree.flatten(args)
-
-    def program(*arrays):
-        return fn(*jax.tree.unflatten(treedef, arrays), **static)
-
-    program.__name__ = program.__qualname__ = f"gfjax_aot_{getattr(fn, '__name__', 'program')}"
+    program, leaves = _leaf_program(fn, args, static)
     lowered = jax.jit(program).lower(*leaves)
     if "custom_call" in lowered.as_text():
         return None, False
