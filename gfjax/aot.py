@@ -15,7 +15,7 @@ compilation cache, and `enable(folder)` does so in a notebook or a batch script.
 imports JAX only when a program is called (`gfjax info` stays fast).
 
 The key of a program: `fn`'s module and name, the static keyword arguments (their `repr`),
-each argument's shape and dtype, the JAX and jaxlib versions, the backend and device kind,
+each argument's shape, dtype and weak type, the JAX and jaxlib versions, the backend and device kind,
 the host CPU (machine and instruction-set flags: an executable is machine code), `XLA_FLAGS`,
 the JAX options that change tracing, and a hash of the gfjax source files, so a change of
 code, library or machine never runs a stale program. Arguments must be concrete (numpy or JAX
@@ -126,7 +126,7 @@ def program_key(fn: Callable, args: tuple, static: dict, tag=None) -> str:
     import numpy as np
 
     leaves, treedef = jax.tree.flatten(args)
-    signature = [f"{np.shape(a)}:{_dtype(a)}" for a in leaves]
+    signature = [f"{np.shape(a)}:{_dtype(a)}:{'weak' if getattr(a, 'weak_type', False) else ''}" for a in leaves]
     options = {name: getattr(jax.config, name) for name in
                ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_dtype_promotion")}
     name = repr(tag) if tag is not None else f"{fn.__module__}.{getattr(fn, '__qualname__', fn.__name__)}"

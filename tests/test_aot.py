@@ -98,6 +98,9 @@ def test_key_follows_shapes_dtypes_and_static_arguments():
     assert key != aot.program_key(scale_and_sum, _args(6), {"factor": 2})
     assert key != aot.program_key(scale_and_sum, _args(5, np.float64), {"factor": 2})
     assert key != aot.program_key(scale_and_sum, _args(5), {"factor": 3})
+    x, mask = _args(5)
+    strong, weak = jnp.asarray(np.float32(2.0)), jnp.asarray(2.0)     # float32 both; weak type differs
+    assert aot.program_key(scale_and_sum, (x, strong), {}) != aot.program_key(scale_and_sum, (x, weak), {})
 
 
 def test_one_file_per_program(folder):
