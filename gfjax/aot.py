@@ -6,7 +6,7 @@ it. For DMF on an 824 k point tile that was 0.5 s of a 1.7 s process. `call(fn, 
 **static)` pays it once: the program `fn(*args, **static)` is compiled (outside JAX's
 compilation cache, see `_compile_fresh`), its executable serialized into `folder`
 (`jax.experimental.serialize_executable`), and later processes load it and call it: no
-tracing, no lowering, no hashing. A program with XLA custom calls (LAPACK, FFT) is exported
+tracing, no lowering, no hashing. A program with XLA custom calls (LAPACK on CPU) is exported
 instead (`jax.export`, StableHLO): a later process skips tracing and lowers a thin wrapper,
 and compiles through JAX's persistent cache.
 
@@ -18,16 +18,20 @@ The key of a program: `fn`'s module and name, the static keyword arguments (thei
 each argument's shape, dtype and weak type, the JAX and jaxlib versions, the backend and device kind,
 the host CPU (machine and instruction-set flags: an executable is machine code), `XLA_FLAGS`,
 the JAX options that change tracing, and a hash of the gfjax source files, so a change of
-code, library or machine never runs a stale program. Arguments must be concrete (numpy or JAX
-arrays, numpy scalars): under `jit`, `vmap` or `grad`, or with Python scalars, `call` is
-`fn(*args, **static)`. A missing, unreadable or stale artifact is compiled again; nothing
-here raises for a cache problem.
+gfjax code, JAX, jaxlib or machine never runs a stale program. Only module-level gfjax
+functions are cached by name; a closure or `functools.partial` needs a `tag` naming all it
+binds (gfjax's callers give one), and anything else takes plain jit. Arguments must be
+concrete (numpy or JAX arrays, numpy scalars): under `jit`, `vmap` or `grad`, `call` is
+`fn(*args, **static)`. A missing, unreadable or stale artifact is compiled again; a program
+that cannot be stored (custom calls that cannot be exported, an output pytree that does not
+survive pickling) leaves a marker and runs through plain jit in later processes.
 
-The files hold pickled pytree definitions next to the executable: like JAX's own cache, the
-folder must be writable by its user only (files are created with mode 0600).
+The files hold pickled pytree definitions next to the executable, so `enable` refuses a
+folder that other users can write (it creates it with mode 0700; files are 0600).
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.util
 import os
@@ -53,12 +57,17 @@ _lock = threading.Lock()        # one compile at a time (`_compile_fresh`)
 
 
 def enable(folder: str | os.PathLike) -> Path | None:
-    """Keep compiled programs in `folder` (created if needed). Returns it, or None (and the
-    cache stays off) when it cannot be created."""
+    """Keep compiled programs in `folder` (created with mode 0700 if needed). Returns it, or
+    None (and the cache stays off) when it cannot be created, is not writable, or is not
+    private to this user (the files are unpickled: a folder others can write is refused)."""
     folder = Path(folder)
     try:
-        folder.mkdir(parents=True, exist_ok=True)
+        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+        stat = folder.stat()
     except OSError:
+        return None
+    if not os.access(folder, os.W_OK | os.X_OK) or stat.st_mode & 0o022 or (
+            hasattr(os, "geteuid") and stat.st_uid != os.geteuid()):
         return None
     _state["folder"] = folder
     return folder
@@ -99,8 +108,15 @@ def _fingerprint() -> str:
         for path in sorted(root.rglob("*.py")):
             digest.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
         device = jax.devices()[0]
+        try:
+            from jax.extend import backend as jax_backend
+
+            platform_version = jax_backend.get_backend().platform_version
+        except Exception:  # pragma: no cover (another JAX)
+            platform_version = ""
         for part in (jax.__version__, jaxlib.__version__, device.platform, device.device_kind,
-                     platform.machine(), _cpu_flags(), os.environ.get("XLA_FLAGS", "")):
+                     platform_version, platform.machine(), _cpu_flags(),
+                     os.environ.get("XLA_FLAGS", ""), importlib.util.find_spec("flatbuffers") is not None):
             digest.update(str(part).encode() + b"\0")
         _state["fingerprint"] = digest.hexdigest()
     return _state["fingerprint"]
@@ -119,6 +135,37 @@ def _dtype(x):
     return np.dtype(x.dtype) if hasattr(x, "dtype") else np.result_type(x)
 
 
+def _name(fn) -> str | None:
+    return getattr(fn, "__qualname__", None) or getattr(fn, "__name__", None)
+
+
+def _cacheable(fn, tag) -> bool:
+    """A program the key can tell apart: tagged, or a module-level gfjax function (its code is
+    in the fingerprint). Closures, partials and functions from elsewhere take plain jit."""
+    if tag is not None:
+        return True
+    name, module = _name(fn), getattr(fn, "__module__", None) or ""
+    return bool(name) and "<locals>" not in name and (module == "gfjax" or module.startswith("gfjax."))
+
+
+def _trace_options() -> str:
+    """The JAX options that enter jit's own cache key (default device, PRNG, x64, promotion,
+    ...), or, should that private tuple move or show object addresses, the main ones."""
+    import jax
+
+    try:
+        from jax._src import config as jax_config
+
+        text = repr(jax_config.trace_context())
+        if " at 0x" not in text:
+            return text
+    except Exception:  # pragma: no cover (another JAX)
+        pass
+    names = ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_dtype_promotion", "jax_default_device",
+             "jax_threefry_partitionable", "jax_default_prng_impl")
+    return repr([(name, getattr(jax.config, name, None)) for name in names])
+
+
 def program_key(fn: Callable, args: tuple, static: dict, tag=None) -> str:
     """The cache key of `fn(*args, **static)` (hex sha256; see the module docstring). `tag`,
     when given, names the program instead of `fn`'s module and name."""
@@ -126,12 +173,10 @@ def program_key(fn: Callable, args: tuple, static: dict, tag=None) -> str:
     import numpy as np
 
     leaves, treedef = jax.tree.flatten(args)
-    signature = [f"{np.shape(a)}:{_dtype(a)}:{'weak' if getattr(a, 'weak_type', False) else ''}" for a in leaves]
-    options = {name: getattr(jax.config, name) for name in
-               ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_dtype_promotion")}
-    name = repr(tag) if tag is not None else f"{fn.__module__}.{getattr(fn, '__qualname__', fn.__name__)}"
-    parts = [name, repr(sorted(static.items())), str(treedef), ";".join(signature), repr(sorted(options.items())),
-             _fingerprint()]
+    signature = [f"{np.shape(a)}:{_dtype(a)}:{'weak' if getattr(a, 'weak_type', False) else ''}:"
+                 f"{a.sharding if isinstance(a, jax.Array) and a.committed else ''}" for a in leaves]
+    name = repr(tag) if tag is not None else f"{fn.__module__}.{_name(fn)}"
+    parts = [name, repr(sorted(static.items())), str(treedef), ";".join(signature), _trace_options(), _fingerprint()]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
@@ -141,32 +186,61 @@ def _load(path: Path):
     try:
         payload = pickle.loads(path.read_bytes())
         compiled = serialize_executable.deserialize_and_load(*payload)
-        os.utime(path)                                      # least recently used goes first
-        return compiled
     except Exception:                                       # unreadable or stale: compile again
         return None
+    _touch(path)
+    return compiled
 
 
-def _store(compiled, folder: Path, key: str) -> None:
+def _touch(path: Path) -> None:
+    try:
+        os.utime(path)                                      # least recently used goes first
+    except OSError:
+        pass
+
+
+def _store(compiled, folder: Path, key: str) -> bool:
+    """Store `compiled`; False when it cannot be (its output pytree does not survive pickling,
+    e.g. an equinox module, or the folder cannot be written)."""
     from jax.experimental import serialize_executable
 
     try:
-        blob = pickle.dumps(serialize_executable.serialize(compiled), protocol=pickle.HIGHEST_PROTOCOL)
+        payload = serialize_executable.serialize(compiled)
+        blob = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
+        if not _tree_survives(payload[2]):
+            return False
     except Exception:                                       # a program that cannot be stored is no error
-        return
-    _write(folder, f"{key}{_SUFFIX}", blob)
+        return False
+    return _write(folder, f"{key}{_SUFFIX}", blob)
 
 
-def _write(folder: Path, name: str, blob: bytes) -> None:
-    """Write `folder / name` atomically (readers never see half a file), then prune."""
+def _tree_survives(tree) -> bool:
+    """Whether a pytree definition unflattens again after pickling (an equinox module's does
+    not: its pickled definition holds a sentinel)."""
+    try:
+        pickle.loads(pickle.dumps(tree)).unflatten([0] * tree.num_leaves)
+        return True
+    except Exception:
+        return False
+
+
+def _write(folder: Path, name: str, blob: bytes) -> bool:
+    """Write `folder / name` atomically (readers never see half a file), then prune. Returns
+    whether it was written; a failed write leaves no temporary file."""
+    tmp = None
     try:
         fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name[:16]}.", suffix=".tmp")
         with os.fdopen(fd, "wb") as file:
             file.write(blob)
         os.replace(tmp, folder / name)
-        _prune(folder)
     except Exception:                                       # a cache that cannot be written is no error
-        return
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        return False
+    with contextlib.suppress(Exception):
+        _prune(folder)
+    return True
 
 
 def _prune(folder: Path) -> None:
@@ -203,7 +277,8 @@ def call(fn: Callable, *args, tag=None, **static):
     import jax
 
     folder = _state["folder"]
-    if folder is None or jax.config.jax_disable_jit or not all(_concrete(a) for a in jax.tree.leaves(args)):
+    if (folder is None or jax.config.jax_disable_jit or not _cacheable(fn, tag)
+            or not all(_concrete(a) for a in jax.tree.leaves(args))):
         return fn(*args, **static)
     key = program_key(fn, args, static, tag)
     compiled = _loaded.get(key)
@@ -223,7 +298,7 @@ def prefetch(fn: Callable, *specs, tag=None, **static) -> None:
       specs: `jax.ShapeDtypeStruct` (or arrays) standing for the positional arguments.
     """
     folder = _state["folder"]
-    if folder is None:
+    if folder is None or not _cacheable(fn, tag):
         return
     key = program_key(fn, specs, static, tag)
     if key not in _loaded and key not in _plain:
@@ -245,15 +320,14 @@ def _load_or_compile(fn, args, static, folder: Path, key: str):
         compiled, fresh = _compile_fresh(fn, args, static)
         if compiled is not None:
             program = compiled
-            if fresh:
-                _store(compiled, folder, key)
+            if fresh and not _store(compiled, folder, key):     # later processes: plain jit,
+                _write_marker(marker)                           # through JAX's cache
         else:                                               # custom calls: exported StableHLO
             program, blob = _export(fn, args, static)
-            if program is None:
+            if program is None or not _write(folder, exported.name, blob):
                 _plain.add(key)
                 _write_marker(marker)
                 return None
-            _write(folder, exported.name, blob)
     _loaded[key] = program
     return program
 
@@ -276,6 +350,8 @@ def _export(fn, args, static):
         specs = [jax.ShapeDtypeStruct(np.shape(a), _dtype(a)) for a in leaves]
         exported = export.export(jax.jit(program))(*specs)
         blob = pickle.dumps((bytes(exported.serialize()), out["tree"]), protocol=pickle.HIGHEST_PROTOCOL)
+        if not _tree_survives(out["tree"]):
+            return None, None
     except Exception:
         return None, None
     return _exported_program(exported, out["tree"]), blob
@@ -293,15 +369,15 @@ def _load_exported(path: Path):
     try:
         blob, tree = pickle.loads(path.read_bytes())
         program = _exported_program(export.deserialize(bytearray(blob)), tree)
-        os.utime(path)
-        return program
     except Exception:                                       # unreadable or stale: build again
         return None
+    _touch(path)
+    return program
 
 
 def _write_marker(marker: Path) -> None:
     try:
-        marker.touch()
+        marker.touch(mode=0o600)
     except OSError:                                         # a cache that cannot be written is no error
         pass
 
@@ -321,7 +397,7 @@ def _leaf_program(fn, args, static, *, out: dict | None = None):
         flat, out["tree"] = jax.tree.flatten(result)
         return flat
 
-    program.__name__ = program.__qualname__ = f"gfjax_aot_{getattr(fn, '__name__', 'program')}"
+    program.__name__ = program.__qualname__ = f"gfjax_aot_{(_name(fn) or 'program').replace('.', '_')}"
     return program, leaves
 
 
@@ -331,9 +407,10 @@ def _compile_fresh(fn, args, static):
     An executable that JAX loaded from its cache serializes incompletely (jaxlib 0.10.2, CPU:
     a later process fails with "Function ... not found"), so the program is lowered under a
     name of its own (`gfjax_aot_<name>`: its own cache key, never an entry written by plain
-    `jit`) and compiled with cache writes off, so its key never enters that cache either.
+    `jit`) and compiled with cache writes off for this thread, so its key never enters that
+    cache either.
     The stored program takes the leaves of `args` (a pickled pytree definition of, say, an
-    equinox module does not unflatten again). A program with XLA custom calls (LAPACK, FFT:
+    equinox module does not unflatten again). A program with XLA custom calls (LAPACK on CPU:
     bound to the compiling process) is not compiled here: its executable crashes when run in
     another process (SMRF's harmonic fill, jaxlib 0.10.2 CPU: a segmentation fault).
 
@@ -348,13 +425,23 @@ def _compile_fresh(fn, args, static):
         return None, False
     _watch_cache_hits()
     _hits.count = 0
-    with _lock:                       # the option is global: one compile at a time changes it
-        before = jax.config.jax_persistent_cache_min_compile_time_secs
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", float("inf"))
-        try:
+    try:                              # this thread only: other threads keep writing the cache
+        from jax._src import config as jax_config
+
+        no_writes = jax_config.persistent_cache_min_compile_time_secs(float("inf"))
+    except Exception:  # pragma: no cover (another JAX: the global option, one compile at a time)
+        no_writes = None
+    if no_writes is not None:
+        with no_writes:
             compiled = lowered.compile()
-        finally:
-            jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
+    else:  # pragma: no cover
+        with _lock:
+            before = jax.config.jax_persistent_cache_min_compile_time_secs
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", float("inf"))
+            try:
+                compiled = lowered.compile()
+            finally:
+                jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
     return compiled, _hits.count == 0
 
 

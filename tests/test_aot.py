@@ -30,6 +30,11 @@ def scale_and_sum(x, mask, *, factor: int = 2) -> Pair:
     return Pair(scaled=x * factor, total=jnp.sum(jnp.where(mask, x, 0)))
 
 
+def _call(fn, *args, **static):
+    """`aot.call` for this module's functions: not gfjax's, so they need a tag."""
+    return aot.call(fn, *args, tag=("tests.test_aot", fn.__name__), **static)
+
+
 @pytest.fixture
 def folder(tmp_path):
     out = aot.enable(tmp_path / "export")
@@ -56,13 +61,13 @@ def _same(a, b):
 
 def test_off_by_default_is_the_plain_call(tmp_path):
     assert aot.enabled_folder() is None
-    out = aot.call(scale_and_sum, *_args(), factor=3)
+    out = _call(scale_and_sum, *_args(), factor=3)
     _same(out, scale_and_sum(*_args(), factor=3))
 
 
 def test_compiles_once_then_loads_from_disk(folder, monkeypatch):
     expected = scale_and_sum(*_args(), factor=3)
-    _same(aot.call(scale_and_sum, *_args(), factor=3), expected)
+    _same(_call(scale_and_sum, *_args(), factor=3), expected)
     assert len(_files(folder)) == 1
     aot._loaded.clear()                                   # as a new process would start
 
@@ -70,7 +75,7 @@ def test_compiles_once_then_loads_from_disk(folder, monkeypatch):
         raise AssertionError("the stored program should have been loaded")
 
     monkeypatch.setattr(jax.stages.Lowered, "compile", no_compile)
-    _same(aot.call(scale_and_sum, *_args(), factor=3), expected)
+    _same(_call(scale_and_sum, *_args(), factor=3), expected)
 
 
 def test_a_new_process_loads_the_stored_program(folder):
@@ -83,7 +88,7 @@ def test_a_new_process_loads_the_stored_program(folder):
         "aot.enable(sys.argv[1])\n"
         "if sys.argv[3] == 'second':\n"
         "    jax.stages.Lowered.compile = None\n"
-        "out = aot.call(t.scale_and_sum, *t._args(7), factor=4)\n"
+        "out = t._call(t.scale_and_sum, *t._args(7), factor=4)\n"
         "print(type(out).__name__, np.asarray(out.scaled).tolist(), int(out.total))\n")
     here = os.path.dirname(__file__)
     runs = [subprocess.run([sys.executable, "-c", script, str(folder), here, which], capture_output=True, text=True,
@@ -105,16 +110,16 @@ def test_key_follows_shapes_dtypes_and_static_arguments():
 
 def test_one_file_per_program(folder):
     for n, factor in ((5, 2), (5, 3), (6, 2), (5, 2)):
-        _same(aot.call(scale_and_sum, *_args(n), factor=factor), scale_and_sum(*_args(n), factor=factor))
+        _same(_call(scale_and_sum, *_args(n), factor=factor), scale_and_sum(*_args(n), factor=factor))
     assert len(_files(folder)) == 3
 
 
 def test_corrupt_artifact_is_compiled_again(folder):
-    aot.call(scale_and_sum, *_args(), factor=3)
+    _call(scale_and_sum, *_args(), factor=3)
     (path,) = _files(folder)
     path.write_bytes(b"not a program")
     aot._loaded.clear()
-    _same(aot.call(scale_and_sum, *_args(), factor=3), scale_and_sum(*_args(), factor=3))
+    _same(_call(scale_and_sum, *_args(), factor=3), scale_and_sum(*_args(), factor=3))
     assert path.stat().st_size > 100
 
 
@@ -123,18 +128,18 @@ def test_unwritable_folder_is_no_error(folder, monkeypatch):
         raise PermissionError("read-only cache")
 
     monkeypatch.setattr(aot.tempfile, "mkstemp", refuse)
-    _same(aot.call(scale_and_sum, *_args(), factor=5), scale_and_sum(*_args(), factor=5))
+    _same(_call(scale_and_sum, *_args(), factor=5), scale_and_sum(*_args(), factor=5))
     assert _files(folder) == []
 
 
 def test_traced_arguments_take_the_plain_path(folder):
     """Under jit, vmap and grad the arguments are tracers: `call` is `fn(*args)`, no file."""
     x, mask = _args()
-    jitted = jax.jit(lambda a: aot.call(scale_and_sum, a, mask, factor=2).total)
+    jitted = jax.jit(lambda a: _call(scale_and_sum, a, mask, factor=2).total)
     assert float(jitted(x)) == float(scale_and_sum(x, mask).total)
-    batched = jax.vmap(lambda a: aot.call(scale_and_sum, a, mask, factor=2).scaled)(np.stack([x, x + 1]))
+    batched = jax.vmap(lambda a: _call(scale_and_sum, a, mask, factor=2).scaled)(np.stack([x, x + 1]))
     np.testing.assert_array_equal(batched, np.stack([x * 2, (x + 1) * 2]))
-    grad = jax.grad(lambda a: aot.call(scale_and_sum, a, mask, factor=2).total)(x)
+    grad = jax.grad(lambda a: _call(scale_and_sum, a, mask, factor=2).total)(x)
     np.testing.assert_array_equal(grad, mask.astype(np.float32))
     assert _files(folder) == []
 
@@ -142,20 +147,20 @@ def test_traced_arguments_take_the_plain_path(folder):
 def test_least_recently_used_are_pruned(folder, monkeypatch):
     monkeypatch.setattr(aot, "MAX_FILES", 2)
     for n in (3, 4, 5, 6):
-        aot.call(scale_and_sum, *_args(n), factor=2)
+        _call(scale_and_sum, *_args(n), factor=2)
     assert len(_files(folder)) == 2
     newest = {p.name for p in _files(folder)}
     aot._loaded.clear()
-    aot.call(scale_and_sum, *_args(6), factor=2)               # a load refreshes its file
-    aot.call(scale_and_sum, *_args(7), factor=2)
+    _call(scale_and_sum, *_args(6), factor=2)               # a load refreshes its file
+    _call(scale_and_sum, *_args(7), factor=2)
     assert len(_files(folder)) == 2 and len(newest & {p.name for p in _files(folder)}) == 1
 
 
 def test_pruned_to_the_byte_bound(folder, monkeypatch):
-    aot.call(scale_and_sum, *_args(3), factor=2)
+    _call(scale_and_sum, *_args(3), factor=2)
     (first,) = _files(folder)
     monkeypatch.setattr(aot, "MAX_BYTES", int(first.stat().st_size * 1.5))
-    aot.call(scale_and_sum, *_args(4), factor=2)
+    _call(scale_and_sum, *_args(4), factor=2)
     assert len(_files(folder)) == 1 and not first.exists()
 
 
@@ -210,7 +215,7 @@ def test_an_executable_from_jax_cache_is_not_stored(folder, monkeypatch):
         return compile_(self, *args, **kwargs)
 
     monkeypatch.setattr(jax.stages.Lowered, "compile", from_cache)
-    _same(aot.call(scale_and_sum, *_args(9), factor=2), scale_and_sum(*_args(9), factor=2))
+    _same(_call(scale_and_sum, *_args(9), factor=2), scale_and_sum(*_args(9), factor=2))
     assert _files(folder) == []
 
 
@@ -248,14 +253,16 @@ def test_stored_programs_run_in_a_new_process_when_jax_cache_is_warm(tmp_path):
 
 def test_prefetch_loads_what_call_runs(folder, monkeypatch):
     spec = jax.ShapeDtypeStruct
-    aot.prefetch(scale_and_sum, spec((4,), np.float32), spec((4,), np.bool_), factor=3)
+    aot.prefetch(scale_and_sum, spec((4,), np.float32), spec((4,), np.bool_), factor=3,
+                 tag=("tests.test_aot", "scale_and_sum"))
     assert len(_files(folder)) == 1 and len(aot._loaded) == 1
     monkeypatch.setattr(jax.stages.Lowered, "compile", lambda *_, **__: pytest.fail("prefetched program compiled again"))
-    _same(aot.call(scale_and_sum, *_args(4), factor=3), scale_and_sum(*_args(4), factor=3))
+    _same(_call(scale_and_sum, *_args(4), factor=3), scale_and_sum(*_args(4), factor=3))
 
 
 def test_prefetch_is_nothing_when_off(tmp_path):
-    aot.prefetch(scale_and_sum, jax.ShapeDtypeStruct((4,), np.float32), jax.ShapeDtypeStruct((4,), np.bool_))
+    aot.prefetch(scale_and_sum, jax.ShapeDtypeStruct((4,), np.float32), jax.ShapeDtypeStruct((4,), np.bool_),
+                 tag=("tests.test_aot", "scale_and_sum"))
     assert aot._loaded == {}
 
 
@@ -269,12 +276,12 @@ def test_program_with_custom_calls_is_exported(folder, monkeypatch):
     program is kept as exported StableHLO instead, and a new process skips its tracing."""
     a = np.array([[3.0, 1.0], [1.0, 2.0]], np.float32)
     b = np.array([9.0, 8.0], np.float32)
-    np.testing.assert_allclose(aot.call(solve, a, b), np.linalg.solve(a, b), rtol=1e-6)
+    np.testing.assert_allclose(_call(solve, a, b), np.linalg.solve(a, b), rtol=1e-6)
     assert _files(folder) == [] and len(_files(folder, "export")) == 1
     aot._loaded.clear()                                   # as a new process would start
     monkeypatch.setattr(jax.export, "export", lambda *_, **__: pytest.fail("the stored export should be loaded"))
     monkeypatch.setattr(aot, "_compile_fresh", lambda *_: pytest.fail("the stored export should be loaded"))
-    np.testing.assert_allclose(aot.call(solve, a, b), np.linalg.solve(a, b), rtol=1e-6)
+    np.testing.assert_allclose(_call(solve, a, b), np.linalg.solve(a, b), rtol=1e-6)
 
 
 def test_program_that_cannot_be_stored_runs_through_plain_jit(folder, monkeypatch):
@@ -284,11 +291,11 @@ def test_program_that_cannot_be_stored_runs_through_plain_jit(folder, monkeypatc
     monkeypatch.setattr(aot.importlib.util, "find_spec", lambda name: None if name == "flatbuffers" else real(name))
     a = np.array([[2.0, 0.0], [0.0, 4.0]], np.float32)
     b = np.array([2.0, 8.0], np.float32)
-    np.testing.assert_allclose(aot.call(solve, a, b), [1.0, 2.0], rtol=1e-6)
+    np.testing.assert_allclose(_call(solve, a, b), [1.0, 2.0], rtol=1e-6)
     assert _files(folder) == [] and _files(folder, "export") == [] and len(_files(folder, "plain")) == 1
     aot._plain.clear()
     monkeypatch.setattr(aot, "_compile_fresh", lambda *_: pytest.fail("the marker should skip the compile"))
-    np.testing.assert_allclose(aot.call(solve, a, b), [1.0, 2.0], rtol=1e-6)
+    np.testing.assert_allclose(_call(solve, a, b), [1.0, 2.0], rtol=1e-6)
 
 
 @pytest.mark.parametrize("method, stored", [("smrf", (2, 1)), ("pmf", (1, 0)), ("csf", (1, 0))])
@@ -306,3 +313,53 @@ def test_method_through_the_cache_equals_the_plain_call(folder, method, stored):
     loaded = module.filter(cloud)
     for result in (first, loaded):
         np.testing.assert_array_equal(result.ground, plain.ground)
+
+
+def test_functions_the_key_cannot_tell_apart_take_plain_jit(folder):
+    """Untagged functions from outside gfjax, closures and partials: their code or what they
+    bind is not in the key, so they run through plain jit and nothing is stored."""
+    def make(k):
+        return jax.jit(lambda x: x * k)
+
+    x = np.ones(3, np.float32)
+    np.testing.assert_array_equal(aot.call(scale_and_sum, x, x > 0).scaled, x * 2)
+    np.testing.assert_array_equal(aot.call(make(3), x), x * 3)
+    np.testing.assert_array_equal(aot.call(make(4), x), x * 4)
+    np.testing.assert_array_equal(aot.call(jax.jit(functools.partial(scale_and_sum, factor=5)), x, x > 0).scaled, x * 5)
+    assert list(folder.iterdir()) == []
+
+
+def test_output_that_does_not_survive_pickling_is_not_stored(folder):
+    """An equinox module's pickled pytree definition does not unflatten again: such a
+    program runs, and later processes take plain jit (a marker says so)."""
+    import equinox as eqx
+
+    class Box(eqx.Module):
+        value: jax.Array
+
+    @jax.jit
+    def boxed(x):
+        return Box(x * 2)
+
+    out = aot.call(boxed, np.ones(2, np.float32), tag=("tests.test_aot", "boxed"))
+    np.testing.assert_array_equal(out.value, [2.0, 2.0])
+    assert _files(folder) == [] and len(_files(folder, "plain")) == 1
+
+
+def test_folder_others_can_write_is_refused(tmp_path):
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o777)
+    assert aot.enable(shared) is None and aot.enabled_folder() is None
+    private = aot.enable(tmp_path / "private")
+    assert private is not None and private.stat().st_mode & 0o777 == 0o700
+    aot.disable()
+
+
+def test_failed_write_leaves_no_temporary_file(folder, monkeypatch):
+    def full(*_, **__):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(aot.os, "replace", full)
+    _same(_call(scale_and_sum, *_args(3), factor=2), scale_and_sum(*_args(3), factor=2))
+    assert [p.name for p in folder.iterdir() if p.name.endswith(".tmp")] == []

@@ -116,7 +116,7 @@ def export_cache_folder() -> Path | None:
 
 def enable_compilation_cache() -> Path | None:
     """Turn on JAX's persistent compilation cache in `cache_folder()` (before any compile), and
-    gfjax's cache of exported programs (`gfjax.aot`) beside it, in `export_cache_folder()`.
+    gfjax's cache of compiled programs (`gfjax.aot`) beside it, in `export_cache_folder()`.
 
     Every compiled program is kept (`min_compile_time_secs = 0`), up to `CACHE_SIZE_BYTES`
     (JAX needs the `filelock` package to enforce that bound; without it the cache is unbounded).
