@@ -181,22 +181,22 @@ def program_key(fn: Callable, args: tuple, static: dict, tag=None) -> str:
 
 
 def _load(path: Path):
+    """The stored executable at `path`, or None (unreadable or stale: compile again)."""
     from jax.experimental import serialize_executable
 
+    return _read(path, lambda payload: serialize_executable.deserialize_and_load(*payload))
+
+
+def _read(path: Path, build):
+    """`build(unpickled contents of path)`, or None when that fails; a hit refreshes the
+    file's time (least recently used files go first)."""
     try:
-        payload = pickle.loads(path.read_bytes())
-        compiled = serialize_executable.deserialize_and_load(*payload)
-    except Exception:                                       # unreadable or stale: compile again
+        program = build(pickle.loads(path.read_bytes()))
+    except Exception:
         return None
-    _touch(path)
-    return compiled
-
-
-def _touch(path: Path) -> None:
-    try:
-        os.utime(path)                                      # least recently used goes first
-    except OSError:
-        pass
+    with contextlib.suppress(OSError):
+        os.utime(path)
+    return program
 
 
 def _store(compiled, folder: Path, key: str) -> bool:
@@ -277,8 +277,8 @@ def call(fn: Callable, *args, tag=None, **static):
     import jax
 
     folder = _state["folder"]
-    if (folder is None or jax.config.jax_disable_jit or not _cacheable(fn, tag)
-            or not all(_concrete(a) for a in jax.tree.leaves(args))):
+    leaves = jax.tree.leaves(args)
+    if folder is None or jax.config.jax_disable_jit or not _cacheable(fn, tag) or not all(map(_concrete, leaves)):
         return fn(*args, **static)
     key = program_key(fn, args, static, tag)
     compiled = _loaded.get(key)
@@ -286,7 +286,7 @@ def call(fn: Callable, *args, tag=None, **static):
         compiled = _load_or_compile(fn, args, static, folder, key)
     if compiled is None:                                    # not storable: plain jit
         return fn(*args, **static)
-    return compiled(*jax.tree.leaves(args))
+    return compiled(*leaves)
 
 
 def prefetch(fn: Callable, *specs, tag=None, **static) -> None:
@@ -364,22 +364,15 @@ def _exported_program(exported, tree):
 
 
 def _load_exported(path: Path):
+    """The exported program at `path`, or None (unreadable or stale: build again)."""
     from jax import export
 
-    try:
-        blob, tree = pickle.loads(path.read_bytes())
-        program = _exported_program(export.deserialize(bytearray(blob)), tree)
-    except Exception:                                       # unreadable or stale: build again
-        return None
-    _touch(path)
-    return program
+    return _read(path, lambda payload: _exported_program(export.deserialize(bytearray(payload[0])), payload[1]))
 
 
 def _write_marker(marker: Path) -> None:
-    try:
+    with contextlib.suppress(OSError):                      # a cache that cannot be written is no error
         marker.touch(mode=0o600)
-    except OSError:                                         # a cache that cannot be written is no error
-        pass
 
 
 def _leaf_program(fn, args, static, *, out: dict | None = None):

@@ -117,13 +117,13 @@ def _dispatch_raster_stages(z, layer, valid, cell_m, config, *, progress=False):
     asynchronous jitted call, so host work between the halves overlaps its execution; a tiled
     raster (host steps between batches) is done at once."""
     h, w = z.shape
-    core = max(1, math.ceil(config.raster_tile_m / cell_m))
+    core = _tile_core_px(cell_m, config)
     buf = math.ceil(config.raster_buffer_m / cell_m)
     kwargs = stage_options(config)
     w_m = np.float32(cell_m)                 # host scalars and arrays go to the jitted calls as
     share = np.float32(config.rc_min_share)  # numpy: no conversion program compiles or runs
-    if h <= core and w <= core:
-        shape = (_round_up(h, SHAPE_QUANTUM_PX), _round_up(w, SHAPE_QUANTUM_PX))
+    shape = _one_tile_shape((h, w), cell_m, config)
+    if shape is not None:
         out = aot.call(stages.raster_stages, *_pad_tile(z, layer, valid, shape), w_m, share, **kwargs)
         return lambda: stages.RasterStages(*[np.asarray(a)[:h, :w] if np.ndim(a) == 2 else np.asarray(a) for a in out])
     windows = []
@@ -173,6 +173,20 @@ def stage_options(config: Config) -> dict:
                 border_patches=config.border_patches, hole_test=config.hole_test, close_all=config.close_all)
 
 
+def _tile_core_px(cell_m: float, config: Config) -> int:
+    """Side of a raster tile's core [px]."""
+    return max(1, math.ceil(config.raster_tile_m / cell_m))
+
+
+def _one_tile_shape(shape: tuple[int, int], cell_m: float, config: Config) -> tuple[int, int] | None:
+    """The padded shape of an NGNEM of `shape` that fits one tile, or None (it is tiled)."""
+    h, w = shape
+    core = _tile_core_px(cell_m, config)
+    if h > core or w > core:
+        return None
+    return _round_up(h, SHAPE_QUANTUM_PX), _round_up(w, SHAPE_QUANTUM_PX)
+
+
 def _pad_tile(z, layer, valid, shape):
     h, w = z.shape
     pad = ((0, shape[0] - h), (0, shape[1] - w))
@@ -214,11 +228,9 @@ def _voxels(local: np.ndarray, config: Config, worker) -> tuple[cKDTree | None, 
 
 def _prefetch_raster_program(shape: tuple[int, int], cell_m: float, config: Config) -> None:
     """`gfjax.aot.prefetch` of the raster stages for an NGNEM of `shape` (one tile only)."""
-    h, w = shape
-    core = max(1, math.ceil(config.raster_tile_m / cell_m))
-    if h > core or w > core:
+    padded = _one_tile_shape(shape, cell_m, config)
+    if padded is None:
         return
-    padded = (_round_up(h, SHAPE_QUANTUM_PX), _round_up(w, SHAPE_QUANTUM_PX))
     spec = jax.ShapeDtypeStruct
     aot.prefetch(stages.raster_stages, spec(padded, np.float32), spec(padded, np.int32), spec(padded, np.bool_),
                  spec(padded, np.bool_), spec((), np.float32), spec((), np.float32), **stage_options(config))
