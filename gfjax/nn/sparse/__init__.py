@@ -1,0 +1,49 @@
+"""Sparse 3D convolution in plain JAX: voxel sets, kernel maps, convolutions, equinox layers.
+
+MinkowskiEngine-style sparse convolution (Choy et al. 2019) for networks on point clouds,
+with no CUDA extension: every function is jit-able, differentiable and vmap-able, on CPU or
+GPU alike.
+
+- `SparseTensor`, `voxelize`, `devoxelize`: occupied voxels with features, padded to a
+  static capacity with a `valid` mask; points to voxels (mean features) and back.
+- `submanifold_map`, `downsample`, `strided_map`, `KernelMap.transpose`: the (input row,
+  output row, offset) pairs of a convolution, found by sorting packed coordinate keys and a
+  binary search (`keys`), grouped by offset in blocks.
+- `sparse_conv`: gather -> matmul -> scatter-add over a map; only neighbours that exist cost
+  multiply-adds.
+- `plan_pyramid`, `build_pyramid`: every map of a U-Net, built once per forward pass.
+- `SparseConv3d`, `SparseGroupNorm`, `SparseResBlock`, `SparseLinear`: equinox layers.
+
+```python
+>>> import equinox as eqx, jax, jax.numpy as jnp
+>>> from gfjax.nn import sparse
+>>> xyz = jax.random.uniform(jax.random.key(0), (500, 3), maxval=8.0)     # metres
+>>> vox = sparse.voxelize(xyz, xyz, jnp.zeros(500, jnp.int32), voxel_m=1.0)
+>>> x = vox.tensor                                                         # <= 512 voxels, 3 features
+>>> kmap = sparse.submanifold_map(x.coords, x.valid, kernel_size=3)
+>>> block = sparse.SparseResBlock(3, 16, key=jax.random.key(1))
+>>> y = eqx.filter_jit(block)(x, kmap)
+>>> y.feats.shape
+(500, 16)
+>>> per_point = sparse.devoxelize(y.feats, vox.point_voxel)                # back to the 500 points
+>>> per_point.shape
+(500, 16)
+
+```
+"""
+from gfjax.nn.sparse.conv import sparse_conv
+from gfjax.nn.sparse.keys import BATCH_MAX, COORD_MAX, COORD_MIN
+from gfjax.nn.sparse.layers import SparseConv3d, SparseGroupNorm, SparseLinear, SparseResBlock, relu
+from gfjax.nn.sparse.maps import (KernelMap, downsample, kernel_offsets, neighbour_table, pairs_from_table,
+                                  pairs_per_offset, plan_blocks, strided_map, submanifold_map)
+from gfjax.nn.sparse.pyramid import Pyramid, PyramidPlan, build_pyramid, plan_pyramid
+from gfjax.nn.sparse.tensor import SparseTensor, Voxelized, devoxelize, voxelize
+
+__all__ = [
+    "BATCH_MAX", "COORD_MAX", "COORD_MIN",
+    "KernelMap", "Pyramid", "PyramidPlan", "SparseConv3d", "SparseGroupNorm", "SparseLinear", "SparseResBlock",
+    "SparseTensor", "Voxelized",
+    "build_pyramid", "devoxelize", "downsample", "kernel_offsets", "neighbour_table", "pairs_from_table",
+    "pairs_per_offset", "plan_blocks", "plan_pyramid", "relu", "sparse_conv", "strided_map", "submanifold_map",
+    "voxelize",
+]

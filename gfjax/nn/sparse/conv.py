@@ -1,0 +1,82 @@
+"""Sparse convolution as gather -> matmul -> scatter-add over a kernel map.
+
+    out[o] = sum over the map's pairs (i, o, d) of feats[i] @ weight[d]
+
+Only pairs whose input voxel exists are computed: the map (`gfjax.nn.sparse.maps`) lists
+them grouped by kernel offset in blocks of `block` rows, so one block is a dense
+`(block, c_in) @ (c_in, c_out)` product with a single weight. Padding pairs point at a zero
+row appended to the input and at a discarded row appended to the output.
+
+Two schedules, exact to each other (the same products added in the same order):
+
+- `chunk_blocks=None`: every block at once (one gather, one batched matmul, one scatter-add;
+  the fastest where `n_pairs * (c_in + c_out)` floats fit in memory);
+- `chunk_blocks=m`: a `lax.scan` over groups of `m` blocks, adding into the output as it
+  goes, so the working memory is `m * block` pairs whatever the map's size.
+
+The gradient is JAX's own: the gather transposes to a scatter-add into the input, the matmul
+to its two transposes. On CPU the scatter-adds are deterministic; on a GPU XLA's float
+scatter-add may not be.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+from jaxtyping import Array, Float
+
+from gfjax.nn.sparse.maps import KernelMap
+
+
+def sparse_conv(feats: Float[Array, "n_in c"], weight: Float[Array, "k c d"], kmap: KernelMap, *,
+                chunk_blocks: int | None = None) -> Float[Array, "n_out d"]:
+    """Apply a sparse convolution.
+
+    Args:
+      feats: `(n_in, c)` input features; rows absent from the map (padding) are never read.
+      weight: `(k, c, d)`, one matrix per kernel offset, `k = kmap.kernel_volume`.
+      kmap: the pairs (`submanifold_map`, `strided_map`, or one `.transpose()`d).
+      chunk_blocks: `None` for all blocks at once, or the number of blocks per scan step
+        (static).
+
+    Returns:
+      `(n_out, d)` features; rows with no pair (padding, isolated outputs of a strided map)
+      are 0.
+    """
+    feats, weight = jnp.asarray(feats), jnp.asarray(weight)
+    if feats.shape[0] != kmap.n_in:
+        raise ValueError(f"sparse_conv: feats has {feats.shape[0]} rows, the map expects {kmap.n_in}")
+    if weight.ndim != 3 or weight.shape[0] != kmap.kernel_volume or weight.shape[1] != feats.shape[1]:
+        raise ValueError(f"sparse_conv: weight must have shape ({kmap.kernel_volume}, {feats.shape[1]}, c_out), "
+                         f"got {weight.shape}")
+    c_out = weight.shape[2]
+    x = jnp.concatenate([feats, jnp.zeros((1, feats.shape[1]), feats.dtype)])      # row n_in = 0
+    block, n_blocks = kmap.block, kmap.n_blocks
+    if chunk_blocks is None or chunk_blocks >= n_blocks:
+        y = _blocks(x, weight, kmap.in_idx, kmap.block_offset, block)
+        out = jnp.zeros((kmap.n_out + 1, c_out), y.dtype).at[kmap.out_idx].add(y)
+        return out[:-1]
+    if chunk_blocks < 1:
+        raise ValueError(f"sparse_conv: chunk_blocks must be >= 1, got {chunk_blocks}")
+    n_steps = -(-n_blocks // chunk_blocks)
+    extra = n_steps * chunk_blocks - n_blocks                   # sentinel blocks to even the chunks
+    in_idx = jnp.concatenate([kmap.in_idx, jnp.full((extra * block,), kmap.n_in, jnp.int32)])
+    out_idx = jnp.concatenate([kmap.out_idx, jnp.full((extra * block,), kmap.n_out, jnp.int32)])
+    block_offset = jnp.concatenate([kmap.block_offset, jnp.zeros((extra,), jnp.int32)])
+
+    def step(out, chunk):
+        i, o, b = chunk
+        return out.at[o].add(_blocks(x, weight, i, b, block)), None
+
+    chunks = (in_idx.reshape(n_steps, -1), out_idx.reshape(n_steps, -1), block_offset.reshape(n_steps, -1))
+    dtype = jnp.result_type(feats.dtype, weight.dtype)
+    out, _ = lax.scan(step, jnp.zeros((kmap.n_out + 1, c_out), dtype), chunks)
+    return out[:-1]
+
+
+def _blocks(x, weight, in_idx, block_offset, block):
+    """Products of the pairs of some blocks, `(n_blocks * block, d)`."""
+    g = x[in_idx].reshape(block_offset.shape[0], block, x.shape[1])
+    y = jnp.einsum("nbc,ncd->nbd", g, weight[block_offset], preferred_element_type=g.dtype)
+    return y.reshape(-1, weight.shape[2])
+

@@ -1,0 +1,150 @@
+"""Equinox layers over `SparseTensor`s: convolution, group norm, residual block.
+
+Every layer takes the kernel map it runs on as an argument (built once per forward pass by
+`Pyramid`), so layers hold only parameters.
+
+Initialisation (He et al. 2015, "Delving deep into rectifiers"; what MinkowskiEngine and
+PyTorch's `kaiming_normal_(mode="fan_out")` use for convolutions before ReLU): weights
+`N(0, 2 / fan)` with `fan = kernel_volume * c_out` (fan-out; the transposed convolution
+uses the same rule on its own weight), biases 0. Group norm starts as the identity map
+(scale 1, shift 0), except the second norm of a residual block, whose scale starts at 0, so a
+new residual block is the identity (Goyal et al. 2017, "zero-init residual").
+"""
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from gfjax.nn.sparse.conv import sparse_conv
+from gfjax.nn.sparse.maps import KernelMap
+from gfjax.nn.sparse.tensor import SparseTensor
+
+
+class SparseConv3d(eqx.Module):
+    """Sparse 3D convolution `(k**3, c_in, c_out)`.
+
+    `stride=1` is submanifold (give it a `submanifold_map` of the same kernel size);
+    `stride=2, kernel_size=2` goes to the coarser level (`strided_map`); with
+    `transposed=True` it comes back (the strided map's `.transpose()`). The layer checks that
+    the map's kernel volume matches its own; which voxel sets the map joins is the map's
+    business.
+    """
+
+    weight: Float[Array, "k c_in c_out"]
+    bias: Float[Array, " c_out"] | None
+    kernel_size: int = eqx.field(static=True)
+    stride: int = eqx.field(static=True)
+    transposed: bool = eqx.field(static=True)
+    chunk_blocks: int | None = eqx.field(static=True)
+
+    def __init__(self, in_channels: int, out_channels: int, kernel_size: int, *, stride: int = 1,
+                 transposed: bool = False, use_bias: bool = False, chunk_blocks: int | None = None,
+                 key: PRNGKeyArray):
+        volume = kernel_size ** 3
+        std = math.sqrt(2.0 / (volume * out_channels))
+        self.weight = std * jax.random.normal(key, (volume, in_channels, out_channels), jnp.float32)
+        self.bias = jnp.zeros((out_channels,), jnp.float32) if use_bias else None
+        self.kernel_size, self.stride, self.transposed = kernel_size, stride, transposed
+        self.chunk_blocks = chunk_blocks
+
+    def __call__(self, x: SparseTensor, kmap: KernelMap) -> SparseTensor:
+        if kmap.kernel_volume != self.weight.shape[0]:
+            raise ValueError(f"SparseConv3d: kernel {self.kernel_size} needs a map of {self.weight.shape[0]} "
+                             f"offsets, got {kmap.kernel_volume}")
+        y = sparse_conv(x.feats, self.weight, kmap, chunk_blocks=self.chunk_blocks)
+        if self.bias is not None:
+            y = y + self.bias[None, :]
+        if self.stride == 1:
+            out_stride = x.stride
+        else:
+            out_stride = x.stride // self.stride if self.transposed else x.stride * self.stride
+        out = SparseTensor(kmap.out_coords, y, kmap.out_valid, max(out_stride, 1), x.batch_size)
+        return out.replace_feats(y)
+
+
+class SparseGroupNorm(eqx.Module):
+    """Group normalisation (Wu & He 2018) over the valid rows of each sample.
+
+    Statistics are per batch index and per group of channels, over every valid voxel of
+    that sample, so a sample's output does not depend on what it is batched with (unlike
+    batch norm, whose statistics mix samples and need running averages for inference).
+    """
+
+    scale: Float[Array, " c"]
+    shift: Float[Array, " c"]
+    groups: int = eqx.field(static=True)
+    eps: float = eqx.field(static=True)
+
+    def __init__(self, channels: int, *, groups: int = 8, eps: float = 1e-5, zero_scale: bool = False):
+        groups = math.gcd(groups, channels)
+        self.scale = jnp.full((channels,), 0.0 if zero_scale else 1.0, jnp.float32)
+        self.shift = jnp.zeros((channels,), jnp.float32)
+        self.groups, self.eps = groups, eps
+
+    def __call__(self, x: SparseTensor) -> SparseTensor:
+        f = x.feats
+        n, c = f.shape
+        seg = jnp.where(x.valid, x.coords[:, 0], x.batch_size)
+        g = f.reshape(n, self.groups, c // self.groups)
+        w = x.valid.astype(f.dtype)[:, None]
+        count = jax.ops.segment_sum(w[:, 0], seg, num_segments=x.batch_size + 1) * (c // self.groups)
+        s1 = jax.ops.segment_sum(jnp.sum(g, axis=2) * w, seg, num_segments=x.batch_size + 1)
+        s2 = jax.ops.segment_sum(jnp.sum(g * g, axis=2) * w, seg, num_segments=x.batch_size + 1)
+        denom = jnp.maximum(count, 1.0)[:, None]
+        mean = s1 / denom
+        var = jnp.maximum(s2 / denom - mean * mean, 0.0)
+        inv = jax.lax.rsqrt(var + self.eps)                                   # (batch + 1, groups)
+        y = (g - mean[seg][:, :, None]) * inv[seg][:, :, None]
+        return x.replace_feats(y.reshape(n, c) * self.scale[None, :] + self.shift[None, :])
+
+
+def relu(x: SparseTensor) -> SparseTensor:
+    return x.replace_feats(jax.nn.relu(x.feats))
+
+
+class SparseLinear(eqx.Module):
+    """A per-voxel (or per-point) linear map, `(c_in, c_out)`: a 1x1x1 convolution."""
+
+    weight: Float[Array, "c_in c_out"]
+    bias: Float[Array, " c_out"] | None
+
+    def __init__(self, in_channels: int, out_channels: int, *, use_bias: bool = True, key: PRNGKeyArray):
+        std = math.sqrt(2.0 / out_channels)
+        self.weight = std * jax.random.normal(key, (in_channels, out_channels), jnp.float32)
+        self.bias = jnp.zeros((out_channels,), jnp.float32) if use_bias else None
+
+    def __call__(self, feats: Float[Array, "n c_in"]) -> Float[Array, "n c_out"]:
+        y = feats @ self.weight
+        return y if self.bias is None else y + self.bias[None, :]
+
+
+class SparseResBlock(eqx.Module):
+    """Basic residual block (He et al. 2016) on one voxel set:
+    conv3 -> norm -> ReLU -> conv3 -> norm, plus the input (through a linear map when the
+    channel count changes), then ReLU. Both convolutions share the level's submanifold map."""
+
+    conv1: SparseConv3d
+    norm1: SparseGroupNorm
+    conv2: SparseConv3d
+    norm2: SparseGroupNorm
+    shortcut: SparseLinear | None
+
+    def __init__(self, in_channels: int, out_channels: int, *, kernel_size: int = 3, groups: int = 8,
+                 chunk_blocks: int | None = None, key: PRNGKeyArray):
+        k1, k2, k3 = jax.random.split(key, 3)
+        self.conv1 = SparseConv3d(in_channels, out_channels, kernel_size, chunk_blocks=chunk_blocks, key=k1)
+        self.norm1 = SparseGroupNorm(out_channels, groups=groups)
+        self.conv2 = SparseConv3d(out_channels, out_channels, kernel_size, chunk_blocks=chunk_blocks, key=k2)
+        self.norm2 = SparseGroupNorm(out_channels, groups=groups, zero_scale=True)
+        self.shortcut = (None if in_channels == out_channels
+                         else SparseLinear(in_channels, out_channels, use_bias=False, key=k3))
+
+    def __call__(self, x: SparseTensor, kmap: KernelMap) -> SparseTensor:
+        h = relu(self.norm1(self.conv1(x, kmap)))
+        h = self.norm2(self.conv2(h, kmap))
+        skip = x.feats if self.shortcut is None else self.shortcut(x.feats)
+        return relu(h.replace_feats(h.feats + skip))

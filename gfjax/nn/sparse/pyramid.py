@@ -1,0 +1,145 @@
+"""Every kernel map of a sparse U-Net, built once per forward pass.
+
+A U-Net of depth `L` works on the voxel sets `V_0` (the input) and `V_l = floor(V_{l-1} / 2)`
+for `l = 1..L`. Each level's residual blocks share one submanifold map (kernel 3), the stem
+has its own (kernel 5 on `V_0`), each down block a strided map `V_l -> V_{l+1}`, and each up
+block that map's transpose. `Pyramid` holds all of them; building it is the only place
+coordinates are searched, so a forward pass searches each set once, however many layers use it.
+
+Shapes are static: `plan_pyramid` runs outside `jit`, counts the voxels of every level and
+the pairs of every map on the actual data (one jitted pass with room for the worst case),
+and rounds them up to a few bucket sizes; `build_pyramid` then builds the maps inside `jit`
+with exactly those capacities. Several samples batched with `vmap` share one plan
+(`PyramidPlan.union`).
+"""
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Int
+
+from gfjax.nn.sparse import keys as K
+from gfjax.nn.sparse.maps import (KernelMap, bucket, downsample, neighbour_table, pairs_from_table, pairs_per_offset,
+                                  plan_blocks)
+
+
+class PyramidPlan(NamedTuple):
+    """Static sizes of a pyramid (hashable: a `jit` static argument).
+
+    Attributes:
+      capacities: rows of `V_0 .. V_L` (`V_0`'s is the input's own).
+      stem: `(kernel_size, block, n_blocks)` of the stem's submanifold map on `V_0`.
+      submanifold: `(block, n_blocks)` of the kernel-3 map of each level `0..L`.
+      down: `(block, n_blocks)` of the strided map `V_l -> V_{l+1}`, `l = 0..L-1`.
+    """
+
+    capacities: tuple[int, ...]
+    stem: tuple[int, int, int]
+    submanifold: tuple[tuple[int, int], ...]
+    down: tuple[tuple[int, int], ...]
+
+    @property
+    def depth(self) -> int:
+        return len(self.capacities) - 1
+
+    def union(self, other: PyramidPlan) -> PyramidPlan:
+        """A plan with room for both (element-wise maximum; same depth, stem and blocks)."""
+        if self.depth != other.depth or self.stem[0] != other.stem[0] or self.capacities[0] != other.capacities[0]:
+            raise ValueError("PyramidPlan.union: plans of different depth, stem kernel or input capacity")
+
+        def most(a, b):
+            if a[-2] != b[-2]:                              # different blocks: keep the larger block
+                return a if a[-2] * a[-1] >= b[-2] * b[-1] else b
+            return a[:-1] + (max(a[-1], b[-1]),)
+        return PyramidPlan(tuple(max(a, b) for a, b in zip(self.capacities, other.capacities)),
+                           most(self.stem, other.stem),
+                           tuple(most(a, b) for a, b in zip(self.submanifold, other.submanifold)),
+                           tuple(most(a, b) for a, b in zip(self.down, other.down)))
+
+
+class Pyramid(eqx.Module):
+    """The voxel sets and kernel maps of one forward pass.
+
+    Attributes:
+      coords, valid: per level `0..L`, `(capacity_l, 4)` int32 and `(capacity_l,)` bool.
+      stem: the stem's submanifold map on level 0.
+      submanifold: the kernel-3 map of each level.
+      down: the strided map from each level to the next (`.transpose()` goes back up).
+      overflowed: bool scalar, some level or map did not fit its plan (plan again).
+    """
+
+    coords: tuple[Int[Array, "n 4"], ...]
+    valid: tuple[Bool[Array, " n"], ...]
+    stem: KernelMap
+    submanifold: tuple[KernelMap, ...]
+    down: tuple[KernelMap, ...]
+    overflowed: Bool[Array, ""]
+
+    def up(self, level: int) -> KernelMap:
+        """Map of the transposed convolution from level `level + 1` back to `level`."""
+        return self.down[level].transpose()
+
+
+@functools.partial(jax.jit, static_argnames=("depth", "stem_kernel"))
+def _counts(coords, valid, *, depth, stem_kernel):
+    """Voxels per level and pairs per offset of every map, with room for everything."""
+    n = coords.shape[0]
+    levels = [(coords, valid)]
+    for _ in range(depth):
+        c, v, _ = downsample(*levels[-1], capacity=n)
+        levels.append((c, v))
+    sizes = [jnp.sum(v, dtype=jnp.int32) for _, v in levels]
+    stem = pairs_per_offset(neighbour_table(coords, valid, coords, valid, kernel_size=stem_kernel), n)
+    sub = [pairs_per_offset(neighbour_table(c, v, c, v, kernel_size=3), n) for c, v in levels]
+    down = [pairs_per_offset(neighbour_table(*levels[l], *levels[l + 1], kernel_size=2, centred=False, stride=2), n)
+            for l in range(depth)]
+    return sizes, stem, sub, down
+
+
+def plan_pyramid(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], *, depth: int,
+                 stem_kernel: int = 5) -> PyramidPlan:
+    """Static sizes for `build_pyramid` from concrete coordinates (outside `jit`)."""
+    coords = K.check_range(jnp.asarray(coords, jnp.int32), jnp.asarray(valid, bool), "plan_pyramid")
+    sizes, stem, sub, down = jax.device_get(_counts(coords, jnp.asarray(valid, bool), depth=depth,
+                                                    stem_kernel=stem_kernel))
+    n = coords.shape[0]
+    capacities = (n,) + tuple(min(n, bucket(max(int(s), 1))) for s in sizes[1:])
+    return PyramidPlan(capacities, (stem_kernel,) + plan_blocks(stem),
+                       tuple(plan_blocks(s) for s in sub), tuple(plan_blocks(d) for d in down))
+
+
+def build_pyramid(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], plan: PyramidPlan) -> Pyramid:
+    """Every voxel set and kernel map of a U-Net (jit-able, `plan` static)."""
+    coords, valid = jnp.asarray(coords, jnp.int32), jnp.asarray(valid, bool)
+    if coords.shape[0] != plan.capacities[0]:
+        raise ValueError(f"build_pyramid: {coords.shape[0]} rows, the plan was made for {plan.capacities[0]}")
+    overflow = []
+    levels = [(coords, valid)]
+    for capacity in plan.capacities[1:]:
+        c, v, o = downsample(*levels[-1], capacity=capacity)
+        levels.append((c, v))
+        overflow.append(o)
+
+    def sub_map(level, kernel, block, n_blocks):
+        c, v = levels[level]
+        table = neighbour_table(c, v, c, v, kernel_size=kernel)
+        return pairs_from_table(table, n_in=c.shape[0], block=block, n_blocks=n_blocks,
+                                in_coords=c, in_valid=v, out_coords=c, out_valid=v)
+
+    stem = sub_map(0, *plan.stem)
+    submanifold = tuple(sub_map(l, 3, *plan.submanifold[l]) for l in range(plan.depth + 1))
+    down = []
+    for l, (block, n_blocks) in enumerate(plan.down):
+        (fc, fv), (cc, cv) = levels[l], levels[l + 1]
+        table = neighbour_table(fc, fv, cc, cv, kernel_size=2, centred=False, stride=2)
+        down.append(pairs_from_table(table, n_in=fc.shape[0], block=block, n_blocks=n_blocks,
+                                     in_coords=fc, in_valid=fv, out_coords=cc, out_valid=cv))
+    maps = [stem, *submanifold, *down]
+    overflowed = jnp.any(jnp.stack(overflow + [m.overflowed for m in maps]))
+    return Pyramid(tuple(c for c, _ in levels), tuple(v for _, v in levels), stem, submanifold, tuple(down),
+                   overflowed)
