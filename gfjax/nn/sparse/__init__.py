@@ -36,7 +36,7 @@ from gfjax.nn.sparse.keys import BATCH_MAX, COORD_MAX, COORD_MIN
 from gfjax.nn.sparse.layers import SparseConv3d, SparseGroupNorm, SparseLinear, SparseResBlock, relu
 from gfjax.nn.sparse.maps import (KernelMap, downsample, kernel_offsets, neighbour_table, pairs_from_table,
                                   pairs_per_offset, plan_blocks, strided_map, submanifold_map)
-from gfjax.nn.sparse.pyramid import Pyramid, PyramidPlan, build_pyramid, plan_pyramid
+from gfjax.nn.sparse.pyramid import Pyramid, PyramidPlan, build_pyramid, plan_pyramid, standard_plan
 from gfjax.nn.sparse.tensor import SparseTensor, Voxelized, devoxelize, voxelize
 
 __all__ = [
@@ -44,6 +44,6 @@ __all__ = [
     "KernelMap", "Pyramid", "PyramidPlan", "SparseConv3d", "SparseGroupNorm", "SparseLinear", "SparseResBlock",
     "SparseTensor", "Voxelized",
     "build_pyramid", "devoxelize", "downsample", "kernel_offsets", "neighbour_table", "pairs_from_table",
-    "pairs_per_offset", "plan_blocks", "plan_pyramid", "relu", "sparse_conv", "strided_map", "submanifold_map",
+    "pairs_per_offset", "plan_blocks", "plan_pyramid", "relu", "standard_plan", "sparse_conv", "strided_map", "submanifold_map",
     "voxelize",
 ]

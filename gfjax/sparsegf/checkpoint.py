@@ -1,0 +1,88 @@
+"""Model files: a one-line JSON header, then the weights as `eqx.tree_serialise_leaves` bytes.
+
+The header names the format, the gfjax version that wrote it, the network's `NetConfig`
+and what the trainer recorded (data, seed, epochs). `load` checks each before reading a
+weight, so a missing, truncated or foreign file fails with one line naming the file.
+"""
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import os
+import tempfile
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import equinox as eqx
+import jax
+
+from gfjax.errors import InputError
+from gfjax.sparsegf.model import NetConfig, SparseGFNet
+
+MAGIC = "gfjax-sparsegf-model"
+FORMAT = 1
+SHIPPED = "sparsegf_tiny.eqx"      # the model inside the package (gfjax/data)
+
+
+def save(path: str | Path, net: SparseGFNet, meta: dict[str, Any] | None = None) -> None:
+    """Write `net` to `path` atomically (a temporary file renamed into place)."""
+    from gfjax import __version__
+
+    header = {"magic": MAGIC, "format": FORMAT, "gfjax": __version__,
+              "net": dataclasses.asdict(net.config), "meta": meta or {}}
+    buffer = io.BytesIO()
+    eqx.tree_serialise_leaves(buffer, net)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(json.dumps(header).encode() + b"\n")
+            f.write(buffer.getvalue())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def read_header(path: str | Path) -> dict[str, Any]:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: model file not found")
+    with open(path, "rb") as f:
+        line = f.readline(1 << 16)
+    try:
+        header = json.loads(line)
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise InputError(f"{path}: not a gfjax SparseGF model (no header)") from None
+    if not isinstance(header, dict) or header.get("magic") != MAGIC:
+        raise InputError(f"{path}: not a gfjax SparseGF model (no header)")
+    if header.get("format") != FORMAT:
+        raise InputError(f"{path}: model format {header.get('format')} is not {FORMAT}; "
+                         f"written by gfjax {header.get('gfjax')}, retrain or use that version")
+    return header
+
+
+def load(path: str | Path | None = None) -> tuple[SparseGFNet, dict[str, Any]]:
+    """The network stored at `path` (default: the model shipped in the package) and its header."""
+    if path is None:
+        path = Path(str(resources.files("gfjax") / "data" / SHIPPED))
+    path = Path(path)
+    header = read_header(path)
+    try:
+        config = NetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in header["net"].items()})
+    except (TypeError, ValueError, KeyError) as err:
+        raise InputError(f"{path}: model header has an unusable network description ({err})") from None
+    like = SparseGFNet(config, key=jax.random.key(0))
+    with open(path, "rb") as f:
+        f.readline(1 << 16)
+        try:
+            net = eqx.tree_deserialise_leaves(f, like)
+        except Exception as err:       # truncated or mismatched weights: report, never a traceback
+            raise InputError(f"{path}: model weights are truncated or do not match the header "
+                             f"({type(err).__name__})") from None
+        if f.read(1):
+            raise InputError(f"{path}: model file has trailing bytes after the weights")
+    return net, header

@@ -1,0 +1,75 @@
+"""SparseGF's network, model files, filter and training step on a small synthetic scene."""
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+from gfjax.errors import InputError
+from gfjax.io.cloud import Cloud
+from gfjax.sparsegf import checkpoint
+from gfjax.sparsegf import filter as sgf
+from gfjax.sparsegf import train
+from gfjax.sparsegf.config import Config
+from gfjax.sparsegf.model import NET_PRESETS, NetConfig, SparseGFNet, count_parameters
+
+MICRO = NetConfig(stem=4, planes=(4,) * 8, layers=(1,) * 8, refine=4, groups=2)
+
+
+def scene(seed=0):
+    """A 60 x 40 m sloping ground at 1 pt/m^2 with a 10 x 10 x 6 m box on it (class 2 / 6)."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, [60, 40], (2400, 2))
+    z = 100 + 0.05 * xy[:, 0] + rng.normal(0, 0.03, len(xy))
+    roof = (np.abs(xy[:, 0] - 30) < 5) & (np.abs(xy[:, 1] - 20) < 5)
+    z = np.where(roof, z + 6.0, z)
+    cls = np.where(roof, 6, 2).astype(np.uint8)
+    return np.column_stack([xy + [5e5, 5e6], z]), cls
+
+
+def test_parameter_counts():
+    paper = count_parameters(NET_PRESETS["paper"])
+    assert abs(paper - 37.9e6) <= 0.01 * 37.9e6                     # MinkUNet34C + refinement
+    tiny = count_parameters(NET_PRESETS["tiny"])
+    assert tiny * 4 <= 5 * 2 ** 20
+
+
+def test_checkpoint_round_trip_and_bad_files(tmp_path):
+    net = SparseGFNet(MICRO, key=jax.random.key(1))
+    path = tmp_path / "m.eqx"
+    checkpoint.save(path, net, {"seed": 3})
+    back, header = checkpoint.load(path)
+    assert header["meta"] == {"seed": 3} and back.config == MICRO
+    for a, b in zip(jax.tree_util.tree_leaves(net), jax.tree_util.tree_leaves(back)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    data = path.read_bytes()
+    (tmp_path / "short.eqx").write_bytes(data[: len(data) - 100])
+    (tmp_path / "long.eqx").write_bytes(data + b"x")
+    (tmp_path / "foreign.eqx").write_bytes(b"PK\x03\x04 not a model")
+    (tmp_path / "format.eqx").write_bytes(data.replace(b'"format": 1', b'"format": 9', 1))
+    cases = {"missing.eqx": "model file not found", "short.eqx": "truncated", "long.eqx": "trailing bytes",
+             "foreign.eqx": "not a gfjax SparseGF model", "format.eqx": "model format 9"}
+    for name, message in cases.items():
+        with pytest.raises(InputError, match=message) as err:
+            checkpoint.load(tmp_path / name)
+        assert name in str(err.value)
+
+
+def test_filter_votes_every_point_and_a_training_step_lowers_the_loss():
+    xyz, cls = scene()
+    cloud = Cloud.from_xyz(xyz, classification=cls)
+    net = SparseGFNet(MICRO, key=jax.random.key(2))
+    result = sgf.filter(cloud, model=net)
+    assert result.ground.shape == (len(xyz),)
+    assert np.all(result.diagnostics.votes >= 1)
+    p = result.diagnostics.prob_ground
+    assert np.all((p >= 0) & (p <= 1))
+
+    data = [train.labelled(xyz, cls)]
+    batch, labels, bins = next(train.training_batches(data, Config(), batch_size=2, rng=np.random.default_rng(0)))
+    opt, state = train.init(net, 20)
+    losses = []
+    for _ in range(6):
+        net, state, loss = train.train_step(net, state, batch, labels, bins, opt)
+        losses.append(float(loss.total))
+    assert np.all(np.isfinite(losses)) and losses[-1] < losses[0]
