@@ -44,7 +44,7 @@ def available() -> list[str]:
             module = importlib.import_module(METHODS[name])
         except ImportError:
             continue
-        if hasattr(module, "filter"):
+        if callable(getattr(module, "filter", None)):      # not a `filter` submodule
             names.append(name)
     return names
 
@@ -59,7 +59,7 @@ def get(name: str) -> ModuleType:
         if err.name is None or not METHODS[name].startswith(err.name):
             raise  # a dependency of an existing method is missing: an internal error
         raise InputError(f"--method: method {name!r} is not available in this build") from None
-    if not hasattr(module, "filter"):
+    if not callable(getattr(module, "filter", None)):
         raise InputError(f"--method: method {name!r} is not implemented yet")
     return module
 

@@ -12,7 +12,11 @@ for batch in part.batches:
     local = jnp.asarray(batch.local_xyz(xyz_m))                        # (b, cap, 3) float32
     out = jax.vmap(lambda p, v: compress(p, jnp.zeros(2, jnp.float32), valid=v))(local, batch.valid)
 ```
-The network, training and `filter` come later (SPEC section 5).
+The network (`gfjax.sparsegf.model`: MinkUNet backbone on `gfjax.nn.sparse`, point-wise
+refinement, two heads; presets `tiny` and `paper`), the pipeline from a cloud to votes
+(`pipeline`, `filter.filter`), model files (`checkpoint`) and the training step (`train`)
+are in their modules; the method is not registered with the command line until a trained
+model ships with the package.
 """
 from gfjax.sparsegf.compress import CENTRAL_TOL_M, R_IN_M, R_OC_M, R_OO_M, Compressed, compress, compression_ratio
 from gfjax.sparsegf.hag import HAG_BIN_EDGES_M, N_HAG_BINS, HagTargets, ground_surface, hag_bins, hag_targets

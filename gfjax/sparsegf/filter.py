@@ -46,8 +46,9 @@ def ground_probability(net: SparseGFNet, xyz_m: np.ndarray, config: Config, *, p
         bar = tqdm(total=len(todo), desc="sparsegf patches", unit="patch", leave=False)
     for start in range(0, len(todo), config.batch_size):
         group = todo[start:start + config.batch_size]
-        b = stack(group)
-        p = predict_batch(net, b.coords, b.feats, b.vvalid, b.point_voxel, b.central, b.plan)
+        batch = stack(group)
+        b = batch.patch
+        p = predict_batch(net, b.coords, b.feats, b.vvalid, b.point_voxel, b.central, batch.plan)
         p = np.asarray(jax.device_get(p))
         for i in range(len(group)):
             index.append(b.index[i]), prob.append(p[i]), central.append(b.central[i])

@@ -118,14 +118,10 @@ def make_patch(xyz_m: np.ndarray, members: np.ndarray, center_m: np.ndarray, pat
 
 
 class Batch(NamedTuple):
-    """Patches stacked for `jax.vmap` (leading axis b) and the plan they share."""
+    """Patches stacked for `jax.vmap` (a `Patch` of arrays with a leading axis b; `patch_id`
+    `(b,)`) and the pyramid plan they share."""
 
-    index: np.ndarray
-    central: np.ndarray
-    coords: np.ndarray
-    feats: np.ndarray
-    vvalid: np.ndarray
-    point_voxel: np.ndarray
+    patch: Patch
     plan: sparse.PyramidPlan
 
 
@@ -141,10 +137,11 @@ def stack(patches: list[Patch], depth: int = 4) -> Batch:
     plan = sparse.standard_plan(m, depth=depth)
     for p in patches:
         plan = sparse.plan_pyramid(pad(p.coords, m, 0), pad(p.vvalid, m, False), depth=depth, like=plan)
-    return Batch(np.stack([pad(p.index, n, -1) for p in patches]), np.stack([pad(p.central, n, False) for p in patches]),
-                 np.stack([pad(p.coords, m, 0) for p in patches]), np.stack([pad(p.feats, m, 0) for p in patches]),
-                 np.stack([pad(p.vvalid, m, False) for p in patches]), np.stack([pad(p.point_voxel, n, -1) for p in patches]),
-                 plan)
+    stacked = Patch(np.stack([pad(p.index, n, -1) for p in patches]), np.stack([pad(p.central, n, False) for p in patches]),
+                    np.stack([pad(p.coords, m, 0) for p in patches]), np.stack([pad(p.feats, m, 0) for p in patches]),
+                    np.stack([pad(p.vvalid, m, False) for p in patches]),
+                    np.stack([pad(p.point_voxel, n, -1) for p in patches]), np.asarray([p.patch_id for p in patches]))
+    return Batch(stacked, plan)
 
 
 def forward(net: SparseGFNet, coords, feats, vvalid, point_voxel, central, plan):

@@ -49,14 +49,15 @@ def training_batches(data: list[Labelled], config: Config, *, batch_size: int, r
     order = rng.permutation(len(items))
     for start in range(0, len(order), batch_size):
         group = [items[i] for i in order[start:start + batch_size]]
-        b = stack([p for _, p in group])
+        batch = stack([p for _, p in group])
+        b = batch.patch
         labels = np.zeros(b.index.shape, np.int32)
         bins = np.zeros(b.index.shape, np.int32)
         for row, (d, p) in enumerate(group):
             ok = b.index[row] >= 0
             labels[row, ok] = d.ground[b.index[row, ok]]
             bins[row, ok] = d.hag_bin[b.index[row, ok]]
-        yield b, labels, bins
+        yield batch, labels, bins
 
 
 def optimizer(steps: int) -> optax.GradientTransformation:
@@ -70,9 +71,10 @@ def train_step(net: SparseGFNet, opt_state, batch: Batch, labels, bins, opt: opt
     """One Adam step on a batch; returns `(net, opt_state, loss)` (loss: `HeightAwareLoss`)."""
 
     def loss_fn(net):
+        b = batch.patch
         out = jax.vmap(lambda c, f, v, pv, ce: forward(net, c, f, v, pv, ce, batch.plan))(
-            batch.coords, batch.feats, batch.vvalid, batch.point_voxel, batch.central)
-        mask = batch.central & (batch.point_voxel >= 0)
+            b.coords, b.feats, b.vvalid, b.point_voxel, b.central)
+        mask = b.central & (b.point_voxel >= 0)
         loss = height_aware_loss(out.cls, out.hag, labels, bins, mask, lam=lam)
         return loss.total, loss
 
