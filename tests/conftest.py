@@ -41,3 +41,13 @@ def shared_file(relative: str) -> Path:
 @pytest.fixture
 def isprs_sample():
     return lambda name: shared_file(f"isprs_filtertest/reference/{name}-utm.laz")
+
+
+@pytest.fixture(autouse=True)
+def _program_cache_off_after_each_test():
+    """`gfjax.cli.main` turns `gfjax.aot` on for its process; an in-process CLI test must not
+    leave it on for the next test of the same worker (the Python API default is off)."""
+    yield
+    from gfjax import aot
+
+    aot.disable()
