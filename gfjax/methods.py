@@ -107,17 +107,18 @@ def _as_field_value(value: Any, current: Any) -> Any:
 
 def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | None = None,
                            preset: str | None = None, *, values: Mapping[str, float] | None = None,
-                           values_source: str = "--params") -> tuple[Any, Any]:
+                           values_source: str = "--params", base_config: Any = None) -> tuple[Any, Any]:
     """Build a method's `Config` and `Params` from a preset, fitted values and `key=value`s.
 
-    Precedence, lowest first: the defaults, `preset`, `values` (e.g. the `values` of a
+    Precedence, lowest first: the defaults (or `base_config`, e.g. the settings a SparseGF
+    model was trained with), `preset`, `values` (e.g. the `values` of a
     `gfjax tune` params.json, named by `values_source` in errors), `overrides` (`--set`).
     Keys are matched against the fields of `Config` and of `Params`. An unknown key, an
     unknown preset, a value that does not parse or that the method's own checks reject
     (`Config.__post_init__`, `Params.check()` when it exists) raises `InputError` naming the
     option and the key.
     """
-    config = method.Config()
+    config = method.Config() if base_config is None else base_config
     params_cls = getattr(method, "Params", None)
     params = params_cls() if params_cls is not None else None
     method_name = method.__name__.split(".")[-1]

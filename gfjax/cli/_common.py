@@ -78,6 +78,8 @@ def add_method_options(parser: argparse.ArgumentParser, *, method_help: str) -> 
                              "(repeatable; wins over --preset and --params)")
     parser.add_argument("--params", default=None, metavar="PARAMS.json",
                         help="fitted thresholds written by `gfjax tune`")
+    parser.add_argument("--model", default=None, metavar="MODEL.eqx",
+                        help="SparseGF network written by `gfjax train` (default: the model shipped in gfjax)")
 
 
 def parse_set_values(items: Sequence[str]) -> dict[str, str]:
@@ -99,12 +101,17 @@ def load_params_file(path: str | os.PathLike) -> dict[str, Any]:
 
 
 class MethodSetup(NamedTuple):
-    """A method package and the Config/Params the options give it."""
+    """A method package, the Config/Params the options give it, and further keyword
+    arguments of its `filter` (SparseGF's `model`)."""
 
     name: str
     module: ModuleType
     config: Any
     params: Any
+    options: dict | None = None
+
+    def filter(self, cloud, **kwargs):
+        return self.module.filter(cloud, config=self.config, params=self.params, **(self.options or {}), **kwargs)
 
 
 def method_setup(args: argparse.Namespace) -> MethodSetup:
@@ -120,10 +127,17 @@ def method_setup(args: argparse.Namespace) -> MethodSetup:
         raise InputError(f"--params {args.params}: fitted for method {params_file['method']!r}, "
                          f"not {name!r}")
     module = methods.get(name)
+    model = getattr(args, "model", None)
+    if model is not None and name != "sparsegf":
+        raise InputError(f"--model {model}: only --method sparsegf takes a model, not {name!r}")
+    options, base = None, None
+    if name == "sparsegf":
+        net, base = module.load_model(model)          # a bad model file fails here, before any output
+        options = {"model": net}
     config, params = methods.make_config_and_params(
         module, parse_set_values(args.set_values), args.preset, values=params_file["values"] if params_file else None,
-        values_source=f"--params {args.params}")
-    return MethodSetup(name, module, config, params)
+        values_source=f"--params {args.params}", base_config=base)
+    return MethodSetup(name, module, config, params, options)
 
 
 def output_targets(inputs: Sequence[Path], output: str, *, option: str = "-o",

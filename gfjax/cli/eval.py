@@ -84,8 +84,7 @@ def match_points(cloud: Cloud, reference: Cloud) -> tuple[np.ndarray | None, str
 def _labels(args: argparse.Namespace, setup, source: Path, reference: Path | None) -> dict:
     cloud = las_io.read(source, units=args.units)
     if setup is not None:
-        result = setup.module.filter(cloud, config=setup.config, params=setup.params,
-                                     returns=args.returns, progress=False)
+        result = setup.filter(cloud, returns=args.returns, progress=False)
         pred = np.asarray(result.ground, dtype=bool)
         scored = cloud.filter_mask(args.returns)
     else:

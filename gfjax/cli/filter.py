@@ -96,8 +96,7 @@ def run(args: argparse.Namespace) -> int:
     for source, target, dtm_target in jobs:
         start = time.perf_counter()
         cloud = las_io.read(source, units=args.units)
-        result = setup.module.filter(cloud, config=setup.config, params=setup.params,
-                                     returns=args.returns, progress=True)
+        result = setup.filter(cloud, returns=args.returns, progress=True)
         ground = np.asarray(result.ground, dtype=bool)
         labelled = cloud.with_ground(ground, reset_nonground=args.reset_nonground,
                                      used=cloud.filter_mask(args.returns))

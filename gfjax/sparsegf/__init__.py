@@ -12,19 +12,28 @@ for batch in part.batches:
     local = jnp.asarray(batch.local_xyz(xyz_m))                        # (b, cap, 3) float32
     out = jax.vmap(lambda p, v: compress(p, jnp.zeros(2, jnp.float32), valid=v))(local, batch.valid)
 ```
-The network (`gfjax.sparsegf.model`: MinkUNet backbone on `gfjax.nn.sparse`, point-wise
-refinement, two heads; presets `tiny` and `paper`), the pipeline from a cloud to votes
-(`pipeline`, `filter.filter`), model files (`checkpoint`) and the training step (`train`)
-are in their modules; the method is not registered with the command line until a trained
-model ships with the package.
+and the filter itself, with the same shape as every other method:
+
+- `filter(cloud, *, config=None, params=None, returns="all", progress=False, model=None)`:
+  partition -> compress -> voxelize (0.5 m) -> network -> soft vote; `model` is a
+  `SparseGFNet`, a model file, or None for the `tiny` model shipped in gfjax.
+- `SparseGFNet`, `NetConfig`, `NET_PRESETS` (`tiny`, `paper`): the network (`model`);
+  `load_model`, `checkpoint`: model files; `train`: the training loop (`gfjax train`).
 """
+from gfjax.sparsegf.config import PRESETS, Config
+from gfjax.sparsegf.filter import Diagnostics, filter, load_model
+from gfjax.sparsegf.model import NET_PRESETS, NetConfig, SparseGFNet, count_parameters
 from gfjax.sparsegf.compress import CENTRAL_TOL_M, R_IN_M, R_OC_M, R_OO_M, Compressed, compress, compression_ratio
 from gfjax.sparsegf.hag import HAG_BIN_EDGES_M, N_HAG_BINS, HagTargets, ground_surface, hag_bins, hag_targets
 from gfjax.sparsegf.loss import HAG_WEIGHTS, LAMBDA, HeightAwareLoss, height_aware_loss
 from gfjax.sparsegf.partition import STEP_M, Partition, PartitionConfig, PatchBatch, capacity_bucket, partition
 from gfjax.sparsegf.vote import UNCOVERED, Vote, soft_vote
 
+Params = None      # no thresholds: the network's weights are SparseGF's parameters
+
 __all__ = [
+    "Config", "Diagnostics", "NET_PRESETS", "NetConfig", "PRESETS", "Params", "SparseGFNet", "count_parameters",
+    "filter", "load_model",
     "CENTRAL_TOL_M", "R_IN_M", "R_OC_M", "R_OO_M", "STEP_M", "HAG_BIN_EDGES_M", "N_HAG_BINS",
     "HAG_WEIGHTS", "LAMBDA", "UNCOVERED",
     "Compressed", "HagTargets", "HeightAwareLoss", "Partition", "PartitionConfig", "PatchBatch", "Vote",

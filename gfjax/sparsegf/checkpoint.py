@@ -86,3 +86,46 @@ def load(path: str | Path | None = None) -> tuple[SparseGFNet, dict[str, Any]]:
         if f.read(1):
             raise InputError(f"{path}: model file has trailing bytes after the weights")
     return net, header
+
+
+def has_state(path: str | Path) -> bool:
+    return Path(path).is_file()
+
+
+def save_state(path: str | Path, net: SparseGFNet, opt_state, epoch: int, logs: list) -> None:
+    """The training state after `epoch` epochs (network, optimizer state, epoch logs), atomically."""
+    header = {"magic": MAGIC + "-state", "format": FORMAT, "epoch": epoch, "net": dataclasses.asdict(net.config),
+              "logs": [log._asdict() for log in logs]}
+    buffer = io.BytesIO()
+    eqx.tree_serialise_leaves(buffer, (net, opt_state))
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(json.dumps(header).encode() + b"\n")
+            f.write(buffer.getvalue())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_state(path: str | Path, net: SparseGFNet, opt_state):
+    """`(net, opt_state, epochs done, logs)` from `save_state`; `net` and `opt_state` give the shapes."""
+    from gfjax.sparsegf.train import EpochLog
+
+    path = Path(path)
+    with open(path, "rb") as f:
+        try:
+            header = json.loads(f.readline(1 << 20))
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            raise InputError(f"{path}: not a gfjax SparseGF training state") from None
+        if not isinstance(header, dict) or header.get("magic") != MAGIC + "-state":
+            raise InputError(f"{path}: not a gfjax SparseGF training state")
+        if header.get("net") != json.loads(json.dumps(dataclasses.asdict(net.config))):
+            raise InputError(f"{path}: training state of another network preset; remove it or use its preset")
+        try:
+            net, opt_state = eqx.tree_deserialise_leaves(f, (net, opt_state))
+        except Exception as err:
+            raise InputError(f"{path}: training state is truncated ({type(err).__name__})") from None
+    return net, opt_state, int(header["epoch"]), [EpochLog(**log) for log in header["logs"]]

@@ -1,6 +1,7 @@
 """SparseGF as a ground filter: partition, compress, network, soft vote (Qin et al. 2026, Fig. 1)."""
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import jax
@@ -62,13 +63,26 @@ def ground_probability(net: SparseGFNet, xyz_m: np.ndarray, config: Config, *, p
     return np.asarray(vote.prob_ground), np.asarray(vote.count), len(todo)
 
 
+def load_model(path=None) -> tuple[SparseGFNet, Config]:
+    """The network at `path` (None: the model shipped in gfjax) and the settings it was trained with."""
+    net, header = checkpoint.load(path)
+    stored = header.get("meta", {}).get("config", {})
+    names = {f.name for f in dataclasses.fields(Config)}
+    try:
+        config = Config(**{k: v for k, v in stored.items() if k in names})
+    except (TypeError, ValueError) as err:
+        raise InputError(f"{path or checkpoint.SHIPPED}: model settings are unusable ({err})") from None
+    return net, config
+
+
 def filter(cloud: Cloud, *, config: Config | None = None, params=None, returns: str = "all",
            progress: bool = False, model: SparseGFNet | str | None = None) -> Result:
     """Classify ground points with SparseGF.
 
     Args:
       cloud: the point cloud (`cloud.xyz_m`, metres; only `cloud.filter_mask(returns)` used).
-      config: static settings (`Config()`: the paper's radii, 0.5 m voxels).
+      config: static settings (default: those the model was trained with; `Config()` for a
+        network passed as an object: the paper's radii, 0.5 m voxels).
       params: unused (SparseGF's parameters are the network's weights); must be None.
       returns: "all" or "last".
       progress: show a bar over patches.
@@ -77,6 +91,11 @@ def filter(cloud: Cloud, *, config: Config | None = None, params=None, returns: 
     Returns:
       `Result(ground, Diagnostics)`; ground = mean vote > `config.ground_probability`.
     """
+    if isinstance(model, SparseGFNet):
+        net = model
+    else:
+        net, trained_with = load_model(model)
+        config = trained_with if config is None else config
     config = Config() if config is None else config
     if params is not None:
         raise InputError("sparsegf: takes no params (its parameters are the model's weights; see --model)")
@@ -84,7 +103,6 @@ def filter(cloud: Cloud, *, config: Config | None = None, params=None, returns: 
         used = cloud.filter_mask(returns)
     except ValueError as err:
         raise InputError(f"{cloud.name}: --returns: {err}") from None
-    net = model if isinstance(model, SparseGFNet) else checkpoint.load(model)[0]
     used_index = np.flatnonzero(used)
     prob, votes, n_patches = ground_probability(net, cloud.xyz_m[used_index], config, progress=progress)
     ground = np.zeros(cloud.n_points, bool)

@@ -67,7 +67,7 @@ def _compress_features(local_xyz, valid, angle, *, r_in, r_oc, r_oo, use_compres
     return pts, out.central, jnp.where(valid[:, None], feats, 0.0)
 
 
-def bucket(n: int, minimum: int = 4096) -> int:
+def bucket(n: int, minimum: int = 16384) -> int:
     """The power of two (at least `minimum`) holding `n`: few compiled shapes, since one
     compile of the network costs seconds to tens of seconds on a CPU."""
     size = minimum
@@ -125,8 +125,9 @@ class Batch(NamedTuple):
     plan: sparse.PyramidPlan
 
 
-def stack(patches: list[Patch], depth: int = 4) -> Batch:
-    """Pad patches to common sizes and plan their pyramids together."""
+def stack(patches: list[Patch], depth: int = 4, like: sparse.PyramidPlan | None = None) -> Batch:
+    """Pad patches to common sizes and plan their pyramids together (starting from `like`,
+    else from `standard_plan`)."""
     n = max(len(p.index) for p in patches)
     m = max(len(p.coords) for p in patches)
 
@@ -134,7 +135,7 @@ def stack(patches: list[Patch], depth: int = 4) -> Batch:
         extra = size - a.shape[0]
         return np.concatenate([a, np.full((extra,) + a.shape[1:], value, a.dtype)]) if extra else a
 
-    plan = sparse.standard_plan(m, depth=depth)
+    plan = like if like is not None and like.capacities[0] == m else sparse.standard_plan(m, depth=depth)
     for p in patches:
         plan = sparse.plan_pyramid(pad(p.coords, m, 0), pad(p.vvalid, m, False), depth=depth, like=plan)
     stacked = Patch(np.stack([pad(p.index, n, -1) for p in patches]), np.stack([pad(p.central, n, False) for p in patches]),

@@ -8,7 +8,7 @@ import pytest
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
 from gfjax.sparsegf import checkpoint
-from gfjax.sparsegf import filter as sgf
+from gfjax import sparsegf
 from gfjax.sparsegf import train
 from gfjax.sparsegf.config import Config
 from gfjax.sparsegf.model import NET_PRESETS, NetConfig, SparseGFNet, count_parameters
@@ -59,7 +59,7 @@ def test_filter_votes_every_point_and_a_training_step_lowers_the_loss():
     xyz, cls = scene()
     cloud = Cloud.from_xyz(xyz, classification=cls)
     net = SparseGFNet(MICRO, key=jax.random.key(2))
-    result = sgf.filter(cloud, model=net)
+    result = sparsegf.filter(cloud, model=net)
     assert result.ground.shape == (len(xyz),)
     assert np.all(result.diagnostics.votes >= 1)
     p = result.diagnostics.prob_ground

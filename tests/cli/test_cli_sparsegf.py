@@ -1,0 +1,49 @@
+"""`gfjax train` and `--model`: dry run, bad data, bad model files (exit 2, one line naming the file)."""
+from __future__ import annotations
+
+import laspy
+import numpy as np
+
+from cli_helpers import error_line, run_cli, write_scene
+
+
+def test_train_dry_run_prints_the_parameter_count(tmp_path, capsys):
+    scene = write_scene(tmp_path / "a.las")
+    code, out, _ = run_cli(capsys, "train", scene, "-o", tmp_path / "m.eqx", "--dry-run")
+    assert code == 0 and "tiny: 810,792 parameters" in out and "1 patches per epoch" in out
+    code, out, _ = run_cli(capsys, "train", scene, "-o", tmp_path / "m.eqx", "--dry-run", "--preset", "paper")
+    assert code == 0 and "paper: 37,876,872 parameters" in out
+    assert not (tmp_path / "m.eqx").exists()
+
+
+def test_train_refuses_a_file_without_ground(tmp_path, capsys):
+    scene = write_scene(tmp_path / "a.las")
+    las = laspy.read(scene)
+    las.classification = np.where(las.classification == 2, 1, las.classification)
+    las.write(tmp_path / "noground.las")
+    code, _, err = run_cli(capsys, "train", scene, tmp_path / "noground.las", "-o", tmp_path / "m.eqx", "--dry-run")
+    assert code == 2 and "noground.las: no point of class 2" in error_line(err)
+
+
+def test_train_refuses_an_existing_model_and_a_missing_folder(tmp_path, capsys):
+    scene = write_scene(tmp_path / "a.las")
+    (tmp_path / "m.eqx").write_bytes(b"x")
+    code, _, err = run_cli(capsys, "train", scene, "-o", tmp_path / "m.eqx")
+    assert code == 2 and "exists" in error_line(err)
+    code, _, err = run_cli(capsys, "train", scene, "-o", tmp_path / "no" / "m.eqx")
+    assert code == 2 and "does not exist" in error_line(err)
+
+
+def test_bad_model_files_exit_2_before_any_output(tmp_path, capsys):
+    scene = write_scene(tmp_path / "a.las")
+    (tmp_path / "junk.eqx").write_bytes(b"PK\x03\x04 junk")
+    cases = {tmp_path / "missing.eqx": "model file not found", tmp_path / "junk.eqx": "not a gfjax SparseGF model"}
+    for model, message in cases.items():
+        code, _, err = run_cli(capsys, "filter", scene, "-o", tmp_path / "out.las", "--method", "sparsegf",
+                               "--model", model)
+        line = error_line(err)
+        assert code == 2 and message in line and model.name in line
+        assert not (tmp_path / "out.las").exists()
+    code, _, err = run_cli(capsys, "filter", scene, "-o", tmp_path / "out.las", "--method", "smrf",
+                           "--model", tmp_path / "junk.eqx")
+    assert code == 2 and "only --method sparsegf takes a model" in error_line(err)
