@@ -96,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
     net = SparseGFNet(net_config, key=jax.random.key(args.seed))
     from tqdm import tqdm
 
-    bar = tqdm(total=args.epochs * -(-n_patches // args.batch), desc="train", unit="step")
+    done = checkpoint.state_epoch(state_path) if args.resume else 0
+    bar = tqdm(total=max(args.epochs - done, 0) * -(-n_patches // args.batch), desc="train", unit="step")
     started = time.perf_counter()
 
     def on_step(epoch, losses):

@@ -26,14 +26,28 @@ FORMAT = 1
 SHIPPED = "sparsegf_tiny.eqx"      # the model inside the package (gfjax/data)
 
 
+def _file_mode() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+_FILE_MODE = _file_mode()          # what open() would give a new file (mkstemp gives 0600)
+
+
 def save(path: str | Path, net: SparseGFNet, meta: dict[str, Any] | None = None) -> None:
     """Write `net` to `path` atomically (a temporary file renamed into place)."""
     from gfjax import __version__
 
     header = {"magic": MAGIC, "format": FORMAT, "gfjax": __version__,
               "net": dataclasses.asdict(net.config), "meta": meta or {}}
+    _write(path, header, net)
+
+
+def _write(path: str | Path, header: dict[str, Any], tree) -> None:
+    """A JSON header line then `tree`'s leaves, written to a temporary file renamed into place."""
     buffer = io.BytesIO()
-    eqx.tree_serialise_leaves(buffer, net)
+    eqx.tree_serialise_leaves(buffer, tree)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -41,6 +55,7 @@ def save(path: str | Path, net: SparseGFNet, meta: dict[str, Any] | None = None)
         with os.fdopen(fd, "wb") as f:
             f.write(json.dumps(header).encode() + b"\n")
             f.write(buffer.getvalue())
+        os.chmod(tmp, _FILE_MODE)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -92,22 +107,20 @@ def has_state(path: str | Path) -> bool:
     return Path(path).is_file()
 
 
+def state_epoch(path: str | Path) -> int:
+    """Epochs done by the training state at `path` (0 when there is none or it is unreadable)."""
+    try:
+        with open(path, "rb") as f:
+            return int(json.loads(f.readline(1 << 20)).get("epoch", 0))
+    except (OSError, ValueError, AttributeError):
+        return 0
+
+
 def save_state(path: str | Path, net: SparseGFNet, opt_state, epoch: int, logs: list) -> None:
     """The training state after `epoch` epochs (network, optimizer state, epoch logs), atomically."""
     header = {"magic": MAGIC + "-state", "format": FORMAT, "epoch": epoch, "net": dataclasses.asdict(net.config),
               "logs": [log._asdict() for log in logs]}
-    buffer = io.BytesIO()
-    eqx.tree_serialise_leaves(buffer, (net, opt_state))
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(json.dumps(header).encode() + b"\n")
-            f.write(buffer.getvalue())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    _write(path, header, (net, opt_state))
 
 
 def load_state(path: str | Path, net: SparseGFNet, opt_state):

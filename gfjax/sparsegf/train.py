@@ -134,7 +134,7 @@ def validation_error(net: SparseGFNet, data: list[Labelled], config: Config) -> 
     errors = []
     for d in data:
         prob, _, _ = ground_probability(net, d.xyz_m, config)
-        errors.append(point_metrics(prob > config.ground_probability, d.ground)["total_error"])
+        errors.append(100.0 * point_metrics(prob > config.ground_probability, d.ground)["total_error"])
     return float(np.mean(errors))
 
 
