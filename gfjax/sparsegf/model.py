@@ -133,7 +133,6 @@ class SparseGFNet(eqx.Module):
             for _ in range(c.layers[level]):
                 blocks.append(sparse.SparseResBlock(width, c.planes[level], groups=g, key=next(keys)))
                 width = c.planes[level]
-            width = c.planes[level] if c.layers[level] == 0 and width != c.planes[level] else width
             enc.append(tuple(blocks))
             widths.append(width)
         up, up_norm, dec = [], [], []

@@ -62,8 +62,8 @@ class SparseConv3d(eqx.Module):
             out_stride = x.stride
         else:
             out_stride = x.stride // self.stride if self.transposed else x.stride * self.stride
-        out = SparseTensor(kmap.out_coords, y, kmap.out_valid, max(out_stride, 1), x.batch_size)
-        return out.replace_feats(y)
+        y = jnp.where(kmap.out_valid[:, None], y, 0.0)            # a bias must not reach padding rows
+        return SparseTensor(kmap.out_coords, y, kmap.out_valid, max(out_stride, 1), x.batch_size)
 
 
 class SparseGroupNorm(eqx.Module):
