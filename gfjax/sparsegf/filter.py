@@ -14,7 +14,7 @@ from gfjax.sparsegf import checkpoint
 from gfjax.sparsegf.config import Config
 from gfjax.sparsegf.model import SparseGFNet
 from gfjax.sparsegf.partition import PartitionConfig, partition
-from gfjax.sparsegf.pipeline import make_patch, predict_batch, stack
+from gfjax.sparsegf.pipeline import make_patch, predict_batch, run_with_room, stack
 from gfjax.sparsegf.vote import soft_vote
 
 
@@ -45,12 +45,17 @@ def ground_probability(net: SparseGFNet, xyz_m: np.ndarray, config: Config, *, p
     if progress:
         from tqdm import tqdm
         bar = tqdm(total=len(todo), desc="sparsegf patches", unit="patch", leave=False)
+    plans = {}
+
+    def run(batch):
+        b = batch.patch
+        return predict_batch(net, b.coords, b.feats, b.vvalid, b.point_voxel, b.central, batch.plan)
+
     for start in range(0, len(todo), config.batch_size):
         group = todo[start:start + config.batch_size]
-        batch = stack(group)
+        batch = stack(group, plans)
         b = batch.patch
-        p = predict_batch(net, b.coords, b.feats, b.vvalid, b.point_voxel, b.central, batch.plan)
-        p = np.asarray(jax.device_get(p))
+        p = np.asarray(jax.device_get(run_with_room(run, batch, plans)))
         for i in range(len(group)):
             index.append(b.index[i]), prob.append(p[i]), central.append(b.central[i])
         if bar is not None:

@@ -6,8 +6,8 @@ Host code drives jitted array functions:
 2. Per patch, `_compress_features` (jit) applies the context compression (Eqs. 1-3) and
    makes the per-point input features; `voxelize` (jit) bins the compressed points into
    0.5 m voxels. The voxel rows are cut to a capacity bucket of the patch's own count.
-3. `plan_pyramid` sizes every kernel map of the U-Net from the data; patches of one batch
-   share the union of their plans and run under `jax.vmap`.
+3. Patches of one voxel capacity share one pyramid plan (`standard_plan`, grown from the
+   data only when a patch does not fit) and run under `jax.vmap`, so a capacity compiles once.
 4. Each patch's central ground probabilities go to `soft_vote` (Algorithm 1).
 
 Context thinning (a CPU budget, not in the paper): a patch keeps every central point, and at
@@ -125,9 +125,13 @@ class Batch(NamedTuple):
     plan: sparse.PyramidPlan
 
 
-def stack(patches: list[Patch], depth: int = 4, like: sparse.PyramidPlan | None = None) -> Batch:
-    """Pad patches to common sizes and plan their pyramids together (starting from `like`,
-    else from `standard_plan`)."""
+DEPTH = 4               # levels of the U-Net below the input
+
+
+def stack(patches: list[Patch], plans: dict[int, sparse.PyramidPlan] | None = None) -> Batch:
+    """Pad patches to common sizes, with the plan kept in `plans` for their voxel capacity
+    (else `standard_plan`, which depends on the capacity only: one compiled shape per
+    capacity; `run_with_room` grows it for data that do not fit)."""
     n = max(len(p.index) for p in patches)
     m = max(len(p.coords) for p in patches)
 
@@ -135,9 +139,7 @@ def stack(patches: list[Patch], depth: int = 4, like: sparse.PyramidPlan | None 
         extra = size - a.shape[0]
         return np.concatenate([a, np.full((extra,) + a.shape[1:], value, a.dtype)]) if extra else a
 
-    plan = like if like is not None and like.capacities[0] == m else sparse.standard_plan(m, depth=depth)
-    for p in patches:
-        plan = sparse.plan_pyramid(pad(p.coords, m, 0), pad(p.vvalid, m, False), depth=depth, like=plan)
+    plan = (plans or {}).get(m) or sparse.standard_plan(m, depth=DEPTH)
     stacked = Patch(np.stack([pad(p.index, n, -1) for p in patches]), np.stack([pad(p.central, n, False) for p in patches]),
                     np.stack([pad(p.coords, m, 0) for p in patches]), np.stack([pad(p.feats, m, 0) for p in patches]),
                     np.stack([pad(p.vvalid, m, False) for p in patches]),
@@ -145,15 +147,39 @@ def stack(patches: list[Patch], depth: int = 4, like: sparse.PyramidPlan | None 
     return Batch(stacked, plan)
 
 
+def grow_plan(batch: Batch) -> Batch:
+    """The batch with a plan grown from its own voxels (a host pass over every patch)."""
+    plan = batch.plan
+    for coords, valid in zip(batch.patch.coords, batch.patch.vvalid):
+        plan = sparse.plan_pyramid(coords, valid, depth=DEPTH, like=plan)
+    return batch._replace(plan=plan)
+
+
+def run_with_room(run, batch: Batch, plans: dict[int, sparse.PyramidPlan]):
+    """`run(batch) -> (result, overflowed)`, run again with a grown plan if the batch did not
+    fit its plan; the grown plan is kept in `plans` for later batches of that capacity."""
+    result, overflowed = run(batch)
+    if bool(overflowed):
+        batch = grow_plan(batch)
+        plans[batch.plan.capacities[0]] = batch.plan
+        result, overflowed = run(batch)
+        if bool(overflowed):
+            raise RuntimeError("sparsegf: a pyramid plan grown from the data did not fit the data")
+    return result
+
+
 def forward(net: SparseGFNet, coords, feats, vvalid, point_voxel, central, plan):
-    """Logits of one patch (jit-able with `plan` static; vmap over patches)."""
+    """Logits of one patch and whether its pyramid overflowed `plan` (jit-able with `plan`
+    static; vmap over patches)."""
     pyramid = sparse.build_pyramid(coords, vvalid, plan)
     x = sparse.SparseTensor(coords, jnp.where(vvalid[:, None], feats, 0.0), vvalid)
-    return net(x, pyramid, point_voxel, central)
+    return net(x, pyramid, point_voxel, central), pyramid.overflowed
 
 
 @eqx.filter_jit
 def predict_batch(net: SparseGFNet, coords, feats, vvalid, point_voxel, central, plan):
-    """Ground probability `(b, n)` of every point of a batch (0 outside the central mask)."""
-    out = jax.vmap(lambda c, f, v, pv, ce: forward(net, c, f, v, pv, ce, plan))(coords, feats, vvalid, point_voxel, central)
-    return jax.nn.softmax(out.cls, axis=-1)[..., 1]
+    """Ground probability `(b, n)` of every point of a batch (0 outside the central mask), and
+    whether any patch overflowed `plan` (the probabilities are then wrong)."""
+    out, overflowed = jax.vmap(lambda c, f, v, pv, ce: forward(net, c, f, v, pv, ce, plan))(
+        coords, feats, vvalid, point_voxel, central)
+    return jax.nn.softmax(out.cls, axis=-1)[..., 1], jnp.any(overflowed)

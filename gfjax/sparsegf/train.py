@@ -21,7 +21,7 @@ from gfjax.sparsegf.filter import patches
 from gfjax.sparsegf.hag import hag_targets
 from gfjax.sparsegf.loss import LAMBDA, height_aware_loss
 from gfjax.sparsegf.model import SparseGFNet
-from gfjax.sparsegf.pipeline import Batch, forward, stack
+from gfjax.sparsegf.pipeline import Batch, forward, run_with_room, stack
 
 # The paper's cosine schedule runs from 1e-1 to 1e-3 (Sec. 3.3). With Adam, group norms and
 # batches of 4 patches, 1e-1 made the loss jump from 3.3 to 15.7 at the second step of a tiny
@@ -49,8 +49,9 @@ def training_batches(data: list[Labelled], config: Config, *, batch_size: int, r
     """One epoch of batches: every patch of every cloud once, randomly rotated, in random order.
 
     Patches are batched with others of the same padded shape (`pipeline.bucket`), and each
-    shape keeps one pyramid plan across epochs in `plans` (grown only when a patch does not
-    fit), so an epoch compiles the training step a few times, not once per batch.
+    voxel capacity keeps one pyramid plan across epochs in `plans` (`pipeline.stack`; grown
+    only when a patch does not fit), so training compiles its step a few times, not once per
+    batch.
     """
     plans = {} if plans is None else plans
     groups: dict[tuple[int, int], list] = {}
@@ -64,9 +65,7 @@ def training_batches(data: list[Labelled], config: Config, *, batch_size: int, r
         chunks += [items[i:i + batch_size] for i in range(0, len(items), batch_size)]
     for c in rng.permutation(len(chunks)):
         group = chunks[c]
-        shape = (len(group[0][1].index), len(group[0][1].coords))
-        batch = stack([p for _, p in group], like=plans.get(shape))
-        plans[shape] = batch.plan
+        batch = stack([p for _, p in group], plans)
         b = batch.patch
         labels = np.zeros(b.index.shape, np.int32)
         bins = np.zeros(b.index.shape, np.int32)
@@ -85,20 +84,21 @@ def optimizer(steps: int, lr: float = LR_START) -> optax.GradientTransformation:
 @eqx.filter_jit
 def train_step(net: SparseGFNet, opt_state, batch: Batch, labels, bins, opt: optax.GradientTransformation,
                lam: float = LAMBDA):
-    """One Adam step on a batch; returns `(net, opt_state, loss)` (loss: `HeightAwareLoss`)."""
+    """One Adam step on a batch; returns `(net, opt_state, loss, overflowed)` (loss:
+    `HeightAwareLoss`; when `overflowed`, the batch did not fit its plan and the step is wrong)."""
 
     def loss_fn(net):
         b = batch.patch
-        out = jax.vmap(lambda c, f, v, pv, ce: forward(net, c, f, v, pv, ce, batch.plan))(
+        out, overflowed = jax.vmap(lambda c, f, v, pv, ce: forward(net, c, f, v, pv, ce, batch.plan))(
             b.coords, b.feats, b.vvalid, b.point_voxel, b.central)
         mask = b.central & (b.point_voxel >= 0)
         loss = height_aware_loss(out.cls, out.hag, labels, bins, mask, lam=lam)
-        return loss.total, loss
+        return loss.total, (loss, jnp.any(overflowed))
 
-    (_, loss), grads = eqx.filter_value_and_grad(loss_fn, has_aux=True)(net)
+    (_, (loss, overflowed)), grads = eqx.filter_value_and_grad(loss_fn, has_aux=True)(net)
     with jax.numpy_dtype_promotion("standard"):          # optax: float ** int32 step count
         updates, opt_state = opt.update(grads, opt_state, eqx.filter(net, eqx.is_array))
-    return eqx.apply_updates(net, updates), opt_state, loss
+    return eqx.apply_updates(net, updates), opt_state, loss, overflowed
 
 
 def init(net: SparseGFNet, steps: int, lr: float = LR_START):
@@ -160,7 +160,11 @@ def fit(net: SparseGFNet, data: list[Labelled], *, config: Config, epochs: int, 
         totals = []
         rng = np.random.default_rng([seed, epoch])
         for batch, labels, bins in training_batches(data, config, batch_size=batch_size, rng=rng, plans=plans):
-            net, state, loss = train_step(net, state, batch, labels, bins, opt, lam)
+            def run(batch, net=net, state=state, labels=labels, bins=bins):
+                *step, overflowed = train_step(net, state, batch, labels, bins, opt, lam)
+                return step, overflowed
+
+            net, state, loss = run_with_room(run, batch, plans)
             totals.append([float(loss.total), float(loss.cls), float(loss.hag)])
             if on_step is not None:
                 on_step(epoch, totals[-1])

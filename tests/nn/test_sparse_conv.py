@@ -12,6 +12,7 @@ from jax.test_util import check_grads
 
 from gfjax.nn import sparse
 from gfjax.nn.sparse import keys as K
+from gfjax.nn.sparse.maps import kernel_offsets, neighbour_table
 
 SHAPE = (6, 4, 4)          # dense test grid (i, j, k), even so that stride 2 covers it
 C_IN, C_OUT = 3, 4
@@ -253,3 +254,29 @@ def test_overflow_is_reported():
     assert bool(kmap.overflowed)
     _, _, overflowed = sparse.downsample(coords, valid, capacity=3)
     assert bool(overflowed)
+
+
+@pytest.mark.parametrize("kernel_size, centred, stride", [(1, True, 1), (3, True, 1), (5, True, 1), (2, False, 2),
+                                                          (3, False, 2)])
+def test_neighbour_table_equals_one_lookup_per_offset(kernel_size, centred, stride):
+    rng = np.random.default_rng(kernel_size * 10 + stride)
+    # columns of a few voxels, stacked tightly, at the edges of the packable range too
+    coords = np.concatenate([rng.integers(-3, 4, (300, 4)), rng.integers(K.COORD_MAX - 3, K.COORD_MAX + 1, (40, 4)),
+                             rng.integers(K.COORD_MIN, K.COORD_MIN + 4, (40, 4))]).astype(np.int32)
+    coords[:, 0] = rng.integers(0, 2, len(coords))
+    in_coords = np.unique(coords, axis=0)
+    in_valid = rng.random(len(in_coords)) < 0.9
+    out_coords = np.concatenate([in_coords, np.floor_divide(in_coords, np.asarray([1, stride, stride, stride]))])
+    out_coords[:, 0] = np.concatenate([in_coords[:, 0]] * 2)
+    out_valid = rng.random(len(out_coords)) < 0.9
+    got = np.asarray(neighbour_table(jnp.asarray(in_coords), jnp.asarray(in_valid), jnp.asarray(out_coords),
+                                     jnp.asarray(out_valid), kernel_size=kernel_size, centred=centred, stride=stride))
+    where = {tuple(c): i for i, c in enumerate(in_coords) if in_valid[i]}
+    offsets = kernel_offsets(kernel_size, centred=centred)
+    want = np.full((len(out_coords), len(offsets)), len(in_coords), np.int32)
+    for o, c in enumerate(out_coords):
+        if out_valid[o]:
+            for d, off in enumerate(offsets):
+                q = (c[0], *(stride * c[1:] + off))
+                want[o, d] = where.get(q, len(in_coords))
+    np.testing.assert_array_equal(got, want)

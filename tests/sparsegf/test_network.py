@@ -70,6 +70,7 @@ def test_filter_votes_every_point_and_a_training_step_lowers_the_loss():
     opt, state = train.init(net, 20)
     losses = []
     for _ in range(6):
-        net, state, loss = train.train_step(net, state, batch, labels, bins, opt)
+        net, state, loss, overflowed = train.train_step(net, state, batch, labels, bins, opt)
+        assert not overflowed
         losses.append(float(loss.total))
     assert np.all(np.isfinite(losses)) and losses[-1] < losses[0]

@@ -106,20 +106,15 @@ def _less(a_hi, a_lo, b_hi, b_lo):
     return (a_hi < b_hi) | ((a_hi == b_hi) & (a_lo < b_lo))
 
 
-def lookup(table: SortedKeys, query: Keys, *, missing: int) -> Int[Array, "..."]:
-    """Row of `table` holding each query key, or `missing` where none does.
+def lower_bound(table: SortedKeys, query: Keys) -> Int[Array, "..."]:
+    """Position in `table` of the first key not below each query, `(...)` int32 in `[0, n]`.
 
-    Args:
-      table: the voxel set (`sort_keys`), `n` rows.
-      query: keys of any shape `(...)`; padding keys never match.
-      missing: the value returned for a key not in the set (static).
-
-    A lower-bound binary search, `ceil(log2(n + 1))` vectorised steps of two gathers each.
+    A vectorised binary search: `ceil(log2(n + 1))` steps of two gathers each.
     """
     n = table.hi.shape[0]
-    if n == 0:
-        return jnp.full(query.hi.shape, missing, dtype=jnp.int32)
     lo = jnp.zeros(query.hi.shape, dtype=jnp.int32)
+    if n == 0:
+        return lo
     hi = jnp.full(query.hi.shape, n, dtype=jnp.int32)
 
     def step(_, bounds):
@@ -131,6 +126,21 @@ def lookup(table: SortedKeys, query: Keys, *, missing: int) -> Int[Array, "..."]
         return jnp.where(active & before, mid + 1, lo), jnp.where(active & ~before, mid, hi)
 
     lo, _ = lax.fori_loop(0, max(1, math.ceil(math.log2(n + 1))), step, (lo, hi))
+    return lo
+
+
+def lookup(table: SortedKeys, query: Keys, *, missing: int) -> Int[Array, "..."]:
+    """Row of `table` holding each query key, or `missing` where none does.
+
+    Args:
+      table: the voxel set (`sort_keys`), `n` rows.
+      query: keys of any shape `(...)`; padding keys never match.
+      missing: the value returned for a key not in the set (static).
+    """
+    n = table.hi.shape[0]
+    if n == 0:
+        return jnp.full(query.hi.shape, missing, dtype=jnp.int32)
+    lo = lower_bound(table, query)
     at = jnp.minimum(lo, n - 1)
     found = (lo < n) & (table.hi[at] == query.hi) & (table.lo[at] == query.lo) & ~is_pad(query)
     return jnp.where(found, table.perm[at], missing).astype(jnp.int32)

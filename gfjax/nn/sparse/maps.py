@@ -13,8 +13,10 @@ kind of convolution the U-Net needs:
 - transposed (kernel 2, stride 2, back to the finer sites): the strided map with inputs and
   outputs swapped (`KernelMap.transpose`), so the same pairs serve both directions.
 
-Pairs are found for every (output row, offset) by a binary search of the packed input keys
-(`keys.lookup`; jit-able, no dict), then compacted into a list grouped by offset: each
+Pairs are found by binary searches of the packed input keys (`keys.lower_bound`; jit-able,
+no dict): one search per (output row, kernel column), since a column's voxels are consecutive
+in key order, so a kernel of edge `k` costs `k**2` searches per row, not `k**3`. They are then
+compacted into a list grouped by offset: each
 offset's pairs fill whole blocks of `block` rows (the last block of an offset padded with a
 sentinel pair), so the convolution is one gather, one batched matmul of `(block, c) @ (c, c')`
 per block and one scatter-add, and only neighbours that exist cost multiply-adds. The pair
@@ -120,15 +122,36 @@ def neighbour_table(in_coords: Int[Array, "n_in 4"], in_valid: Bool[Array, " n_i
       `(n_out, k)` int32, an input row or `n_in` (none there); invalid output rows and
       invalid input rows never take part.
     """
-    n_in = in_coords.shape[0]
-    offsets = kernel_offsets(kernel_size, centred=centred)
+    n_in, n_out = in_coords.shape[0], out_coords.shape[0]
+    volume = len(kernel_offsets(kernel_size, centred=centred))
+    if n_in == 0:
+        return jnp.full((n_out, volume), n_in, jnp.int32)
     table = K.sort_keys(K.pack(in_coords, in_valid))
-    delta = np.concatenate([np.zeros((len(offsets), 1), np.int32), np.asarray(offsets, np.int32)], axis=1)
-    scale = jnp.asarray([[1, stride, stride, stride]], dtype=jnp.int32)
-    query = (out_coords * scale)[:, None, :] + jnp.asarray(delta)[None, :, :]      # (n_out, k, 4)
-    q = K.pack(query.reshape(-1, 4), jnp.repeat(out_valid, len(offsets)))
-    found = K.lookup(table, q, missing=n_in)
-    return found.reshape(out_coords.shape[0], len(offsets))
+    start = -(kernel_size // 2) if centred else 0
+    axis = np.arange(start, start + kernel_size, dtype=np.int32)
+    dx, dy = (jnp.asarray(a.reshape(-1)) for a in np.meshgrid(axis, axis, indexing="ij"))
+    columns = kernel_size * kernel_size
+
+    def column_keys(z):                                     # (n_out * columns,) keys at height z
+        coords = jnp.stack([jnp.broadcast_to(out_coords[:, :1], (n_out, columns)),
+                            stride * out_coords[:, 1:2] + dx[None, :], stride * out_coords[:, 2:3] + dy[None, :],
+                            jnp.broadcast_to(z[:, None], (n_out, columns))], axis=-1)
+        return K.pack(coords.reshape(-1, 4), jnp.repeat(out_valid, columns))
+
+    z0 = stride * out_coords[:, 3] + start
+    first = K.lower_bound(table, column_keys(jnp.clip(z0, K.COORD_MIN, K.COORD_MAX)))
+    targets = [column_keys(z0 + dz) for dz in range(kernel_size)]
+    found = [jnp.full(first.shape, n_in, jnp.int32) for _ in range(kernel_size)]
+    for j in range(kernel_size):
+        # the voxels of a column are consecutive in key order, so the one at height z0 + dz
+        # is among the kernel_size keys from the first one at or above z0
+        at = jnp.minimum(first + j, n_in - 1)
+        hi, lo, row = table.hi[at], table.lo[at], table.perm[at]
+        inside = first + j < n_in
+        for dz, t in enumerate(targets):
+            hit = inside & (hi == t.hi) & (lo == t.lo) & ~K.is_pad(t)
+            found[dz] = jnp.where(hit, row, found[dz])
+    return jnp.stack(found, axis=-1).reshape(n_out, volume)
 
 
 def pairs_per_offset(table: Int[Array, "n_out k"], n_in: int) -> Int[Array, " k"]:
