@@ -33,15 +33,20 @@ from gfjax.bench import harness
 DTM_CELL_M = 2.0
 
 
-def _filter_function(kind: str, name: str) -> Callable:
-    """`cloud -> ground bool (n,)` for a gfjax method or a peer (imports it now)."""
+def _filter_function(kind: str, name: str, model: str | None = None) -> Callable:
+    """`cloud -> ground bool (n,)` for a gfjax method or a peer (imports it now); `model`:
+    SparseGF's model file (None: the shipped one)."""
     if kind == "method":
         from gfjax import methods
 
         module = methods.get(name)
+        options = {}
+        if name == "sparsegf":
+            net, config = module.load_model(model)
+            options = {"model": net, "config": config}
 
         def run_method(cloud) -> np.ndarray:
-            return np.asarray(module.filter(cloud, progress=False).ground, dtype=bool)
+            return np.asarray(module.filter(cloud, progress=False, **options).ground, dtype=bool)
 
         return run_method
     if kind == "peer":
@@ -79,7 +84,8 @@ def _timed(fn: Callable, *args, **kwargs):
     return value, time.perf_counter() - start
 
 
-def bench_one(*, path: str, kind: str, name: str, repeat: int = 1, units: str | None = None) -> dict:
+def bench_one(*, path: str, kind: str, name: str, repeat: int = 1, units: str | None = None,
+              model: str | None = None) -> dict:
     """Time and score one filter on one file (in the calling process).
 
     Args:
@@ -88,6 +94,7 @@ def bench_one(*, path: str, kind: str, name: str, repeat: int = 1, units: str | 
       name: the method or peer.
       repeat: timed whole jobs after the warm-up (>= 1).
       units: `--units` override ("m", "ft", "us-ft"), or None for the file's CRS.
+      model: SparseGF's model file (None: the model shipped in gfjax).
 
     Returns:
       JSON-able dict: `n_points`, `n_used`, `n_ground`, `baseline_rss_bytes`, `first_read_s`,
@@ -100,7 +107,7 @@ def bench_one(*, path: str, kind: str, name: str, repeat: int = 1, units: str | 
 
     if repeat < 1:
         raise ValueError(f"repeat must be >= 1, got {repeat}")
-    run = _filter_function(kind, name)
+    run = _filter_function(kind, name, model)
     out: dict = {"baseline_rss_bytes": harness.rss_bytes()}
     cloud, out["first_read_s"] = _timed(las_io.read, path, units=units)
     if kind == "method":

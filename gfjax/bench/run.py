@@ -32,20 +32,26 @@ class Runner(NamedTuple):
 
     kind: str   # "method" or "peer"
     name: str
+    model: str | None = None    # SparseGF's model file (None: the shipped model)
 
     @property
     def label(self) -> str:
-        return f"gfjax {self.name}" if self.kind == "method" else self.name
+        if self.kind == "peer":
+            return self.name
+        return f"gfjax {self.name}" + (f" ({Path(self.model).name})" if self.model else "")
 
 
-def plan(methods_text: str | None, peers_text: str | None) -> tuple[list[Runner], list[str]]:
+def plan(methods_text: str | None, peers_text: str | None, *, model: str | None = None
+         ) -> tuple[list[Runner], list[str]]:
     """The runners for `--methods` / `--peers`, and one note per peer that is not installed.
 
     `--methods` None = every available gfjax method (`gfjax.methods.available()`), "none" =
     no method; a named method must exist and be available. `--peers`: see `peers.parse_peers`.
+    `model`: SparseGF's model file (`--model`), loaded once here so a bad file fails first.
 
     Raises:
-      InputError: an unknown or unavailable method, an unknown peer, or nothing to run.
+      InputError: an unknown or unavailable method, an unknown peer, a bad model file or a
+        model without SparseGF, or nothing to run.
     """
     from gfjax import methods
 
@@ -63,7 +69,11 @@ def plan(methods_text: str | None, peers_text: str | None) -> tuple[list[Runner]
                 methods.get(name)
             except InputError as err:
                 raise InputError(str(err).replace("--method:", "--methods:", 1)) from None
-    runners = [Runner("method", name) for name in method_names]
+    if model is not None:
+        if "sparsegf" not in method_names:
+            raise InputError(f"--model {model}: only the sparsegf method takes a model; add it to --methods")
+        methods.get("sparsegf").load_model(model)
+    runners = [Runner("method", name, model if name == "sparsegf" else None) for name in method_names]
     notes = []
     for name in peers.parse_peers(peers_text):
         if peers.installed(name):
@@ -103,7 +113,7 @@ def run_one(path: Path, runner: Runner, *, repeat: int = 1, units: str | None = 
     try:
         result = harness.run_isolated("gfjax.bench.job:bench_one",
                                       {"path": str(path), "kind": runner.kind, "name": runner.name,
-                                       "repeat": repeat, "units": units},
+                                       "repeat": repeat, "units": units, "model": runner.model},
                                       timeout_s=timeout_s, cpus=harness.choose_cpus(threads),
                                       env={**(harness.compile_cache_env(compile_cache) if compile_cache else {}),
                                            **(env or {})},

@@ -78,6 +78,10 @@ def add_method_options(parser: argparse.ArgumentParser, *, method_help: str) -> 
                              "(repeatable; wins over --preset and --params)")
     parser.add_argument("--params", default=None, metavar="PARAMS.json",
                         help="fitted thresholds written by `gfjax tune`")
+    add_model_option(parser)
+
+
+def add_model_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", default=None, metavar="MODEL.eqx",
                         help="SparseGF network written by `gfjax train` (default: the model shipped in gfjax)")
 

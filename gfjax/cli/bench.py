@@ -21,7 +21,7 @@ import sys
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     from gfjax.bench.peers import PEERS
-    from gfjax.cli._common import add_units_option, positive_float, positive_int
+    from gfjax.cli._common import add_model_option, add_units_option, positive_float, positive_int
     from gfjax.methods import METHODS
 
     parser = subparsers.add_parser("bench", help="compare the speed and accuracy of methods and peers",
@@ -46,6 +46,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                              "(default: every run compiles from scratch; compile s is then cold)")
     parser.add_argument("--timeout", type=positive_float, default=None, metavar="S",
                         help="give up on one (file, filter) run after S seconds (default: no limit)")
+    add_model_option(parser)
     add_units_option(parser)
     return parser
 
@@ -70,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
             harness.choose_cpus(args.threads)
         except ValueError as err:
             raise InputError(f"--threads: {err}") from None
-    runners, notes = bench.plan(args.methods, args.peers)
+    runners, notes = bench.plan(args.methods, args.peers, model=args.model)
     for note in notes:
         print(note, file=sys.stderr)
 

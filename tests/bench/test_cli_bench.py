@@ -84,6 +84,8 @@ def test_bench_peer_only_labelled_and_unlabelled(scene, tmp_path, capsys):
     (["--threads", "100000"], "--threads: threads must be between 1 and"),
     (["--json", "out.txt"], "--json out.txt: output must end in .json"),
     (["--plot", "out.jpg"], "--plot out.jpg: output must end in .png"),
+    (["--methods", "smrf", "--model", "m.eqx"], "--model m.eqx: only the sparsegf method takes a model"),
+    (["--methods", "sparsegf", "--model", "m.eqx"], "m.eqx: model file not found"),
 ])
 def test_bad_options_exit_2(scene, options, message, capsys, monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
@@ -126,9 +128,30 @@ def test_run_one_passes_threads_and_compile_cache_and_derives_rates(monkeypatch,
                            compile_cache=tmp_path / "cache")
     assert seen["target"] == "gfjax.bench.job:bench_one"
     assert seen["kwargs"] == {"path": str(tmp_path / "x.laz"), "kind": "method", "name": "smrf",
-                              "repeat": 3, "units": None}
+                              "repeat": 3, "units": None, "model": None}
     assert seen["cpus"] == bench.harness.choose_cpus(1) and seen["keep_compile_cache"] is True
     assert seen["env"]["JAX_COMPILATION_CACHE_DIR"] == str(tmp_path / "cache")
     assert set(record) == set(bench.RECORD_KEYS) and record["status"] == "ok"
     assert record["points_per_s"] == 500_000 and record["filter_points_per_s"] == 1_000_000
     assert record["peak_rss_mib"] == 300 and record["rss_per_million_points_mib"] == 100
+
+
+def test_bench_runs_sparsegf_with_the_model_it_is_given(scene, tmp_path):
+    import jax
+    import numpy as np
+
+    from gfjax import sparsegf
+    from gfjax.bench import job
+    from gfjax.io import las as las_io
+    from gfjax.sparsegf import checkpoint
+    from gfjax.sparsegf.model import NetConfig
+
+    net = sparsegf.SparseGFNet(NetConfig(stem=4, planes=(4,) * 8, layers=(1,) * 8, refine=4, groups=2),
+                               key=jax.random.key(5))
+    model = tmp_path / "micro.eqx"
+    checkpoint.save(model, net, {})
+    runners, _ = bench.plan("sparsegf", "none", model=str(model))
+    assert [r.label for r in runners] == ["gfjax sparsegf (micro.eqx)"]
+    record = job.bench_one(path=str(scene[0]), kind="method", name="sparsegf", model=str(model))
+    want = sparsegf.filter(las_io.read(scene[0]), model=net).ground
+    assert 0 < record["n_ground"] == int(np.sum(want)) < len(want)

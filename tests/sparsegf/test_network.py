@@ -74,3 +74,36 @@ def test_filter_votes_every_point_and_a_training_step_lowers_the_loss():
         assert not overflowed
         losses.append(float(loss.total))
     assert np.all(np.isfinite(losses)) and losses[-1] < losses[0]
+
+
+def test_a_patch_that_overflows_the_standard_plan_runs_again_with_a_grown_plan():
+    from gfjax.sparsegf import pipeline
+
+    from gfjax.sparsegf.filter import patches
+
+    # a solid 30 x 30 x 18 block of voxels filling its capacity bucket: 27 kernel-3 neighbours
+    # each, more than the standard plan's room, so the first run overflows
+    xyz = np.stack(np.meshgrid(np.arange(30), np.arange(30), np.arange(18), indexing="ij"), -1).reshape(-1, 3)
+    xyz = xyz * 0.5 + 0.25 + np.asarray([5e5, 5e6, 100.0])
+    net = SparseGFNet(MICRO, key=jax.random.key(3))
+    patch = next(patches(xyz, Config()))
+    plans = {}
+    batch = pipeline.stack([patch], plans)
+    b = batch.patch
+    calls = []
+
+    def run(batch):
+        prob, overflowed = pipeline.predict_batch(net, b.coords, b.feats, b.vvalid, b.point_voxel, b.central,
+                                                  batch.plan)
+        calls.append(bool(overflowed))
+        return prob, overflowed
+
+    prob = pipeline.run_with_room(run, batch, plans)
+    assert calls == [True, False]
+    grown = plans[len(patch.coords)]
+    assert grown == pipeline.grow_plan(batch).plan and grown != batch.plan
+    again = pipeline.run_with_room(run, pipeline.stack([patch], plans), plans)
+    assert calls[2:] == [False]
+    np.testing.assert_array_equal(np.asarray(prob), np.asarray(again))
+    central = b.central[0] & (b.point_voxel[0] >= 0)
+    assert central.any() and np.all(np.isfinite(np.asarray(prob)[0][central]))
