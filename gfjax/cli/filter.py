@@ -6,6 +6,12 @@ class (all become 1 with `--reset-nonground`); noise (7, 18), withheld points an
 an `instance_id` extra-bytes dimension with `--instances`. With several inputs (or a glob),
 OUT is an existing folder and each output has its input's name.
 
+Several inputs are filtered as one survey: every file is read once to index it, then each is
+filtered with a halo of its neighbours' points on the survey's tiling, so a point near a
+file border gets the label it would get if the survey were one file (exactly so for the
+tiled methods, SMRF and PMF). The files must share their CRS and units. `--independent`
+filters each file on its own instead.
+
 Every input and output is checked before the first file is filtered, so a bad option or
 path fails at once and leaves no file behind.
 """
@@ -13,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import tempfile
 import time
 from pathlib import Path
 
@@ -45,6 +52,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="also write a DTM GeoTIFF from the ground points (a folder for several inputs)")
     parser.add_argument("--cell", type=positive_float, default=1.0, metavar="M",
                         help="DTM cell size [m] (default 1)")
+    parser.add_argument("--independent", action="store_true",
+                        help="filter each input on its own, without its neighbours' points")
     add_units_option(parser)
     parser.add_argument("--force", action="store_true", help="overwrite input files")
     return parser
@@ -88,15 +97,27 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as err:
             raise InputError(f"--tile-size/--buffer: {err}") from None
 
+    with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder:
+        return _filter_all(args, setup, inputs, targets, dtm_targets, folder)
+
+
+def _filter_all(args, setup, inputs, targets, dtm_targets, folder) -> int:
     jobs, say = list(zip(inputs, targets, dtm_targets)), print
     if len(inputs) > 1:                     # a progress bar over files (tqdm: 40 ms to import)
         from tqdm.auto import tqdm
 
         jobs, say = tqdm(jobs, desc="files", unit="file"), tqdm.write
+    if len(inputs) > 1 and not args.independent:
+        from gfjax import survey
+
+        results = survey.filtered(inputs, lambda points, returns: setup.filter(points, returns=returns, progress=True),
+                                  setup.config, folder, returns=args.returns, units=args.units)
+    else:
+        results = ((cloud, setup.filter(cloud, returns=args.returns, progress=True))
+                   for cloud in (las_io.read(source, units=args.units) for source in inputs))
     for source, target, dtm_target in jobs:
         start = time.perf_counter()
-        cloud = las_io.read(source, units=args.units)
-        result = setup.filter(cloud, returns=args.returns, progress=True)
+        cloud, result = next(results)
         ground = np.asarray(result.ground, dtype=bool)
         labelled = cloud.with_ground(ground, reset_nonground=args.reset_nonground,
                                      used=cloud.filter_mask(args.returns))
@@ -107,6 +128,8 @@ def run(args: argparse.Namespace) -> int:
                                                description="object instance, 0 = none")
         las_io.write(labelled, target, force=args.force, input_paths=inputs)
         if dtm_target is not None:
+            from gfjax import dtm as dtm_lib
+
             dtm_lib.build(cloud, ground, cell_m=args.cell).to_geotiff(dtm_target)
         seconds = time.perf_counter() - start
         n_ground = int(np.count_nonzero(ground))

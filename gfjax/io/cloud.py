@@ -16,9 +16,21 @@ import laspy
 import numpy as np
 
 from gfjax.io import asprs
+from gfjax.io.tiles import Frame
 
 if TYPE_CHECKING:
     import pyproj
+
+
+def use_mask(ignored: np.ndarray, return_number: np.ndarray, number_of_returns: np.ndarray,
+             returns: str = "all") -> np.ndarray:
+    """Points a filter uses, bool `(n,)`: not ignored, and last returns only when `returns == "last"`."""
+    use = ~np.asarray(ignored, bool)
+    if returns == "last":
+        use &= np.asarray(return_number) >= np.asarray(number_of_returns)
+    elif returns != "all":
+        raise ValueError(f"returns must be 'all' or 'last', got {returns!r}")
+    return use
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -33,6 +45,8 @@ class Cloud:
       crs: the file's coordinate reference system (`pyproj.CRS`), or None when it states none.
       units_source: where the unit factors came from ("CRS", "--units ft", "no CRS in file:
         metres assumed", ...), for `gfjax info` and logs.
+      frame: the box the tiled filters lay their lattice on (`gfjax.io.tiles.Frame`; a
+        survey's, so adjacent files agree), or None for the cloud's own.
     """
 
     las: laspy.LasData
@@ -41,6 +55,7 @@ class Cloud:
     vertical_unit_m: float = 1.0
     crs: pyproj.CRS | None = None
     units_source: str = "in memory: metres"
+    frame: Frame | None = None
 
     @property
     def n_points(self) -> int:
@@ -98,12 +113,7 @@ class Cloud:
 
     def filter_mask(self, returns: str = "all") -> np.ndarray:
         """Points a filter uses: not ignored, and last returns only when `returns == "last"`."""
-        use = ~self.ignored
-        if returns == "last":
-            use &= self.return_number >= self.number_of_returns
-        elif returns != "all":
-            raise ValueError(f"returns must be 'all' or 'last', got {returns!r}")
-        return use
+        return use_mask(self.ignored, self.return_number, self.number_of_returns, returns)
 
     def with_ground(self, ground: np.ndarray, *, reset_nonground: bool = False,
                     used: np.ndarray | None = None) -> "Cloud":

@@ -147,10 +147,12 @@ def mosaic(tiles: Sequence[tiling.Tile], diagnostics: Sequence[NamedTuple], *, n
       cell_m: the tiles' raster cell [m].
 
     Returns:
-      `Mosaic`: rasters `(H, W)` over the union of the cores, and their south-west corner.
+      `Mosaic`: rasters `(H, W)` over the bounding box of the cores, and its south-west corner.
     """
-    width = max(t.core_px[2] for t in tiles)
-    height = max(t.core_px[3] for t in tiles)
+    col0 = min(t.core_px[0] for t in tiles)
+    row0 = min(t.core_px[1] for t in tiles)
+    width = max(t.core_px[2] for t in tiles) - col0
+    height = max(t.core_px[3] for t in tiles) - row0
     first = diagnostics[0]
     out = {}
     for name in names:
@@ -161,13 +163,13 @@ def mosaic(tiles: Sequence[tiling.Tile], diagnostics: Sequence[NamedTuple], *, n
         wc, wr = tile.window_px
         h = tile.shape[0]
         src_rows = slice(h - (r1 - wr), h - (r0 - wr))             # rows from the south -> north-up
-        dst_rows = slice(height - r1, height - r0)
+        dst_rows = slice(height - (r1 - row0), height - (r0 - row0))
         for name in names:
-            out[name][dst_rows, c0:c1] = getattr(diag, name)[src_rows, c0 - wc:c1 - wc]
+            out[name][dst_rows, c0 - col0:c1 - col0] = getattr(diag, name)[src_rows, c0 - wc:c1 - wc]
     z0 = float(tiles[0].origin_m[2])
     for name in heights:
         out[name] += z0
-    origin = tiles[0].origin_m[:2] - np.asarray(tiles[0].window_px, np.float64) * cell_m
+    origin = tiles[0].origin_m[:2] + (np.asarray([col0, row0]) - np.asarray(tiles[0].window_px)) * cell_m
     return Mosaic(rasters=out, origin_m=origin)
 
 
@@ -187,7 +189,7 @@ class TiledRun(NamedTuple):
 
 def classify_cloud(xyz_m: Float[np.ndarray, "n 3"], use: Bool[np.ndarray, " n"], classify_batch: ClassifyBatch,
                    params: Any, config: Any, *, max_batch: int, progress: bool = False,
-                   desc: str = "tiles") -> TiledRun:
+                   desc: str = "tiles", frame: tiling.Frame | None = None) -> TiledRun:
     """Split a cloud into buffered tiles, run `classify_batch` over them, merge the core labels.
 
     Args:
@@ -196,12 +198,13 @@ def classify_cloud(xyz_m: Float[np.ndarray, "n 3"], use: Bool[np.ndarray, " n"],
       classify_batch, params, max_batch, progress, desc: as `run_batches`.
       config: the method's static config; its `tile_size_m`, `buffer_m` and `cell_m` [m] set
         the tiling.
+      frame: the tiling's box (`tiles.split`; default the used points' own).
 
     Returns:
       `TiledRun(ground, tiles, diagnostics)`.
     """
     tiles = tiling.split(xyz_m, tile_size_m=config.tile_size_m, buffer_m=config.buffer_m,
-                         cell_m=config.cell_m, use=use)
+                         cell_m=config.cell_m, use=use, frame=frame)
     if not tiles:
         return TiledRun(ground=np.zeros(len(use), bool), tiles=[], diagnostics=[])
     labels, diagnostics = run_batches(tiles, classify_batch, params, config, max_batch=max_batch,

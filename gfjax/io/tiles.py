@@ -1,7 +1,9 @@
 """Buffered square tiles, padded into fixed-shape batches for `jax.vmap`, and the label merge.
 
 A cloud's metre coordinates are cut into square tile *cores* of `tile_size_m` on a lattice
-anchored at the minimum corner of the points used; each point belongs to exactly one core.
+anchored at the minimum corner of the points used, or at the corner of a given `Frame` (a
+survey's: then a point gets the same tile, cells and local coordinates whichever file of the
+survey it is filtered with); each point belongs to exactly one core.
 A tile holds its core's points plus the points within `buffer_m` around it (its *window*),
 so a local method sees context across the seam; only the core points' labels are kept when
 merging (SPEC section 1, "Tiles").
@@ -24,10 +26,31 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Tile", "TileBatch", "split", "capacity_bucket", "shape_bucket", "batches", "merge"]
+__all__ = ["Frame", "Tile", "TileBatch", "split", "capacity_bucket", "shape_bucket", "batches", "merge"]
 
 MIN_CAPACITY = 256
 SHAPE_QUANTUM_PX = 64
+
+
+class Frame(NamedTuple):
+    """The box a tiling is laid on: its lattice starts at `origin_m` and windows stop at `upper_m`.
+
+    Attributes:
+      origin_m: float64 `(3,)` minimum x, y, z of the points filtered [m].
+      upper_m: float64 `(2,)` maximum x, y [m].
+    """
+
+    origin_m: np.ndarray
+    upper_m: np.ndarray
+
+    @classmethod
+    def of(cls, xyz_m: np.ndarray) -> Frame:
+        """The frame of points `(n, 3)` (n >= 1): their bounding box."""
+        xyz_m = np.asarray(xyz_m, np.float64)
+        return cls(xyz_m.min(axis=0), xyz_m[:, :2].max(axis=0))
+
+    def union(self, other: Frame) -> Frame:
+        return Frame(np.minimum(self.origin_m, other.origin_m), np.maximum(self.upper_m, other.upper_m))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -99,7 +122,7 @@ def _clamp_into_cells(local: np.ndarray, cell: np.ndarray, cell_m: float) -> np.
 
 
 def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50.0,
-          cell_m: float = 1.0, use: np.ndarray | None = None) -> list[Tile]:
+          cell_m: float = 1.0, use: np.ndarray | None = None, frame: Frame | None = None) -> list[Tile]:
     """Cut a cloud into buffered square tiles.
 
     Args:
@@ -108,6 +131,8 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
       buffer_m: context kept around each core [m] (rounded out to whole cells).
       cell_m: raster cell the windows snap to [m].
       use: bool `(n,)` points to tile (default all); the others belong to no tile.
+      frame: the lattice's box (default: the used points' own, `Frame.of`); every used point
+        must lie in it.
 
     Returns:
       Non-empty tiles in row-major order of their keys. Every used point is in exactly one
@@ -126,10 +151,13 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     if used.size == 0:
         return []
     pts = xyz_m[used]
-    origin = pts.min(axis=0)
+    frame = Frame.of(pts) if frame is None else frame
+    origin = np.asarray(frame.origin_m, np.float64)
+    if np.any(pts < origin[None, :]) or np.any(pts[:, :2] > np.asarray(frame.upper_m)[None, :]):
+        raise ValueError("points lie outside the tiling frame")
     rel = pts - origin                                            # float64, >= 0
     cell = np.floor(rel[:, :2] / cell_m).astype(np.int64)        # global (col, row-from-south)
-    extent_px = cell.max(axis=0) + 1
+    extent_px = np.floor((np.asarray(frame.upper_m) - origin[:2]) / cell_m).astype(np.int64) + 1
     core = np.floor(rel[:, :2] / tile_size_m).astype(np.int64)
     core_px = tile_size_m / cell_m
     buffer_px = math.ceil(buffer_m / cell_m - 1e-9)

@@ -87,6 +87,7 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     config, params, use = tiled.checked_options(cloud, config, params, returns, config_type=Config,
                                                 params_type=Params, package="gfjax.smrf")
     run = tiled.classify_cloud(cloud.xyz_m, use, stages.classify_batch, params, config, max_batch=MAX_BATCH,
+                               frame=cloud.frame,
                                progress=progress, desc="smrf tiles")
     if not run.tiles:
         return Result(ground=run.ground, diagnostics=None)

@@ -1,0 +1,11 @@
+"""Whole surveys: many adjacent files filtered as one, without seams at the file borders.
+
+`index` reads every file once into a catalog (bounds of the points filtered, CRS, units); each
+file is then filtered together with a halo of its neighbours' points, on the survey's own
+tiling frame, so a point gets the tile, cells and context it would get if the whole survey
+were one file (`filtered`).
+"""
+from gfjax.survey.catalog import Catalog, Entry, index
+from gfjax.survey.halo import Points, filtered, halo_region, window
+
+__all__ = ["Catalog", "Entry", "Points", "filtered", "halo_region", "index", "window"]

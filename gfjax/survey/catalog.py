@@ -1,0 +1,96 @@
+"""A survey's catalog: each file's points filtered, kept on disk for its neighbours' halos.
+
+One pass reads every file (`gfjax.io.las.read`, so the usual checks and unit conversion
+apply), refuses a survey whose files disagree on CRS or units (one line naming both files),
+and stores the few per-point values a neighbour's halo needs (metres, class, returns,
+whether it is ignored: 28 bytes a point) as a memory-mapped `.npy` in a private temporary folder. The
+survey's `Frame` is the bounding box of every file's points filtered, exactly the frame one
+file holding the whole survey would get.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from gfjax.errors import InputError
+from gfjax.io import las as las_io
+from gfjax.io.tiles import Frame
+
+STORE = np.dtype([("xyz_m", "<f8", (3,)), ("classification", "u1"), ("return_number", "u1"),
+                  ("number_of_returns", "u1"), ("ignored", "?")])
+
+
+class Entry(NamedTuple):
+    """One file of a survey.
+
+    Attributes:
+      path: the file.
+      n_points: its points.
+      frame: bounding box of its points filtered (`Frame`), or None when it has none.
+      store: the `.npy` of its `STORE` records.
+    """
+
+    path: Path
+    n_points: int
+    frame: Frame | None
+    store: Path
+
+    def records(self) -> np.ndarray:
+        """The file's `STORE` records `(n_points,)`, memory-mapped."""
+        return np.load(self.store, mmap_mode="r")
+
+
+class Catalog(NamedTuple):
+    """Every file of a survey and the survey's frame (None when no point is filtered)."""
+
+    entries: tuple[Entry, ...]
+    frame: Frame | None
+
+
+def _units(cloud) -> tuple[float, float]:
+    return (cloud.horizontal_unit_m, cloud.vertical_unit_m)
+
+
+def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, returns: str = "all",
+          units: str | None = None) -> Catalog:
+    """Read every file once into a catalog whose stores live in `folder`.
+
+    Args:
+      paths: the survey's LAS/LAZ files (at least one).
+      folder: an existing private folder for the stores (the caller removes it).
+      returns: "all" or "last": the points filtered.
+      units: `--units` override, or None for each file's CRS.
+
+    Raises:
+      InputError: an unreadable file, or files whose CRS or units differ.
+    """
+    entries, first = [], None
+    for i, path in enumerate(map(Path, paths)):
+        cloud = las_io.read(path, units=units)
+        if first is None:
+            first = cloud
+        elif _units(cloud) != _units(first) or (cloud.crs is None) != (first.crs is None) or (
+                cloud.crs is not None and not cloud.crs.equals(first.crs)):
+            raise InputError(f"{path}: CRS or units differ from {first.path} "
+                             f"({cloud.units_source} vs {first.units_source}); filter such files separately")
+        records = np.lib.format.open_memmap(Path(folder) / f"{i}.npy", mode="w+", dtype=STORE,
+                                            shape=(cloud.n_points,))
+        records["xyz_m"] = cloud.xyz_m
+        records["classification"] = cloud.classification
+        records["return_number"] = cloud.return_number
+        records["number_of_returns"] = cloud.number_of_returns
+        records["ignored"] = cloud.ignored
+        records.flush()
+        used = cloud.filter_mask(returns)
+        frame = Frame.of(records["xyz_m"][used]) if used.any() else None
+        entries.append(Entry(path, cloud.n_points, frame, Path(folder) / f"{i}.npy"))
+        del records, cloud
+    frames = [e.frame for e in entries if e.frame is not None]
+    frame = None
+    for f in frames:
+        frame = f if frame is None else frame.union(f)
+    return Catalog(tuple(entries), frame)

@@ -1,0 +1,147 @@
+"""Whole surveys: files filtered with their neighbours' halos label like one file of the survey."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gfjax import pmf, smrf, survey
+from gfjax.cli.main import main
+from gfjax.errors import InputError
+from gfjax.io import las as las_io
+from gfjax.io.cloud import Cloud
+from gfjax.io.tiles import Frame, split
+from gfjax.survey.halo import HALO_M
+
+SMALL_TILES = {"tile_size_m": 40.0, "buffer_m": 8.0}     # several tiles, seams inside each file
+
+
+def town(seed=0, size=(150.0, 110.0)):
+    """Sloped ground at 1.5 pt/m^2 with a grid of 10 x 8 m buildings 7 m tall and a 40 x 40 m
+    hall at the centre, astride the file borders; ISPRS-like classes (2 ground, 6 building)
+    and one noise point (7)."""
+    rng = np.random.default_rng(seed)
+    n = int(1.5 * size[0] * size[1])
+    xy = rng.uniform(0, size, (n, 2))
+    z = 100 + 0.05 * xy[:, 0] + rng.normal(0, 0.03, n)
+    building = np.zeros(n, bool)
+    for bx in range(10, int(size[0]), 35):
+        for by in range(12, int(size[1]), 30):
+            building |= (np.abs(xy[:, 0] - bx - 5) < 5) & (np.abs(xy[:, 1] - by - 4) < 4)
+    building |= np.all(np.abs(xy - np.asarray(size) / 2) < 20, axis=1)
+    z[building] += 7.0
+    cls = np.where(building, 6, 2).astype(np.uint8)
+    cls[5] = 7
+    return np.column_stack([xy + [500_000.0, 5_400_000.0], z]), cls
+
+
+def write_grid(folder, xyz, cls, cuts=(2, 2)):
+    """The cloud cut into `cuts` files at its coordinate quantiles; their paths and the cloud's
+    indices of each file's points, in file order."""
+    xi = np.digitize(xyz[:, 0], np.quantile(xyz[:, 0], np.arange(1, cuts[0]) / cuts[0]))
+    yi = np.digitize(xyz[:, 1], np.quantile(xyz[:, 1], np.arange(1, cuts[1]) / cuts[1]))
+    whole = Cloud.from_xyz(xyz, classification=cls)
+    paths, members = [], []
+    for i in range(cuts[0]):
+        for j in range(cuts[1]):
+            keep = np.flatnonzero((xi == i) & (yi == j))
+            las = whole.las.__class__(header=whole.las.header, points=whole.las.points[keep].copy())
+            path = folder / f"tile_{i}_{j}.laz"
+            las.write(path)
+            paths.append(path)
+            members.append(keep)
+    union = folder / "union.laz"
+    whole.las.write(union)
+    return paths, members, union
+
+
+@pytest.fixture(scope="module")
+def grid(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("survey")
+    xyz, cls = town()
+    return write_grid(folder, xyz, cls)
+
+
+@pytest.mark.parametrize("method", [smrf, pmf], ids=["smrf", "pmf"])
+def test_a_catalog_labels_every_point_as_the_union_in_one_file(grid, method, tmp_path):
+    paths, members, union = grid
+    config = method.Config(**SMALL_TILES)
+    whole = las_io.read(union)
+    want = method.filter(whole, config=config).ground
+    got = np.zeros(whole.n_points, bool)
+    alone = np.zeros(whole.n_points, bool)
+    halos = []
+    for (cloud, result), keep in zip(survey.filtered(paths, lambda p, returns: method.filter(p, config=config,
+                                                                                          returns=returns),
+                                                     config, tmp_path), members):
+        assert result.ground.shape == (cloud.n_points,) == keep.shape
+        got[keep] = result.ground
+        alone[keep] = method.filter(cloud, config=config).ground
+    np.testing.assert_array_equal(got, want)
+    assert np.any(alone != want)                  # the seams the halo removes are real here
+    (tmp_path / "again").mkdir()
+    catalog = survey.index(paths, tmp_path / "again")
+    for i, path in enumerate(paths):
+        halos.append(survey.window(catalog, i, las_io.read(path), config).n_points - len(members[i]))
+    assert min(halos) > 0
+
+
+def test_the_survey_frame_is_the_union_of_the_files_points_filtered(grid, tmp_path):
+    paths, _, union = grid
+    catalog = survey.index(paths, tmp_path)
+    whole = las_io.read(union)
+    frame = Frame.of(whole.xyz_m[whole.filter_mask()])
+    np.testing.assert_array_equal(catalog.frame.origin_m, frame.origin_m)
+    np.testing.assert_array_equal(catalog.frame.upper_m, frame.upper_m)
+    assert [e.n_points for e in catalog.entries] == [las_io.read(p).n_points for p in paths]
+
+
+def test_files_with_different_crs_are_refused_naming_both(tmp_path):
+    import pyproj
+
+    xyz, cls = town(size=(30.0, 30.0))
+    a, b = tmp_path / "a.laz", tmp_path / "b.laz"
+    for path, epsg in ((a, 32633), (b, 32634)):
+        las = Cloud.from_xyz(xyz, classification=cls).las
+        las.header.add_crs(pyproj.CRS.from_epsg(epsg))
+        las.write(path)
+    with pytest.raises(InputError, match="b.laz: CRS or units differ from .*a.laz"):
+        survey.index([a, b], tmp_path)
+
+
+def test_halo_of_a_method_that_does_not_tile_is_a_margin():
+    box = Frame(np.asarray([10.0, 20.0, 0.0]), np.asarray([30.0, 40.0]))
+    lo, hi = survey.halo_region(box, box, object())
+    np.testing.assert_array_equal(lo, [10.0 - HALO_M, 20.0 - HALO_M])
+    np.testing.assert_array_equal(hi, [30.0 + HALO_M, 40.0 + HALO_M])
+
+
+def test_split_refuses_points_outside_its_frame():
+    xyz = np.asarray([[0.0, 0.0, 0.0], [5.0, 5.0, 1.0]])
+    with pytest.raises(ValueError, match="outside the tiling frame"):
+        split(xyz, tile_size_m=10.0, buffer_m=1.0, frame=Frame(np.asarray([1.0, 0.0, 0.0]), np.asarray([5.0, 5.0])))
+    own = split(xyz, tile_size_m=10.0, buffer_m=1.0)
+    framed = split(xyz, tile_size_m=10.0, buffer_m=1.0, frame=Frame.of(xyz))
+    assert [(t.key, t.shape) for t in own] == [(t.key, t.shape) for t in framed]
+    np.testing.assert_array_equal(own[0].local_xyz, framed[0].local_xyz)
+
+
+def test_cli_filters_several_files_as_one_survey_or_independently(grid, tmp_path, capsys):
+    paths, members, union = grid
+    whole = las_io.read(union)
+    config = smrf.Config(**SMALL_TILES)
+    want = smrf.filter(whole, config=config).ground
+    for flags, folder in (([], tmp_path / "survey"), (["--independent"], tmp_path / "alone")):
+        folder.mkdir()
+        args = ["filter", *map(str, paths), "-o", str(folder), "--method", "smrf", "--tile-size", "40",
+                "--buffer", "8", *flags]
+        assert main(args) == 0
+        got = np.zeros(whole.n_points, bool)
+        for path, keep in zip(paths, members):
+            out = las_io.read(folder / path.name)
+            assert out.n_points == len(keep)
+            got[keep] = out.classification == 2
+        if flags:
+            assert np.any(got != want)
+        else:
+            np.testing.assert_array_equal(got, want)
+    assert not list(tmp_path.glob("**/gfjax-survey-*"))
