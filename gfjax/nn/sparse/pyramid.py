@@ -131,24 +131,30 @@ def plan_pyramid(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], *, depth: 
 
 
 def standard_plan(capacity: int, *, depth: int, stem_kernel: int = 5, shrink: float = 2.0,
-                  neighbours: float = 12.0, stem_neighbours: float = 30.0) -> PyramidPlan:
+                  coarse_shrink: float = 8.0 / 3.0, neighbours: float = 8.0, coarse_neighbours: float = 16.0,
+                  stem_neighbours: float = 20.0) -> PyramidPlan:
     """A plan that depends on the input capacity only (one compiled shape per capacity).
 
-    Level `l` holds `capacity / shrink**l` voxels; each submanifold map room for
-    `neighbours` pairs per voxel (the stem's `stem_neighbours`), each strided map one pair
-    per finer voxel. Measured on 0.5 m voxels of ALS tiles: 2.3 (ISPRS samp22) to 6.9
-    (forest bcts_2) kernel-3 pairs per voxel. Data that do not fit grow it (`plan_pyramid(like=...)`).
+    Level 1 holds `capacity / shrink` voxels and each further level `coarse_shrink` times
+    fewer; the kernel-3 map of level 0 has room for `neighbours` pairs per row of capacity,
+    those of coarser levels `coarse_neighbours`, the stem's `stem_neighbours`, each strided
+    map one pair per finer row. The defaults hold every patch of 0.5 m voxels measured on the
+    ISPRS samples and the forest tile bcts_2 (whose maps, planned from the data, need up to 6
+    level-0 pairs and 16 stem pairs per row of capacity; levels shrink 2-2.7x, then 3-5x).
+    Data that do not fit grow it (`plan_pyramid(like=...)`).
     """
     caps = [capacity]
-    for _ in range(depth):
-        caps.append(min(caps[-1], bucket(max(1, int(np.ceil(caps[-1] / shrink))))))
+    for level in range(depth):
+        factor = shrink if level == 0 else coarse_shrink
+        caps.append(min(caps[-1], bucket(max(1, int(np.ceil(caps[-1] / factor))))))
     volume = 27
 
     def room(pairs, k):
         return plan_blocks(np.full(k, int(np.ceil(pairs / k)), np.int64))
 
     return PyramidPlan(tuple(caps), (stem_kernel,) + room(stem_neighbours * capacity, stem_kernel ** 3),
-                       tuple(room(neighbours * c, volume) for c in caps),
+                       tuple(room((neighbours if level == 0 else coarse_neighbours) * c, volume)
+                             for level, c in enumerate(caps)),
                        tuple(room(c, 8) for c in caps[:-1]))
 
 
