@@ -66,7 +66,9 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
       units: `--units` override, or None for each file's CRS.
 
     Raises:
-      InputError: an unreadable file, or files whose CRS or units differ.
+      InputError: an unreadable file, files whose CRS or units differ, a file whose points lie
+        outside its header's bounds (the index would misplace it), or a file that duplicates
+        another (same points and bounds: its points would count twice in their halos).
     """
     entries, first = [], None
     for i, path in enumerate(map(Path, paths)):
@@ -77,6 +79,7 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
                 cloud.crs is not None and not cloud.crs.equals(first.crs)):
             raise InputError(f"{path}: CRS or units differ from {first.path} "
                              f"({cloud.units_source} vs {first.units_source}); filter such files separately")
+        _check_bounds(cloud)
         records = np.lib.format.open_memmap(Path(folder) / f"{i}.npy", mode="w+", dtype=STORE,
                                             shape=(cloud.n_points,))
         records["xyz_m"] = cloud.xyz_m
@@ -87,6 +90,10 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
         records.flush()
         used = cloud.filter_mask(returns)
         frame = Frame.of(records["xyz_m"][used]) if used.any() else None
+        for other in entries:
+            if other.n_points == cloud.n_points and _same_frame(other.frame, frame):
+                raise InputError(f"{path}: holds as many points in the same bounds as {other.path}: "
+                                 "the same tile twice? Filter one of them")
         entries.append(Entry(path, cloud.n_points, frame, Path(folder) / f"{i}.npy"))
         del records, cloud
     frames = [e.frame for e in entries if e.frame is not None]
@@ -94,3 +101,24 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
     for f in frames:
         frame = f if frame is None else frame.union(f)
     return Catalog(tuple(entries), frame)
+
+
+def _same_frame(a: Frame | None, b: Frame | None) -> bool:
+    if a is None or b is None:
+        return a is b
+    return bool(np.array_equal(a.origin_m, b.origin_m) and np.array_equal(a.upper_m, b.upper_m))
+
+
+def _check_bounds(cloud) -> None:
+    """Every point within the header's bounds (half a scale step of slack, in file units)."""
+    if cloud.n_points == 0:
+        return
+    xyz = cloud.xyz
+    header = cloud.las.header
+    slack = 0.5 * np.abs(np.asarray(header.scales, np.float64))
+    low, high = xyz.min(axis=0), xyz.max(axis=0)
+    if np.any(low < np.asarray(header.mins) - slack) or np.any(high > np.asarray(header.maxs) + slack):
+        raise InputError(f"{cloud.name}: header bounds {np.round(header.mins, 3).tolist()} - "
+                         f"{np.round(header.maxs, 3).tolist()} do not hold its points "
+                         f"({np.round(low, 3).tolist()} - {np.round(high, 3).tolist()}); rewrite the header "
+                         "(e.g. `pdal translate`, `las2las`)")

@@ -145,3 +145,28 @@ def test_cli_filters_several_files_as_one_survey_or_independently(grid, tmp_path
         else:
             np.testing.assert_array_equal(got, want)
     assert not list(tmp_path.glob("**/gfjax-survey-*"))
+
+
+def test_a_file_whose_header_bounds_miss_its_points_is_refused(tmp_path):
+    import struct
+
+    import laspy
+
+    xyz, cls = town(size=(30.0, 30.0))
+    path = tmp_path / "bad.las"
+    Cloud.from_xyz(xyz, classification=cls).las.write(path)
+    max_x = float(laspy.read(path).header.maxs[0])
+    with open(path, "r+b") as f:                   # max x of a LAS header sits at byte 179
+        f.seek(179)
+        f.write(struct.pack("<d", max_x - 5.0))
+    with pytest.raises(InputError, match="bad.las: header bounds .* do not hold its points"):
+        survey.index([path], tmp_path)
+
+
+def test_the_same_tile_twice_is_refused(tmp_path):
+    xyz, cls = town(size=(30.0, 30.0))
+    a, b = tmp_path / "a.laz", tmp_path / "copy_of_a.laz"
+    for path in (a, b):
+        Cloud.from_xyz(xyz, classification=cls).las.write(path)
+    with pytest.raises(InputError, match="copy_of_a.laz: holds as many points in the same bounds as .*a.laz"):
+        survey.index([a, b], tmp_path)
