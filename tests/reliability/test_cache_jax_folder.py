@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[2]
 _SCRIPT = ("from gfjax.cli.main import enable_compilation_cache as e; folder = e(); "
            "import jax; print(folder, jax.config.jax_compilation_cache_dir or None)")  # "" is off too
@@ -72,3 +74,31 @@ def test_jax_folder_behind_a_link_is_checked_where_it_points(tmp_path):
     done = _enable({"XDG_CACHE_HOME": str(tmp_path / "home")})
     assert done.returncode == 0 and done.stdout.split() == ["None", "None"]
     _one_warning(done.stderr)
+
+
+@pytest.mark.parametrize("mode, shared", [(0o777, False), (0o700, True)])
+def test_bench_compile_cache_must_be_private(tmp_path, monkeypatch, capsys, mode, shared):
+    """`gfjax bench --compile-cache DIR` hands DIR to JAX in every child: a folder others can
+    write is not shared (one warning line), a private one is."""
+    from bench_helpers import write_scene_laz
+
+    from gfjax import aot
+    from gfjax.bench import run as bench
+    from gfjax.cli.main import main
+
+    monkeypatch.setitem(aot._state, "warned", False)
+    scene = write_scene_laz(tmp_path / "scene.laz")
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    cache.chmod(mode)
+    seen = {}
+
+    def fake_iter_runs(files, runners, **kwargs):
+        seen.update(kwargs)
+        return iter(())
+
+    monkeypatch.setattr(bench, "iter_runs", fake_iter_runs)
+    assert main(["bench", str(scene), "--methods", "smrf", "--compile-cache", str(cache)]) == 0
+    err = capsys.readouterr().err
+    assert seen["compile_cache"] == (str(cache) if shared else None)
+    assert ("gfjax: warning: " in err) is not shared
