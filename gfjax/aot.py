@@ -116,7 +116,7 @@ def private_folder(folder: str | os.PathLike, *, what: str = "program cache") ->
         fd = _open_folder(path, tighten=True)
         os.close(fd)
     except (_Refused, OSError) as err:
-        _warn_once(f"{folder}: {_reason(err)}; running without the {what}")
+        _warn_once(f"{_reason(err, folder)}; running without the {what}")
         return None
     return path
 
@@ -127,11 +127,12 @@ def _supported() -> bool:
             and os.scandir in os.supports_fd)
 
 
-def _reason(err: Exception) -> str:
+def _reason(err: Exception, folder) -> str:
+    """One line: what is wrong with `folder` or a folder above it."""
     if isinstance(err, OSError) and err.errno in (errno.ELOOP, errno.ENOTDIR):
-        return f"{err.filename or 'a folder on the path'} is a symbolic link or not a folder"
+        return f"{err.filename or folder}: a symbolic link or not a folder"
     if isinstance(err, OSError):
-        return err.strerror or str(err)
+        return f"{err.filename or folder}: {err.strerror or err}"
     return str(err)
 
 
@@ -314,13 +315,13 @@ def _read_entry(dir_fd: int, name: str, key: str):
         return None
     except OSError as err:
         if err.errno == errno.ELOOP:
-            _warn_once(f"{name}: a symbolic link in the program cache; compiling it again")
+            _warn_once(f"program cache entry {name}: a symbolic link; compiling it again")
         return None
     try:
         try:
             info = _check_file(fd, name)
         except _Refused as err:
-            _warn_once(f"{err}; compiling it again without the program cache")
+            _warn_once(f"program cache entry {err}; compiling it again")
             return None
         chunks, left = [], info.st_size + 1
         while left > 0:
@@ -518,7 +519,7 @@ def _load_or_compile(fn, args, static, folder: Path, key: str):
     try:
         dir_fd = _open_folder(folder)
     except (_Refused, OSError) as err:
-        _warn_once(f"{folder}: {_reason(err)}; compiling without the program cache")
+        _warn_once(f"{_reason(err, folder)}; compiling without the program cache")
         return None
     try:
         return _load_or_compile_in(fn, args, static, dir_fd, key)
