@@ -124,15 +124,17 @@ def enable_compilation_cache() -> Path | None:
 
     JAX's cache holds executables, so its folder obeys `gfjax.aot`'s rule
     (`aot.private_folder`): private to this user (0700), every folder above it writable by no
-    one else. A folder named in `JAX_COMPILATION_CACHE_DIR` is checked too. A refused folder
-    means no persistent cache for this process (one warning line on stderr). Returns the
-    folder, or None when the cache stays off.
+    one else. A folder named in `JAX_COMPILATION_CACHE_DIR` is checked too (a remote URL is
+    left to JAX). A refused folder means no persistent cache for this process (one warning
+    line on stderr). Returns the local folder in use, or None.
     """
     export_folder = export_cache_folder()
     if export_folder is not None:
         aot.enable(export_folder)
     jax = sys.modules.get("jax")
     user_folder = os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if user_folder and "://" in user_folder:    # a remote store (gs://...): no owner or mode to check
+        return None
     folder = aot.private_folder(user_folder or cache_folder(), what="persistent compilation cache")
     if folder is None:
         if user_folder:
