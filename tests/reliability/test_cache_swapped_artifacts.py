@@ -4,6 +4,7 @@ before or at the call: the right result, computed without the cache, and the ent
 never an exit 1, never the other program's result."""
 from __future__ import annotations
 
+import numpy as np
 from cache_attack_helpers import assert_correct, entries, forbid_loading, new_process, private, run
 
 from gfjax import aot
@@ -72,3 +73,30 @@ def test_unrelated_file_under_an_entry_name_is_not_unpickled(private, monkeypatc
     compiles = forbid_loading(monkeypatch)
     assert_correct(run())
     assert len(compiles) == 1
+
+
+def test_gfjax_filter_with_swapped_artifacts_exits_0_with_the_same_labels(tmp_path, monkeypatch, capsys):
+    """The whole command: DMF stores three programs; two entries' files are exchanged; the next
+    `gfjax filter` exits 0 and writes the labels of the first run."""
+    import laspy
+    from bench_helpers import write_scene_laz
+
+    from gfjax.cli.main import main
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.delenv("GFJAX_EXPORT_CACHE", raising=False)
+    scene = write_scene_laz(tmp_path / "scene.laz", labelled=False)
+    first, second = tmp_path / "first.laz", tmp_path / "second.laz"
+    assert main(["filter", str(scene), "-o", str(first), "--method", "dmf"]) == 0
+    folder = tmp_path / "cache" / "gfjax" / "export"
+    stored = entries(folder)
+    assert len(stored) >= 2
+    a, b = stored[:2]
+    blob_a, blob_b = a.read_bytes(), b.read_bytes()
+    a.write_bytes(blob_b)
+    b.write_bytes(blob_a)
+    new_process()
+    assert main(["filter", str(scene), "-o", str(second), "--method", "dmf"]) == 0, capsys.readouterr().err
+    np.testing.assert_array_equal(laspy.read(second).classification, laspy.read(first).classification)
+    for entry in (a, b):                                    # replaced by the right programs
+        assert entry.read_bytes().startswith(aot._MAGIC + entry.name.split(".")[0].encode() + b"\n")
