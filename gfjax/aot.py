@@ -26,58 +26,182 @@ concrete (numpy or JAX arrays, numpy scalars): under `jit`, `vmap` or `grad`, `c
 that cannot be stored (custom calls that cannot be exported, an output pytree that does not
 survive pickling) leaves a marker and runs through plain jit in later processes.
 
-The files hold pickled pytree definitions next to the executable, so `enable` refuses a
-folder that other users can write (it creates it with mode 0700; files are 0600).
+The files hold pickled pytree definitions next to machine code, so nothing another user could
+have written is ever loaded. The folder must be private: owned by this user, mode 0700 (`enable`
+creates it so, and tightens a folder of ours that others can only read), and every folder above
+it owned by root or this user and writable by no one else (unless sticky, as `/tmp`). That is
+checked again each time a program is looked up, not only at `enable`: the path is walked from
+`/` one folder at a time with `O_NOFOLLOW` (a folder swapped for a symbolic link is refused),
+and each file is opened relative to the checked folder's descriptor, with `O_NOFOLLOW`, then
+checked on that descriptor (a regular file owned by this user, writable by no one else) before
+a byte of it is unpickled. An entry carries its key and the SHA-256 of its contents: a file
+swapped for another entry, truncated or stale is compiled again and replaced. A refused folder
+or file means plain compilation, with one warning line on stderr per process; a write that
+fails (disk full) stores nothing this time and leaves no marker.
 """
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import importlib.util
 import os
 import pickle
 import platform
-import tempfile
+import secrets
+import stat as stat_
+import sys
 import threading
+import time
 from pathlib import Path
 from typing import Any, Callable
 
-__all__ = ["enable", "disable", "enabled_folder", "call", "prefetch", "program_key", "MAX_FILES", "MAX_BYTES"]
+__all__ = ["enable", "disable", "enabled_folder", "private_folder", "call", "prefetch", "program_key",
+           "MAX_FILES", "MAX_BYTES"]
 
 MAX_FILES = 512                 # artifacts kept (least recently used go first); each is ~0.1-2 MB
 MAX_BYTES = 256 * 2**20         # ... and their total size
 _SUFFIX = ".gfjaxexe"
 _EXPORT_SUFFIX = ".export" + _SUFFIX  # a program with custom calls: exported StableHLO
 _PLAIN_SUFFIX = ".plain" + _SUFFIX    # marker: this program is not stored, run it through plain jit
+_MAGIC = b"gfjax-aot 1\n"           # an entry: magic, key, SHA-256 of the body, pickled body
+_MAX_ENTRY_BYTES = 64 * 2**20         # a larger file is refused unread
+_STALE_TMP_S = 3600.0                 # temporaries older than this are left by killed processes
 
-_state: dict[str, Any] = {"folder": None, "fingerprint": None}
+_state: dict[str, Any] = {"folder": None, "fingerprint": None, "warned": False}
 _loaded: dict[str, Any] = {}    # key -> program of the argument leaves, for this process
+_from_disk: set[str] = set()    # keys of `_loaded` programs read from a file
 _plain: set[str] = set()        # keys of programs that run through plain jit (custom calls)
 _lock = threading.Lock()        # one compile at a time (`_compile_fresh`)
+_DIR_FLAGS = os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+_FILE_FLAGS = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NONBLOCK", 0)
+
+
+class _Refused(Exception):
+    """A folder or file another user could have written (the message says why)."""
 
 
 def enable(folder: str | os.PathLike) -> Path | None:
-    """Keep compiled programs in `folder` (created with mode 0700 if needed). Returns it, or
-    None (and the cache stays off) when it cannot be created, is not writable, or is not
-    private to this user (the files are unpickled: a folder others can write is refused)."""
-    folder = Path(folder)
-    try:
-        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
-        stat = folder.stat()
-    except OSError:
-        return None
-    if not os.access(folder, os.W_OK | os.X_OK) or stat.st_mode & 0o022 or (
-            hasattr(os, "geteuid") and stat.st_uid != os.geteuid()):
-        return None
-    _state["folder"] = folder
-    return folder
+    """Keep compiled programs in `folder` (see `private_folder`). Returns the folder (symbolic
+    links resolved), or None, with one warning line on stderr, when it is refused: the cache
+    then stays off and every program compiles as plain jit."""
+    checked = private_folder(folder)
+    _state["folder"] = checked
+    return checked
 
 
 def disable() -> None:
     """Turn the cache off (`call` is then `fn(*args, **static)`)."""
     _state["folder"] = None
     _loaded.clear()
+    _from_disk.clear()
     _plain.clear()
+
+
+def private_folder(folder: str | os.PathLike, *, what: str = "program cache") -> Path | None:
+    """`folder`, created with mode 0700 if needed, symbolic links resolved, if it is private to
+    this user: owned by this user with no group or other permission (a folder of ours that
+    others may only read or enter is tightened to 0700), and every folder above it owned by
+    root or this user and writable by no one else unless sticky. Otherwise None, and one
+    warning line on stderr (once per process) says why and that `what` stays off.
+
+    The same rule serves JAX's persistent compilation cache (`gfjax.cli.main`): its entries
+    are executables, so a folder someone else can write is no cache."""
+    path = Path(folder).expanduser()
+    try:
+        if not _supported():
+            raise _Refused("this system cannot open files relative to a folder (no O_NOFOLLOW, dir_fd)")
+        os.makedirs(path, mode=0o700, exist_ok=True)
+        path = Path(os.path.realpath(path))
+        fd = _open_folder(path, tighten=True)
+        os.close(fd)
+    except (_Refused, OSError) as err:
+        _warn_once(f"{_reason(err, folder)}; running without the {what}")
+        return None
+    return path
+
+
+def _supported() -> bool:
+    return (hasattr(os, "O_NOFOLLOW") and hasattr(os, "getuid") and os.open in os.supports_dir_fd
+            and os.unlink in os.supports_dir_fd and os.rename in os.supports_dir_fd
+            and os.scandir in os.supports_fd)
+
+
+def _reason(err: Exception, folder) -> str:
+    """One line: what is wrong with `folder` or a folder above it."""
+    if isinstance(err, OSError) and err.errno in (errno.ELOOP, errno.ENOTDIR):
+        return f"{err.filename or folder}: a symbolic link or not a folder"
+    if isinstance(err, OSError):
+        return f"{err.filename or folder}: {err.strerror or err}"
+    return str(err)
+
+
+def _warn_once(message: str) -> None:
+    """One line on stderr, the first time a cache is refused in this process."""
+    if not _state["warned"]:
+        _state["warned"] = True
+        print(f"gfjax: warning: {message}", file=sys.stderr)
+
+
+def _open_folder(path: Path, *, tighten: bool = False) -> int:
+    """A descriptor of the folder `path` (absolute, symbolic links resolved), opened one folder
+    at a time from `/` with `O_NOFOLLOW`, each checked on its own descriptor (see
+    `private_folder`). With `tighten`, the folder itself is set to 0700 when it is ours and
+    others may only read it. Raises `_Refused` or `OSError` (a symbolic link: `ELOOP`)."""
+    uid = os.getuid()
+    fd = os.open("/", _DIR_FLAGS)
+    try:
+        parts = path.parts[1:]
+        _check_folder(fd, "/", uid, last=not parts, tighten=tighten)
+        for depth, name in enumerate(parts, start=1):
+            try:
+                child = os.open(name, _DIR_FLAGS, dir_fd=fd)
+            except OSError as err:
+                err.filename = str(Path(*path.parts[:depth + 1]))
+                raise
+            os.close(fd)
+            fd = child
+            _check_folder(fd, Path(*path.parts[:depth + 1]), uid, last=depth == len(parts), tighten=tighten)
+        return fd
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def _check_folder(fd: int, where, uid: int, *, last: bool, tighten: bool) -> None:
+    info = os.fstat(fd)
+    mode = stat_.S_IMODE(info.st_mode)
+    if not stat_.S_ISDIR(info.st_mode):
+        raise _Refused(f"{where} is not a folder")
+    if last:
+        if info.st_uid != uid:
+            raise _Refused(f"{where} is owned by user {info.st_uid}, not by this user ({uid})")
+        if mode & 0o022:
+            raise _Refused(f"{where} can be written by other users (mode {mode:04o}; it must be 0700)")
+        if mode & 0o077 and tighten:                          # ours, others may only read: tighten
+            os.fchmod(fd, 0o700)
+        elif mode & 0o077:
+            raise _Refused(f"{where} is not private (mode {mode:04o}; it must be 0700)")
+    else:
+        if info.st_uid not in (0, uid):
+            raise _Refused(f"{where} is owned by user {info.st_uid}, neither root nor this user ({uid})")
+        if mode & 0o022 and not mode & stat_.S_ISVTX:
+            raise _Refused(f"{where} can be written by other users (mode {mode:04o})")
+
+
+def _check_file(fd: int, name: str) -> os.stat_result:
+    """The status of an opened cache file, if only this user could have written it."""
+    info = os.fstat(fd)
+    mode = stat_.S_IMODE(info.st_mode)
+    if not stat_.S_ISREG(info.st_mode):
+        raise _Refused(f"{name} is not a regular file")
+    if info.st_uid != os.getuid():
+        raise _Refused(f"{name} is owned by user {info.st_uid}, not by this user ({os.getuid()})")
+    if mode & 0o022:
+        raise _Refused(f"{name} can be written by other users (mode {mode:04o})")
+    if info.st_size > _MAX_ENTRY_BYTES:
+        raise _Refused(f"{name} is larger than {_MAX_ENTRY_BYTES} bytes")
+    return info
 
 
 def enabled_folder() -> Path | None:
@@ -180,38 +304,86 @@ def program_key(fn: Callable, args: tuple, static: dict, tag=None) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
-def _load(path: Path):
-    """The stored executable at `path`, or None (unreadable or stale: compile again)."""
+def _read_entry(dir_fd: int, name: str, key: str):
+    """The unpickled body of the entry `name` in the checked folder `dir_fd`, or None when it
+    is absent, unreadable, or holds another key or a damaged body (compile again and replace
+    it). A file another user could have written is refused before a byte of it is read (one
+    warning line). A hit refreshes the file's time (least recently used files go first)."""
+    try:
+        fd = os.open(name, _FILE_FLAGS, dir_fd=dir_fd)
+    except FileNotFoundError:
+        return None
+    except OSError as err:
+        if err.errno == errno.ELOOP:
+            _warn_once(f"program cache entry {name}: a symbolic link; compiling it again")
+        return None
+    try:
+        try:
+            info = _check_file(fd, name)
+        except _Refused as err:
+            _warn_once(f"program cache entry {err}; compiling it again")
+            return None
+        chunks, left = [], info.st_size + 1
+        while left > 0:
+            chunk = os.read(fd, min(left, 1 << 24))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            left -= len(chunk)
+        body = _unwrap(b"".join(chunks), key)
+        if body is None:
+            return None
+        payload = pickle.loads(body)
+        with contextlib.suppress(OSError):
+            os.utime(fd)
+        return payload
+    except Exception:                                       # unreadable: compile again
+        return None
+    finally:
+        os.close(fd)
+
+
+def _wrap(key: str, body: bytes) -> bytes:
+    return _MAGIC + key.encode() + b"\n" + hashlib.sha256(body).hexdigest().encode() + b"\n" + body
+
+
+def _unwrap(blob: bytes, key: str) -> bytes | None:
+    """The body of an entry, if it is one for `key` and intact."""
+    header = _MAGIC + key.encode() + b"\n"
+    if not blob.startswith(header):
+        return None
+    digest, sep, body = blob[len(header):].partition(b"\n")
+    if not sep or digest != hashlib.sha256(body).hexdigest().encode():
+        return None
+    return body
+
+
+def _load(dir_fd: int, name: str, key: str):
+    """The stored executable `name`, or None (absent, refused or stale: compile again)."""
     from jax.experimental import serialize_executable
 
-    return _read(path, lambda payload: serialize_executable.deserialize_and_load(*payload))
-
-
-def _read(path: Path, build):
-    """`build(unpickled contents of path)`, or None when that fails; a hit refreshes the
-    file's time (least recently used files go first)."""
+    payload = _read_entry(dir_fd, name, key)
+    if payload is None:
+        return None
     try:
-        program = build(pickle.loads(path.read_bytes()))
+        return serialize_executable.deserialize_and_load(*payload)
     except Exception:
         return None
-    with contextlib.suppress(OSError):
-        os.utime(path)
-    return program
 
 
-def _store(compiled, folder: Path, key: str) -> bool:
-    """Store `compiled`; False when it cannot be (its output pytree does not survive pickling,
-    e.g. an equinox module, or the folder cannot be written)."""
+def _serialize(compiled) -> bytes | None:
+    """The pickled executable, or None when it cannot be stored (its output pytree does not
+    survive pickling, e.g. an equinox module's): a property of the program, not of the disk."""
     from jax.experimental import serialize_executable
 
     try:
         payload = serialize_executable.serialize(compiled)
         blob = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
         if not _tree_survives(payload[2]):
-            return False
+            return None
     except Exception:                                       # a program that cannot be stored is no error
-        return False
-    return _write(folder, f"{key}{_SUFFIX}", blob)
+        return None
+    return blob
 
 
 def _tree_survives(tree) -> bool:
@@ -224,41 +396,54 @@ def _tree_survives(tree) -> bool:
         return False
 
 
-def _write(folder: Path, name: str, blob: bytes) -> bool:
-    """Write `folder / name` atomically (readers never see half a file), then prune. Returns
-    whether it was written; a failed write leaves no temporary file."""
-    tmp = None
+def _write(dir_fd: int, name: str, blob: bytes) -> bool:
+    """Write `name` (mode 0600) in the checked folder `dir_fd` atomically (readers never see
+    half a file; an entry of another user or a symbolic link of that name is replaced, not
+    followed), then prune. Returns whether it was written; a failed write (disk full, read-only
+    folder) leaves no temporary file and no marker: a later process tries again."""
+    tmp = f".{name[:16]}.{secrets.token_hex(8)}.tmp"
     try:
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name[:16]}.", suffix=".tmp")
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0),
+                     0o600, dir_fd=dir_fd)
+    except OSError:                                         # a cache that cannot be written is no error
+        return False
+    try:
         with os.fdopen(fd, "wb") as file:
             file.write(blob)
-        os.replace(tmp, folder / name)
-    except Exception:                                       # a cache that cannot be written is no error
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
+        os.replace(tmp, name, src_dir_fd=dir_fd, dst_dir_fd=dir_fd)
+    except Exception:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp, dir_fd=dir_fd)
         return False
     with contextlib.suppress(Exception):
-        _prune(folder)
+        _prune(dir_fd)
     return True
 
 
-def _prune(folder: Path) -> None:
+def _prune(dir_fd: int) -> None:
     """Remove the least recently used artifacts beyond `MAX_FILES` or `MAX_BYTES` (programs
-    of older gfjax sources are never used again and go first)."""
+    of older gfjax sources are never used again and go first), and temporaries that killed
+    processes left behind."""
     stats = []
-    for path in folder.glob(f"*{_SUFFIX}"):
-        try:
-            stat = path.stat()
-        except OSError:                                     # removed by another process
-            continue
-        stats.append((stat.st_mtime, stat.st_size, path))
+    now = time.time()
+    with os.scandir(dir_fd) as entries:
+        for entry in entries:
+            try:
+                info = entry.stat(follow_symlinks=False)
+            except OSError:                                 # removed by another process
+                continue
+            if entry.name.endswith(_SUFFIX):
+                stats.append((info.st_mtime, info.st_size, entry.name))
+            elif entry.name.startswith(".") and entry.name.endswith(".tmp") and now - info.st_mtime > _STALE_TMP_S:
+                with contextlib.suppress(OSError):
+                    os.unlink(entry.name, dir_fd=dir_fd)
     stats.sort(key=lambda item: item[0], reverse=True)      # newest first
     total = 0
-    for count, (_, size, path) in enumerate(stats, start=1):
+    for count, (_, size, name) in enumerate(stats, start=1):
         total += size
         if count > MAX_FILES or total > MAX_BYTES:
-            path.unlink(missing_ok=True)
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(name, dir_fd=dir_fd)
 
 
 def call(fn: Callable, *args, tag=None, **static):
@@ -284,9 +469,31 @@ def call(fn: Callable, *args, tag=None, **static):
     compiled = _loaded.get(key)
     if compiled is None and key not in _plain:
         compiled = _load_or_compile(fn, args, static, folder, key)
-    if compiled is None:                                    # not storable: plain jit
+    if compiled is None:                                    # not storable, or refused: plain jit
         return fn(*args, **static)
-    return compiled(*leaves)
+    if key not in _from_disk:
+        return compiled(*leaves)
+    try:
+        return compiled(*leaves)
+    except Exception:             # a stored program that does not fit its caller: plain jit,
+        _forget(folder, key)      # and the next call compiles and stores it again
+        return fn(*args, **static)
+
+
+def _forget(folder: Path, key: str) -> None:
+    """Drop the program of `key` from this process and its entries from the folder."""
+    _loaded.pop(key, None)
+    _from_disk.discard(key)
+    try:
+        dir_fd = _open_folder(folder)
+    except (_Refused, OSError):
+        return
+    try:
+        for suffix in (_SUFFIX, _EXPORT_SUFFIX):
+            with contextlib.suppress(OSError):
+                os.unlink(f"{key}{suffix}", dir_fd=dir_fd)
+    finally:
+        os.close(dir_fd)
 
 
 def prefetch(fn: Callable, *specs, tag=None, **static) -> None:
@@ -307,27 +514,46 @@ def prefetch(fn: Callable, *specs, tag=None, **static) -> None:
 
 def _load_or_compile(fn, args, static, folder: Path, key: str):
     """The stored program of `key` (a function of the leaves of `args`), loaded or built and
-    stored; None when it cannot be stored (it then runs through plain jit, and a marker file
-    says so to later processes)."""
-    path, exported, marker = (folder / f"{key}{suffix}" for suffix in (_SUFFIX, _EXPORT_SUFFIX, _PLAIN_SUFFIX))
-    if marker.exists():
+    stored; None when it runs through plain jit: it cannot be stored (a marker file then says
+    so to later processes), or the folder is refused now (one warning line)."""
+    try:
+        dir_fd = _open_folder(folder)
+    except (_Refused, OSError) as err:
+        _warn_once(f"{_reason(err, folder)}; compiling without the program cache")
+        return None
+    try:
+        return _load_or_compile_in(fn, args, static, dir_fd, key)
+    finally:
+        os.close(dir_fd)
+
+
+def _load_or_compile_in(fn, args, static, dir_fd: int, key: str):
+    name, exported, marker = (f"{key}{suffix}" for suffix in (_SUFFIX, _EXPORT_SUFFIX, _PLAIN_SUFFIX))
+    if _marker_present(dir_fd, marker):
         _plain.add(key)
         return None
-    program = _load(path) if path.exists() else None          # loads run in parallel (no GIL held)
-    if program is None and exported.exists():
-        program = _load_exported(exported)
+    program = _load(dir_fd, name, key)                     # loads run in parallel (no GIL held)
     if program is None:
+        program = _load_exported(dir_fd, exported, key)
+    if program is not None:
+        _from_disk.add(key)
+    else:
         compiled, fresh = _compile_fresh(fn, args, static)
         if compiled is not None:
             program = compiled
-            if fresh and not _store(compiled, folder, key):     # later processes: plain jit,
-                _write_marker(marker)                           # through JAX's cache
+            if fresh:                                       # else JAX's cache gave it: not stored
+                blob = _serialize(compiled)
+                if blob is None:                            # later processes: plain jit,
+                    _write_marker(dir_fd, marker)           # through JAX's cache
+                else:
+                    _write(dir_fd, name, _wrap(key, blob))   # disk full: stored next time
         else:                                               # custom calls: exported StableHLO
             program, blob = _export(fn, args, static)
-            if program is None or not _write(folder, exported.name, blob):
+            if program is None:
                 _plain.add(key)
-                _write_marker(marker)
+                _write_marker(dir_fd, marker)
                 return None
+            _write(dir_fd, exported, _wrap(key, blob))
     _loaded[key] = program
     return program
 
@@ -363,16 +589,32 @@ def _exported_program(exported, tree):
     return lambda *leaves: jax.tree.unflatten(tree, exported.call(*leaves))
 
 
-def _load_exported(path: Path):
-    """The exported program at `path`, or None (unreadable or stale: build again)."""
+def _load_exported(dir_fd: int, name: str, key: str):
+    """The exported program `name`, or None (absent, refused or stale: build again)."""
     from jax import export
 
-    return _read(path, lambda payload: _exported_program(export.deserialize(bytearray(payload[0])), payload[1]))
+    payload = _read_entry(dir_fd, name, key)
+    if payload is None:
+        return None
+    try:
+        return _exported_program(export.deserialize(bytearray(payload[0])), payload[1])
+    except Exception:
+        return None
 
 
-def _write_marker(marker: Path) -> None:
-    with contextlib.suppress(OSError):                      # a cache that cannot be written is no error
-        marker.touch(mode=0o600)
+def _marker_present(dir_fd: int, name: str) -> bool:
+    """Whether the plain-jit marker `name` is there, ours and writable by no one else."""
+    try:
+        info = os.stat(name, dir_fd=dir_fd, follow_symlinks=False)
+    except OSError:
+        return False
+    return (stat_.S_ISREG(info.st_mode) and info.st_uid == os.getuid()
+            and not stat_.S_IMODE(info.st_mode) & 0o022)
+
+
+def _write_marker(dir_fd: int, name: str) -> None:
+    """Mark the program `name` as one that cannot be stored (a property of the program)."""
+    _write(dir_fd, name, b"")
 
 
 def _leaf_program(fn, args, static, *, out: dict | None = None):

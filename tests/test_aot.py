@@ -124,10 +124,14 @@ def test_corrupt_artifact_is_compiled_again(folder):
 
 
 def test_unwritable_folder_is_no_error(folder, monkeypatch):
-    def refuse(*_, **__):
-        raise PermissionError("read-only cache")
+    real_open = os.open
 
-    monkeypatch.setattr(aot.tempfile, "mkstemp", refuse)
+    def refuse(path, flags, *args, **kwargs):
+        if flags & os.O_CREAT and "dir_fd" in kwargs:
+            raise PermissionError("read-only cache")
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(aot.os, "open", refuse)
     _same(_call(scale_and_sum, *_args(), factor=5), scale_and_sum(*_args(), factor=5))
     assert _files(folder) == []
 

@@ -42,7 +42,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="run every filter on the same N CPUs (affinity and OMP_NUM_THREADS; "
                              "default: all CPUs, environment as is)")
     parser.add_argument("--compile-cache", default=None, metavar="DIR",
-                        help="share JAX's persistent compilation cache in DIR between runs "
+                        help="share JAX's persistent compilation cache in DIR between runs; DIR must be "
+                             "private to you (mode 0700; created so), else no cache is shared "
                              "(default: every run compiles from scratch; compile s is then cold)")
     parser.add_argument("--timeout", type=positive_float, default=None, metavar="S",
                         help="give up on one (file, filter) run after S seconds (default: no limit)")
@@ -71,6 +72,11 @@ def run(args: argparse.Namespace) -> int:
             harness.choose_cpus(args.threads)
         except ValueError as err:
             raise InputError(f"--threads: {err}") from None
+    if args.compile_cache is not None:            # executables: a private folder or no shared cache
+        from gfjax import aot
+
+        folder = aot.private_folder(args.compile_cache, what="shared compilation cache (--compile-cache)")
+        args.compile_cache = None if folder is None else str(folder)
     runners, notes = bench.plan(args.methods, args.peers, model=args.model)
     for note in notes:
         print(note, file=sys.stderr)

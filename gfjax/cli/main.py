@@ -120,23 +120,31 @@ def enable_compilation_cache() -> Path | None:
 
     Every compiled program is kept (`min_compile_time_secs = 0`), up to `CACHE_SIZE_BYTES`
     (JAX needs the `filelock` package to enforce that bound; without it the cache is unbounded).
-    Settings the user made through `JAX_*` environment variables win. Returns the folder,
-    or None when it cannot be created (the cache then stays off).
+    Settings the user made through `JAX_*` environment variables win.
+
+    JAX's cache holds executables, so its folder obeys `gfjax.aot`'s rule
+    (`aot.private_folder`): private to this user (0700), every folder above it writable by no
+    one else. A folder named in `JAX_COMPILATION_CACHE_DIR` is checked too (a remote URL is
+    left to JAX). A refused folder means no persistent cache for this process (one warning
+    line on stderr). Returns the local folder in use, or None.
     """
-    folder = cache_folder()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return None
     export_folder = export_cache_folder()
     if export_folder is not None:
         aot.enable(export_folder)
+    jax = sys.modules.get("jax")
+    user_folder = os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if user_folder and "://" in user_folder:    # a remote store (gs://...): no owner or mode to check
+        return None
+    folder = aot.private_folder(user_folder or cache_folder(), what="persistent compilation cache")
+    if folder is None:
+        if user_folder:
+            _turn_off_jax_cache(jax)
+        return None
     settings = {"jax_compilation_cache_dir": str(folder),
                 "jax_persistent_cache_min_compile_time_secs": 0.0,
                 "jax_persistent_cache_min_entry_size_bytes": 0}
     if importlib.util.find_spec("filelock") is not None:
         settings["jax_compilation_cache_max_size"] = CACHE_SIZE_BYTES
-    jax = sys.modules.get("jax")
     for key, value in settings.items():
         if key.upper() in os.environ:
             continue
@@ -145,6 +153,13 @@ def enable_compilation_cache() -> Path | None:
         else:  # read by JAX when it is first imported; no JAX import for `gfjax info`
             os.environ[key.upper()] = str(value)
     return folder
+
+
+def _turn_off_jax_cache(jax) -> None:
+    """No persistent compilation cache in this process (JAX reads its folder when first used)."""
+    if jax is not None:
+        jax.config.update("jax_compilation_cache_dir", None)
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = ""     # read by JAX when it is first imported
 
 
 def _one_line(message: str) -> str:
