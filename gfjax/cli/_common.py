@@ -114,10 +114,13 @@ class MethodSetup(NamedTuple):
         return self.module.filter(cloud, config=self.config, params=self.params, **(self.options or {}), **kwargs)
 
 
-def method_setup(args: argparse.Namespace) -> MethodSetup:
+def method_setup(args: argparse.Namespace, *, after=None) -> MethodSetup:
     """Resolve --method / --params / --preset / --set into a method and its Config/Params.
 
     The method is `--method`, else the params file's method, else `DEFAULT_METHOD`.
+    `after(module)`, when given, returns further `(option, {key: value})` layers that win over
+    `--set` (e.g. `--tile-size`); every value is range-checked (`gfjax.limits`) before any
+    file is read.
     """
     from gfjax import methods
 
@@ -136,7 +139,7 @@ def method_setup(args: argparse.Namespace) -> MethodSetup:
         options = {"model": net}
     config, params = methods.make_config_and_params(
         module, parse_set_values(args.set_values), args.preset, values=params_file["values"] if params_file else None,
-        values_source=f"--params {args.params}", base_config=base)
+        values_source=f"--params {args.params}", base_config=base, after=after(module) if after else ())
     return MethodSetup(name, module, config, params, options)
 
 
