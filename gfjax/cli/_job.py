@@ -132,17 +132,21 @@ def _one_line(message: object) -> str:
     return " ".join(str(message).split())
 
 
-def summary_line(done: Sequence[Path], failed: Sequence[Path], not_started: Sequence[Path], total: int) -> str:
-    """`gfjax: 2 of 4 files done; failed: b.laz; not started: d.laz`."""
+def summary_line(done: Sequence[Path], failed: Sequence[Path], not_started: Sequence[Path], total: int, *,
+                 interrupted: Path | None = None) -> str:
+    """`gfjax: 2 of 4 files done; failed: b.laz; interrupted: c.laz; not started: d.laz`."""
     parts = [f"gfjax: {len(done)} of {total} files done"]
     if failed:
         parts.append(f"failed: {', '.join(map(str, failed))}")
+    if interrupted is not None:
+        parts.append(f"interrupted: {interrupted}")
     if not_started:
         parts.append(f"not started: {', '.join(map(str, not_started))}")
     return "; ".join(parts)
 
 
-def run_files(planned: Sequence[Planned], one: Callable[[Planned], None], *, keep_going: bool) -> int:
+def run_files(planned: Sequence[Planned], one: Callable[[Planned], None], *, keep_going: bool,
+              report: Callable[[str], None] | None = None) -> int:
     """Run `one` for each planned file, in order. Returns the exit code.
 
     A single file runs as is (its error ends the command as usual). With several files, a
@@ -150,21 +154,26 @@ def run_files(planned: Sequence[Planned], one: Callable[[Planned], None], *, kee
     job stops there (or goes on with `keep_going`) and prints a summary line; exit code 2.
     An internal error stops the job after the summary (exit 1), or with `keep_going` is
     reported and the job goes on, ending with exit code 1. An interrupt (Ctrl-C, SIGTERM,
-    SIGHUP) prints the summary and ends the job.
+    SIGHUP) prints the summary and ends the job. `report` prints a line on stderr (default
+    `print`; a progress bar passes its own writer).
     """
+    report = report or (lambda line: print(line, file=sys.stderr))
     if len(planned) == 1:
         one(planned[0])
         return 0
     done: list[Path] = []
     failed: list[Path] = []
     internal = False
+    current: Path | None = None
+    stopped: Path | None = None
     try:
         for job in planned:
+            current = job.source
             try:
                 one(job)
             except InputError as err:
                 failed.append(job.source)
-                print(f"gfjax: error: {_one_line(err)}", file=sys.stderr)
+                report(f"gfjax: error: {_one_line(err)}")
                 if not keep_going:
                     break
                 continue
@@ -173,15 +182,19 @@ def run_files(planned: Sequence[Planned], one: Callable[[Planned], None], *, kee
                 if not keep_going:
                     raise
                 internal = True
-                print(f"gfjax: internal error: {job.source}: {type(err).__name__}: {_one_line(err)}", file=sys.stderr)
+                report(f"gfjax: internal error: {job.source}: {type(err).__name__}: {_one_line(err)}")
                 continue
             done.append(job.source)
+    except BaseException:                       # an interrupt (or an internal error, already in `failed`)
+        if current not in failed:
+            stopped = current
+        raise
     finally:
-        finished = set(done) | set(failed)
+        finished = set(done) | set(failed) | {stopped}
         not_started = [job.source for job in planned if job.source not in finished]
-        if failed or not_started:
-            hint = "" if keep_going or not not_started else " (--keep-going goes on after a failed file)"
-            print(summary_line(done, failed, not_started, len(planned)) + hint, file=sys.stderr)
+        if failed or not_started or stopped is not None:
+            hint = " (--keep-going goes on after a failed file)" if failed and not_started and not keep_going else ""
+            report(summary_line(done, failed, not_started, len(planned), interrupted=stopped) + hint)
     if internal:
         return 1
     return 2 if failed else 0

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
 from pathlib import Path
 
@@ -94,12 +95,14 @@ def run(args: argparse.Namespace) -> int:
     planned = _job.precheck(inputs, targets, dtm_targets, units=args.units, config=setup.config,
                             dtm_cell_m=args.cell if args.dtm else None,
                             extra_bytes_per_point=4 if args.instances else 0)
-    say = print
-    progress = None
+    say, report, progress = print, None, None
     if len(inputs) > 1:                     # a progress bar over files (tqdm: 40 ms to import)
         from tqdm.auto import tqdm
 
         progress, say = tqdm(total=len(inputs), desc="files", unit="file"), tqdm.write
+
+        def report(line: str) -> None:
+            tqdm.write(line, file=sys.stderr)
 
     def one(job: _job.Planned) -> None:
         start = time.perf_counter()
@@ -123,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
             progress.update(1)
 
     try:
-        return _job.run_files(planned, one, keep_going=args.keep_going)
+        return _job.run_files(planned, one, keep_going=args.keep_going, report=report)
     finally:
         if progress is not None:
             progress.close()
