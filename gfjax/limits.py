@@ -89,8 +89,11 @@ class Range:
 
 
 def _number(x: float) -> str:
-    if float(x).is_integer() and abs(x) >= 1e5:
-        return f"{x:.0e}".replace("e+0", "e").replace("e+", "e")
+    """`1e5` for round powers of ten, whole numbers in full, else `%g`."""
+    if float(x).is_integer():
+        if abs(x) >= 1e5 and float(f"{x:.0e}") == x:
+            return f"{x:.0e}".replace("e+0", "e").replace("e+", "e")
+        return str(int(x))
     return f"{x:g}"
 
 
@@ -176,12 +179,13 @@ TABLE_SOURCES: dict[str, str] = {
     "masf": "gfjax.masf.config",
     "sparsegf": "gfjax.sparsegf.config",
     "dtm (`--cell`, `--max-edge`)": "gfjax.dtm.build",
+    "commands (tune, train, bench, eval, dtm)": "gfjax.cli._common",
 }
 
 
 def markdown_table() -> str:
     """The README table of every checked range: method, key, range, default."""
-    lines = ["| method | key (`--set KEY=VALUE`) | valid range | default |", "| --- | --- | --- | --- |"]
+    lines = ["| method or command | `--set` key or option | valid range | default |", "| --- | --- | --- | --- |"]
     for method, module_name in TABLE_SOURCES.items():
         module = importlib.import_module(module_name)
         defaults = dict(getattr(module, "DEFAULTS", {}))

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from gfjax.cli._common import TIF_SUFFIXES, add_units_option, nonnegative_float, positive_float
+from gfjax.cli._common import TIF_SUFFIXES, add_units_option, nonnegative_float, positive_float, ranged
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 
@@ -25,7 +25,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--max-edge", type=nonnegative_float, default=100.0, metavar="M",
                         help="longest TIN edge that fills empty cells [m] (default 100)")
     parser.add_argument("--hillshade", default=None, metavar="PNG", help="also write a hillshade PNG")
-    parser.add_argument("--ground-class", type=int, default=2, metavar="CODE",
+    parser.add_argument("--ground-class", type=ranged("--ground-class"), default=2, metavar="CODE",
                         help="class code of ground points (default 2)")
     add_units_option(parser)
     parser.add_argument("--force", action="store_true", help="overwrite an input file")
@@ -48,8 +48,6 @@ def _check_grid(header, source, args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     from gfjax import dtm as dtm_lib
 
-    if not 0 <= args.ground_class <= 255:
-        raise InputError(f"--ground-class: must be an ASPRS class code 0-255, got {args.ground_class}")
     dtm_lib.check_options("", cell_m=args.cell, max_edge_m=args.max_edge)
     inputs = las_io.expand_inputs([args.input])
     if len(inputs) != 1:

@@ -203,3 +203,32 @@ def test_range_text_and_checks_agree():
     assert limits.Range(0, None, inf_ok=True).contains(float("inf"))
     with pytest.raises(ValueError, match=r"^cell_m must be > 0 and <= 100 m, got -1$"):
         limits.check_value("cell_m", -1, cell)
+
+
+COMMAND_OPTIONS = {
+    "tune steps": (["tune", "{scene}", "-o", "{dir}/p.json", "--steps", "1000000000"],
+                   "--steps: must be an integer >= 1 and <= 1e5, got 1000000000"),
+    "tune block": (["tune", "{scene}", "-o", "{dir}/p.json", "--block", "0"], "--block: must be > 0 and <= 1e5 m, got 0"),
+    "tune window grid": (["tune", "{scene}", "-o", "{dir}/p.json", "--windows", "12,1e6"],
+                         "--windows: window_m must be > 0 and <= 10000 m (>= cell_m, <= 1000 cell_m), got 1000000.0"),
+    "tune rigidness grid": (["tune", "{scene}", "-o", "{dir}/p.json", "--method", "csf", "--rigidness", "1,500"],
+                            "--rigidness: rigidness must be an integer >= 1 and <= 100, got 500"),
+    "train epochs": (["train", "{scene}", "-o", "{dir}/m.eqx", "--epochs", "100000000"],
+                     "--epochs: must be an integer >= 1 and <= 10000, got 100000000"),
+    "train seed": (["train", "{scene}", "-o", "{dir}/m.eqx", "--seed", "-1"],
+                   "--seed: must be an integer >= 0 and <= 4294967295, got -1"),
+    "bench timeout": (["bench", "{scene}", "--timeout", "nan"], "--timeout: must be > 0 and <= 1e7 s, got nan"),
+    "eval reference class": (["eval", "{scene}", "--reference", "{scene}", "--reference-class", "300"],
+                             "--reference-class: must be an integer >= 0 and <= 255, got 300"),
+    "dtm ground class": (["dtm", "{scene}", "-o", "{dir}/d.tif", "--ground-class", "-3"],
+                         "--ground-class: must be an integer >= 0 and <= 255, got -3"),
+}
+
+
+@pytest.mark.parametrize("case", list(COMMAND_OPTIONS), ids=list(COMMAND_OPTIONS))
+def test_out_of_range_command_option_exits_2_naming_the_range(case, scene, tmp_path, capsys):
+    argv, message = COMMAND_OPTIONS[case]
+    code, _, err = run_cli(capsys, *[a.format(scene=scene, dir=tmp_path) for a in argv])
+    assert code == 2
+    assert error_line(err) == f"gfjax: error: {message}"
+    assert sorted(os.listdir(tmp_path)) == ["in.las"]
