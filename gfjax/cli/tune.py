@@ -64,9 +64,10 @@ def _check_grids(args: argparse.Namespace) -> None:
     module = importlib.import_module(f"gfjax.{args.method}.config")
     for option, key, values in (("--windows", "window_m", args.windows), ("--time-steps", "time_step", args.time_steps),
                                 ("--rigidness", "rigidness", args.rigidness)):
-        for value in values or ():
+        allowed = module.RANGES.get(key)
+        for value in (values or ()) if allowed is not None else ():
             try:
-                limits.check_value(key, value, module.RANGES[key])
+                limits.check_value(key, value, allowed)
             except ValueError as err:
                 raise InputError(f"{option}: {err}") from None
 
