@@ -21,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from types import ModuleType
 from typing import Any
 
+from gfjax import limits
 from gfjax.errors import InputError
 
 # The method `gfjax filter` runs without `--method`. SPEC section 2: the method with the lowest
@@ -162,6 +163,9 @@ def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | No
             params = dataclasses.replace(params, **params_updates)
         if params is not None and hasattr(params, "check"):
             params.check()
+        estimates = getattr(config, "memory_estimates", None)
+        if estimates is not None:               # the rasters and loops the values set fit the budget
+            limits.check_memory(estimates())
     except (ValueError, TypeError) as err:
         return _raise_range_error(err, source_of)
     return config, params

@@ -88,7 +88,8 @@ class Config:
             raise ValueError(f"slope_smooth must be a bool, got {self.slope_smooth!r}")
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
-        """The largest allocation these settings imply (`gfjax.limits.check_memory`): with
+        """The largest allocation these settings imply, checked by `gfjax.limits.check_memory` where a
+        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): with
         `extent_m` (the cloud's x, y extent [m]), the cloth over the whole cloud."""
         if extent_m is None:
             return []

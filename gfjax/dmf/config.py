@@ -149,10 +149,10 @@ class Config:
             raise ValueError(f"final_rule must be one of {FINAL_RULES}, got {self.final_rule!r}")
         if self.close_max_px % 2 == 0:
             raise ValueError(f"close_max_px must be an odd int >= 3, got {self.close_max_px!r}")
-        limits.check_memory(self.memory_estimates())
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
-        """The largest allocations these settings imply (`gfjax.limits.check_memory`) at the
+        """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a
+        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`) at the
         smallest voxel size W they allow (`voxel_m`, else 1 m: Eq. 1 rounds W up to whole
         metres): a batch of NGNEM tiles, and with `extent_m` (the cloud's x, y extent [m]) the
         whole-cloud rasters."""

@@ -120,7 +120,8 @@ class Config:
                              f"alpha_step_m + 1 = {layers:,.0f}), got {self.alpha_step_m!r}")
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
-        """The largest allocation these settings imply (`gfjax.limits.check_memory`): with
+        """The largest allocation these settings imply, checked by `gfjax.limits.check_memory` where a
+        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): with
         `extent_m` (the cloud's x, y extent [m]), the preprocessing grid over the whole cloud."""
         if extent_m is None:
             return []

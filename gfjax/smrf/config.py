@@ -88,10 +88,10 @@ class Config:
             if not ok:
                 name = message.split()[0]
                 raise ValueError(f"{message}, got {getattr(self, name)!r}")
-        limits.check_memory(self.memory_estimates())
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
-        """The largest allocations these settings imply (`gfjax.limits.check_memory`): a batch of
+        """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a
+        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): a batch of
         tile rasters, and with `extent_m` (the cloud's x, y extent [m]) the whole-cloud mosaic."""
         side = limits.raster_side(self.tile_size_m + 2 * self.buffer_m, self.cell_m)
         out = [limits.Estimate(f"a tile raster of {side:,} x {side:,} cells ((tile_size_m + 2 buffer_m) / cell_m), "

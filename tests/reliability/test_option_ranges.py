@@ -232,3 +232,27 @@ def test_out_of_range_command_option_exits_2_naming_the_range(case, scene, tmp_p
     assert code == 2
     assert error_line(err) == f"gfjax: error: {message}"
     assert sorted(os.listdir(tmp_path)) == ["in.las"]
+
+
+def test_python_api_filter_checks_the_budget_for_the_cloud_it_is_given(monkeypatch):
+    from gfjax import smrf
+    from gfjax.errors import InputError
+    from gfjax.io.cloud import Cloud
+
+    monkeypatch.setenv(limits.BUDGET_ENV, "1")
+    cloud = Cloud.from_xyz(np.array([[0.0, 0.0, 0.0], [200_000.0, 200_000.0, 1.0]]))
+    with pytest.raises(InputError, match=r"the whole-cloud rasters of 200,001 x 200,001 cells .* memory budget"):
+        smrf.filter(cloud)
+
+
+def test_configs_rebuilt_inside_the_stages_are_not_refused(monkeypatch):
+    from gfjax.pmf import stages as pmf_stages
+    from gfjax.smrf import stages as smrf_stages
+
+    monkeypatch.setenv(limits.BUDGET_ENV, "1")
+    smrf = methods.get("smrf")
+    config, _ = methods.make_config_and_params(smrf, {"cell_m": "0.1", "tile_size_m": "50", "buffer_m": "10"})
+    assert smrf_stages.raster_config(config).tile_size_m == 500.0     # the default tiling, never checked alone
+    pmf = methods.get("pmf")
+    config, _ = methods.make_config_and_params(pmf, {"cell_m": "0.1", "tile_size_m": "50", "buffer_m": "10"})
+    assert pmf_stages._raster_config(config).tile_size_m == 500.0
