@@ -23,7 +23,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any, NamedTuple
 
 __all__ = ["Range", "check_fields", "check_value", "Estimate", "memory_budget_bytes", "check_memory",
-           "markdown_table", "BUDGET_ENV"]
+           "raster_side", "tiles_per_batch", "markdown_table", "BUDGET_ENV"]
 
 BUDGET_ENV = "GFJAX_MEMORY_BUDGET_GB"
 _GIB = float(1 << 30)
@@ -168,6 +168,17 @@ def check_memory(estimates: Iterable[Estimate], *, name: str = "") -> None:
 def raster_side(length_m: float, cell_m: float) -> int:
     """Cells along `length_m` at `cell_m` (at least 1): `ceil(length_m / cell_m) + 1`."""
     return max(1, math.ceil(length_m / cell_m - 1e-9)) + 1
+
+
+def tiles_per_batch(extent_m: tuple[float, float] | None, tile_m: float, *, max_batch: int) -> int:
+    """Tiles of side `tile_m` one batch holds for a cloud of this x, y extent [m]: all of them
+    up to `max_batch`; 1 without an extent (the least any run needs)."""
+    if extent_m is None:
+        return 1
+    count = 1
+    for length in extent_m:
+        count *= max(1, math.ceil(length / tile_m - 1e-9))
+    return min(max_batch, count)
 
 
 # Method packages and other option owners whose RANGES make the README table, in its order.

@@ -49,8 +49,10 @@ RANGES: dict[str, Range] = {
 }
 # The smallest voxel size W of Eq. 1 (`ceil` of a length in metres) when `voxel_m` is None [m].
 _MIN_DATA_VOXEL_M = 1.0
-# A batch of MAX_BATCH (8, `gfjax.dmf.filter`) NGNEM tiles of about 32 float32 / int32 rasters.
-_BATCH_BYTES_PER_CELL = 8 * 32 * 4
+MAX_BATCH = 8                 # NGNEM tiles per vmap call of `gfjax.dmf.filter`
+# Memory of one padded tile of a batch, per cell: about 32 float32 / int32 rasters (stage inputs,
+# work arrays, diagnostics) [bytes]: an estimate, not a measurement.
+_TILE_BYTES_PER_CELL = 32 * 4
 _CLOUD_BYTES_PER_CELL = 8 * 8           # whole-cloud rasters at W: a few float64 / int64 each
 
 BASAL_STOPS = ("global", "per_node")
@@ -158,8 +160,9 @@ class Config:
         whole-cloud rasters."""
         cell = self.voxel_m if self.voxel_m is not None else _MIN_DATA_VOXEL_M
         side = limits.raster_side(self.raster_tile_m + 2 * self.raster_buffer_m, cell)
-        out = [limits.Estimate(f"an NGNEM tile of {side:,} x {side:,} cells ((raster_tile_m + 2 raster_buffer_m) "
-                               "/ W), 8 tiles per batch", float(side) ** 2 * _BATCH_BYTES_PER_CELL)]
+        tiles = MAX_BATCH                       # every batch is padded to MAX_BATCH tiles (one compile)
+        out = [limits.Estimate(f"a batch of {tiles} NGNEM tiles of {side:,} x {side:,} cells ((raster_tile_m + "
+                               "2 raster_buffer_m) / W)", float(side) ** 2 * tiles * _TILE_BYTES_PER_CELL)]
         if extent_m is not None:
             w, h = (limits.raster_side(e, cell) for e in extent_m)
             out.append(limits.Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / W)",

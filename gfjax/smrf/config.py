@@ -37,9 +37,10 @@ RANGES: dict[str, Range] = {
     "scalar": Range(0, 1000),
 }
 MAX_WINDOW_PX = 1000          # window_m / cell_m: the largest opening radius, in cells
-# A batch of MAX_BATCH (8, `gfjax.smrf.filter`) padded tiles, each about 32 float32 rasters
-# (stage inputs, openings, the harmonic fill's work arrays, diagnostics) [bytes per tile cell].
-_BATCH_BYTES_PER_CELL = 8 * 32 * 4
+MAX_BATCH = 8                 # tiles per vmap call of `gfjax.smrf.filter`
+# Memory of one padded tile of a batch, per cell: about 32 float32 / int32 rasters (stage inputs,
+# work arrays, diagnostics) [bytes]: an estimate, not a measurement.
+_TILE_BYTES_PER_CELL = 32 * 4
 _MOSAIC_BYTES_PER_CELL = 6 * 8          # six whole-cloud float64 diagnostics rasters
 
 
@@ -94,8 +95,9 @@ class Config:
         job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): a batch of
         tile rasters, and with `extent_m` (the cloud's x, y extent [m]) the whole-cloud mosaic."""
         side = limits.raster_side(self.tile_size_m + 2 * self.buffer_m, self.cell_m)
-        out = [limits.Estimate(f"a tile raster of {side:,} x {side:,} cells ((tile_size_m + 2 buffer_m) / cell_m), "
-                               "8 tiles per batch", float(side) ** 2 * _BATCH_BYTES_PER_CELL)]
+        tiles = limits.tiles_per_batch(extent_m, self.tile_size_m, max_batch=MAX_BATCH)
+        out = [limits.Estimate(f"a batch of {tiles} tile raster(s) of {side:,} x {side:,} cells "
+                               "((tile_size_m + 2 buffer_m) / cell_m)", float(side) ** 2 * tiles * _TILE_BYTES_PER_CELL)]
         if extent_m is not None:
             w, h = (limits.raster_side(e, self.cell_m) for e in extent_m)
             out.append(limits.Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / cell_m)",

@@ -126,8 +126,8 @@ def test_tile_raster_over_the_memory_budget_exits_2_with_the_estimate(scene, tmp
                            "--set", "cell_m=0.1", "--tile-size", "2000")
     assert code == 2
     line = error_line(err)
-    assert line.startswith("gfjax: error: --set, --tile-size: a tile raster of 21,001 x 21,001 cells "
-                           "((tile_size_m + 2 buffer_m) / cell_m), 8 tiles per batch needs about ")
+    assert line.startswith("gfjax: error: --set, --tile-size: a batch of 1 tile raster(s) of 21,001 x 21,001 cells "
+                           "((tile_size_m + 2 buffer_m) / cell_m) needs about ")
     assert line.endswith("GiB, more than the memory budget of 1.0 GiB (set GFJAX_MEMORY_BUDGET_GB to change it)")
 
 
@@ -256,3 +256,13 @@ def test_configs_rebuilt_inside_the_stages_are_not_refused(monkeypatch):
     pmf = methods.get("pmf")
     config, _ = methods.make_config_and_params(pmf, {"cell_m": "0.1", "tile_size_m": "50", "buffer_m": "10"})
     assert pmf_stages._raster_config(config).tile_size_m == 500.0
+
+
+def test_batch_estimate_counts_the_tiles_the_extent_holds():
+    smrf = methods.get("smrf")
+    config, _ = methods.make_config_and_params(smrf)
+    one = config.memory_estimates()[0]
+    four = config.memory_estimates((900.0, 900.0))[0]            # 2 x 2 tiles of 500 m
+    many = config.memory_estimates((10_000.0, 10_000.0))[0]       # 400 tiles: batches of 8
+    assert "a batch of 1 tile" in one.what and "a batch of 4 tile" in four.what and "a batch of 8 tile" in many.what
+    assert four.n_bytes == 4 * one.n_bytes and many.n_bytes == 8 * one.n_bytes
