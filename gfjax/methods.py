@@ -16,10 +16,12 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from collections.abc import Mapping
+import re
+from collections.abc import Mapping, Sequence
 from types import ModuleType
 from typing import Any
 
+from gfjax import limits
 from gfjax.errors import InputError
 
 # The method `gfjax filter` runs without `--method`. SPEC section 2: the method with the lowest
@@ -107,16 +109,18 @@ def _as_field_value(value: Any, current: Any) -> Any:
 
 def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | None = None,
                            preset: str | None = None, *, values: Mapping[str, float] | None = None,
-                           values_source: str = "--params", base_config: Any = None) -> tuple[Any, Any]:
+                           values_source: str = "--params", base_config: Any = None,
+                           after: Sequence[tuple[str, Mapping[str, Any]]] = ()) -> tuple[Any, Any]:
     """Build a method's `Config` and `Params` from a preset, fitted values and `key=value`s.
 
     Precedence, lowest first: the defaults (or `base_config`, e.g. the settings a SparseGF
     model was trained with), `preset`, `values` (e.g. the `values` of a
-    `gfjax tune` params.json, named by `values_source` in errors), `overrides` (`--set`).
-    Keys are matched against the fields of `Config` and of `Params`. An unknown key, an
-    unknown preset, a value that does not parse or that the method's own checks reject
-    (`Config.__post_init__`, `Params.check()` when it exists) raises `InputError` naming the
-    option and the key.
+    `gfjax tune` params.json, named by `values_source` in errors), `overrides` (`--set`),
+    then each `(option, {key: value})` of `after` (options of their own such as
+    `--tile-size`). Keys are matched against the fields of `Config` and of `Params`. An
+    unknown key, an unknown preset, a value that does not parse or that the method's own
+    checks reject (`Config.__post_init__`: ranges and memory budget, `gfjax.limits`;
+    `Params.check()` when it exists) raises `InputError` naming the option and the key.
     """
     config = method.Config() if base_config is None else base_config
     params_cls = getattr(method, "Params", None)
@@ -131,6 +135,7 @@ def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | No
         layers.append((f"--preset {preset}", presets[preset]))
     layers.append((values_source, values or {}))
     layers.append(("--set", overrides or {}))
+    layers.extend(after)
     config_fields = {f.name for f in dataclasses.fields(config)}
     params_fields = {f.name for f in dataclasses.fields(params)} if params is not None else set()
     config_updates: dict[str, Any] = {}
@@ -158,14 +163,21 @@ def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | No
             params = dataclasses.replace(params, **params_updates)
         if params is not None and hasattr(params, "check"):
             params.check()
+        estimates = getattr(config, "memory_estimates", None)
+        if estimates is not None:               # the rasters and loops the values set fit the budget
+            limits.check_memory(estimates())
     except (ValueError, TypeError) as err:
         return _raise_range_error(err, source_of)
     return config, params
 
 
 def _raise_range_error(err: Exception, source_of: Mapping[str, str]):
-    """Re-raise a method's own range check as InputError, naming the option of the key."""
+    """Re-raise a method's own range check as InputError, naming the options of the keys the
+    message names (the first word first: the key out of range)."""
     message = str(err)
     key = message.split()[0] if message else ""
-    source = source_of.get(key, "--set" if not source_of else ", ".join(sorted(set(source_of.values()))))
-    raise InputError(f"{source}: {message}") from None
+    named = [k for k in source_of if k != key and re.search(rf"\b{re.escape(k)}\b", message)]
+    sources = list(dict.fromkeys(source_of[k] for k in ([key] if key in source_of else []) + named))
+    if not sources:
+        sources = ["--set"] if not source_of else sorted(set(source_of.values()))
+    raise InputError(f"{', '.join(sources)}: {message}") from None

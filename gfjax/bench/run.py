@@ -305,7 +305,7 @@ def plot(records: Sequence[dict], path: Path, *, title: str = "gfjax bench") -> 
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
+    fig.savefig(path, format="png")        # a PNG whatever the name (atomic writes use temporary names)
     plt.close(fig)
     return True
 

@@ -4,15 +4,53 @@ from __future__ import annotations
 import argparse
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import ModuleType
 from typing import Any, NamedTuple
 
 from gfjax.errors import InputError
 from gfjax.io.units import UNIT_CHOICES
+from gfjax.limits import Range
 
 TIF_SUFFIXES = (".tif", ".tiff")
+
+# The valid range of every numeric option that belongs to a command rather than to a method
+# (`--set` keys, `--tile-size`, `--buffer` and `--cell` have theirs in the method's and the
+# DTM's RANGES). Parsed and checked by `ranged(option)`; listed in the README's table.
+RANGES: dict[str, Range] = {
+    "--ground-class": Range(0, 255, integer=True),
+    "--reference-class": Range(0, 255, integer=True),
+    "--steps": Range(1, 100_000, integer=True),
+    "--folds": Range(0, 1000, integer=True),
+    "--block": Range(0, 100_000, low_open=True, unit="m"),
+    "--prior": Range(0, 1e6),
+    "--epochs": Range(1, 10_000, integer=True),
+    "--batch": Range(1, 1024, integer=True),
+    "--lr": Range(0, 10, low_open=True),
+    "--seed": Range(0, 2**32 - 1, integer=True),
+    "--repeat": Range(1, 10_000, integer=True),
+    "--timeout": Range(0, 1e7, low_open=True, unit="s"),
+}
+DEFAULTS: dict[str, object] = {}
+
+
+def ranged(option: str) -> Callable[[str], float | int]:
+    """argparse type of `option`: a number in `RANGES[option]` (an int for integer ranges)."""
+    allowed = RANGES[option]
+
+    def parse(text: str) -> float | int:
+        try:
+            value = int(text) if allowed.integer else float(text)
+        except ValueError:
+            kind = "a whole number" if allowed.integer else "a number"
+            raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}") from None
+        if not allowed.contains(value):
+            raise argparse.ArgumentTypeError(f"must be {allowed.text()}, got {text}")
+        return value
+
+    parse.__name__ = option.lstrip("-")
+    return parse
 
 
 def positive_float(text: str) -> float:
@@ -118,10 +156,13 @@ class MethodSetup(NamedTuple):
         return self.module.filter(cloud, config=self.config, params=self.params, **(self.options or {}), **kwargs)
 
 
-def method_setup(args: argparse.Namespace) -> MethodSetup:
+def method_setup(args: argparse.Namespace, *, after=None) -> MethodSetup:
     """Resolve --method / --params / --preset / --set into a method and its Config/Params.
 
     The method is `--method`, else the params file's method, else `DEFAULT_METHOD`.
+    `after(module)`, when given, returns further `(option, {key: value})` layers that win over
+    `--set` (e.g. `--tile-size`); every value is range-checked (`gfjax.limits`) before any
+    file is read.
     """
     from gfjax import methods
 
@@ -140,7 +181,7 @@ def method_setup(args: argparse.Namespace) -> MethodSetup:
         options = {"model": net}
     config, params = methods.make_config_and_params(
         module, parse_set_values(args.set_values), args.preset, values=params_file["values"] if params_file else None,
-        values_source=f"--params {args.params}", base_config=base)
+        values_source=f"--params {args.params}", base_config=base, after=after(module) if after else ())
     return MethodSetup(name, module, config, params, options)
 
 

@@ -21,7 +21,7 @@ import sys
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     from gfjax.bench.peers import PEERS
-    from gfjax.cli._common import add_model_option, add_units_option, positive_float, positive_int
+    from gfjax.cli._common import add_model_option, add_units_option, positive_int, ranged
     from gfjax.methods import METHODS
 
     parser = subparsers.add_parser("bench", help="compare the speed and accuracy of methods and peers",
@@ -33,7 +33,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--peers", default=None, metavar="NAME,...",
                         help=f"peer packages, comma-separated ({', '.join(PEERS)}), or none "
                              "(default: every installed peer)")
-    parser.add_argument("--repeat", type=positive_int, default=1, metavar="N",
+    parser.add_argument("--repeat", type=ranged("--repeat"), default=1, metavar="N",
                         help="timed whole jobs per (file, filter) after the warm-up (default 1)")
     parser.add_argument("--json", default=None, metavar="OUT.json", help="write every figure as JSON")
     parser.add_argument("--plot", default=None, metavar="PNG",
@@ -45,7 +45,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="share JAX's persistent compilation cache in DIR between runs; DIR must be "
                              "private to you (mode 0700; created so), else no cache is shared "
                              "(default: every run compiles from scratch; compile s is then cold)")
-    parser.add_argument("--timeout", type=positive_float, default=None, metavar="S",
+    parser.add_argument("--timeout", type=ranged("--timeout"), default=None, metavar="S",
                         help="give up on one (file, filter) run after S seconds (default: no limit)")
     add_model_option(parser)
     add_units_option(parser)

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from gfjax.cli._common import TIF_SUFFIXES, add_units_option, nonnegative_float, positive_float
+from gfjax.cli._common import TIF_SUFFIXES, add_units_option, nonnegative_float, positive_float, ranged
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 
@@ -25,23 +25,36 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--max-edge", type=nonnegative_float, default=100.0, metavar="M",
                         help="longest TIN edge that fills empty cells [m] (default 100)")
     parser.add_argument("--hillshade", default=None, metavar="PNG", help="also write a hillshade PNG")
-    parser.add_argument("--ground-class", type=int, default=2, metavar="CODE",
+    parser.add_argument("--ground-class", type=ranged("--ground-class"), default=2, metavar="CODE",
                         help="class code of ground points (default 2)")
     add_units_option(parser)
     parser.add_argument("--force", action="store_true", help="overwrite an input file")
     return parser
 
 
+def _check_grid(header, source, args: argparse.Namespace) -> None:
+    """The DTM over the header's extent must fit the memory budget, before anything is read."""
+    from gfjax import dtm as dtm_lib
+    from gfjax import limits
+
+    unit_m = las_io.header_units(header, name=str(source), units=args.units).horizontal_m
+    extent = tuple(float(hi - lo) * unit_m for lo, hi in zip(header.mins[:2], header.maxs[:2]))
+    try:
+        limits.check_memory([dtm_lib.memory_estimate(extent, args.cell)])
+    except ValueError as err:
+        raise InputError(f"{source}: {err}; use a larger --cell or split the file") from None
+
+
 def run(args: argparse.Namespace) -> int:
     from gfjax import dtm as dtm_lib
 
-    if not 0 <= args.ground_class <= 255:
-        raise InputError(f"--ground-class: must be an ASPRS class code 0-255, got {args.ground_class}")
+    dtm_lib.check_options("", cell_m=args.cell, max_edge_m=args.max_edge)
     inputs = las_io.expand_inputs([args.input])
     if len(inputs) != 1:
         raise InputError(f"{args.input}: gfjax dtm takes one input file, got {len(inputs)}")
     source = inputs[0]
-    las_io.read_header(source)
+    header = las_io.read_header(source)
+    _check_grid(header, source, args)
     las_io.check_output(args.output, force=args.force, input_paths=inputs, suffixes=TIF_SUFFIXES, option="-o")
     if args.hillshade:
         las_io.check_output(args.hillshade, force=args.force, input_paths=inputs, suffixes=(".png",),

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gfjax.cli._common import add_method_options, add_units_option, method_setup
+from gfjax.cli._common import add_method_options, add_units_option, method_setup, ranged
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 from gfjax.io.cloud import Cloud
@@ -39,7 +39,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--reference", nargs="+", default=None, metavar="REF",
                         help="reference files, one per input, in the same order")
     add_method_options(parser, method_help="run this filter on the inputs and score its result")
-    parser.add_argument("--reference-class", type=int, default=2, metavar="CODE",
+    parser.add_argument("--reference-class", type=ranged("--reference-class"), default=2, metavar="CODE",
                         help="class code of ground in the reference (default 2)")
     parser.add_argument("--returns", choices=("all", "last"), default="all",
                         help="returns the method uses and that are scored (default all)")
@@ -120,8 +120,6 @@ def run(args: argparse.Namespace) -> int:
 
     from gfjax import metrics
 
-    if not 0 <= args.reference_class <= 255:
-        raise InputError(f"--reference-class: must be an ASPRS class code 0-255, got {args.reference_class}")
     inputs = las_io.expand_inputs(args.inputs)
     references: list[Path | None] = [None] * len(inputs)
     if args.reference:

@@ -12,19 +12,25 @@ file border gets the label it would get if the survey were one file (exactly so 
 tiled methods, SMRF and PMF). The files must share their CRS and units. `--independent`
 filters each file on its own instead.
 
-Every input and output is checked before the first file is filtered, so a bad option or
-path fails at once and leaves no file behind.
+Every option, input and output is checked before the first file is filtered (option ranges
+and the memory their rasters need, headers, CRS and units, output folders, free space), so a
+bad option or path fails at once and leaves no file behind. A file that fails later leaves
+the outputs already written (each complete), and a summary line says which files were done,
+failed or not started (exit 2); `--keep-going` goes on with the other files. With `--dtm`,
+a file's DTM and point cloud are both written or neither.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from gfjax.cli import _job
 from gfjax.cli._common import (TIF_SUFFIXES, add_method_options, add_units_option, method_setup,
                                nonnegative_float, output_targets, positive_float)
 from gfjax.errors import InputError
@@ -56,26 +62,27 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="filter each input on its own, without its neighbours' points")
     add_units_option(parser)
     parser.add_argument("--force", action="store_true", help="overwrite input files")
+    parser.add_argument("--keep-going", action="store_true",
+                        help="with several inputs, go on with the other files after one fails (exit 2 at the end)")
     return parser
 
 
-def _tiling_overrides(args: argparse.Namespace, module) -> dict[str, float]:
+def _tiling_layers(args: argparse.Namespace, module) -> list[tuple[str, dict[str, float]]]:
+    """`--tile-size` / `--buffer` as `(option, {key: value})` layers of `method_setup`."""
     fields = {f.name for f in dataclasses.fields(module.Config)}
-    overrides = {}
+    layers = []
     for option, key, value in (("--tile-size", "tile_size_m", args.tile_size),
                                ("--buffer", "buffer_m", args.buffer)):
         if value is None:
             continue
         if key not in fields:
             raise InputError(f"{option}: method {module.__name__.split('.')[-1]} does not tile (no {key})")
-        overrides[key] = value
-    return overrides
+        layers.append((option, {key: value}))
+    return layers
 
 
 def run(args: argparse.Namespace) -> int:
     inputs = las_io.expand_inputs(args.inputs)
-    for path in inputs:
-        las_io.read_header(path)
     targets = output_targets(inputs, args.output, suffixes=las_io.LAS_SUFFIXES)
     for target in targets:
         las_io.check_output(target, force=args.force, input_paths=inputs, suffixes=las_io.LAS_SUFFIXES, option="-o")
@@ -89,35 +96,47 @@ def run(args: argparse.Namespace) -> int:
         if set(map(Path.resolve, dtm_targets)) & set(map(Path.resolve, targets)):
             raise InputError(f"--dtm {args.dtm}: same path as an output point cloud")
         from gfjax import dtm as dtm_lib  # imported before any filtering: fail early if absent
-    setup = method_setup(args)
-    tiling = _tiling_overrides(args, setup.module)
-    if tiling:
-        try:
-            setup = setup._replace(config=dataclasses.replace(setup.config, **tiling))
-        except ValueError as err:
-            raise InputError(f"--tile-size/--buffer: {err}") from None
 
+        dtm_lib.check_options("", cell_m=args.cell)
+    # Options before files: every value in range, the rasters they set within the memory budget.
+    setup = method_setup(args, after=lambda module: _tiling_layers(args, module))
+    # Every input and output before the first file is filtered.
+    planned = _job.precheck(inputs, targets, dtm_targets, units=args.units, config=setup.config,
+                            dtm_cell_m=args.cell if args.dtm else None,
+                            extra_bytes_per_point=4 if args.instances else 0)
     with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder:
-        return _filter_all(args, setup, inputs, targets, dtm_targets, folder)
+        catalog = None
+        if len(inputs) > 1 and not args.independent:
+            from gfjax import survey
+
+            catalog = survey.index(inputs, folder, returns=args.returns, units=args.units)
+        return _run(args, setup, inputs, planned, catalog)
 
 
-def _filter_all(args, setup, inputs, targets, dtm_targets, folder) -> int:
-    jobs, say = list(zip(inputs, targets, dtm_targets)), print
+def _run(args, setup, inputs, planned, catalog) -> int:
+    """Filter and write every planned file (with its neighbours' halo when `catalog` is set)."""
+    say, report, progress = print, None, None
     if len(inputs) > 1:                     # a progress bar over files (tqdm: 40 ms to import)
         from tqdm.auto import tqdm
 
-        jobs, say = tqdm(jobs, desc="files", unit="file"), tqdm.write
-    if len(inputs) > 1 and not args.independent:
-        from gfjax import survey
+        progress, say = tqdm(total=len(inputs), desc="files", unit="file"), tqdm.write
 
-        results = survey.filtered(inputs, lambda points, returns: setup.filter(points, returns=returns, progress=True),
-                                  setup.config, folder, returns=args.returns, units=args.units)
-    else:
-        results = ((cloud, setup.filter(cloud, returns=args.returns, progress=True))
-                   for cloud in (las_io.read(source, units=args.units) for source in inputs))
-    for source, target, dtm_target in jobs:
+        def report(line: str) -> None:
+            tqdm.write(line, file=sys.stderr)
+
+    position = {source: i for i, source in enumerate(inputs)}
+
+    def one(job: _job.Planned) -> None:
         start = time.perf_counter()
-        cloud, result = next(results)
+        cloud = las_io.read(job.source, units=args.units)
+        if catalog is None:
+            result = setup.filter(cloud, returns=args.returns, progress=True)
+        else:
+            from gfjax import survey
+
+            result = survey.filter_file(catalog, position[job.source], cloud,
+                                        lambda points, returns: setup.filter(points, returns=returns, progress=True),
+                                        setup.config, returns=args.returns)
         ground = np.asarray(result.ground, dtype=bool)
         labelled = cloud.with_ground(ground, reset_nonground=args.reset_nonground,
                                      used=cloud.filter_mask(args.returns))
@@ -126,15 +145,46 @@ def _filter_all(args, setup, inputs, targets, dtm_targets, folder) -> int:
                 raise InputError(f"--instances: method {setup.name} gives no instance ids")
             labelled = labelled.with_extra_dim("instance_id", np.asarray(result.instance_id, dtype=np.uint32),
                                                description="object instance, 0 = none")
-        las_io.write(labelled, target, force=args.force, input_paths=inputs)
-        if dtm_target is not None:
-            from gfjax import dtm as dtm_lib
-
-            dtm_lib.build(cloud, ground, cell_m=args.cell).to_geotiff(dtm_target)
+        _write(labelled, job.target, job.dtm_target, cloud, ground, args, inputs)
         seconds = time.perf_counter() - start
         n_ground = int(np.count_nonzero(ground))
-        message = (f"{source} -> {target}: {setup.name}, {n_ground:,} ground of {cloud.n_points:,} points "
-                   f"({100.0 * n_ground / cloud.n_points:.1f} %), {seconds:.1f} s "
-                   f"({cloud.n_points / max(seconds, 1e-9):,.0f} points/s)")
-        say(message)
-    return 0
+        say(f"{job.source} -> {job.target}: {setup.name}, {n_ground:,} ground of {cloud.n_points:,} points "
+            f"({100.0 * n_ground / cloud.n_points:.1f} %), {seconds:.1f} s "
+            f"({cloud.n_points / max(seconds, 1e-9):,.0f} points/s)")
+        if progress is not None:
+            progress.update(1)
+
+    try:
+        return _job.run_files(planned, one, keep_going=args.keep_going, report=report)
+    finally:
+        if progress is not None:
+            progress.close()
+
+
+def _write(labelled, target: Path, dtm_target: Path | None, cloud, ground: np.ndarray,
+           args: argparse.Namespace, inputs) -> None:
+    """Write the classified cloud, and its DTM with `--dtm`: both or neither.
+
+    The DTM is built before anything is written (no ground points, a grid over the memory
+    budget: nothing written), then written while the cloud's temporary file waits to be
+    renamed; if the cloud then fails, a DTM this call created is removed again.
+    """
+    if dtm_target is None:
+        las_io.write(labelled, target, force=args.force, input_paths=inputs)
+        return
+    from gfjax import dtm as dtm_lib
+
+    dtm = dtm_lib.build(cloud, ground, cell_m=args.cell)
+    existed = dtm_target.exists()
+    written = []
+
+    def write_dtm() -> None:
+        dtm.to_geotiff(dtm_target)
+        written.append(dtm_target)
+
+    try:
+        las_io.write(labelled, target, force=args.force, input_paths=inputs, before_commit=write_dtm)
+    except BaseException:
+        if written and not existed:
+            dtm_target.unlink(missing_ok=True)
+        raise

@@ -11,7 +11,10 @@ except `demo`, which then says it is not available.
 
 Exit codes: 0 success; 2 bad input or option, printed as one line
 `gfjax: error: <file or option>: <problem>` (no traceback, no output file left behind);
-1 internal error, with the traceback only under `--debug` or `GFJAX_DEBUG=1`.
+1 internal error, with the traceback only under `--debug` or `GFJAX_DEBUG=1`; 128 + the
+signal number when interrupted: Ctrl-C (130), SIGTERM (143) and SIGHUP (129) are all handled
+alike, as an exception in the main thread, so every temporary file is removed on the way out
+and one line `gfjax: interrupted by SIG...` is printed.
 """
 from __future__ import annotations
 
@@ -21,7 +24,9 @@ import importlib
 import importlib.util
 import logging
 import os
+import signal
 import sys
+import threading
 import traceback
 from collections.abc import Sequence
 from pathlib import Path
@@ -162,6 +167,42 @@ def _turn_off_jax_cache(jax) -> None:
     os.environ["JAX_COMPILATION_CACHE_DIR"] = ""     # read by JAX when it is first imported
 
 
+HANDLED_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised in the main thread like Ctrl-C's KeyboardInterrupt, so the
+    same `finally` blocks remove temporary files (`gfjax.io.atomic`)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_interrupted(signum, frame) -> None:
+    for sig in HANDLED_SIGNALS:                 # a second signal must not cut the clean-up short
+        with contextlib.suppress(ValueError, OSError):
+            signal.signal(sig, signal.SIG_IGN)
+    raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def _signals_interrupt():
+    """While the command runs, SIGTERM and SIGHUP raise `Interrupted` (main thread only);
+    the previous handlers come back afterwards."""
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in HANDLED_SIGNALS:
+            with contextlib.suppress(ValueError, OSError):
+                previous[sig] = signal.signal(sig, _raise_interrupted)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            with contextlib.suppress(ValueError, OSError):
+                signal.signal(sig, handler)
+
+
 def _one_line(message: str) -> str:
     return " ".join(str(message).split())
 
@@ -198,12 +239,13 @@ def _run(argv: Sequence[str]) -> int:
     argv = list(argv)
     debug = "--debug" in argv or os.environ.get("GFJAX_DEBUG", "") not in ("", "0")
     try:
-        parser, module = build_parser(argv)
-        args = parser.parse_args(argv)
-        if module is None:
-            raise InputError(f"{args.command}: not available in this build")
-        enable_compilation_cache()
-        return int(module.run(args) or 0)
+        with _signals_interrupt():
+            parser, module = build_parser(argv)
+            args = parser.parse_args(argv)
+            if module is None:
+                raise InputError(f"{args.command}: not available in this build")
+            enable_compilation_cache()
+            return int(module.run(args) or 0)
     except InputError as err:
         if debug:
             traceback.print_exc()
@@ -211,9 +253,10 @@ def _run(argv: Sequence[str]) -> int:
         return 2
     except SystemExit as exit_:  # --help, --version
         return exit_.code if isinstance(exit_.code, int) else 0
-    except KeyboardInterrupt:
-        print("gfjax: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:
+        signum = getattr(err, "signum", signal.SIGINT)
+        print(f"gfjax: interrupted by {signal.Signals(signum).name}; no partial output left", file=sys.stderr)
+        return 128 + int(signum)
     except Exception as err:  # noqa: BLE001 (the one place that turns bugs into exit code 1)
         if debug:
             traceback.print_exc()

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from gfjax.cli._common import add_units_option, positive_float, positive_int
+from gfjax.cli._common import add_units_option, ranged
 from gfjax.errors import InputError
 
 
@@ -23,13 +23,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("-o", "--output", required=True, metavar="MODEL.eqx", help="model file to write")
     parser.add_argument("--preset", choices=("tiny", "paper"), default="tiny",
                         help="network size: tiny (0.81 M parameters, trains on a CPU) or paper (MinkUNet34C, 37.9 M)")
-    parser.add_argument("--epochs", type=positive_int, default=12, help="epochs (default 12, the paper's)")
-    parser.add_argument("--batch", type=positive_int, default=4, help="patches per step (default 4, the paper's)")
-    parser.add_argument("--lr", type=positive_float, default=None,
+    parser.add_argument("--epochs", type=ranged("--epochs"), default=12, help="epochs (default 12, the paper's)")
+    parser.add_argument("--batch", type=ranged("--batch"), default=4, help="patches per step (default 4, the paper's)")
+    parser.add_argument("--lr", type=ranged("--lr"), default=None,
                         help="initial learning rate of the cosine schedule (default 1e-2; the paper's 1e-1 diverged here)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the weights, rotations and order (default 0)")
+    parser.add_argument("--seed", type=ranged("--seed"), default=0, help="seed of the weights, rotations and order (default 0)")
     parser.add_argument("--validate", nargs="+", default=(), metavar="FILES", help="labelled files scored after each epoch")
-    parser.add_argument("--ground-class", type=int, default=2, help="class code of ground in the labels (default 2)")
+    parser.add_argument("--ground-class", type=ranged("--ground-class"), default=2, help="class code of ground in the labels (default 2)")
     parser.add_argument("--no-compression", action="store_true", help="ablation: no context compression, 1 m voxels")
     parser.add_argument("--no-refinement", action="store_true", help="ablation: no point-wise refinement module")
     parser.add_argument("--no-hag-loss", action="store_true", help="ablation: classification loss only (lambda 0)")

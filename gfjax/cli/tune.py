@@ -27,7 +27,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
-from gfjax.cli._common import add_units_option, nonnegative_float, nonnegative_int, positive_float, positive_int
+from gfjax.cli._common import add_units_option, positive_float, positive_int, ranged
 from gfjax.errors import InputError
 
 TUNABLE = ("smrf", "pmf", "csf")          # gfjax.tune.methods.METHODS (not imported: no JAX at parse time)
@@ -54,6 +54,24 @@ def _level(text: str) -> float:
     return value
 
 
+def _check_grids(args: argparse.Namespace) -> None:
+    """Each value of `--windows`, `--time-steps`, `--rigidness` in the range of the key it
+    sets (the method's RANGES, `gfjax.limits`)."""
+    import importlib
+
+    from gfjax import limits
+
+    module = importlib.import_module(f"gfjax.{args.method}.config")
+    for option, key, values in (("--windows", "window_m", args.windows), ("--time-steps", "time_step", args.time_steps),
+                                ("--rigidness", "rigidness", args.rigidness)):
+        allowed = module.RANGES.get(key)
+        for value in (values or ()) if allowed is not None else ():
+            try:
+                limits.check_value(key, value, allowed)
+            except ValueError as err:
+                raise InputError(f"{option}: {err}") from None
+
+
 def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser("tune", help="fit a method's thresholds against labelled files",
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -62,13 +80,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--method", default="smrf", help=f"method to tune ({', '.join(TUNABLE)})")
     parser.add_argument("--loss", choices=("total-error", "kappa"), default="total-error",
                         help="expected total error (default) or 1 - soft kappa")
-    parser.add_argument("--prior", type=nonnegative_float, default=0.01, metavar="W",
+    parser.add_argument("--prior", type=ranged("--prior"), default=0.01, metavar="W",
                         help="weight of the pull toward the defaults (default 0.01)")
-    parser.add_argument("--steps", type=positive_int, default=60, help="Adam steps per window (default 60)")
-    parser.add_argument("--folds", type=nonnegative_int, default=3,
+    parser.add_argument("--steps", type=ranged("--steps"), default=60, help="Adam steps per window (default 60)")
+    parser.add_argument("--folds", type=ranged("--folds"), default=3,
                         help="folds of the guard's cross-validation, by file or by block (default 3; "
                              "0 or 1: no guard, the fit is kept where it lowered the training error)")
-    parser.add_argument("--block", type=positive_float, default=50.0, metavar="M",
+    parser.add_argument("--block", type=ranged("--block"), default=50.0, metavar="M",
                         help="side of the validation blocks of a single file [m] (default 50)")
     parser.add_argument("--alpha", type=_level, default=0.05,
                         help="level of the guard's test, in (0, 1) (default 0.05)")
@@ -116,8 +134,7 @@ def run(args: argparse.Namespace) -> int:
     for option, value in (("--time-steps", args.time_steps), ("--rigidness", args.rigidness)):
         if value and method.name != "csf":
             raise InputError(f"{option}: only CSF has a cloth grid, not {args.method}")
-    if args.time_steps and any(not t < 10 for t in args.time_steps):
-        raise InputError(f"--time-steps: each time step must be < 10, got {args.time_steps}")
+    _check_grids(args)
     samples = [Sample.from_cloud(las_io.read(p, units=args.units), returns=args.returns) for p in inputs]
     if not any(np.any(s.ref_ground[s.use]) for s in samples):
         raise InputError(f"{', '.join(map(str, inputs))}: no reference ground (class 2) to tune on")

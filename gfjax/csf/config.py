@@ -8,15 +8,29 @@ here, with the source line they come from.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from gfjax import limits
+from gfjax.limits import Range
+
 __all__ = ["Config", "Params", "PRESETS", "GRAVITY", "DAMPING", "CLOTH_START_M", "BUFFER_PX",
            "STOP_DISPLACEMENT_M", "SMOOTH_THRESHOLD_M", "MIN_SMOOTH_COMPONENT", "single_move",
-           "double_move"]
+           "double_move", "RANGES"]
+
+# The valid range of every numeric Config / Params field (`gfjax.limits`).
+RANGES: dict[str, Range] = {
+    "cell_m": Range(0, 100, low_open=True, unit="m"),
+    "rigidness": Range(1, 100, integer=True),
+    "iterations": Range(1, 100_000, integer=True),
+    "class_threshold_m": Range(0, 1000, low_open=True, unit="m"),
+    "time_step": Range(0, 10, low_open=True),
+}
+# The cloth: about 16 float32 / int32 arrays per particle (heights, velocities, flags, the
+# simulation's work arrays) [bytes per particle].
+_BYTES_PER_PARTICLE = 16 * 4
 
 GRAVITY = 0.2                 # CSF.cpp: `double gravity = 0.2` [cloth units per step^2]
 DAMPING = 0.01                # Particle.h: `#define DAMPING 0.01` (Verlet velocity damping)
@@ -69,14 +83,19 @@ class Config:
     slope_smooth: bool = True
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.cell_m, (int, float)) and math.isfinite(self.cell_m) and self.cell_m > 0):
-            raise ValueError(f"cell_m must be finite and > 0, got {self.cell_m!r}")
-        for name, low in (("rigidness", 1), ("iterations", 1)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+        limits.check_fields(self, RANGES)
         if not isinstance(self.slope_smooth, bool):
             raise ValueError(f"slope_smooth must be a bool, got {self.slope_smooth!r}")
+
+    def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
+        """The largest allocation these settings imply, checked by `gfjax.limits.check_memory` where a
+        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): with
+        `extent_m` (the cloud's x, y extent [m]), the cloth over the whole cloud."""
+        if extent_m is None:
+            return []
+        w, h = (limits.raster_side(e, self.cell_m) + 2 * BUFFER_PX for e in extent_m)
+        return [limits.Estimate(f"a cloth of {h:,} x {w:,} particles (extent / cell_m)",
+                                float(h) * float(w) * _BYTES_PER_PARTICLE)]
 
 
 class Params(eqx.Module):
@@ -95,10 +114,7 @@ class Params(eqx.Module):
 
     def check(self) -> None:
         """Range checks on concrete values (call outside jit): raises ValueError naming the key."""
-        for name in ("class_threshold_m", "time_step"):
-            value = float(getattr(self, name))
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {value}")
+        limits.check_fields(self, RANGES)
 
 
 # Scene presets of the CSF paper / CloudCompare plugin (Zhang et al. 2016, Sec. 3): steep

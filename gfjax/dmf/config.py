@@ -21,7 +21,39 @@ import jax
 import numpy as np
 from jaxtyping import Array, Float
 
-__all__ = ["Config", "Params", "PRESETS", "BASAL_STOPS", "FINAL_RULES", "HOLE_TESTS", "SUPPORT_Z", "SUPPORT_ELEVATIONS"]
+from gfjax import limits
+from gfjax.limits import Range
+
+__all__ = ["Config", "Params", "PRESETS", "BASAL_STOPS", "FINAL_RULES", "HOLE_TESTS", "SUPPORT_Z", "SUPPORT_ELEVATIONS",
+           "RANGES"]
+
+# The valid range of every numeric Config / Params field (`gfjax.limits`).
+RANGES: dict[str, Range] = {
+    "v0": Range(0, 100, low_open=True),
+    "v1": Range(0, 100, low_open=True),
+    "voxel_m": Range(0, 100, low_open=True, unit="m", none_ok=True),
+    "sample_fraction": Range(0, 1, low_open=True),
+    "sample_min": Range(1, 10_000_000, integer=True),
+    "basal_radius_w": Range(0, 20, low_open=True, unit="W"),
+    "basal_table_width": Range(8, 1024, integer=True, extra="a power of two"),
+    "basal_max_iter": Range(1, 100_000, integer=True),
+    "basal_sink_cap_w": Range(0, 1000, unit="W", none_ok=True),
+    "max_filter_px": Range(1, 100, integer=True, unit="cells"),
+    "close_max_px": Range(3, 1001, integer=True, unit="cells", extra="odd"),
+    "rc_min_share": Range(0, 1, low_open=True),
+    "fill_neighbours": Range(1, 1000, integer=True),
+    "raster_tile_m": Range(0, 100_000, low_open=True, unit="m"),
+    "raster_buffer_m": Range(0, 10_000, unit="m"),
+    "height_threshold_m": Range(-1000, 1000, unit="m"),
+    "height_threshold_w": Range(-1000, 1000, unit="W"),
+}
+# The smallest voxel size W of Eq. 1 (`ceil` of a length in metres) when `voxel_m` is None [m].
+_MIN_DATA_VOXEL_M = 1.0
+MAX_BATCH = 8                 # NGNEM tiles per vmap call of `gfjax.dmf.filter`
+# Memory of one padded tile of a batch, per cell: about 32 float32 / int32 rasters (stage inputs,
+# work arrays, diagnostics) [bytes]: an estimate, not a measurement.
+_TILE_BYTES_PER_CELL = 32 * 4
+_CLOUD_BYTES_PER_CELL = 8 * 8           # whole-cloud rasters at W: a few float64 / int64 each
 
 BASAL_STOPS = ("global", "per_node")
 FINAL_RULES = ("m_nearest", "height", "both")
@@ -103,15 +135,9 @@ class Config:
     raster_buffer_m: float = 50.0
 
     def __post_init__(self):
-        _positive(self, "v0", "v1", "sample_fraction", "basal_radius_w", "raster_tile_m")
-        if not 0.0 < self.rc_min_share <= 1.0:
-            raise ValueError(f"rc_min_share must be in (0, 1], got {self.rc_min_share}")
-        if self.voxel_m is not None and not self.voxel_m > 0:
-            raise ValueError(f"voxel_m must be > 0 or None, got {self.voxel_m}")
-        if self.sample_fraction > 1:
-            raise ValueError(f"sample_fraction must be <= 1, got {self.sample_fraction}")
+        limits.check_fields(self, RANGES)
         width = self.basal_table_width
-        if isinstance(width, bool) or not isinstance(width, int) or width < 8 or width & (width - 1):
+        if width & (width - 1):
             raise ValueError(f"basal_table_width must be a power of two >= 8, got {width!r}")
         if self.basal_stop not in BASAL_STOPS:
             raise ValueError(f"basal_stop must be one of {BASAL_STOPS}, got {self.basal_stop!r}")
@@ -123,29 +149,31 @@ class Config:
             raise ValueError(f"support_elevation must be one of {SUPPORT_ELEVATIONS}, got {self.support_elevation!r}")
         if self.final_rule not in FINAL_RULES:
             raise ValueError(f"final_rule must be one of {FINAL_RULES}, got {self.final_rule!r}")
-        if self.basal_sink_cap_w is not None and not self.basal_sink_cap_w >= 0:
-            raise ValueError(f"basal_sink_cap_w must be >= 0 or None, got {self.basal_sink_cap_w}")
-        for name in ("sample_min", "basal_max_iter", "max_filter_px", "fill_neighbours"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be an int >= 1, got {value!r}")
-        if not isinstance(self.close_max_px, int) or self.close_max_px < 3 or self.close_max_px % 2 == 0:
+        if self.close_max_px % 2 == 0:
             raise ValueError(f"close_max_px must be an odd int >= 3, got {self.close_max_px!r}")
-        if not self.raster_buffer_m >= 0:
-            raise ValueError(f"raster_buffer_m must be >= 0, got {self.raster_buffer_m}")
+
+    def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
+        """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a
+        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`) at the
+        smallest voxel size W they allow (`voxel_m`, else 1 m: Eq. 1 rounds W up to whole
+        metres): a batch of NGNEM tiles, and with `extent_m` (the cloud's x, y extent [m]) the
+        whole-cloud rasters."""
+        cell = self.voxel_m if self.voxel_m is not None else _MIN_DATA_VOXEL_M
+        side = limits.raster_side(self.raster_tile_m + 2 * self.raster_buffer_m, cell)
+        tiles = MAX_BATCH                       # every batch is padded to MAX_BATCH tiles (one compile)
+        out = [limits.Estimate(f"a batch of {tiles} NGNEM tiles of {side:,} x {side:,} cells ((raster_tile_m + "
+                               "2 raster_buffer_m) / W)", float(side) ** 2 * tiles * _TILE_BYTES_PER_CELL)]
+        if extent_m is not None:
+            w, h = (limits.raster_side(e, cell) for e in extent_m)
+            out.append(limits.Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / W)",
+                                       float(h) * float(w) * _CLOUD_BYTES_PER_CELL))
+        return out
 
     @property
     def basal_neighbours(self) -> int:
         """Static width k of the (n, k) cylinder table: one ND_CE per column, so at most the
         `(2 ceil(r/W) + 1)^2` columns of the square around the node."""
         return (2 * math.ceil(self.basal_radius_w) + 1) ** 2
-
-
-def _positive(config: Config, *names: str) -> None:
-    for name in names:
-        value = getattr(config, name)
-        if not value > 0:
-            raise ValueError(f"{name} must be > 0, got {value}")
 
 
 def _f32(value):
@@ -191,10 +219,7 @@ class Params:
 
     def check(self) -> None:
         """Range checks on concrete values (call outside jit): raises ValueError naming the key."""
-        for field in dataclasses.fields(self):
-            value = float(getattr(self, field.name))
-            if not math.isfinite(value):
-                raise ValueError(f"{field.name} must be finite, got {value}")
+        limits.check_fields(self, RANGES)
 
     def threshold_m(self, cell_m: float) -> Float[Array, ""]:
         """The largest height of a ground point above the support surface for voxel size

@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 from gfjax import aot
 from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import extract, neighbours, stages, voxels
-from gfjax.dmf.config import Config, Params
+from gfjax.dmf.config import MAX_BATCH, Config, Params
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
 from gfjax.io.tiled import checked_options
@@ -33,7 +33,6 @@ from gfjax.result import Result
 __all__ = ["Diagnostics", "filter", "run_raster_stages", "stage_options", "batched_stages", "SHAPE_QUANTUM_PX", "MAX_BATCH"]
 
 SHAPE_QUANTUM_PX = 16          # tile rasters are padded to multiples of this (few compiles)
-MAX_BATCH = 8                  # tiles per vmap call
 
 
 class Diagnostics(NamedTuple):

@@ -5,7 +5,7 @@ dtm = gfjax.dtm.build(cloud, result.ground, cell_m=1.0, max_edge_m=100.0)
 dtm.to_geotiff("dtm.tif"); dtm.to_png("hillshade.png")
 ```
 """
-from gfjax.dtm.build import DTM, build
+from gfjax.dtm.build import DTM, build, check_options, memory_estimate
 from gfjax.dtm.geotiff import NODATA
 
-__all__ = ["DTM", "build", "NODATA"]
+__all__ = ["DTM", "build", "check_options", "memory_estimate", "NODATA"]

@@ -27,19 +27,25 @@ Steps (issue 2, part 5; SPEC section 1 "dtm.build"):
 from __future__ import annotations
 
 import dataclasses
-import math
-import numbers
 
 import numpy as np
 import scipy.spatial
 from rasterio.transform import Affine
 
+from gfjax import limits
 from gfjax.dtm.geotiff import NODATA, cloud_rasterio_crs, write_geotiff
 from gfjax.dtm.hillshade import hillshade, write_png
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
 
-MAX_CELLS = 400_000_000        # refuse rasters that would not fit in memory (float64 + counts)
+# The valid ranges of the DTM options (`gfjax filter --cell`, `gfjax dtm --cell --max-edge`).
+RANGES: dict[str, limits.Range] = {
+    "cell_m": limits.Range(0, 1000, low_open=True, unit="m"),
+    "max_edge_m": limits.Range(0, None, unit="m", inf_ok=True),
+}
+DEFAULTS = {"cell_m": 1.0, "max_edge_m": 100.0}
+# z and the TIN fill (float64), counts (int64), masks and the float32 copy written [bytes per cell].
+_BYTES_PER_CELL = 48
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -94,16 +100,27 @@ class DTM:
         write_png(path, self.hillshade(azimuth_deg, altitude_deg))
 
 
-def _metres(name: str, option: str, value, *, allow_zero: bool) -> float:
-    """`value` as a float, checked: > 0 and finite (a cell), or >= 0, inf allowed (an edge)."""
-    if not isinstance(value, numbers.Real) or isinstance(value, bool):
-        raise InputError(f"{name}: {option} must be a number of metres, got {value!r}")
-    value = float(value)
-    ok = value >= 0 if allow_zero else 0 < value < math.inf       # False for NaN
-    if not ok:
-        bound = ">= 0" if allow_zero else "a finite number > 0"
-        raise InputError(f"{name}: {option} must be {bound} metres, got {value!r}")
-    return value
+def check_options(name: str, *, cell_m, max_edge_m=100.0) -> tuple[float, float]:
+    """`cell_m` and `max_edge_m` as floats, checked against `RANGES`.
+
+    Raises InputError `"<name>: cell_m (--cell) must be ..."`, or without `name` (options
+    checked before any file is read) `"--cell: cell_m must be ..."`.
+    """
+    checked = []
+    for key, option, value in (("cell_m", "--cell", cell_m), ("max_edge_m", "--max-edge", max_edge_m)):
+        try:
+            limits.check_value(f"{key} ({option})" if name else key, value, RANGES[key])
+        except ValueError as err:
+            raise InputError(f"{name or option}: {err}") from None
+        checked.append(float(value))
+    return checked[0], checked[1]
+
+
+def memory_estimate(extent_m: tuple[float, float], cell_m: float) -> limits.Estimate:
+    """The DTM raster over an x, y extent [m] at `cell_m` [m] (`gfjax.limits.check_memory`)."""
+    w, h = (limits.raster_side(e, cell_m) for e in extent_m)
+    return limits.Estimate(f"a DTM of {h:,} x {w:,} cells of {cell_m:g} m (extent / --cell)",
+                           float(h) * float(w) * _BYTES_PER_CELL)
 
 
 def snapped_grid(xy: np.ndarray, cell: float) -> tuple[int, int, int, int]:
@@ -206,8 +223,7 @@ def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.
         too large for memory. The message names the file.
     """
     name = cloud.name
-    cell_m = _metres(name, "cell_m (--cell)", cell_m, allow_zero=False)
-    max_edge_m = _metres(name, "max_edge_m (--max-edge)", max_edge_m, allow_zero=True)
+    cell_m, max_edge_m = check_options(name, cell_m=cell_m, max_edge_m=max_edge_m)
     ground = np.asarray(ground)
     if ground.dtype != np.bool_ or ground.shape != (cloud.n_points,):
         raise InputError(f"{name}: ground must be a bool array of shape ({cloud.n_points},), "
@@ -219,9 +235,11 @@ def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.
     max_edge = max_edge_m / unit_m
     xyz = cloud.xyz                                        # file units, float64
     col0, row_top, h, w = snapped_grid(xyz[~cloud.ignored | ground, :2], cell)
-    if h * w > MAX_CELLS:
-        raise InputError(f"{name}: a {h} x {w} grid of {cell_m} m cells is too large; "
-                         "use a larger --cell or split the file")
+    try:
+        limits.check_memory([limits.Estimate(f"a DTM of {h:,} x {w:,} cells of {cell_m:g} m (extent / --cell)",
+                                             float(h) * float(w) * _BYTES_PER_CELL)])
+    except ValueError as err:
+        raise InputError(f"{name}: {err}; use a larger --cell or split the file") from None
     origin = np.array([col0 * cell, row_top * cell, 0.0])  # north-west corner, file units
     xyz_g = xyz[ground]
     col = np.floor(xyz_g[:, 0] / cell).astype(np.int64) - col0    # same floor as the grid

@@ -2,16 +2,100 @@
 target, fsynced and renamed onto it, so a failed run never leaves a partial or stale file.
 
 Used by every writer of gfjax (LAS/LAZ, GeoTIFF, PNG, params.json).
+
+Temporary files are named `.<target name>.gfjax-tmp-<host>-<pid>-<8 hex>`: hidden, and with
+no `.las`/`.laz`/`.tif` suffix, so no folder or glob input of a later run picks one up
+(`gfjax.io.las.expand_inputs` also skips them by name). The writer removes its temporary on
+any error, Ctrl-C, SIGTERM or SIGHUP (`gfjax.cli.main`). A temporary left by a process that
+could not clean up (SIGKILL, power loss) is *stale*, and the next write into that folder
+removes it, when it is ours (same user) and either its process is gone (same host, pid no
+longer running) or it has not been modified for `STALE_AGE_S` (24 hours; a temporary from
+another host, whose pid cannot be checked, is only removed by age).
 """
 from __future__ import annotations
 
 import contextlib
 import os
+import re
 import secrets
+import socket
+import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from gfjax.errors import InputError
+
+TMP_MARK = ".gfjax-tmp-"
+STALE_AGE_S = 24 * 3600.0
+_TMP_NAME = re.compile(r"^\..+\.gfjax-tmp-(?P<host>.+)-(?P<pid>\d+)-[0-9a-f]{8}$")
+# Temporaries of gfjax <= 0.x: `.<stem>.<8 hex>.tmp<suffix>` (they ended in the target's suffix).
+_OLD_TMP_NAME = re.compile(r"^\..+\.[0-9a-f]{8}\.tmp(\.[A-Za-z0-9]+)?$")
+_NAME_KEEP = 100            # characters of the target name kept in a temporary name (NAME_MAX 255)
+
+
+def _host() -> str:
+    return re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname())[:32] or "host"
+
+
+def temporary_name(out: Path) -> Path:
+    """A fresh temporary path beside `out` (see the module docstring for the pattern)."""
+    return out.with_name(f".{out.name[:_NAME_KEEP]}{TMP_MARK}{_host()}-{os.getpid()}-{secrets.token_hex(4)}")
+
+
+def is_temporary(path: str | os.PathLike) -> bool:
+    """True for a name of a gfjax temporary file (this version's pattern or the older one)."""
+    name = Path(path).name
+    return bool(_TMP_NAME.match(name) or _OLD_TMP_NAME.match(name))
+
+
+def _pid_running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True
+    return True
+
+
+def is_stale(path: str | os.PathLike, *, now: float | None = None) -> bool:
+    """True when `path` is a gfjax temporary of this user whose writer is gone: same host and
+    its pid is not running, or not modified for `STALE_AGE_S`. False for anything else."""
+    path = Path(path)
+    name = path.name
+    match = _TMP_NAME.match(name)
+    if match is None and not _OLD_TMP_NAME.match(name):
+        return False
+    try:
+        info = os.lstat(path)
+    except OSError:
+        return False
+    if info.st_uid != os.getuid() or not os.path.isfile(path) or os.path.islink(path):
+        return False
+    now = time.time() if now is None else now
+    if now - info.st_mtime > STALE_AGE_S:
+        return True
+    if match is None or match["host"] != _host():
+        return False
+    pid = int(match["pid"])
+    return pid != os.getpid() and not _pid_running(pid)
+
+
+def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:
+    """Remove the stale gfjax temporaries (`is_stale`) directly inside `folder`; returns them.
+    Errors (a folder that cannot be listed, a file removed meanwhile) are ignored."""
+    removed = []
+    try:
+        names = [entry.name for entry in os.scandir(folder) if TMP_MARK in entry.name or ".tmp" in entry.name]
+    except OSError:
+        return removed
+    for name in names:
+        path = Path(folder) / name
+        if is_stale(path):
+            with contextlib.suppress(OSError):
+                path.unlink()
+                removed.append(path)
+    return removed
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -56,11 +140,15 @@ def atomic_output(path: str | os.PathLike, *, force: bool = False,
                   suffixes: tuple[str, ...] | None = None, option: str = "") -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success fsync it and rename it onto `path`.
 
-    The temporary file (hidden, same folder, same suffix, mode 0666 less the umask) is removed
-    if the body raises, so a failed write leaves no file behind. Checks as `check_output`.
+    The temporary file (`temporary_name`: hidden, same folder, no input suffix, mode 0666 less
+    the umask) is removed if the body raises or the process is interrupted, so a failed write
+    leaves no file behind; stale temporaries of killed runs in the folder are removed first
+    (`remove_stale_temporaries`). Writers must name the format explicitly (the temporary has
+    no suffix to guess it from). Checks as `check_output`.
     """
     out = check_output(path, force=force, input_paths=input_paths, suffixes=suffixes, option=option)
-    tmp = out.with_name(f".{out.stem}.{secrets.token_hex(4)}.tmp{out.suffix}")
+    remove_stale_temporaries(out.absolute().parent)
+    tmp = temporary_name(out)
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         os.close(fd)
@@ -84,4 +172,5 @@ def atomic_output(path: str | os.PathLike, *, force: bool = False,
             os.close(dir_fd)
 
 
-__all__ = ["atomic_output", "check_output"]
+__all__ = ["atomic_output", "check_output", "temporary_name", "is_temporary", "is_stale",
+           "remove_stale_temporaries", "STALE_AGE_S"]

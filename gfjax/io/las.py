@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import glob
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import laspy
@@ -18,7 +18,7 @@ import laspy
 from gfjax.errors import InputError
 from gfjax.io import crs as crs_lib
 from gfjax.io import units as units_lib
-from gfjax.io.atomic import atomic_output, check_output
+from gfjax.io.atomic import atomic_output, check_output, is_temporary
 from gfjax.io.cloud import Cloud
 
 LAS_SUFFIXES = (".las", ".laz")
@@ -36,14 +36,16 @@ _GLOB_CHARS = frozenset("*?[")
 
 
 def _is_las_name(path: Path) -> bool:
-    return path.suffix.lower() in LAS_SUFFIXES
+    """A `.las`/`.laz` name that is not a gfjax temporary file (`gfjax.io.atomic`)."""
+    return path.suffix.lower() in LAS_SUFFIXES and not is_temporary(path)
 
 
 def expand_inputs(patterns: Iterable[str | os.PathLike]) -> list[Path]:
     """Input files from file names, folders and glob patterns.
 
     A folder gives its `.las`/`.laz` files (not recursive); a glob (`*`, `?`, `[`, `**`) gives
-    the `.las`/`.laz` files it matches; a file name is taken as is. Folders and globs are sorted
+    the `.las`/`.laz` files it matches; a file name is taken as is. Temporary files of gfjax
+    writers (`gfjax.io.atomic`, also those of killed runs) are never inputs. Folders and globs are sorted
     by name; argument order is kept; a file named twice is kept once (first occurrence).
 
     Raises:
@@ -58,6 +60,8 @@ def expand_inputs(patterns: Iterable[str | os.PathLike]) -> list[Path]:
             if not files:
                 raise InputError(f"{path}: folder holds no .las/.laz files")
         elif path.exists():
+            if is_temporary(path):
+                raise InputError(f"{path}: a temporary file of an unfinished gfjax write, not an input")
             files = [path]
         elif _GLOB_CHARS & set(text):
             files = sorted(Path(p) for p in glob.glob(text, recursive=True)
@@ -163,12 +167,15 @@ def _is_compressed(path: Path) -> bool:
 
 
 def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
-          input_paths: Iterable[str | os.PathLike] = ()) -> Path:
+          input_paths: Iterable[str | os.PathLike] = (),
+          before_commit: Callable[[], None] | None = None) -> Path:
     """Write `cloud.las` to `path` atomically; LAZ (lazrs) when the suffix is `.laz`.
 
     Nothing but what `cloud.las` holds is written: the header, VLRs/EVLRs, scales/offsets and
     every point dimension are those read. Refuses to overwrite `cloud.path` or any of
-    `input_paths` unless `force`.
+    `input_paths` unless `force`. `before_commit` runs once the points are written, before the
+    file is renamed into place: if it raises, `path` is not written (a companion file, such as
+    `gfjax filter --dtm`'s DTM, is written there so that neither exists without the other).
 
     Returns:
       The path written.
@@ -182,6 +189,8 @@ def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
     with atomic_output(path, force=force, input_paths=inputs, suffixes=LAS_SUFFIXES) as tmp:
         with open(tmp, "w+b") as f:  # readable: laspy re-reads the header to add EVLRs
             cloud.las.write(f, do_compress=compress, laz_backend=backends)
+        if before_commit is not None:
+            before_commit()
     return Path(path)
 
 
@@ -192,3 +201,14 @@ def _compressors(point_format_id: int, out: Path) -> tuple[laspy.LazBackend, ...
         return (laspy.LazBackend.Laszip,)
     raise InputError(f"{out}: point format {point_format_id} (wave packets) cannot be written as LAZ "
                      "without loss by lazrs; install the laszip package or write .las")
+
+
+def header_units(header: laspy.LasHeader, *, name: str,
+                 units: str | units_lib.Units | None = None) -> units_lib.Units:
+    """The unit factors `read` would give a file with this header (`units` overrides the CRS),
+    without reading its points: checks that its CRS and units are readable.
+
+    Raises:
+      InputError: as `read` for an unreadable CRS or a geographic CRS in degrees.
+    """
+    return _resolve_units(header, name=name, units=units)[1]

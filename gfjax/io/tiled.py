@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from gfjax import limits
 from gfjax._types import Mask
 from gfjax.errors import InputError
 from gfjax.io import tiles as tiling
@@ -65,7 +66,8 @@ def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None
 
     Raises:
       InputError: a config or params of the wrong type, a params out of range (the message
-        names the cloud), or a bad `returns`.
+        names the cloud), a bad `returns`, or rasters that `config.memory_estimates` puts over
+        the memory budget (`gfjax.limits`) for this cloud's extent.
     """
     config = config_type() if config is None else config
     params = params_type() if params is None else params
@@ -76,6 +78,11 @@ def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None
     try:
         params.check()
         use = cloud.filter_mask(returns)
+        estimates = getattr(config, "memory_estimates", None)
+        if estimates is not None and np.any(use):
+            xy = cloud.xyz_m[use, :2]
+            extent = xy.max(axis=0) - xy.min(axis=0)
+            limits.check_memory(estimates((float(extent[0]), float(extent[1]))))
     except ValueError as err:
         raise InputError(f"{cloud.name}: {err}") from None
     return config, params, use

@@ -15,9 +15,32 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-__all__ = ["Config", "Params", "PRESETS", "PAPER_TABLE3", "DISTANCES"]
+from gfjax import limits
+from gfjax.limits import Range
+
+__all__ = ["Config", "Params", "PRESETS", "PAPER_TABLE3", "DISTANCES", "RANGES"]
 
 DISTANCES = ("under", "nearest_facet")
+
+# The valid range of every numeric Config / Params field (`gfjax.limits`).
+RANGES: dict[str, Range] = {
+    "grid_m": Range(0, 100, low_open=True, unit="m"),
+    "alpha_max_m": Range(0, 10_000, low_open=True, unit="m", extra=">= alpha_min"),
+    "alpha_step_m": Range(0, 10_000, low_open=True, unit="m", extra="at most 1000 layers"),
+    "alpha_min_m": Range(0, 10_000, low_open=True, unit="m", none_ok=True),
+    "alpha_top_m": Range(0, 100_000, low_open=True, unit="m", none_ok=True, extra="> alpha_max_m"),
+    "outlier_gap_m": Range(0, 1000, low_open=True, unit="m"),
+    "neighbour_drop_m": Range(0, 1000, low_open=True, unit="m"),
+    "low_cluster_max_m2": Range(0, 1_000_000, unit="m^2"),
+    "pit_slope": Range(0, 100, none_ok=True),
+    "pit_cap_m": Range(0, 10_000, unit="m"),
+    "layer_passes": Range(1, 100, integer=True),
+    "empty_tol_m": Range(0, 10, unit="m"),
+    "st": Range(0, 100),
+    "ft_m": Range(0, 1000, unit="m"),
+}
+MAX_LAYERS = 1000             # (alpha_max_m - alpha_min) / alpha_step_m + 1: the layer loop
+_GRID_BYTES_PER_CELL = 8 * 8  # the preprocessing grid: a few float64 / int64 arrays per cell
 
 
 def _f32(value) -> Float[Array, ""]:
@@ -84,29 +107,27 @@ class Config:
     empty_tol_m: float = 1e-3
 
     def __post_init__(self) -> None:
-        positive = ["grid_m", "alpha_max_m", "alpha_step_m", "outlier_gap_m", "neighbour_drop_m"]
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-        if not (math.isfinite(self.low_cluster_max_m2) and self.low_cluster_max_m2 >= 0):
-            raise ValueError(f"low_cluster_max_m2 must be finite and >= 0, got {self.low_cluster_max_m2!r}")
-        if self.pit_slope is not None and not (math.isfinite(self.pit_slope) and self.pit_slope >= 0):
-            raise ValueError(f"pit_slope must be finite and >= 0 (or None), got {self.pit_slope!r}")
-        if not (math.isfinite(self.pit_cap_m) and self.pit_cap_m >= 0):
-            raise ValueError(f"pit_cap_m must be finite and >= 0, got {self.pit_cap_m!r}")
-        if not (isinstance(self.layer_passes, int) and self.layer_passes >= 1):
-            raise ValueError(f"layer_passes must be an integer >= 1, got {self.layer_passes!r}")
+        limits.check_fields(self, RANGES)
         if self.distance not in DISTANCES:
             raise ValueError(f"distance must be one of {DISTANCES}, got {self.distance!r}")
-        if not (math.isfinite(self.empty_tol_m) and self.empty_tol_m >= 0):
-            raise ValueError(f"empty_tol_m must be finite and >= 0, got {self.empty_tol_m!r}")
-        if self.alpha_min_m is not None and not (math.isfinite(self.alpha_min_m) and self.alpha_min_m > 0):
-            raise ValueError(f"alpha_min_m must be finite and > 0, got {self.alpha_min_m!r}")
         if self.alpha_max_m < self.min_alpha_m:
             raise ValueError(f"alpha_max_m must be >= alpha_min_m ({self.min_alpha_m}), got {self.alpha_max_m!r}")
         if self.alpha_top_m is not None and not (math.isfinite(self.alpha_top_m) and self.alpha_top_m > self.alpha_max_m):
             raise ValueError(f"alpha_top_m must be finite and > alpha_max_m ({self.alpha_max_m}), got {self.alpha_top_m!r}")
+        layers = (self.alpha_max_m - self.min_alpha_m) / self.alpha_step_m + 1
+        if layers > MAX_LAYERS:
+            raise ValueError(f"alpha_step_m must give at most {MAX_LAYERS} layers ((alpha_max_m - alpha_min) / "
+                             f"alpha_step_m + 1 = {layers:,.0f}), got {self.alpha_step_m!r}")
+
+    def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
+        """The largest allocation these settings imply, checked by `gfjax.limits.check_memory` where a
+        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): with
+        `extent_m` (the cloud's x, y extent [m]), the preprocessing grid over the whole cloud."""
+        if extent_m is None:
+            return []
+        w, h = (limits.raster_side(e, self.grid_m) for e in extent_m)
+        return [limits.Estimate(f"a grid of {h:,} x {w:,} cells (extent / grid_m)",
+                                float(h) * float(w) * _GRID_BYTES_PER_CELL)]
 
     @property
     def min_alpha_m(self) -> float:
@@ -143,10 +164,7 @@ class Params(eqx.Module):
 
     def check(self) -> None:
         """Range checks on concrete values (outside jit): raises ValueError naming the key."""
-        for name in ("st", "ft_m"):
-            value = float(getattr(self, name))
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+        limits.check_fields(self, RANGES)
 
 
 # Cao et al. (2024), Table 3 (alpha_max [m], alpha_step [m], ST) for the 11 ISPRS samples we

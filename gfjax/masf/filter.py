@@ -36,6 +36,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from gfjax import limits
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
 from gfjax.masf import alpha_shape, densify as densify_mod, preprocess, tin
@@ -147,7 +148,8 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
       a `MASFDiagnostics` whose `potential_ground` indexes the whole cloud.
 
     Raises:
-      InputError: a bad `returns`, or `params` out of range, naming the option.
+      InputError: a bad `returns`, `params` out of range, naming the option, or a grid over
+        the memory budget (`gfjax.limits`).
     """
     del progress
     config = Config() if config is None else config
@@ -161,6 +163,13 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     except ValueError as err:
         raise InputError(f"{cloud.name}: masf params: {err}") from None
     used_index = np.flatnonzero(used)
+    if used_index.size:
+        xy = cloud.xyz_m[used_index, :2]
+        extent = xy.max(axis=0) - xy.min(axis=0)
+        try:                                    # the grid over the cloud fits the memory budget
+            limits.check_memory(config.memory_estimates((float(extent[0]), float(extent[1]))))
+        except ValueError as err:
+            raise InputError(f"{cloud.name}: {err}") from None
     ground_used, diagnostics = classify_points(cloud.xyz_m[used_index], config, params)
     ground = np.zeros(cloud.n_points, dtype=bool)
     ground[used_index] = ground_used

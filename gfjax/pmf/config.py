@@ -6,13 +6,33 @@ distance 0.15 m, max distance 2.5 m, exponential window growth `w_k = 2 b^k + 1`
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-__all__ = ["Config", "Params", "PRESETS"]
+from gfjax import limits
+from gfjax.limits import Range
+
+__all__ = ["Config", "Params", "PRESETS", "RANGES"]
+
+# The valid range of every numeric Config / Params field (`gfjax.limits`).
+RANGES: dict[str, Range] = {
+    "cell_m": Range(0, 100, low_open=True, unit="m"),
+    "max_window_m": Range(0, 10_000, low_open=True, unit="m", extra="<= 1000 cell_m"),
+    "base": Range(2, 16, integer=True),
+    "tile_size_m": Range(0, 100_000, low_open=True, unit="m", extra=">= cell_m"),
+    "buffer_m": Range(0, 10_000, unit="m"),
+    "slope": Range(0, 100),
+    "initial_distance_m": Range(0, 1000, unit="m"),
+    "max_distance_m": Range(0, 1000, unit="m"),
+}
+MAX_WINDOW_PX = 1000          # max_window_m / cell_m: the largest window, in cells
+MAX_BATCH = 8                 # tiles per vmap call of `gfjax.pmf.filter`
+# Memory of one padded tile of a batch, per cell: about 16 float32 / int32 rasters (stage inputs,
+# work arrays, diagnostics) [bytes]: an estimate, not a measurement.
+_TILE_BYTES_PER_CELL = 16 * 4
+_MOSAIC_BYTES_PER_CELL = 3 * 8          # three whole-cloud float64 diagnostics rasters
 
 
 def _f32(value) -> Float[Array, ""]:
@@ -41,18 +61,28 @@ class Config:
     buffer_m: float = 50.0
 
     def __post_init__(self) -> None:
-        for name in ("cell_m", "max_window_m", "tile_size_m"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-        if not (math.isfinite(self.buffer_m) and self.buffer_m >= 0):
-            raise ValueError(f"buffer_m must be finite and >= 0, got {self.buffer_m!r}")
-        if isinstance(self.base, bool) or not isinstance(self.base, int) or self.base < 2:
-            raise ValueError(f"base must be an int >= 2, got {self.base!r}")
+        limits.check_fields(self, RANGES)
         if not isinstance(self.exponential, bool):
             raise ValueError(f"exponential must be a bool, got {self.exponential!r}")
         if self.tile_size_m < self.cell_m:
             raise ValueError(f"tile_size_m must be >= cell_m, got {self.tile_size_m!r}")
+        if self.max_window_m > MAX_WINDOW_PX * self.cell_m:
+            raise ValueError(f"max_window_m must be <= {MAX_WINDOW_PX} cell_m (max_window_m / cell_m sets the "
+                             f"largest window), got {self.max_window_m!r}")
+
+    def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
+        """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a
+        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): a batch of
+        tile rasters, and with `extent_m` (the cloud's x, y extent [m]) the whole-cloud mosaic."""
+        side = limits.raster_side(self.tile_size_m + 2 * self.buffer_m, self.cell_m)
+        tiles = limits.tiles_per_batch(extent_m, self.tile_size_m, max_batch=MAX_BATCH)
+        out = [limits.Estimate(f"a batch of {tiles} tile raster(s) of {side:,} x {side:,} cells "
+                               "((tile_size_m + 2 buffer_m) / cell_m)", float(side) ** 2 * tiles * _TILE_BYTES_PER_CELL)]
+        if extent_m is not None:
+            w, h = (limits.raster_side(e, self.cell_m) for e in extent_m)
+            out.append(limits.Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / cell_m)",
+                                       float(h) * float(w) * _MOSAIC_BYTES_PER_CELL))
+        return out
 
     @property
     def windows_px(self) -> tuple[int, ...]:
@@ -82,10 +112,7 @@ class Params(eqx.Module):
 
     def check(self) -> None:
         """Range checks on concrete values (call outside jit): raises ValueError naming the key."""
-        for name in ("slope", "initial_distance_m", "max_distance_m"):
-            value = float(getattr(self, name))
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+        limits.check_fields(self, RANGES)
 
 
 # Coarse scene types (not per-sample values).

@@ -20,12 +20,11 @@ import numpy as np
 from gfjax.io import tiled
 from gfjax.io.cloud import Cloud
 from gfjax.pmf import stages
-from gfjax.pmf.config import Config, Params
+from gfjax.pmf.config import MAX_BATCH, Config, Params
 from gfjax.result import Result
 
 __all__ = ["filter", "PMFDiagnostics", "MAX_BATCH"]
 
-MAX_BATCH = 8
 
 
 class PMFDiagnostics(NamedTuple):

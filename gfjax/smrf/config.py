@@ -14,9 +14,34 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-__all__ = ["Config", "Params", "PRESETS", "INPAINT_METHODS"]
+from gfjax import limits
+from gfjax.limits import Range
+
+__all__ = ["Config", "Params", "PRESETS", "INPAINT_METHODS", "RANGES"]
 
 INPAINT_METHODS = ("harmonic", "nearest")
+
+# The valid range of every numeric Config / Params field (`gfjax.limits`; the README's table
+# of checked ranges is generated from these tables).
+RANGES: dict[str, Range] = {
+    "cell_m": Range(0, 100, low_open=True, unit="m"),
+    "window_m": Range(0, 10_000, low_open=True, unit="m", extra=">= cell_m, <= 1000 cell_m"),
+    "low_outlier_slope": Range(0, 1000, low_open=True),
+    "low_outlier_radius_px": Range(1, 100, integer=True, unit="cells"),
+    "inpaint_max_iter": Range(1, 1_000_000, integer=True),
+    "inpaint_tol_m": Range(0, 100, low_open=True, unit="m"),
+    "tile_size_m": Range(0, 100_000, low_open=True, unit="m", extra=">= cell_m"),
+    "buffer_m": Range(0, 10_000, unit="m"),
+    "slope": Range(0, 100),
+    "threshold_m": Range(0, 1000, unit="m"),
+    "scalar": Range(0, 1000),
+}
+MAX_WINDOW_PX = 1000          # window_m / cell_m: the largest opening radius, in cells
+MAX_BATCH = 8                 # tiles per vmap call of `gfjax.smrf.filter`
+# Memory of one padded tile of a batch, per cell: about 32 float32 / int32 rasters (stage inputs,
+# work arrays, diagnostics) [bytes]: an estimate, not a measurement.
+_TILE_BYTES_PER_CELL = 32 * 4
+_MOSAIC_BYTES_PER_CELL = 6 * 8          # six whole-cloud float64 diagnostics rasters
 
 
 def _f32(value) -> Float[Array, ""]:
@@ -52,23 +77,32 @@ class Config:
     buffer_m: float = 50.0
 
     def __post_init__(self) -> None:
+        limits.check_fields(self, RANGES)
         checks = [
-            (self.cell_m > 0, "cell_m must be > 0"),
             (self.window_m >= self.cell_m, "window_m must be >= cell_m"),
-            (self.low_outlier_slope > 0, "low_outlier_slope must be > 0"),
-            (self.low_outlier_radius_px >= 1, "low_outlier_radius_px must be >= 1"),
+            (self.window_m <= MAX_WINDOW_PX * self.cell_m,
+             f"window_m must be <= {MAX_WINDOW_PX} cell_m (window_m / cell_m sets the opening loop)"),
             (self.inpaint in INPAINT_METHODS, f"inpaint must be one of {INPAINT_METHODS}"),
-            (self.inpaint_max_iter >= 1, "inpaint_max_iter must be >= 1"),
-            (self.inpaint_tol_m > 0, "inpaint_tol_m must be > 0"),
             (self.tile_size_m >= self.cell_m, "tile_size_m must be >= cell_m"),
-            (self.buffer_m >= 0, "buffer_m must be >= 0"),
         ]
         for ok, message in checks:
             if not ok:
                 name = message.split()[0]
                 raise ValueError(f"{message}, got {getattr(self, name)!r}")
-        if not all(math.isfinite(v) for v in (self.cell_m, self.window_m, self.tile_size_m, self.buffer_m)):
-            raise ValueError(f"cell_m, window_m, tile_size_m and buffer_m must be finite, got {self}")
+
+    def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
+        """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a
+        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): a batch of
+        tile rasters, and with `extent_m` (the cloud's x, y extent [m]) the whole-cloud mosaic."""
+        side = limits.raster_side(self.tile_size_m + 2 * self.buffer_m, self.cell_m)
+        tiles = limits.tiles_per_batch(extent_m, self.tile_size_m, max_batch=MAX_BATCH)
+        out = [limits.Estimate(f"a batch of {tiles} tile raster(s) of {side:,} x {side:,} cells "
+                               "((tile_size_m + 2 buffer_m) / cell_m)", float(side) ** 2 * tiles * _TILE_BYTES_PER_CELL)]
+        if extent_m is not None:
+            w, h = (limits.raster_side(e, self.cell_m) for e in extent_m)
+            out.append(limits.Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / cell_m)",
+                                       float(h) * float(w) * _MOSAIC_BYTES_PER_CELL))
+        return out
 
     @property
     def max_radius_px(self) -> int:
@@ -92,10 +126,7 @@ class Params(eqx.Module):
 
     def check(self) -> None:
         """Range checks on concrete values (call outside jit): raises ValueError naming the key."""
-        for name in ("slope", "threshold_m", "scalar"):
-            value = float(getattr(self, name))
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+        limits.check_fields(self, RANGES)
 
 
 # Named overrides for `--preset` (`gfjax filter --method smrf --preset NAME`). "nearest-fill"

@@ -25,11 +25,10 @@ from gfjax.io import tiles as tiling
 from gfjax.io.cloud import Cloud
 from gfjax.result import Result
 from gfjax.smrf import stages
-from gfjax.smrf.config import Config, Params
+from gfjax.smrf.config import MAX_BATCH, Config, Params
 
 __all__ = ["filter", "SMRFDiagnostics", "run_tiles"]
 
-MAX_BATCH = 8
 _RASTERS = ("zimin", "zipro", "slope", "empty", "low_outliers", "object_cells")
 
 

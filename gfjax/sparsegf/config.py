@@ -3,11 +3,25 @@ from __future__ import annotations
 
 import dataclasses
 
+from gfjax import limits
+from gfjax.limits import Range
 from gfjax.sparsegf.compress import R_IN_M, R_OC_M, R_OO_M
 from gfjax.sparsegf.partition import STEP_M
 
 VOXEL_M = 0.5            # voxel edge of the sparse convolutions [m] (Sec. 3.3)
 MAX_CONTEXT_POINTS = 60_000
+
+# The valid range of every numeric Config field (`gfjax.limits`).
+RANGES: dict[str, Range] = {
+    "voxel_m": Range(0, 1e5, low_open=True, high_open=True, unit="m"),
+    "step_m": Range(0, 1e5, low_open=True, high_open=True, unit="m"),
+    "r_in_m": Range(0, 1e5, low_open=True, high_open=True, unit="m", extra="< r_oc_m"),
+    "r_oc_m": Range(0, 1e5, low_open=True, high_open=True, unit="m", extra="<= r_oo_m"),
+    "r_oo_m": Range(0, 1e5, low_open=True, high_open=True, unit="m"),
+    "max_context_points": Range(1_000, 10_000_000, integer=True),
+    "batch_size": Range(1, 64, integer=True),
+    "ground_probability": Range(0, 1, low_open=True, high_open=True),
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,18 +51,9 @@ class Config:
     ground_probability: float = 0.5
 
     def __post_init__(self):
-        for name in ("voxel_m", "step_m", "r_in_m", "r_oc_m", "r_oo_m"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and value > 0 and value < 1e5):
-                raise ValueError(f"{name} must be in (0, 1e5) m, got {value}")
+        limits.check_fields(self, RANGES)
         if not self.r_in_m < self.r_oc_m <= self.r_oo_m:
             raise ValueError(f"r_in_m < r_oc_m <= r_oo_m needed, got {self.r_in_m}, {self.r_oc_m}, {self.r_oo_m}")
-        if not 1_000 <= self.max_context_points <= 10_000_000:
-            raise ValueError(f"max_context_points must be in [1000, 1e7], got {self.max_context_points}")
-        if not 1 <= self.batch_size <= 64:
-            raise ValueError(f"batch_size must be in [1, 64], got {self.batch_size}")
-        if not 0.0 < self.ground_probability < 1.0:
-            raise ValueError(f"ground_probability must be in (0, 1), got {self.ground_probability}")
 
 
 PRESETS: dict[str, dict] = {

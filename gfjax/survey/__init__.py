@@ -6,6 +6,6 @@ tiling frame, so a point gets the tile, cells and context it would get if the wh
 were one file (`filtered`).
 """
 from gfjax.survey.catalog import Catalog, Entry, index
-from gfjax.survey.halo import Points, filtered, halo_region, window
+from gfjax.survey.halo import Points, filter_file, filtered, halo_region, window
 
-__all__ = ["Catalog", "Entry", "Points", "filtered", "halo_region", "index", "window"]
+__all__ = ["Catalog", "Entry", "Points", "filter_file", "filtered", "halo_region", "index", "window"]

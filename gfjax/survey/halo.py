@@ -113,12 +113,18 @@ def filtered(paths: Sequence[str | Path], filter_fn: Callable, config, folder: s
     catalog = index(paths, folder, returns=returns, units=units)
     for i, entry in enumerate(catalog.entries):
         cloud = las_io.read(entry.path, units=units)
-        result = filter_fn(window(catalog, i, cloud, config), returns=returns)
-        yield cloud, _own(result, cloud.n_points)
+        yield cloud, filter_file(catalog, i, cloud, filter_fn, config, returns=returns)
 
 
-def _own(result: Result, n: int) -> Result:
-    """The result restricted to the file's own points (the first `n` of its window); the
-    diagnostics describe the whole window."""
+def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, config, *,
+                returns: str = "all") -> Result:
+    """File `i` of the catalog (read as `cloud`) filtered with its halo (`filtered`'s step).
+
+    Returns:
+      The `Result` for the file's own points (`ground`, `instance_id` cut to them; the
+      diagnostics describe the whole window).
+    """
+    result = filter_fn(window(catalog, i, cloud, config), returns=returns)
+    n = cloud.n_points
     instance_id = None if result.instance_id is None else np.asarray(result.instance_id)[:n]
     return result._replace(ground=np.asarray(result.ground)[:n], instance_id=instance_id)

@@ -80,7 +80,7 @@ def test_bench_peer_only_labelled_and_unlabelled(scene, tmp_path, capsys):
     (["--methods", "smrf,nosuch"], "--methods: unknown method 'nosuch'"),
     (["--peers", "nosuch"], "--peers: unknown peer 'nosuch'"),
     (["--methods", "none", "--peers", "none"], "nothing to run"),
-    (["--repeat", "0"], "--repeat: must be >= 1"),
+    (["--repeat", "0"], "--repeat: must be an integer >= 1 and <= 10000, got 0"),
     (["--threads", "100000"], "--threads: threads must be between 1 and"),
     (["--json", "out.txt"], "--json out.txt: output must end in .json"),
     (["--plot", "out.jpg"], "--plot out.jpg: output must end in .png"),

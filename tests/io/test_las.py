@@ -300,7 +300,8 @@ def test_atomic_output_replaces_only_on_success(tmp_path):
     target.write_bytes(b"old")
     with pytest.raises(RuntimeError):
         with las_io.atomic_output(target) as tmp:
-            assert tmp.parent == tmp_path and tmp.suffix == ".tif" and tmp.name.startswith(".")
+            assert tmp.parent == tmp_path and tmp.name.startswith(".dtm.tif.gfjax-tmp-")
+            assert tmp.suffix.lower() not in (".las", ".laz", ".tif", ".tiff")   # never an input
             tmp.write_bytes(b"half")
             raise RuntimeError("writer crashed")
     assert target.read_bytes() == b"old" and sorted(os.listdir(tmp_path)) == ["dtm.tif"]
