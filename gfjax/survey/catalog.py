@@ -93,7 +93,7 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
         for other in entries:
             if other.n_points == cloud.n_points and _same_frame(other.frame, frame):
                 raise InputError(f"{path}: holds as many points in the same bounds as {other.path}: "
-                                 "the same tile twice? Filter one of them")
+                                 "the same tile twice? Filter one of them, or the files independently")
         entries.append(Entry(path, cloud.n_points, frame, Path(folder) / f"{i}.npy"))
         del records, cloud
     frames = [e.frame for e in entries if e.frame is not None]

@@ -91,7 +91,7 @@ def test_multi_file_dtm_failure_keeps_earlier_pairs_whole(tmp_path, capsys, pick
     out.mkdir()
     write_scene(source / "a.las")
     write_scene(source / "b_noground.las")
-    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--dtm", out, "--method", "picky", "--keep-going")
+    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--dtm", out, "--method", "picky", "--independent", "--keep-going")
     assert code == 2
     assert "b_noground.las: no ground points" in err
     assert _names(out) == ["a.las", "a.tif"]

@@ -48,7 +48,7 @@ def test_sigterm_during_a_multi_file_run_keeps_completed_outputs_and_prints_a_su
     out.mkdir()
     for name in ("a.las", "b.las", "c.las"):
         write_scene(source / name)
-    with start_program("filter", source, "-o", out, "--method", "fake", slow_write_from=2) as process:
+    with start_program("filter", source, "-o", out, "--method", "fake", "--independent", slow_write_from=2) as process:
         try:
             wait_for_line(process, "WRITING", lines=[])
             process.send_signal(signal.SIGTERM)

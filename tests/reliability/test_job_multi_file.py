@@ -1,5 +1,6 @@
 """Multi-file jobs: everything checked before the first file, a summary when a file fails,
-`--keep-going`, and outputs already completed kept intact."""
+`--keep-going`, and outputs already completed kept intact. Every file holds the same scene,
+so the runs filter them `--independent`ly (a survey refuses the same tile twice)."""
 from __future__ import annotations
 
 import os
@@ -34,7 +35,7 @@ def test_unreadable_later_input_fails_before_the_first_file_is_filtered(folders,
     source, out = folders
     write_scene(source / "a.las")
     (source / "b.las").write_bytes(b"LASF" + b"\0" * 50)          # signature, then a broken header
-    code, _, err = run_cli(capsys, "filter", source / "a.las", source / "b.las", "-o", out, "--method", "fake")
+    code, _, err = run_cli(capsys, "filter", source / "a.las", source / "b.las", "-o", out, "--method", "fake", "--independent")
     assert code == 2
     assert "b.las: not a valid LAS/LAZ header" in error_line(err)
     assert fake_methods["fake"].calls == [] and _names(out) == []
@@ -44,7 +45,7 @@ def test_degree_crs_of_a_later_input_fails_before_the_first_file_is_filtered(fol
     source, out = folders
     write_scene(source / "a.las")
     write_scene(source / "b.las", crs=pyproj.CRS.from_epsg(4326))
-    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "fake")
+    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "fake", "--independent")
     assert code == 2
     assert "b.las" in error_line(err) and "degree" in error_line(err)
     assert fake_methods["fake"].calls == [] and _names(out) == []
@@ -54,7 +55,7 @@ def test_output_equal_to_an_input_is_refused_before_filtering(folders, capsys, f
     source, _ = folders
     write_scene(source / "a.las")
     write_scene(source / "b.las")
-    code, _, err = run_cli(capsys, "filter", source / "a.las", source / "b.las", "-o", source, "--method", "fake")
+    code, _, err = run_cli(capsys, "filter", source / "a.las", source / "b.las", "-o", source, "--method", "fake", "--independent")
     assert code == 2
     assert "a.las: is an input file; pass --force" in error_line(err)
     assert fake_methods["fake"].calls == [] and _names(source) == ["a.las", "b.las"]
@@ -66,7 +67,7 @@ def test_unwritable_output_folder_is_refused_before_filtering(folders, capsys, f
     write_scene(source / "b.las")
     real_access = os.access
     monkeypatch.setattr(os, "access", lambda p, mode, **kw: False if Path(p) == out else real_access(p, mode, **kw))
-    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "fake")
+    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "fake", "--independent")
     assert code == 2 and "is not writable" in error_line(err)
     assert fake_methods["fake"].calls == [] and _names(out) == []
 
@@ -76,7 +77,7 @@ def test_outputs_larger_than_the_free_space_are_refused_before_filtering(folders
     write_scene(source / "a.las")
     write_scene(source / "b.las")
     monkeypatch.setattr(shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(10**9, 10**9 - 100, 100))
-    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "fake")
+    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "fake", "--independent")
     assert code == 2
     line = error_line(err)
     assert f"{out}: the outputs need about" in line and "GiB free" in line
@@ -87,7 +88,7 @@ def test_a_file_failing_during_the_run_keeps_completed_outputs_and_prints_a_summ
     source, out = folders
     for name in ("a.las", "b_bad.las", "c.las"):
         write_scene(source / name)
-    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "picky")
+    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "picky", "--independent")
     assert code == 2
     lines = _gfjax_error_lines(err)
     assert lines[0] == f"gfjax: error: {source / 'b_bad.las'}: this file fails while it is filtered"
@@ -103,7 +104,7 @@ def test_keep_going_filters_the_other_files_and_still_exits_2(folders, capsys, p
     source, out = folders
     for name in ("a.las", "b_bad.las", "c.las"):
         write_scene(source / name)
-    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "picky", "--keep-going")
+    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "picky", "--independent", "--keep-going")
     assert code == 2
     lines = _gfjax_error_lines(err)
     assert lines == [f"gfjax: error: {source / 'b_bad.las'}: this file fails while it is filtered",
@@ -115,7 +116,7 @@ def test_keep_going_after_an_internal_error_exits_1_at_the_end(folders, capsys, 
     source, out = folders
     for name in ("a.las", "b_bug.las", "c.las"):
         write_scene(source / name)
-    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "picky", "--keep-going")
+    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "picky", "--independent", "--keep-going")
     assert code == 1
     lines = _gfjax_error_lines(err)
     assert lines == [f"gfjax: internal error: {source / 'b_bug.las'}: RuntimeError: fake bug",
@@ -127,7 +128,7 @@ def test_internal_error_without_keep_going_stops_with_a_summary_and_exit_1(folde
     source, out = folders
     for name in ("a.las", "b_bug.las", "c.las"):
         write_scene(source / name)
-    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "picky")
+    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "picky", "--independent")
     assert code == 1
     lines = _gfjax_error_lines(err)
     assert lines[0].startswith(f"gfjax: 1 of 3 files done; failed: {source / 'b_bug.las'}; not started")
@@ -139,7 +140,7 @@ def test_all_files_done_prints_no_summary_and_exits_0(folders, capsys, picky_met
     source, out = folders
     for name in ("a.las", "b.las"):
         write_scene(source / name)
-    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "picky")
+    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "picky", "--independent")
     assert code == 0 and _gfjax_error_lines(err) == []
     assert _names(out) == ["a.las", "b.las"]
 
