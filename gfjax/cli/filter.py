@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
 from pathlib import Path
 
@@ -46,6 +47,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--cell", type=positive_float, default=1.0, metavar="M",
                         help="DTM cell size [m] (default 1)")
     add_units_option(parser)
+    parser.add_argument("--trust-data", action="store_true",
+                        help="when a header's point count disagrees with the points the file holds, "
+                             "filter the points present (and say so) instead of stopping")
     parser.add_argument("--force", action="store_true", help="overwrite input files")
     return parser
 
@@ -65,8 +69,7 @@ def _tiling_overrides(args: argparse.Namespace, module) -> dict[str, float]:
 
 def run(args: argparse.Namespace) -> int:
     inputs = las_io.expand_inputs(args.inputs)
-    for path in inputs:
-        las_io.read_header(path)
+    header_counts = {path: las_io.read_header(path, trust_data=args.trust_data).point_count for path in inputs}
     targets = output_targets(inputs, args.output, suffixes=las_io.LAS_SUFFIXES)
     for target in targets:
         las_io.check_output(target, force=args.force, input_paths=inputs, suffixes=las_io.LAS_SUFFIXES, option="-o")
@@ -95,7 +98,11 @@ def run(args: argparse.Namespace) -> int:
         jobs, say = tqdm(jobs, desc="files", unit="file"), tqdm.write
     for source, target, dtm_target in jobs:
         start = time.perf_counter()
-        cloud = las_io.read(source, units=args.units)
+        cloud = las_io.read(source, units=args.units, trust_data=args.trust_data)
+        if cloud.n_points != header_counts[source]:
+            print(f"gfjax: warning: {source}: header says {header_counts[source]:,} points, the file holds "
+                  f"{cloud.n_points:,}; filtering the {cloud.n_points:,} points present (--trust-data)",
+                  file=sys.stderr)
         result = setup.filter(cloud, returns=args.returns, progress=True)
         ground = np.asarray(result.ground, dtype=bool)
         labelled = cloud.with_ground(ground, reset_nonground=args.reset_nonground,
