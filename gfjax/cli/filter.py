@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     for target in targets:
         las_io.check_output(target, force=args.force, input_paths=inputs, suffixes=las_io.LAS_SUFFIXES, option="-o")
     dtm_targets = [None] * len(inputs)
-    if args.dtm:
+    if args.dtm is not None:
         dtm_targets = output_targets(inputs, args.dtm, option="--dtm", suffixes=TIF_SUFFIXES,
                                      rename_suffix=".tif")
         for target in dtm_targets:

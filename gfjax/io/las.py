@@ -54,9 +54,20 @@ def expand_inputs(patterns: Iterable[str | os.PathLike]) -> list[Path]:
     found: list[Path] = []
     for pattern in patterns:
         text = os.fspath(pattern)
+        if text == "":
+            raise InputError("'': empty input name")
         path = Path(text)
+        try:
+            os.stat(text)
+        except (FileNotFoundError, NotADirectoryError):
+            pass
+        except OSError as err:  # a name too long, a loop of links, a folder we may not enter
+            raise InputError(f"{text}: cannot open ({err.strerror or err})") from None
         if path.is_dir():
-            files = sorted(p for p in path.iterdir() if p.is_file() and _is_las_name(p))
+            try:
+                files = sorted(p for p in path.iterdir() if p.is_file() and _is_las_name(p))
+            except OSError as err:
+                raise InputError(f"{path}: cannot list the folder ({err.strerror or err})") from None
             if not files:
                 raise InputError(f"{path}: folder holds no .las/.laz files")
         elif path.exists():
