@@ -217,9 +217,38 @@ def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
     compress = Path(path).suffix.lower() == ".laz"
     backends = _compressors(cloud.las.point_format.id, Path(path)) if compress else None
     with atomic_output(path, force=force, input_paths=inputs, suffixes=LAS_SUFFIXES) as tmp:
-        with open(tmp, "w+b") as f:  # readable: laspy re-reads the header to add EVLRs
-            cloud.las.write(f, do_compress=compress, laz_backend=backends)
+        with open(tmp, "w+b") as raw:  # readable: laspy re-reads the header to add EVLRs
+            f = _KeepWriteError(raw)
+            try:
+                cloud.las.write(f, do_compress=compress, laz_backend=backends)
+            except Exception:
+                if f.error is not None:  # a full disk under lazrs: the OSError, so exit 2
+                    raise f.error from None
+                raise
     return Path(path)
+
+
+class _KeepWriteError:
+    """A binary file that remembers the `OSError` its `write` raised (e.g. ENOSPC, a full disk).
+
+    lazrs turns an error of the Python file it writes to into `LazrsError("Failed to call
+    write")`, dropping the errno; `write` re-raises the remembered `OSError` instead, which
+    `atomic_output` reports as one line (and removes the temporary file).
+    """
+
+    def __init__(self, f):
+        self._f = f
+        self.error: OSError | None = None
+
+    def write(self, data) -> int:
+        try:
+            return self._f.write(data)
+        except OSError as err:
+            self.error = err
+            raise
+
+    def __getattr__(self, name: str):
+        return getattr(self._f, name)
 
 
 def _compressors(point_format_id: int, out: Path) -> tuple[laspy.LazBackend, ...]:
