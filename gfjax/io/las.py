@@ -220,12 +220,29 @@ def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
         with open(tmp, "w+b") as raw:  # readable: laspy re-reads the header to add EVLRs
             f = _KeepWriteError(raw)
             try:
-                cloud.las.write(f, do_compress=compress, laz_backend=backends)
+                _write_las(cloud.las, f, compress=compress, backends=backends)
+            except UnicodeError as err:
+                raise InputError(f"{path}: cannot write the text fields of {cloud.name} unchanged: LAS text "
+                                 f"is ASCII ({err})") from None
             except Exception:
                 if f.error is not None:  # a full disk under lazrs: the OSError, so exit 2
                     raise f.error from None
                 raise
     return Path(path)
+
+
+def _write_las(las: laspy.LasData, f, *, compress: bool, backends) -> None:
+    """`las.write(f)`, keeping header and VLR text that is not ASCII byte for byte.
+
+    laspy reads a text field it cannot decode as ASCII as raw bytes, and by default refuses to
+    write such bytes back; `surrogateescape` lets it check them without error and write them
+    unchanged. (A VLR user id is checked strictly whatever the setting: `write` reports it.)
+    """
+    with laspy.LasWriter(f, las.header, do_compress=compress, laz_backend=backends, closefd=False,
+                         encoding_errors="surrogateescape") as writer:
+        writer.write_points(las.points)
+        if las.header.version.minor >= 4 and las.evlrs is not None:
+            writer.write_evlrs(las.evlrs)
 
 
 class _KeepWriteError:

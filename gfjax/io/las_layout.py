@@ -281,8 +281,12 @@ def _laz_count(f, name: str, size: int, offset: int, record_length: int, count: 
     stored = f.read(table[-1][1])
     limit = min(chunk_size, MAX_LAZ_POINTS_PER_BYTE * max(len(stored), 1))
     claimed = count - before
-    if 1 <= claimed <= limit and _reproduces(f, offset, laszip, vlr, n_chunks, before, claimed, record_length, stored):
-        return count
+    if 1 <= claimed <= limit:
+        packed = _recompressed(f, offset, laszip, vlr, n_chunks, before, claimed, record_length)
+        if packed == stored:
+            return count
+        if packed is None and _recompressed(f, offset, laszip, vlr, n_chunks, before, 1, record_length) is None:
+            return count  # not even one point decodes: corrupt data, which the full read reports
     found = _search_last_chunk(f, offset, laszip, vlr, n_chunks, before, limit, record_length, stored)
     if found is None:
         if not before < count <= before + chunk_size:
@@ -310,15 +314,12 @@ def _recompressed(f, offset: int, laszip: bytes, vlr, n_chunks: int, before: int
     return packed[8:table_at]
 
 
-def _reproduces(f, offset, laszip, vlr, n_chunks, before, n, record_length, stored) -> bool:
-    return _recompressed(f, offset, laszip, vlr, n_chunks, before, n, record_length) == stored
-
-
 def _search_last_chunk(f, offset, laszip, vlr, n_chunks, before, limit, record_length, stored) -> int | None:
     """The point count in 1..limit whose recompression gives `stored`, or None.
 
     The recompressed length grows with the count; bisect for the first count whose length
-    reaches `len(stored)`, then try the few counts of that length.
+    reaches `len(stored)`, then try the few counts of that length (at most 16 + log2(limit)
+    recompressions of at most one chunk).
     """
     def length(n: int) -> float:
         packed = _recompressed(f, offset, laszip, vlr, n_chunks, before, n, record_length)
@@ -331,7 +332,7 @@ def _search_last_chunk(f, offset, laszip, vlr, n_chunks, before, limit, record_l
             lo = mid + 1
         else:
             hi = mid
-    for n in range(lo, min(lo + 64, limit) + 1):
+    for n in range(lo, min(lo + 16, limit) + 1):
         packed = _recompressed(f, offset, laszip, vlr, n_chunks, before, n, record_length)
         if packed == stored:
             return n

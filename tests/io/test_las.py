@@ -285,11 +285,11 @@ def test_unwritable_output_folder(small_cloud, tmp_path, monkeypatch):
 def test_failed_write_leaves_no_file(small_cloud, tmp_path, monkeypatch):
     before = sorted(os.listdir(tmp_path))
 
-    def broken_write(self, destination, do_compress=None, laz_backend=None):
-        destination.write(b"LASF partial")
+    def broken_write(self, points):
+        self.dest.write(b"LASF partial")
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(laspy.LasData, "write", broken_write)
+    monkeypatch.setattr(laspy.LasWriter, "write_points", broken_write)
     with pytest.raises(InputError, match=r"out\.laz: cannot write \(No space left on device\)"):
         las_io.write(small_cloud, tmp_path / "out.laz")
     assert sorted(os.listdir(tmp_path)) == before

@@ -71,7 +71,7 @@ def test_other_laz_write_errors_stay_internal_errors(tmp_path, monkeypatch):
     def broken(self, *args, **kwargs):
         raise RuntimeError("compressor bug")
 
-    monkeypatch.setattr(laspy.LasData, "write", broken)
+    monkeypatch.setattr(laspy.LasWriter, "write_points", broken)
     cloud = Cloud.from_xyz(np.zeros((3, 3)))
     with pytest.raises(RuntimeError, match="compressor bug"):
         las_io.write(cloud, tmp_path / "out.laz")

@@ -209,3 +209,19 @@ def test_header_checks_run_before_laspy_reads(tmp_path, monkeypatch):
 def test_valid_files_pass_every_check(tmp_path, suffix, version, point_format):
     path = write_las(tmp_path / f"tile{suffix}", version=version, point_format=point_format, n=1000)
     assert las_io.read(path).n_points == 1000
+
+
+def test_non_ascii_vlr_description_is_written_back_unchanged(capsys, fake_methods, tmp_path):
+    """laspy reads undecodable VLR text as bytes and refuses, by default, to write it back."""
+    path = write_las(tmp_path / "tile.las")
+    las = laspy.read(path)
+    las.header.vlrs.append(laspy.VLR(user_id="gfjax_test", record_id=1, record_data=b"x"))
+    las.write(path)
+    data = bytearray(path.read_bytes())
+    at = data.index(b"gfjax_test") - 2 + 22  # the VLR's description
+    data[at:at + 4] = b"\xe9t\xe9\xa8"
+    path.write_bytes(bytes(data))
+    code, _, err = run_cli(capsys, "filter", path, "-o", tmp_path / "out.laz", "--method", "fake")
+    assert code == 0, err
+    vlrs = laspy.read(tmp_path / "out.laz").header.vlrs
+    assert any(isinstance(v.description, bytes) and v.description.startswith(b"\xe9t\xe9\xa8") for v in vlrs)
