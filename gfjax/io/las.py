@@ -148,7 +148,7 @@ def _resolve_units(header: laspy.LasHeader, *, name: str, units: str | units_lib
 
 def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
          trust_data: bool = False) -> Cloud:
-    """Read a LAS 1.0-1.4 or LAZ file whole, with its CRS and unit factors.
+    """Read a LAS 1.1-1.4 or LAZ file whole, with its CRS and unit factors.
 
     Args:
       path: the file. LAZ is decompressed with lazrs.

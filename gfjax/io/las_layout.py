@@ -2,15 +2,16 @@
 
 laspy trusts the header: a count of 4 billion VLRs is looped over, a count of 10**15 points is
 allocated, and a header that under-counts its points silently drops the rest. `check_layout`
-reads the public header block with `struct` (ASPRS LAS 1.0-1.4, "Public Header Block") and
+reads the public header block with `struct` (ASPRS LAS 1.1-1.4, "Public Header Block") and
 checks every count, length and offset against the bytes the file holds, so that each check is
 bounded by the file size and nothing is allocated from a header value alone.
 
 For uncompressed points the number of points present is exact: the bytes between the offset to
 point data and the next structure (first EVLR, internal wave packets, or the end of the file),
-divided by the record length. For LAZ it comes from the chunk table: exact for variable-size
-chunks; for fixed-size chunks (the usual LASzip layout: every chunk but the last holds
-`chunk_size` points) the last chunk is decompressed with the header's count and compressed
+divided by the record length. For LAZ it comes from the chunk table: exact for the layered
+point formats 6-10 (each chunk states its point count and layer sizes, which are checked
+against the chunk) and for variable-size chunks; for fixed-size chunks of formats 0-5 (the
+usual LASzip layout: every chunk but the last holds `chunk_size` points) the last chunk is decompressed with the header's count and compressed
 again, which reproduces its bytes exactly when the count is right; when it does not, the count
 that does reproduce them (if any) is the number of points present. An encoder that does not
 reproduce lazrs/LASzip output gives no evidence, and the header is then believed.
@@ -28,8 +29,11 @@ from pathlib import Path
 from gfjax.errors import InputError
 
 SIGNATURE = b"LASF"
-# Versions laspy reads and gfjax is tested with; (1, 0) headers have the 1.1 layout.
-SUPPORTED_VERSIONS = ((1, 0), (1, 1), (1, 2), (1, 3), (1, 4))
+# Point formats per version that laspy both reads and writes (a file gfjax reads, it must be
+# able to write back); laspy writes no LAS 1.0.
+VERSION_FORMATS = {(1, 1): (0, 1), (1, 2): (0, 1, 2, 3), (1, 3): (0, 1, 2, 3, 4, 5),
+                   (1, 4): (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10)}
+SUPPORTED_VERSIONS = tuple(VERSION_FORMATS)
 # Size of the public header block per minor version (bytes).
 _HEADER_SIZE = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
 # Minimum point record length per point format (bytes); more is extra bytes.
@@ -126,7 +130,7 @@ def _check(f, size: int, name: str) -> Layout:
                           f"header at least {_HEADER_SIZE[0]})")
     major, minor = head[24], head[25]
     if (major, minor) not in SUPPORTED_VERSIONS:
-        raise _fail(name, f"LAS version {major}.{minor} is not supported (1.0 to 1.4)")
+        raise _fail(name, f"LAS version {major}.{minor} is not supported (1.1 to 1.4)")
     need = _HEADER_SIZE[minor]
     if len(head) < need:
         raise _fail(name, f"not a valid LAS/LAZ header (truncated: the file has {size} bytes, a LAS "
@@ -144,8 +148,10 @@ def _check(f, size: int, name: str) -> Layout:
     point_format = format_byte & 0x3F
     if point_format not in POINT_SIZE:
         raise _fail(name, f"point data format {point_format} is not supported (0 to 10)")
-    if point_format > 5 and minor < 4:
-        raise _fail(name, f"point data format {point_format} needs LAS 1.4, the header says {major}.{minor}")
+    if point_format not in VERSION_FORMATS[major, minor]:
+        allowed = VERSION_FORMATS[major, minor]
+        raise _fail(name, f"point data format {point_format} is not part of LAS {major}.{minor} "
+                          f"(formats {allowed[0]} to {allowed[-1]})")
     if record_length < POINT_SIZE[point_format]:
         raise _fail(name, f"point data record length {record_length} is less than the "
                           f"{POINT_SIZE[point_format]} bytes of point format {point_format}")
@@ -273,6 +279,9 @@ def _laz_count(f, name: str, size: int, offset: int, record_length: int, count: 
         raise _fail(name, "truncated or corrupt LAZ chunk table (its chunks do not fit the point data)")
     if not table:
         return 0
+    layers = _layer_count(laszip)
+    if layers is not None:
+        return _layered_count(f, name, offset, record_length, layers, table)
     if variable:
         return sum(int(n) for n, _ in table)
     before = (n_chunks - 1) * chunk_size
@@ -294,6 +303,49 @@ def _laz_count(f, name: str, size: int, offset: int, record_length: int, count: 
                               f"up to {chunk_size}")
         return count  # an encoder lazrs does not reproduce: no evidence against the header
     return before + found
+
+
+# Layers per LASzip item of the 1.4 ("layered", item version 3+) point formats 6-10; BYTE14
+# (extra bytes) has one layer per byte.
+_LAYERS = {10: 9, 11: 1, 12: 2, 13: 1}
+_BYTE14 = 14
+
+
+def _layer_count(laszip: bytes) -> int | None:
+    """Layers per chunk of a layered (point formats 6-10) LASzip VLR, or None for formats 0-5."""
+    if len(laszip) < 34:
+        return None
+    (n_items,) = struct.unpack_from("<H", laszip, 32)
+    if len(laszip) < 34 + 6 * n_items or n_items == 0:
+        return None
+    items = [struct.unpack_from("<HHH", laszip, 34 + 6 * i) for i in range(n_items)]
+    if items[0][0] != 10 or any(version < 3 for _, _, version in items):
+        return None
+    if any(kind not in _LAYERS and kind != _BYTE14 for kind, _, _ in items):
+        return None
+    return sum(size if kind == _BYTE14 else _LAYERS[kind] for kind, size, _ in items)
+
+
+def _layered_count(f, name: str, offset: int, record_length: int, layers: int, table) -> int:
+    """Points of layered LAZ data: each chunk starts with its first point (raw), its point count
+    and the byte size of each layer (LASzip 1.4 "layered chunks"); sizes that overrun the chunk
+    are refused here, before lazrs would try to read them."""
+    head = record_length + 4 + 4 * layers
+    pos, total = offset + 8, 0
+    for i, (_, size) in enumerate(table):
+        f.seek(pos)
+        raw = f.read(head)
+        if len(raw) < head or size < head:
+            raise _fail(name, f"truncated or corrupt LAZ data: chunk {i + 1} of {len(table)} is shorter than "
+                              "its header")
+        (count,) = struct.unpack_from("<I", raw, record_length)
+        sizes = struct.unpack_from(f"<{layers}I", raw, record_length + 4)
+        if head + sum(sizes) > size:
+            raise _fail(name, f"truncated or corrupt LAZ data: the layers of chunk {i + 1} of {len(table)} "
+                              f"take {head + sum(sizes)} bytes, the chunk {size}")
+        total += count
+        pos += size
+    return total
 
 
 def _recompressed(f, offset: int, laszip: bytes, vlr, n_chunks: int, before: int, n: int,

@@ -126,7 +126,7 @@ def test_truncated_header_exits_2(capsys, fake_methods, las14):
     _exits_2(capsys, las14, "not a valid LAS/LAZ header (truncated: the file has 300 bytes")
 
 
-@pytest.mark.parametrize("minor", [5, 9, 255])
+@pytest.mark.parametrize("minor", [0, 5, 9, 255])
 def test_unsupported_las_version_exits_2(capsys, fake_methods, las14, minor):
     patch(las14, VERSION_MINOR, minor)
     _exits_2(capsys, las14, f"LAS version 1.{minor} is not supported")
@@ -143,9 +143,10 @@ def test_unsupported_point_format_exits_2(capsys, fake_methods, las14, point_for
     _exits_2(capsys, las14, f"point data format {point_format} is not supported")
 
 
-def test_point_format_6_in_a_las_1_2_header_exits_2(capsys, fake_methods, las12):
-    patch(las12, POINT_FORMAT, 6)
-    _exits_2(capsys, las12, "point data format 6 needs LAS 1.4")
+@pytest.mark.parametrize("point_format", [4, 6])
+def test_point_format_outside_its_las_version_exits_2(capsys, fake_methods, las12, point_format):
+    patch(las12, POINT_FORMAT, point_format)
+    _exits_2(capsys, las12, f"point data format {point_format} is not part of LAS 1.2 (formats 0 to 3)")
 
 
 @pytest.mark.parametrize("value", [0.0, float("nan"), float("inf"), -float("inf")], ids=["zero", "nan", "inf", "-inf"])
@@ -225,3 +226,10 @@ def test_non_ascii_vlr_description_is_written_back_unchanged(capsys, fake_method
     assert code == 0, err
     vlrs = laspy.read(tmp_path / "out.laz").header.vlrs
     assert any(isinstance(v.description, bytes) and v.description.startswith(b"\xe9t\xe9\xa8") for v in vlrs)
+
+
+def test_laz_layer_sizes_past_the_chunk_exit_2_at_once(capsys, fake_methods, laz14):
+    """A garbage layer size made lazrs spend seconds per try; it is checked before lazrs runs."""
+    start = read_field(laz14, OFFSET_TO_POINTS) + 8
+    patch(laz14, (start + 30 + 4, "<I"), 2**31)  # the first layer of chunk 1 (format 6: 30-byte raw point)
+    _exits_2(capsys, laz14, "the layers of chunk 1 of 1 take")
