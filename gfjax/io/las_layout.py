@@ -47,6 +47,8 @@ _VARIABLE_CHUNKS = 0xFFFFFFFF
 # with LASzip's coders (50,000-point chunks, formats 0-10); the bound leaves a wide margin.
 MAX_LAZ_POINTS_PER_BYTE = 1000
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+# Largest fixed LAZ chunk accepted beyond the file's own point count (LASzip writes 50,000).
+MAX_IDLE_CHUNK_POINTS = 1_000_000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -250,6 +252,9 @@ def _laz_count(f, name: str, size: int, offset: int, record_length: int, count: 
                           f"{record_length}")
     if not variable and chunk_size == 0:
         raise _fail(name, "LASzip VLR has a chunk size of 0")
+    if not variable and chunk_size > max(count, MAX_IDLE_CHUNK_POINTS):
+        # lazrs's parallel decoder allocates chunk_size points per chunk, whatever the count
+        raise _fail(name, f"LASzip chunk size {chunk_size} is larger than the {count} points of the file")
     f.seek(offset)
     raw = f.read(8)
     if len(raw) < 8:

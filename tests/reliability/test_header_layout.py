@@ -233,3 +233,12 @@ def test_laz_layer_sizes_past_the_chunk_exit_2_at_once(capsys, fake_methods, laz
     start = read_field(laz14, OFFSET_TO_POINTS) + 8
     patch(laz14, (start + 30 + 4, "<I"), 2**31)  # the first layer of chunk 1 (format 6: 30-byte raw point)
     _exits_2(capsys, laz14, "the layers of chunk 1 of 1 take")
+
+
+def test_laz_chunk_size_far_beyond_the_point_count_exits_2_at_once(capsys, fake_methods, laz14):
+    """lazrs allocates a whole chunk per chunk: 321 million points of 30 bytes took 50 s."""
+    body = laz14.read_bytes().index(b"laszip encoded") - 2 + 54  # the LASzip VLR's record
+    at = body + 12                                                # its chunk size
+    assert read_field(laz14, (at, "<I")) == 50_000
+    patch(laz14, (at, "<I"), 321_367_179)
+    _exits_2(capsys, laz14, "LASzip chunk size 321367179 is larger than the 300 points")
