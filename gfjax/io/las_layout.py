@@ -286,7 +286,7 @@ def _laz_count(f, name: str, size: int, offset: int, record_length: int, count: 
         return 0
     layers = _layer_count(laszip)
     if layers is not None:
-        return _layered_count(f, name, offset, record_length, layers, table)
+        return _layered_count(f, name, offset, record_length, layers, table, None if variable else chunk_size)
     if variable:
         return sum(int(n) for n, _ in table)
     before = (n_chunks - 1) * chunk_size
@@ -331,10 +331,12 @@ def _layer_count(laszip: bytes) -> int | None:
     return sum(size if kind == _BYTE14 else _LAYERS[kind] for kind, size, _ in items)
 
 
-def _layered_count(f, name: str, offset: int, record_length: int, layers: int, table) -> int:
+def _layered_count(f, name: str, offset: int, record_length: int, layers: int, table,
+                   chunk_size: int | None) -> int:
     """Points of layered LAZ data: each chunk starts with its first point (raw), its point count
-    and the byte size of each layer (LASzip 1.4 "layered chunks"); sizes that overrun the chunk
-    are refused here, before lazrs would try to read them."""
+    and the byte size of each layer (LASzip 1.4 "layered chunks"); sizes that overrun the chunk,
+    and counts above the chunk size or 1,000 points per byte, are refused here, before lazrs
+    would try to read (or --trust-data to allocate) them."""
     head = record_length + 4 + 4 * layers
     pos, total = offset + 8, 0
     for i, (_, size) in enumerate(table):
@@ -348,6 +350,9 @@ def _layered_count(f, name: str, offset: int, record_length: int, layers: int, t
         if head + sum(sizes) > size:
             raise _fail(name, f"truncated or corrupt LAZ data: the layers of chunk {i + 1} of {len(table)} "
                               f"take {head + sum(sizes)} bytes, the chunk {size}")
+        if count > MAX_LAZ_POINTS_PER_BYTE * size or (chunk_size is not None and count > chunk_size):
+            raise _fail(name, f"truncated or corrupt LAZ data: chunk {i + 1} of {len(table)} says it holds "
+                              f"{count} points in {size} bytes")
         total += count
         pos += size
     return total

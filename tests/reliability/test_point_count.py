@@ -131,3 +131,13 @@ def test_read_without_trust_names_both_counts(tmp_path):
         las_io.read(path)
     with pytest.raises(InputError, match=r"tile\.las: header says 200 points"):
         las_io.read_header(path)
+
+
+def test_layered_laz_chunk_claiming_more_points_than_its_bytes_exits_2(tmp_path):
+    """--trust-data must not allocate what a corrupt chunk claims (4 billion points)."""
+    from reliability_files import OFFSET_TO_POINTS, patch, read_field
+
+    path = write_las(tmp_path / "tile.laz", n=300)
+    patch(path, (read_field(path, OFFSET_TO_POINTS) + 8 + 30, "<I"), 2**32 - 1)  # chunk 1's point count
+    with pytest.raises(InputError, match="chunk 1 of 1 says it holds 4294967295 points"):
+        las_io.read(path, trust_data=True)
