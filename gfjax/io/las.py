@@ -33,7 +33,6 @@ LAZ_BACKENDS = (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs)
 # statistics of the Extra Bytes VLR unset; every point byte is kept. (lazrs writes formats 4/5
 # losslessly, but with a WAVEPACKET13 item version that LASzip 3.5 does not read.)
 LOSSY_WITH_LAZRS = frozenset({9, 10})
-_SIGNATURE = b"LASF"
 _GLOB_CHARS = frozenset("*?[")
 
 
@@ -173,6 +172,8 @@ def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
         with laspy.open(path, laz_backend=LAZ_BACKENDS) as reader:
             reader.header.point_count = layout.data_count
             las = reader.read()
+    except MemoryError:
+        raise  # a file too large for this machine is not a corrupt one
     except Exception as err:  # noqa: BLE001 (laspy/lazrs decoding the user's bytes: a bad file, not a bug)
         detail = f"decompression failed: {err}" if layout.compressed else str(err)
         raise InputError(f"{path}: truncated or corrupt {kind} data ({detail})") from None
