@@ -92,9 +92,9 @@ def _count_problem(path: Path, layout: Layout) -> str:
     header, data = layout.header_count, layout.data_count
     if data < header:
         return (f"{path}: truncated {kind} file: header says {header} points, the file holds {data}; "
-                f"--trust-data uses the {data} points present")
+                f"filter --trust-data uses the {data} points present")
     return (f"{path}: header says {header} points, the {kind} data holds {data}; "
-            f"--trust-data uses all {data} points")
+            f"filter --trust-data uses all {data} points")
 
 
 def check_file(path: str | os.PathLike, *, trust_data: bool = False) -> Layout:
