@@ -166,7 +166,7 @@ def method_setup(args: argparse.Namespace, *, after=None) -> MethodSetup:
     """
     from gfjax import methods
 
-    params_file = load_params_file(args.params) if args.params else None
+    params_file = load_params_file(args.params) if args.params is not None else None
     name = args.method or (params_file["method"] if params_file else methods.DEFAULT_METHOD)
     if params_file and params_file["method"] != name:
         raise InputError(f"--params {args.params}: fitted for method {params_file['method']!r}, "
@@ -193,8 +193,14 @@ def output_targets(inputs: Sequence[Path], output: str, *, option: str = "-o",
     folder; the folder must exist. `rename_suffix` replaces the inputs' suffix (".tif" for
     DTMs). Two inputs of the same name would overwrite each other: refused.
     """
+    if output == "":
+        raise InputError(f"{option} '': empty output name")
     out = Path(output)
-    if len(inputs) > 1 or out.is_dir():
+    try:
+        is_dir = out.is_dir()
+    except OSError as err:  # a name too long, a loop of links
+        raise InputError(f"{option} {out}: cannot write ({err.strerror or err})") from None
+    if len(inputs) > 1 or is_dir:
         if not out.is_dir():
             raise InputError(f"{option} {out}: {len(inputs)} inputs need an existing output folder")
         targets = [out / (p.with_suffix(rename_suffix).name if rename_suffix else p.name) for p in inputs]

@@ -61,6 +61,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--independent", action="store_true",
                         help="filter each input on its own, without its neighbours' points")
     add_units_option(parser)
+    parser.add_argument("--trust-data", action="store_true",
+                        help="when a header's point count disagrees with the points the file holds, "
+                             "filter the points present (and say so) instead of stopping")
     parser.add_argument("--force", action="store_true", help="overwrite input files")
     parser.add_argument("--keep-going", action="store_true",
                         help="with several inputs, go on with the other files after one fails (exit 2 at the end)")
@@ -83,11 +86,12 @@ def _tiling_layers(args: argparse.Namespace, module) -> list[tuple[str, dict[str
 
 def run(args: argparse.Namespace) -> int:
     inputs = las_io.expand_inputs(args.inputs)
+    header_counts = {path: las_io.read_header(path, trust_data=args.trust_data).point_count for path in inputs}
     targets = output_targets(inputs, args.output, suffixes=las_io.LAS_SUFFIXES)
     for target in targets:
         las_io.check_output(target, force=args.force, input_paths=inputs, suffixes=las_io.LAS_SUFFIXES, option="-o")
     dtm_targets = [None] * len(inputs)
-    if args.dtm:
+    if args.dtm is not None:
         dtm_targets = output_targets(inputs, args.dtm, option="--dtm", suffixes=TIF_SUFFIXES,
                                      rename_suffix=".tif")
         for target in dtm_targets:
@@ -109,11 +113,12 @@ def run(args: argparse.Namespace) -> int:
         if len(inputs) > 1 and not args.independent:
             from gfjax import survey
 
-            catalog = survey.index(inputs, folder, returns=args.returns, units=args.units)
-        return _run(args, setup, inputs, planned, catalog)
+            catalog = survey.index(inputs, folder, returns=args.returns, units=args.units,
+                                   trust_data=args.trust_data)
+        return _run(args, setup, inputs, planned, catalog, header_counts)
 
 
-def _run(args, setup, inputs, planned, catalog) -> int:
+def _run(args, setup, inputs, planned, catalog, header_counts) -> int:
     """Filter and write every planned file (with its neighbours' halo when `catalog` is set)."""
     say, report, progress = print, None, None
     if len(inputs) > 1:                     # a progress bar over files (tqdm: 40 ms to import)
@@ -128,7 +133,11 @@ def _run(args, setup, inputs, planned, catalog) -> int:
 
     def one(job: _job.Planned) -> None:
         start = time.perf_counter()
-        cloud = las_io.read(job.source, units=args.units)
+        cloud = las_io.read(job.source, units=args.units, trust_data=args.trust_data)
+        if cloud.n_points != header_counts[job.source]:
+            print(f"gfjax: warning: {job.source}: header says {header_counts[job.source]:,} points, the file holds "
+                  f"{cloud.n_points:,}; filtering the {cloud.n_points:,} points present (--trust-data)",
+                  file=sys.stderr)
         if catalog is None:
             result = setup.filter(cloud, returns=args.returns, progress=True)
         else:

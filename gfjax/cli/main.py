@@ -104,6 +104,20 @@ def build_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, ModuleTy
     return parser, module
 
 
+def _refuse_empty_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """An empty string given as a file name or value (`-o ''`, an input `''`) is an error: as a
+    path it would mean the current folder, and as an option it would silently count as unset."""
+    actions = list(parser._actions)
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and args.command in action.choices:
+            actions += action.choices[args.command]._actions
+    for action in actions:
+        value = getattr(args, action.dest, None)
+        if value == "" or (isinstance(value, list) and "" in value):
+            label = action.option_strings[0] if action.option_strings else (action.metavar or action.dest)
+            raise InputError(f"{label}: empty argument ''")
+
+
 def cache_folder() -> Path:
     """`$XDG_CACHE_HOME/gfjax/jax`, by default `~/.cache/gfjax/jax`."""
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
@@ -242,6 +256,7 @@ def _run(argv: Sequence[str]) -> int:
         with _signals_interrupt():
             parser, module = build_parser(argv)
             args = parser.parse_args(argv)
+            _refuse_empty_arguments(parser, args)
             if module is None:
                 raise InputError(f"{args.command}: not available in this build")
             enable_compilation_cache()

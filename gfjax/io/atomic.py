@@ -113,11 +113,19 @@ def check_output(path: str | os.PathLike, *, force: bool = False,
     """Check that `path` can be written, before any work is done; returns it as a `Path`.
 
     Raises:
-      InputError: a wrong suffix, a folder that does not exist / is not a folder / is not
+      InputError: an empty name, a name the system refuses (too long), a wrong suffix, a folder that does not exist / is not a folder / is not
         writable, `path` is a folder, or `path` is one of `input_paths` and not `force`.
     """
+    if os.fspath(path) == "":
+        raise InputError(f"{option + ' ' if option else ''}'': empty output name")
     out = Path(path)
     where = f"{option} {out}" if option else str(out)
+    try:
+        os.stat(out)
+    except (FileNotFoundError, NotADirectoryError):
+        pass
+    except OSError as err:  # a name too long, a loop of links
+        raise InputError(f"{where}: cannot write ({err.strerror or err})") from None
     if suffixes is not None and out.suffix.lower() not in suffixes:
         raise InputError(f"{where}: output must end in {' or '.join(suffixes)}")
     folder = out.absolute().parent

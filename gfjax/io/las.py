@@ -14,12 +14,14 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import laspy
+import numpy as np
 
 from gfjax.errors import InputError
 from gfjax.io import crs as crs_lib
 from gfjax.io import units as units_lib
 from gfjax.io.atomic import atomic_output, check_output, is_temporary
 from gfjax.io.cloud import Cloud
+from gfjax.io.las_layout import INT32_MAX, INT32_MIN, Layout, check_layout
 
 LAS_SUFFIXES = (".las", ".laz")
 # lazrs (Rust) for LAZ, multi-threaded when available; laszip is only used by the tests.
@@ -31,7 +33,6 @@ LAZ_BACKENDS = (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs)
 # statistics of the Extra Bytes VLR unset; every point byte is kept. (lazrs writes formats 4/5
 # losslessly, but with a WAVEPACKET13 item version that LASzip 3.5 does not read.)
 LOSSY_WITH_LAZRS = frozenset({9, 10})
-_SIGNATURE = b"LASF"
 _GLOB_CHARS = frozenset("*?[")
 
 
@@ -54,9 +55,20 @@ def expand_inputs(patterns: Iterable[str | os.PathLike]) -> list[Path]:
     found: list[Path] = []
     for pattern in patterns:
         text = os.fspath(pattern)
+        if text == "":
+            raise InputError("'': empty input name")
         path = Path(text)
+        try:
+            os.stat(text)
+        except (FileNotFoundError, NotADirectoryError):
+            pass
+        except OSError as err:  # a name too long, a loop of links, a folder we may not enter
+            raise InputError(f"{text}: cannot open ({err.strerror or err})") from None
         if path.is_dir():
-            files = sorted(p for p in path.iterdir() if p.is_file() and _is_las_name(p))
+            try:
+                files = sorted(p for p in path.iterdir() if p.is_file() and _is_las_name(p))
+            except OSError as err:
+                raise InputError(f"{path}: cannot list the folder ({err.strerror or err})") from None
             if not files:
                 raise InputError(f"{path}: folder holds no .las/.laz files")
         elif path.exists():
@@ -79,32 +91,47 @@ def expand_inputs(patterns: Iterable[str | os.PathLike]) -> list[Path]:
     return list(unique.values())
 
 
-def _check_readable(path: Path) -> None:
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, not a LAS/LAZ file")
-    try:
-        with open(path, "rb") as f:
-            signature = f.read(4)
-    except OSError as err:
-        raise InputError(f"{path}: cannot open ({err.strerror})") from None
-    if signature != _SIGNATURE:
-        raise InputError(f"{path}: not a LAS/LAZ file (signature {signature!r}, expected {_SIGNATURE!r})")
+def _count_problem(path: Path, layout: Layout) -> str:
+    kind = "LAZ" if layout.compressed else "LAS"
+    header, data = layout.header_count, layout.data_count
+    if data < header:
+        return (f"{path}: truncated {kind} file: header says {header} points, the file holds {data}; "
+                f"filter --trust-data uses the {data} points present")
+    return (f"{path}: header says {header} points, the {kind} data holds {data}; "
+            f"filter --trust-data uses all {data} points")
 
 
-def read_header(path: str | os.PathLike) -> laspy.LasHeader:
-    """The header of a LAS/LAZ file (no points read); checks it exists, is LAS and has points."""
+def check_file(path: str | os.PathLike, *, trust_data: bool = False) -> Layout:
+    """Check a LAS/LAZ file before laspy reads it (`gfjax.io.las_layout.check_layout`).
+
+    Raises:
+      InputError: not a regular LAS/LAZ file, a header that does not fit the file, or (unless
+        `trust_data`) a point count that disagrees with the data.
+    """
     path = Path(path)
-    _check_readable(path)
+    layout = check_layout(path)
+    if layout.data_count != layout.header_count and not trust_data:
+        raise InputError(_count_problem(path, layout))
+    return layout
+
+
+def read_header(path: str | os.PathLike, *, trust_data: bool = False) -> laspy.LasHeader:
+    """The header of a LAS/LAZ file (no points read); checks it is a regular LAS/LAZ file whose
+    header fits its size, whose point count matches the data (unless `trust_data`) and which
+    has points."""
+    return _read_header(Path(path), trust_data=trust_data)[0]
+
+
+def _read_header(path: Path, *, trust_data: bool) -> tuple[laspy.LasHeader, Layout]:
+    layout = check_file(path, trust_data=trust_data)
     try:
         with laspy.open(path, laz_backend=LAZ_BACKENDS, read_evlrs=False) as reader:
             header = reader.header
-    except (laspy.errors.LaspyException, OSError, ValueError, EOFError) as err:
-        raise InputError(f"{path}: not a valid LAS/LAZ header ({err})") from None
-    if header.point_count == 0:
+    except Exception as err:  # noqa: BLE001 (laspy parsing the user's bytes: a bad file, not a bug)
+        raise InputError(f"{path}: not a valid LAS/LAZ header ({type(err).__name__}: {err})") from None
+    if layout.data_count == 0:
         raise InputError(f"{path}: the file holds no points")
-    return header
+    return header, layout
 
 
 def _resolve_units(header: laspy.LasHeader, *, name: str, units: str | units_lib.Units | None):
@@ -122,48 +149,59 @@ def _resolve_units(header: laspy.LasHeader, *, name: str, units: str | units_lib
                                          vertical_unit_m=vertical_m)
 
 
-def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None) -> Cloud:
-    """Read a LAS 1.2-1.4 or LAZ file whole, with its CRS and unit factors.
+def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
+         trust_data: bool = False) -> Cloud:
+    """Read a LAS 1.1-1.4 or LAZ file whole, with its CRS and unit factors.
 
     Args:
       path: the file. LAZ is decompressed with lazrs.
       units: `"m"`, `"ft"` or `"us-ft"` (or a `Units`) to override the units of the CRS; by
         default they come from the CRS, and a file without a CRS is taken as metres.
+      trust_data: when the header's point count disagrees with the points the file holds, read
+        the points present (the cloud's header then counts them) instead of raising.
 
     Returns:
       A `Cloud` whose `las` holds every header field, VLR/EVLR and point dimension.
 
     Raises:
-      InputError: missing file, not LAS/LAZ, truncated or corrupt data, zero points, an
-        unreadable CRS (without `units`), a geographic CRS in degrees (without `units`).
+      InputError: missing file, not a regular file, not LAS/LAZ, a header that does not fit
+        the file (`gfjax.io.las_layout`), a point count the data contradicts (unless
+        `trust_data`), truncated or corrupt data, zero points, coordinates at the int32 limits,
+        an unreadable CRS (without `units`), a geographic CRS in degrees (without `units`).
     """
     path = Path(path)
-    read_header(path)
+    _, layout = _read_header(path, trust_data=trust_data)
+    kind = "LAZ" if layout.compressed else "LAS"
     try:
         with laspy.open(path, laz_backend=LAZ_BACKENDS) as reader:
-            compressed = reader.header.are_points_compressed
+            reader.header.point_count = layout.data_count
             las = reader.read()
-    except (laspy.errors.LaspyException, RuntimeError, OSError, ValueError, EOFError) as err:
-        if _is_compressed(path):
-            raise InputError(f"{path}: truncated or corrupt LAZ data (decompression failed: {err})") from None
-        raise InputError(f"{path}: truncated or corrupt LAS data ({err})") from None
-    expected = las.header.point_count
-    if len(las.points) != expected:
-        kind = "LAZ" if compressed else "LAS"
-        raise InputError(f"{path}: truncated {kind} file: header says {expected} points, "
+    except MemoryError:
+        raise  # a file too large for this machine is not a corrupt one
+    except Exception as err:  # noqa: BLE001 (laspy/lazrs decoding the user's bytes: a bad file, not a bug)
+        detail = f"decompression failed: {err}" if layout.compressed else str(err)
+        raise InputError(f"{path}: truncated or corrupt {kind} data ({detail})") from None
+    if len(las.points) != layout.data_count:
+        raise InputError(f"{path}: truncated {kind} file: header says {layout.header_count} points, "
                          f"the file holds {len(las.points)}")
+    _check_int32_limits(path, las)
     crs, units_found = _resolve_units(las.header, name=str(path), units=units)
     return Cloud(las=las, path=path, horizontal_unit_m=units_found.horizontal_m,
                  vertical_unit_m=units_found.vertical_m, crs=crs, units_source=units_found.source)
 
 
-def _is_compressed(path: Path) -> bool:
-    """True when `path` holds compressed points (LAZ), judged from its header bits or suffix."""
-    try:
-        with laspy.open(path, laz_backend=LAZ_BACKENDS, read_evlrs=False) as reader:
-            return bool(reader.header.are_points_compressed)
-    except (laspy.errors.LaspyException, OSError, ValueError, EOFError):
-        return path.suffix.lower() == ".laz"
+def _check_int32_limits(path: Path, las: laspy.LasData) -> None:
+    """Refuse points whose stored integer X/Y/Z sits at the int32 limits: the coordinates
+    overflowed (or were clamped) when the file was written, so they do not say where the point is."""
+    for axis in ("X", "Y", "Z"):
+        values = np.asarray(las.points[axis])
+        if len(values) == 0:
+            continue
+        low, high = int(values.min()), int(values.max())
+        if low <= INT32_MIN or high >= INT32_MAX:
+            limit = INT32_MIN if low <= INT32_MIN else INT32_MAX
+            raise InputError(f"{path}: stored {axis} integers reach the int32 limit {limit} (coordinates "
+                             "overflowed the file's scale and offset)")
 
 
 def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
@@ -187,11 +225,57 @@ def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
     compress = Path(path).suffix.lower() == ".laz"
     backends = _compressors(cloud.las.point_format.id, Path(path)) if compress else None
     with atomic_output(path, force=force, input_paths=inputs, suffixes=LAS_SUFFIXES) as tmp:
-        with open(tmp, "w+b") as f:  # readable: laspy re-reads the header to add EVLRs
-            cloud.las.write(f, do_compress=compress, laz_backend=backends)
+        with open(tmp, "w+b") as raw:  # readable: laspy re-reads the header to add EVLRs
+            f = _KeepWriteError(raw)
+            try:
+                _write_las(cloud.las, f, compress=compress, backends=backends)
+            except UnicodeError as err:
+                raise InputError(f"{path}: cannot write the text fields of {cloud.name} unchanged: LAS text "
+                                 f"is ASCII ({err})") from None
+            except Exception:
+                if f.error is not None:  # a full disk under lazrs: the OSError, so exit 2
+                    raise f.error from None
+                raise
         if before_commit is not None:
             before_commit()
     return Path(path)
+
+
+def _write_las(las: laspy.LasData, f, *, compress: bool, backends) -> None:
+    """`las.write(f)`, keeping header and VLR text that is not ASCII byte for byte.
+
+    laspy reads a text field it cannot decode as ASCII as raw bytes, and by default refuses to
+    write such bytes back; `surrogateescape` lets it check them without error and write them
+    unchanged. (A VLR user id is checked strictly whatever the setting: `write` reports it.)
+    """
+    with laspy.LasWriter(f, las.header, do_compress=compress, laz_backend=backends, closefd=False,
+                         encoding_errors="surrogateescape") as writer:
+        writer.write_points(las.points)
+        if las.header.version.minor >= 4 and las.evlrs is not None:
+            writer.write_evlrs(las.evlrs)
+
+
+class _KeepWriteError:
+    """A binary file that remembers the `OSError` its `write` raised (e.g. ENOSPC, a full disk).
+
+    lazrs turns an error of the Python file it writes to into `LazrsError("Failed to call
+    write")`, dropping the errno; `write` re-raises the remembered `OSError` instead, which
+    `atomic_output` reports as one line (and removes the temporary file).
+    """
+
+    def __init__(self, f):
+        self._f = f
+        self.error: OSError | None = None
+
+    def write(self, data) -> int:
+        try:
+            return self._f.write(data)
+        except OSError as err:
+            self.error = err
+            raise
+
+    def __getattr__(self, name: str):
+        return getattr(self._f, name)
 
 
 def _compressors(point_format_id: int, out: Path) -> tuple[laspy.LazBackend, ...]:

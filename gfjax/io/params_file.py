@@ -15,10 +15,13 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 from pathlib import Path
 from typing import Any
 
 from gfjax.errors import InputError
+
+MAX_BYTES = 1 << 20  # a params.json of `gfjax tune` takes a few hundred bytes
 
 
 def read_params(path: str | os.PathLike, *, option: str = "") -> dict[str, Any]:
@@ -29,12 +32,26 @@ def read_params(path: str | os.PathLike, *, option: str = "") -> dict[str, Any]:
     """
     path = Path(path)
     where = f"{option} {path}" if option else str(path)
+    if os.fspath(path) == "":
+        raise InputError(f"{option + ' ' if option else ''}'': empty file name")
     try:
-        data = json.loads(path.read_text())
+        mode = os.stat(path).st_mode
+        if not stat.S_ISREG(mode):  # a FIFO would block the open below
+            raise InputError(f"{where}: not a regular file")
+        with open(path, "rb") as f:
+            raw = f.read(MAX_BYTES + 1)
     except FileNotFoundError:
         raise InputError(f"{where}: no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+    except OSError as err:
+        raise InputError(f"{where}: not a readable JSON file ({err.strerror or err})") from None
+    if len(raw) > MAX_BYTES:
+        raise InputError(f"{where}: larger than {MAX_BYTES} bytes, not a params file of gfjax tune")
+    try:
+        data = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise InputError(f"{where}: not a readable JSON file ({err})") from None
+    except RecursionError:
+        raise InputError(f"{where}: JSON nested too deeply") from None
     if not isinstance(data, dict) or not isinstance(data.get("values"), dict):
         raise InputError(f"{where}: expected a JSON object with a 'values' object")
     if not isinstance(data.get("method"), str):

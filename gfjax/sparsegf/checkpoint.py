@@ -64,13 +64,20 @@ def _write(path: str | Path, header: dict[str, Any], tree) -> None:
 
 def read_header(path: str | Path) -> dict[str, Any]:
     path = Path(path)
-    if not path.is_file():
+    try:
+        found = path.is_file()  # a FIFO or device is not: never opened
+    except OSError as err:  # a name too long, a loop of links
+        raise InputError(f"{path}: cannot open ({err.strerror or err})") from None
+    if not found:
         raise InputError(f"{path}: model file not found")
-    with open(path, "rb") as f:
-        line = f.readline(1 << 16)
+    try:
+        with open(path, "rb") as f:
+            line = f.readline(1 << 16)
+    except OSError as err:
+        raise InputError(f"{path}: cannot read ({err.strerror or err})") from None
     try:
         header = json.loads(line)
-    except (json.JSONDecodeError, UnicodeDecodeError):
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError):
         raise InputError(f"{path}: not a gfjax SparseGF model (no header)") from None
     if not isinstance(header, dict) or header.get("magic") != MAGIC:
         raise InputError(f"{path}: not a gfjax SparseGF model (no header)")
@@ -112,7 +119,7 @@ def state_epoch(path: str | Path) -> int:
     try:
         with open(path, "rb") as f:
             return int(json.loads(f.readline(1 << 20)).get("epoch", 0))
-    except (OSError, ValueError, AttributeError):
+    except (OSError, ValueError, AttributeError, TypeError, RecursionError):
         return 0
 
 
@@ -131,7 +138,7 @@ def load_state(path: str | Path, net: SparseGFNet, opt_state):
     with open(path, "rb") as f:
         try:
             header = json.loads(f.readline(1 << 20))
-        except (json.JSONDecodeError, UnicodeDecodeError):
+        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError):
             raise InputError(f"{path}: not a gfjax SparseGF training state") from None
         if not isinstance(header, dict) or header.get("magic") != MAGIC + "-state":
             raise InputError(f"{path}: not a gfjax SparseGF training state")

@@ -56,7 +56,7 @@ def _units(cloud) -> tuple[float, float]:
 
 
 def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, returns: str = "all",
-          units: str | None = None) -> Catalog:
+          units: str | None = None, trust_data: bool = False) -> Catalog:
     """Read every file once into a catalog whose stores live in `folder`.
 
     Args:
@@ -64,6 +64,8 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
       folder: an existing private folder for the stores (the caller removes it).
       returns: "all" or "last": the points filtered.
       units: `--units` override, or None for each file's CRS.
+      trust_data: index the points a file holds when its header's count disagrees
+        (`gfjax.io.las.read`).
 
     Raises:
       InputError: an unreadable file, files whose CRS or units differ, a file whose points lie
@@ -72,7 +74,7 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
     """
     entries, first = [], None
     for i, path in enumerate(map(Path, paths)):
-        cloud = las_io.read(path, units=units)
+        cloud = las_io.read(path, units=units, trust_data=trust_data)
         if first is None:
             first = cloud
         elif _units(cloud) != _units(first) or (cloud.crs is None) != (first.crs is None) or (

@@ -1,0 +1,78 @@
+"""Catalogue: a full disk (ENOSPC) while writing LAS or LAZ output -> exit 2 with one line
+naming the output, and nothing left behind (no output, no temporary file).
+
+The disk is filled by a file object whose `write` raises `OSError(ENOSPC)` once a byte budget is
+spent, so laspy (LAS) and lazrs (LAZ, which calls `write` from Rust) meet it mid-file.
+"""
+from __future__ import annotations
+
+import errno
+import io
+import os
+
+import numpy as np
+import pytest
+from cli_helpers import error_line, fake_methods, no_compilation_cache, run_cli  # noqa: F401
+from reliability_files import write_las
+
+from gfjax.errors import InputError
+from gfjax.io import las as las_io
+from gfjax.io.cloud import Cloud
+
+
+class _FullDisk(io.FileIO):
+    budget = 0
+
+    def write(self, data) -> int:
+        size = len(memoryview(data))
+        if _FullDisk.budget < size:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        _FullDisk.budget -= size
+        return super().write(data)
+
+
+@pytest.fixture
+def full_disk(monkeypatch):
+    """The disk fills after `budget` bytes of each LAS/LAZ file gfjax writes."""
+    def fake_open(path, mode="r", *args, **kwargs):
+        assert "b" in mode
+        return io.BufferedRandom(_FullDisk(path, "w+"))
+
+    monkeypatch.setattr(las_io, "open", fake_open, raising=False)
+    return _FullDisk
+
+
+@pytest.mark.parametrize("budget", [0, 100, 3000])
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_disk_full_while_writing_exits_2_and_leaves_nothing(capsys, fake_methods, tmp_path, full_disk, suffix, budget):
+    source = write_las(tmp_path / "tile.las", n=5000)
+    full_disk.budget = budget
+    out = tmp_path / f"out{suffix}"
+    before = sorted(os.listdir(tmp_path))
+    code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "fake")
+    assert code == 2, err
+    assert error_line(err) == f"gfjax: error: {out}: cannot write (No space left on device)"
+    assert sorted(os.listdir(tmp_path)) == before
+
+
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_disk_full_in_write_raises_input_error(tmp_path, full_disk, suffix):
+    cloud = Cloud.from_xyz(np.random.default_rng(0).uniform(0, 100, (20_000, 3)))
+    full_disk.budget = 10_000
+    with pytest.raises(InputError, match="No space left on device"):
+        las_io.write(cloud, tmp_path / f"out{suffix}")
+    assert os.listdir(tmp_path) == []
+
+
+def test_other_laz_write_errors_stay_internal_errors(tmp_path, monkeypatch):
+    """Only an OSError from the file is bad input; lazrs failing by itself is a bug (exit 1)."""
+    import laspy
+
+    def broken(self, *args, **kwargs):
+        raise RuntimeError("compressor bug")
+
+    monkeypatch.setattr(laspy.LasWriter, "write_points", broken)
+    cloud = Cloud.from_xyz(np.zeros((3, 3)))
+    with pytest.raises(RuntimeError, match="compressor bug"):
+        las_io.write(cloud, tmp_path / "out.laz")
+    assert os.listdir(tmp_path) == []
