@@ -56,13 +56,14 @@ def output_bytes(header, source: Path, target: Path, *, extra_bytes_per_point: i
 
 def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Sequence[Path | None], *,
              units: str | None, config: Any, dtm_cell_m: float | None, extra_bytes_per_point: int = 0,
-             ) -> list[Planned]:
+             trust_data: bool = False) -> list[Planned]:
     """Check every input and output of a job before any file is filtered.
 
     Args:
       inputs, targets, dtm_targets: one output (and DTM or None) per input; the output paths
         were checked by `gfjax.io.atomic.check_output` already.
       units: the `--units` override, or None (the CRS decides).
+      trust_data: `--trust-data` (a header whose point count disagrees with the data passes).
       config: the method's Config; its `memory_estimates(extent_m)` (when it has one) is
         checked against the memory budget for each file.
       dtm_cell_m: the DTM cell [m] when a DTM is written, else None.
@@ -81,7 +82,7 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
     planned = []
     estimates = getattr(config, "memory_estimates", None)
     for source, target, dtm_target in zip(inputs, targets, dtm_targets):
-        header = las_io.read_header(source)
+        header = las_io.read_header(source, trust_data=trust_data)
         found = las_io.header_units(header, name=str(source), units=units)
         extent = _extent_m(header, found.horizontal_m)
         try:

@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     # Every input and output before the first file is filtered.
     planned = _job.precheck(inputs, targets, dtm_targets, units=args.units, config=setup.config,
                             dtm_cell_m=args.cell if args.dtm else None,
-                            extra_bytes_per_point=4 if args.instances else 0)
+                            extra_bytes_per_point=4 if args.instances else 0, trust_data=args.trust_data)
     with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder:
         catalog = None
         if len(inputs) > 1 and not args.independent:

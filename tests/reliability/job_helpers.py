@@ -55,14 +55,15 @@ methods.METHODS["fake"] = "_gfjax_test_fake"
 from gfjax.cli import main as cli_main
 cli_main.enable_compilation_cache = lambda: None
 if os.environ.get("GFJAX_TEST_SLOW_WRITE"):
-    real_write, count = laspy.LasData.write, [0]
-    def slow_write(self, *args, **kwargs):
-        real_write(self, *args, **kwargs)
+    from gfjax.io import las as las_io
+    real_write, count = las_io._write_las, [0]
+    def slow_write(*args, **kwargs):
+        real_write(*args, **kwargs)
         count[0] += 1
         if count[0] >= int(os.environ["GFJAX_TEST_SLOW_WRITE"]):
             print(f"WRITING {count[0]}", flush=True)
             time.sleep(60)
-    laspy.LasData.write = slow_write
+    las_io._write_las = slow_write
 sys.argv = ["gfjax", *sys.argv[1:]]
 cli_main.main()
 """
