@@ -85,8 +85,6 @@ class Diagnostics(NamedTuple):
 
 
 def _check(cloud, config, params, returns) -> tuple[Config, Params, np.ndarray]:
-    if not isinstance(cloud, Cloud):
-        raise InputError(f"dmf.filter: expected a gfjax.Cloud, got {type(cloud).__name__}")
     return checked_options(cloud, config, params, returns, config_type=Config, params_type=Params,
                            package="gfjax.dmf")
 

@@ -29,6 +29,9 @@ __all__ = ["domain_mask", "checked_options", "ClassifyBatch", "run_batches", "mo
            "classify_cloud", "TiledRun"]
 
 ConfigT = TypeVar("ConfigT")
+
+CLOUD_VIEWS = ("xyz_m", "filter_mask", "n_points", "name")
+"""What a filter reads from a cloud (`Cloud`, `gfjax.survey.Points`)."""
 ParamsT = TypeVar("ParamsT")
 
 ClassifyBatch = Callable[..., tuple[Bool[Array, "b n"], NamedTuple]]
@@ -65,10 +68,12 @@ def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None
       `(config, params, use)`: `use` bool `(n,)`, the points to filter.
 
     Raises:
-      InputError: a config or params of the wrong type, a params out of range (the message
+      InputError: not a cloud, a config or params of the wrong type, a params out of range (the message
         names the cloud), a bad `returns`, or rasters that `config.memory_estimates` puts over
         the memory budget (`gfjax.limits`) for this cloud's extent.
     """
+    if not all(hasattr(cloud, view) for view in CLOUD_VIEWS):
+        raise InputError(f"{package}.filter: expected a gfjax Cloud (or survey.Points), got {type(cloud).__name__}")
     config = config_type() if config is None else config
     params = params_type() if params is None else params
     if not isinstance(config, config_type):

@@ -170,3 +170,23 @@ def test_the_same_tile_twice_is_refused(tmp_path):
         Cloud.from_xyz(xyz, classification=cls).las.write(path)
     with pytest.raises(InputError, match="copy_of_a.laz: holds as many points in the same bounds as .*a.laz"):
         survey.index([a, b], tmp_path)
+
+
+def test_a_filter_refuses_what_is_not_a_cloud():
+    from gfjax import dmf
+
+    with pytest.raises(InputError, match="gfjax.dmf.filter: expected a gfjax Cloud"):
+        dmf.filter(np.zeros((3, 3)))
+
+
+def test_dmf_filters_a_file_with_its_halo(grid, tmp_path):
+    from gfjax import dmf
+
+    paths, members, union = grid
+    whole = las_io.read(union)
+    want = dmf.filter(whole).ground
+    got = np.zeros(whole.n_points, bool)
+    for (cloud, result), keep in zip(survey.filtered(paths, lambda p, returns: dmf.filter(p, returns=returns),
+                                                     dmf.Config(), tmp_path), members):
+        got[keep] = result.ground
+    assert np.mean(got == want) >= 0.99
