@@ -194,6 +194,22 @@ TABLE_SOURCES: dict[str, str] = {
 }
 
 
+def tiled_estimates(config: Any, extent_m: tuple[float, float] | None, *, max_batch: int,
+                    tile_bytes_per_cell: float, mosaic_bytes_per_cell: float) -> list[Estimate]:
+    """The largest allocations of a tiled raster method (`config` with `tile_size_m`,
+    `buffer_m`, `cell_m`): a batch of tile rasters, and with `extent_m` (the cloud's x, y
+    extent [m]) the whole-cloud mosaic of its diagnostics."""
+    side = raster_side(config.tile_size_m + 2 * config.buffer_m, config.cell_m)
+    tiles = tiles_per_batch(extent_m, config.tile_size_m, max_batch=max_batch)
+    out = [Estimate(f"a batch of {tiles} tile raster(s) of {side:,} x {side:,} cells "
+                    "((tile_size_m + 2 buffer_m) / cell_m)", float(side) ** 2 * tiles * tile_bytes_per_cell)]
+    if extent_m is not None:
+        w, h = (raster_side(e, config.cell_m) for e in extent_m)
+        out.append(Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / cell_m)",
+                            float(h) * float(w) * mosaic_bytes_per_cell))
+    return out
+
+
 def markdown_table() -> str:
     """The README table of every checked range: method, key, range, default."""
     lines = ["| method or command | `--set` key or option | valid range | default |", "| --- | --- | --- | --- |"]

@@ -94,15 +94,8 @@ class Config:
         """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a
         job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): a batch of
         tile rasters, and with `extent_m` (the cloud's x, y extent [m]) the whole-cloud mosaic."""
-        side = limits.raster_side(self.tile_size_m + 2 * self.buffer_m, self.cell_m)
-        tiles = limits.tiles_per_batch(extent_m, self.tile_size_m, max_batch=MAX_BATCH)
-        out = [limits.Estimate(f"a batch of {tiles} tile raster(s) of {side:,} x {side:,} cells "
-                               "((tile_size_m + 2 buffer_m) / cell_m)", float(side) ** 2 * tiles * _TILE_BYTES_PER_CELL)]
-        if extent_m is not None:
-            w, h = (limits.raster_side(e, self.cell_m) for e in extent_m)
-            out.append(limits.Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / cell_m)",
-                                       float(h) * float(w) * _MOSAIC_BYTES_PER_CELL))
-        return out
+        return limits.tiled_estimates(self, extent_m, max_batch=MAX_BATCH, tile_bytes_per_cell=_TILE_BYTES_PER_CELL,
+                                      mosaic_bytes_per_cell=_MOSAIC_BYTES_PER_CELL)
 
     @property
     def max_radius_px(self) -> int:
