@@ -48,7 +48,8 @@ def training_batches(data: list[Labelled], config: Config, *, batch_size: int, r
                      plans: dict | None = None):
     """One epoch of batches: every patch of every cloud once, randomly rotated, in random order.
 
-    Patches are batched with others of the same padded shape (`pipeline.bucket`), and each
+    Patches are batched with others of the same padded shape (`pipeline.bucket`), every
+    batch `batch_size` rows (a short one filled with rows that classify nothing), and each
     voxel capacity keeps one pyramid plan across epochs in `plans` (`pipeline.stack`; grown
     only when a patch does not fit), so training compiles its step a few times, not once per
     batch.
@@ -65,7 +66,11 @@ def training_batches(data: list[Labelled], config: Config, *, batch_size: int, r
         chunks += [items[i:i + batch_size] for i in range(0, len(items), batch_size)]
     for c in rng.permutation(len(chunks)):
         group = chunks[c]
-        batch = stack([p for _, p in group], plans)
+        # a short last batch is filled with copies of its first patch that classify nothing
+        # (central mask off: no loss, no gradient), so every step of a shape has `batch_size`
+        # rows and compiles once
+        filler = group[0][1]._replace(central=np.zeros_like(group[0][1].central))
+        batch = stack([p for _, p in group] + [filler] * (batch_size - len(group)), plans)
         b = batch.patch
         labels = np.zeros(b.index.shape, np.int32)
         bins = np.zeros(b.index.shape, np.int32)

@@ -1,6 +1,7 @@
 """SparseGF's network, model files, filter and training step on a small synthetic scene."""
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
@@ -107,3 +108,23 @@ def test_a_patch_that_overflows_the_standard_plan_runs_again_with_a_grown_plan()
     np.testing.assert_array_equal(np.asarray(prob), np.asarray(again))
     central = b.central[0] & (b.point_voxel[0] >= 0)
     assert central.any() and np.all(np.isfinite(np.asarray(prob)[0][central]))
+
+
+def test_rows_that_fill_a_short_batch_change_neither_loss_nor_gradient():
+    xyz, cls = scene()
+    one_patch = xyz[:, 0] < 5e5 + 40.0                          # one 50 m partition cell
+    data = [train.labelled(xyz[one_patch], cls[one_patch])]
+    net = SparseGFNet(MICRO, key=jax.random.key(4))
+    losses, grads = [], []
+    for batch_size in (1, 2):
+        batch, labels, bins = next(train.training_batches(data, Config(), batch_size=batch_size,
+                                                          rng=np.random.default_rng(0)))
+        assert batch.patch.index.shape[0] == batch_size
+        opt, state = train.init(net, 10)
+        new, _, loss, overflowed = train.train_step(net, state, batch, labels, bins, opt)
+        assert not overflowed
+        losses.append(float(loss.total))
+        grads.append([np.asarray(a) for a in jax.tree_util.tree_leaves(eqx.filter(new, eqx.is_array))])
+    np.testing.assert_allclose(losses[0], losses[1], rtol=1e-5)
+    for a, b in zip(*grads):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
