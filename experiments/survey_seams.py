@@ -100,6 +100,10 @@ def main():
                    "catalog_s": catalog_s, "independent_s": alone_s}
             rows.append(row)
             print(row, flush=True)
+            write_results(rows)          # after every method: an interrupted run keeps its rows
+
+
+def write_results(rows: list[dict]) -> None:
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "survey_seams.json").write_text(json.dumps(rows, indent=2) + "\n")
     lines = ["# Seams: bcts_1 + bcts_2 cut into 3 x 3 files", "",
