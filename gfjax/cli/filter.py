@@ -86,7 +86,6 @@ def _tiling_layers(args: argparse.Namespace, module) -> list[tuple[str, dict[str
 
 def run(args: argparse.Namespace) -> int:
     inputs = las_io.expand_inputs(args.inputs)
-    header_counts = {path: las_io.read_header(path, trust_data=args.trust_data).point_count for path in inputs}
     targets = output_targets(inputs, args.output, suffixes=las_io.LAS_SUFFIXES)
     for target in targets:
         las_io.check_output(target, force=args.force, input_paths=inputs, suffixes=las_io.LAS_SUFFIXES, option="-o")
@@ -115,10 +114,10 @@ def run(args: argparse.Namespace) -> int:
 
             catalog = survey.index(inputs, folder, returns=args.returns, units=args.units,
                                    trust_data=args.trust_data)
-        return _run(args, setup, inputs, planned, catalog, header_counts)
+        return _run(args, setup, inputs, planned, catalog)
 
 
-def _run(args, setup, inputs, planned, catalog, header_counts) -> int:
+def _run(args, setup, inputs, planned, catalog) -> int:
     """Filter and write every planned file (with its neighbours' halo when `catalog` is set)."""
     say, report, progress = print, None, None
     if len(inputs) > 1:                     # a progress bar over files (tqdm: 40 ms to import)
@@ -134,8 +133,8 @@ def _run(args, setup, inputs, planned, catalog, header_counts) -> int:
     def one(job: _job.Planned) -> None:
         start = time.perf_counter()
         cloud = las_io.read(job.source, units=args.units, trust_data=args.trust_data)
-        if cloud.n_points != header_counts[job.source]:
-            print(f"gfjax: warning: {job.source}: header says {header_counts[job.source]:,} points, the file holds "
+        if cloud.n_points != job.header.point_count:
+            print(f"gfjax: warning: {job.source}: header says {job.header.point_count:,} points, the file holds "
                   f"{cloud.n_points:,}; filtering the {cloud.n_points:,} points present (--trust-data)",
                   file=sys.stderr)
         if catalog is None:
