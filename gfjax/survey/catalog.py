@@ -51,6 +51,11 @@ class Catalog(NamedTuple):
     frame: Frame | None
 
 
+def _describe(cloud) -> str:
+    name = cloud.crs.name if cloud.crs is not None else "no CRS"
+    return f"{name}, {cloud.horizontal_unit_m:g} m per unit"
+
+
 def _units(cloud) -> tuple[float, float]:
     return (cloud.horizontal_unit_m, cloud.vertical_unit_m)
 
@@ -79,8 +84,8 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
             first = cloud
         elif _units(cloud) != _units(first) or (cloud.crs is None) != (first.crs is None) or (
                 cloud.crs is not None and not cloud.crs.equals(first.crs)):
-            raise InputError(f"{path}: CRS or units differ from {first.path} "
-                             f"({cloud.units_source} vs {first.units_source}); filter such files separately")
+            raise InputError(f"{path}: CRS or units differ from {first.path} ({_describe(cloud)} vs {_describe(first)}), "
+                             "so they are not one survey; filter them independently (gfjax filter --independent)")
         _check_bounds(cloud)
         records = np.lib.format.open_memmap(Path(folder) / f"{i}.npy", mode="w+", dtype=STORE,
                                             shape=(cloud.n_points,))
