@@ -280,3 +280,21 @@ def test_neighbour_table_equals_one_lookup_per_offset(kernel_size, centred, stri
                 q = (c[0], *(stride * c[1:] + off))
                 want[o, d] = where.get(q, len(in_coords))
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("chunk_rows", [64, 4096])
+def test_table_conv_equals_the_pair_list_conv(chunk_rows):
+    coords, feats = sparse_sites(0.3, seed=11, shape=(9, 8, 7))
+    coords = np.concatenate([coords, np.zeros((5, 4), np.int32)])      # padding rows
+    valid = np.arange(len(coords)) < len(feats)
+    feats = jnp.asarray(np.concatenate([feats, np.zeros((5, C_IN), np.float32)]))
+    weight = weights(5)
+    kmap = sparse.submanifold_map(coords, valid, kernel_size=5)
+    table = sparse.NeighbourTable(sparse.neighbour_table(coords, valid, coords, valid, kernel_size=5),
+                                  coords, valid, coords, valid)
+    want = np.asarray(sparse.sparse_conv(feats, weight, kmap))
+    got = jax.jit(lambda f, w: sparse.table_conv(f, w, table, chunk_rows=chunk_rows))(feats, weight)
+    np.testing.assert_allclose(np.asarray(got), want, rtol=1e-5, atol=1e-5)
+    grad = jax.grad(lambda w: jnp.sum(sparse.table_conv(feats, w, table, chunk_rows=chunk_rows) ** 2))(weight)
+    ref = jax.grad(lambda w: jnp.sum(sparse.sparse_conv(feats, w, kmap) ** 2))(weight)
+    np.testing.assert_allclose(np.asarray(grad), np.asarray(ref), rtol=1e-4, atol=1e-4)

@@ -78,7 +78,8 @@ def test_pyramid_maps_equal_maps_built_one_by_one():
         sub = sparse.submanifold_map(c, v)
         assert int(sub.n_pairs) == int(pyr.submanifold[level].n_pairs)
         c, v = coarse, cv
-    assert int(pyr.stem.n_pairs) == int(sparse.submanifold_map(t.coords, t.valid, kernel_size=5).n_pairs)
+    stem = np.asarray(pyr.stem.table)
+    assert int(np.sum(stem < stem.shape[0])) == int(sparse.submanifold_map(t.coords, t.valid, kernel_size=5).n_pairs)
     small = plan._replace(capacities=(plan.capacities[0], 2) + plan.capacities[2:])
     assert bool(sparse.build_pyramid(t.coords, t.valid, small).overflowed)
 
@@ -114,6 +115,36 @@ def test_group_norm_matches_numpy_per_sample():
     assert np.all(out[~valid] == 0)
 
 
+def test_weighted_group_norm_equals_rows_repeated_by_their_weight():
+    rng = np.random.default_rng(8)
+    feats = rng.standard_normal((40, 4)).astype(np.float32)
+    weight = rng.integers(0, 4, 40).astype(np.float32)
+    coords = np.zeros((40, 4), np.int32)
+    coords[:, 0] = np.repeat([0, 1], 20)
+    norm = sparse.SparseGroupNorm(4, groups=2)
+    x = sparse.SparseTensor(jnp.asarray(coords), jnp.asarray(feats), jnp.ones(40, bool), batch_size=2)
+    out = np.asarray(eqx.filter_jit(lambda n, x, w: n(x, w))(norm, x, jnp.asarray(weight)).feats)
+    rep = np.repeat(np.arange(40), weight.astype(int))
+    xr = sparse.SparseTensor(jnp.asarray(coords[rep]), jnp.asarray(feats[rep]), jnp.ones(len(rep), bool), batch_size=2)
+    ref = np.asarray(norm(xr).feats)
+    first = {r: i for i, r in reversed(list(enumerate(rep)))}
+    rows = np.flatnonzero(weight > 0)
+    np.testing.assert_allclose(out[rows], ref[[first[r] for r in rows]], rtol=1e-4, atol=1e-5)
+
+
+def test_pyramid_parent_rows_hold_each_voxel():
+    xyz = cloud(500, seed=9, extent=8.0)
+    coords, valid = _coords(xyz)
+    plan = sparse.plan_pyramid(coords, valid, depth=3)
+    pyramid = jax.jit(sparse.build_pyramid, static_argnums=2)(coords, valid, plan)
+    for level in range(3):
+        fine, fine_valid = np.asarray(pyramid.coords[level]), np.asarray(pyramid.valid[level])
+        coarse = np.asarray(pyramid.coords[level + 1])
+        parent = np.asarray(pyramid.parent(level))
+        np.testing.assert_array_equal(coarse[parent[fine_valid], 1:], np.floor_divide(fine[fine_valid, 1:], 2))
+        assert np.all(np.asarray(pyramid.valid[level + 1])[parent[fine_valid]])
+
+
 def test_layers_jit_grad_and_residual_identity_at_init():
     xyz = cloud(300, seed=7)
     vox = sparse.voxelize(xyz, xyz, 0, 0.5)
@@ -122,18 +153,18 @@ def test_layers_jit_grad_and_residual_identity_at_init():
     pyr = sparse.build_pyramid(x.coords, x.valid, plan)
     keys = jax.random.split(jax.random.key(0), 4)
     stem = sparse.SparseConv3d(3, 8, 5, key=keys[0])
-    block = sparse.SparseResBlock(8, 8, key=keys[1])
+    block, state = eqx.nn.make_with_state(sparse.SparseResBlock)(8, 8, key=keys[1])
     down = sparse.SparseConv3d(8, 16, 2, stride=2, key=keys[2])
     up = sparse.SparseConv3d(16, 8, 2, stride=2, transposed=True, key=keys[3])
     h = stem(x, pyr.stem)
     # the second norm starts at scale 0: a new residual block is relu(identity)
-    np.testing.assert_allclose(np.asarray(block(h, pyr.submanifold[0]).feats), np.asarray(jax.nn.relu(h.feats)),
-                               rtol=1e-6, atol=1e-6)
+    out, _ = block(h, pyr.submanifold[0], jax.tree.map(lambda a: a, state))       # a state is used once
+    np.testing.assert_allclose(np.asarray(out.feats), np.asarray(jax.nn.relu(h.feats)), rtol=1e-6, atol=1e-6)
 
     @eqx.filter_jit
     def loss(layers, x):
         stem, block, down, up = layers
-        h = block(stem(x, pyr.stem), pyr.submanifold[0])
+        h, _ = block(stem(x, pyr.stem), pyr.submanifold[0], state)
         coarse = down(h, pyr.down[0])
         assert coarse.stride == 2 and coarse.capacity == plan.capacities[1]
         fine = up(coarse, pyr.up(0))
@@ -144,6 +175,31 @@ def test_layers_jit_grad_and_residual_identity_at_init():
     leaves = jax.tree_util.tree_leaves(eqx.filter(grads, eqx.is_array))
     assert all(np.all(np.isfinite(np.asarray(g))) for g in leaves)
     assert np.any(np.asarray(grads[0].weight) != 0) and np.any(np.asarray(grads[2].weight) != 0)
+
+
+def test_batch_norm_statistics_in_training_and_inference():
+    rng = np.random.default_rng(10)
+    feats = rng.standard_normal((60, 3)).astype(np.float32) * [1, 4, 0.5] + [2, -1, 0]
+    valid = rng.random(60) < 0.8
+    weight = rng.integers(0, 3, 60).astype(np.float32)
+    x = sparse.SparseTensor(jnp.zeros((60, 4), jnp.int32), jnp.asarray(np.where(valid[:, None], feats, 0)),
+                            jnp.asarray(valid), batch_size=2)
+    norm, state = eqx.nn.make_with_state(sparse.SparseBatchNorm)(3, momentum=0.25)
+    out, new = eqx.filter_jit(lambda n, x, s, w: n(x, s, w))(norm, x, state, jnp.asarray(weight))
+    rows = np.repeat(np.flatnonzero(valid), weight[valid].astype(int))          # rows counted w times
+    mean, var = feats[rows].mean(axis=0), feats[rows].var(axis=0)
+    np.testing.assert_allclose(np.asarray(out.feats)[valid], (feats[valid] - mean) / np.sqrt(var + 1e-5),
+                               rtol=1e-4, atol=1e-4)
+    assert np.all(np.asarray(out.feats)[~valid] == 0)
+    running_mean, running_var = new.get(norm.index)
+    np.testing.assert_allclose(np.asarray(running_mean), 0.25 * mean, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(running_var), 0.75 + 0.25 * var * len(rows) / (len(rows) - 1), rtol=1e-5)
+    # inference: the running statistics, one affine map for every row whatever its batch
+    fixed, same = eqx.nn.inference_mode(norm)(x, new)
+    np.testing.assert_allclose(np.asarray(fixed.feats)[valid],
+                               (feats[valid] - np.asarray(running_mean)) / np.sqrt(np.asarray(running_var) + 1e-5),
+                               rtol=1e-5, atol=1e-5)
+    assert same is new
 
 
 def test_conv_rejects_a_map_of_another_kernel():

@@ -10,9 +10,10 @@ GPU alike.
   output row, offset) pairs of a convolution, found by sorting packed coordinate keys and a
   binary search (`keys`), grouped by offset in blocks.
 - `sparse_conv`: gather -> matmul -> scatter-add over a map; only neighbours that exist cost
-  multiply-adds.
+  multiply-adds. `table_conv`: the same over a `NeighbourTable` (no compaction, no scatter).
 - `plan_pyramid`, `build_pyramid`: every map of a U-Net, built once per forward pass.
-- `SparseConv3d`, `SparseGroupNorm`, `SparseResBlock`, `SparseLinear`: equinox layers.
+- `SparseConv3d`, `SparseBatchNorm`, `SparseGroupNorm`, `SparseResBlock`, `SparseLinear`:
+  equinox layers (the batch norm's running statistics in an `eqx.nn.State`).
 
 ```python
 >>> import equinox as eqx, jax, jax.numpy as jnp
@@ -21,8 +22,9 @@ GPU alike.
 >>> vox = sparse.voxelize(xyz, xyz, jnp.zeros(500, jnp.int32), voxel_m=1.0)
 >>> x = vox.tensor                                                         # <= 512 voxels, 3 features
 >>> kmap = sparse.submanifold_map(x.coords, x.valid, kernel_size=3)
->>> block = sparse.SparseResBlock(3, 16, key=jax.random.key(1))
->>> y = eqx.filter_jit(block)(x, kmap)
+>>> block, state = eqx.nn.make_with_state(sparse.SparseResBlock)(3, 16, key=jax.random.key(1))
+>>> y, state = eqx.filter_jit(block)(x, kmap, state)                      # training: batch statistics
+>>> y, _ = eqx.filter_jit(eqx.nn.inference_mode(block))(x, kmap, state)  # inference: running ones
 >>> y.feats.shape
 (500, 16)
 >>> per_point = sparse.devoxelize(y.feats, vox.point_voxel)                # back to the 500 points
@@ -31,19 +33,20 @@ GPU alike.
 
 ```
 """
-from gfjax.nn.sparse.conv import sparse_conv
+from gfjax.nn.sparse.conv import sparse_conv, table_conv
 from gfjax.nn.sparse.keys import BATCH_MAX, COORD_MAX, COORD_MIN
-from gfjax.nn.sparse.layers import SparseConv3d, SparseGroupNorm, SparseLinear, SparseResBlock, relu
-from gfjax.nn.sparse.maps import (KernelMap, downsample, kernel_offsets, neighbour_table, pairs_from_table,
+from gfjax.nn.sparse.layers import (SparseBatchNorm, SparseConv3d, SparseGroupNorm, SparseLinear, SparseResBlock,
+                                    relu)
+from gfjax.nn.sparse.maps import (KernelMap, NeighbourTable, downsample, kernel_offsets, neighbour_table, pairs_from_table,
                                   pairs_per_offset, plan_blocks, strided_map, submanifold_map)
 from gfjax.nn.sparse.pyramid import Pyramid, PyramidPlan, build_pyramid, plan_pyramid, standard_plan
 from gfjax.nn.sparse.tensor import SparseTensor, Voxelized, devoxelize, voxelize
 
 __all__ = [
     "BATCH_MAX", "COORD_MAX", "COORD_MIN",
-    "KernelMap", "Pyramid", "PyramidPlan", "SparseConv3d", "SparseGroupNorm", "SparseLinear", "SparseResBlock",
+    "KernelMap", "NeighbourTable", "Pyramid", "PyramidPlan", "SparseBatchNorm", "SparseConv3d", "SparseGroupNorm", "SparseLinear", "SparseResBlock",
     "SparseTensor", "Voxelized",
     "build_pyramid", "devoxelize", "downsample", "kernel_offsets", "neighbour_table", "pairs_from_table",
     "pairs_per_offset", "plan_blocks", "plan_pyramid", "relu", "standard_plan", "sparse_conv", "strided_map", "submanifold_map",
-    "voxelize",
+    "table_conv", "voxelize",
 ]

@@ -23,6 +23,11 @@ per block and one scatter-add, and only neighbours that exist cost multiply-adds
 capacity `n_blocks * block` is static; `plan_blocks` sizes it from the data outside `jit`,
 and a map that did not fit says so in `overflowed` (the jax-md pattern).
 
+A map can also stay a `NeighbourTable`: the `(n_out, k)` table itself, a slot per (row,
+offset) whether a neighbour is there or not. `conv.table_conv` reads it with no compaction, at
+the price of multiply-adds for the missing neighbours: the cheaper form where the input has
+few channels and the kernel many offsets, as in a U-Net's stem (kernel 5, 125 offsets).
+
 A U-Net uses each map many times (two residual blocks of two convolutions per level), so
 `gfjax.nn.sparse.pyramid` builds every map once per forward pass and hands them to the layers.
 """
@@ -108,6 +113,35 @@ class KernelMap(eqx.Module):
         return KernelMap(self.out_idx, self.in_idx, self.block_offset, self.n_pairs, self.overflowed,
                          self.out_coords, self.out_valid, self.in_coords, self.in_valid,
                          self.kernel_volume, self.block)
+
+
+class NeighbourTable(eqx.Module):
+    """Every (output row, kernel offset) slot of a convolution, present or not: the other form
+    of a map, for `table_conv`.
+
+    Attributes:
+      table: `(n_out, k)` int32, the input row at each offset, `n_in` where there is none
+        (`neighbour_table`).
+      in_coords, in_valid, out_coords, out_valid: the two voxel sets, as `KernelMap`'s.
+    """
+
+    table: Int[Array, "n_out k"]
+    in_coords: Int[Array, "n_in 4"]
+    in_valid: Bool[Array, " n_in"]
+    out_coords: Int[Array, "n_out 4"]
+    out_valid: Bool[Array, " n_out"]
+
+    @property
+    def kernel_volume(self) -> int:
+        return self.table.shape[1]
+
+    @property
+    def n_in(self) -> int:
+        return self.in_coords.shape[0]
+
+    @property
+    def n_out(self) -> int:
+        return self.out_coords.shape[0]
 
 
 @functools.partial(jax.jit, static_argnames=("kernel_size", "centred", "stride"))

@@ -2,8 +2,8 @@
 
 A U-Net of depth `L` works on the voxel sets `V_0` (the input) and `V_l = floor(V_{l-1} / 2)`
 for `l = 1..L`. Each level's residual blocks share one submanifold map (kernel 3), the stem
-has its own (kernel 5 on `V_0`), each down block a strided map `V_l -> V_{l+1}`, and each up
-block that map's transpose. `Pyramid` holds all of them; building it is the only place
+has its own (kernel 5 on `V_0`, kept as a `NeighbourTable`: few input channels, 125 offsets),
+each down block a strided map `V_l -> V_{l+1}`, and each up block that map's transpose. `Pyramid` holds all of them; building it is the only place
 coordinates are searched, so a forward pass searches each set once, however many layers use it.
 
 Shapes are static: `plan_pyramid` runs outside `jit`, counts the voxels of every level and
@@ -24,8 +24,8 @@ import numpy as np
 from jaxtyping import Array, Bool, Int
 
 from gfjax.nn.sparse import keys as K
-from gfjax.nn.sparse.maps import (KernelMap, bucket, downsample, neighbour_table, pairs_from_table, pairs_per_offset,
-                                  plan_blocks)
+from gfjax.nn.sparse.maps import (KernelMap, NeighbourTable, bucket, downsample, neighbour_table, pairs_from_table,
+                                  pairs_per_offset, plan_blocks)
 
 
 class PyramidPlan(NamedTuple):
@@ -33,13 +33,13 @@ class PyramidPlan(NamedTuple):
 
     Attributes:
       capacities: rows of `V_0 .. V_L` (`V_0`'s is the input's own).
-      stem: `(kernel_size, block, n_blocks)` of the stem's submanifold map on `V_0`.
+      stem_kernel: kernel size of the stem's submanifold table on `V_0`.
       submanifold: `(block, n_blocks)` of the kernel-3 map of each level `0..L`.
       down: `(block, n_blocks)` of the strided map `V_l -> V_{l+1}`, `l = 0..L-1`.
     """
 
     capacities: tuple[int, ...]
-    stem: tuple[int, int, int]
+    stem_kernel: int
     submanifold: tuple[tuple[int, int], ...]
     down: tuple[tuple[int, int], ...]
 
@@ -49,15 +49,15 @@ class PyramidPlan(NamedTuple):
 
     def union(self, other: PyramidPlan) -> PyramidPlan:
         """A plan with room for both (element-wise maximum; same depth, stem and blocks)."""
-        if self.depth != other.depth or self.stem[0] != other.stem[0] or self.capacities[0] != other.capacities[0]:
+        if (self.depth != other.depth or self.stem_kernel != other.stem_kernel
+                or self.capacities[0] != other.capacities[0]):
             raise ValueError("PyramidPlan.union: plans of different depth, stem kernel or input capacity")
 
         def most(a, b):
             if a[-2] != b[-2]:                              # different blocks: keep the larger block
                 return a if a[-2] * a[-1] >= b[-2] * b[-1] else b
             return a[:-1] + (max(a[-1], b[-1]),)
-        return PyramidPlan(tuple(max(a, b) for a, b in zip(self.capacities, other.capacities)),
-                           most(self.stem, other.stem),
+        return PyramidPlan(tuple(max(a, b) for a, b in zip(self.capacities, other.capacities)), self.stem_kernel,
                            tuple(most(a, b) for a, b in zip(self.submanifold, other.submanifold)),
                            tuple(most(a, b) for a, b in zip(self.down, other.down)))
 
@@ -67,7 +67,7 @@ class Pyramid(eqx.Module):
 
     Attributes:
       coords, valid: per level `0..L`, `(capacity_l, 4)` int32 and `(capacity_l,)` bool.
-      stem: the stem's submanifold map on level 0.
+      stem: the stem's submanifold table on level 0.
       submanifold: the kernel-3 map of each level.
       down: the strided map from each level to the next (`.transpose()` goes back up).
       overflowed: bool scalar, some level or map did not fit its plan (plan again).
@@ -75,7 +75,7 @@ class Pyramid(eqx.Module):
 
     coords: tuple[Int[Array, "n 4"], ...]
     valid: tuple[Bool[Array, " n"], ...]
-    stem: KernelMap
+    stem: NeighbourTable
     submanifold: tuple[KernelMap, ...]
     down: tuple[KernelMap, ...]
     overflowed: Bool[Array, ""]
@@ -84,9 +84,17 @@ class Pyramid(eqx.Module):
         """Map of the transposed convolution from level `level + 1` back to `level`."""
         return self.down[level].transpose()
 
+    def parent(self, level: int) -> Int[Array, " n"]:
+        """Row in level `level + 1` of the voxel holding each voxel of level `level`,
+        `(capacity_level,)` int32 (0 on padding rows). Read off the strided map, where every
+        voxel is the input of exactly one pair: no search."""
+        m = self.down[level]
+        parent = jnp.zeros((m.n_in + 1,), jnp.int32).at[m.in_idx].set(m.out_idx)[:-1]
+        return jnp.where(m.in_valid, jnp.minimum(parent, m.n_out - 1), 0)
 
-@functools.partial(jax.jit, static_argnames=("depth", "stem_kernel"))
-def _counts(coords, valid, *, depth, stem_kernel):
+
+@functools.partial(jax.jit, static_argnames=("depth",))
+def _counts(coords, valid, *, depth):
     """Voxels per level and pairs per offset of every map, with room for everything."""
     n = coords.shape[0]
     levels = [(coords, valid)]
@@ -94,11 +102,10 @@ def _counts(coords, valid, *, depth, stem_kernel):
         c, v, _ = downsample(*levels[-1], capacity=n)
         levels.append((c, v))
     sizes = [jnp.sum(v, dtype=jnp.int32) for _, v in levels]
-    stem = pairs_per_offset(neighbour_table(coords, valid, coords, valid, kernel_size=stem_kernel), n)
     sub = [pairs_per_offset(neighbour_table(c, v, c, v, kernel_size=3), n) for c, v in levels]
     down = [pairs_per_offset(neighbour_table(*levels[l], *levels[l + 1], kernel_size=2, centred=False, stride=2), n)
             for l in range(depth)]
-    return sizes, stem, sub, down
+    return sizes, sub, down
 
 
 def plan_pyramid(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], *, depth: int,
@@ -110,14 +117,13 @@ def plan_pyramid(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], *, depth: 
     only the sizes that do not fit grow.
     """
     coords = K.check_range(jnp.asarray(coords, jnp.int32), jnp.asarray(valid, bool), "plan_pyramid")
-    sizes, stem, sub, down = jax.device_get(_counts(coords, jnp.asarray(valid, bool), depth=depth,
-                                                    stem_kernel=stem_kernel))
+    sizes, sub, down = jax.device_get(_counts(coords, jnp.asarray(valid, bool), depth=depth))
     n = coords.shape[0]
     capacities = (n,) + tuple(min(n, bucket(max(int(s), 1))) for s in sizes[1:])
     if like is None:
-        return PyramidPlan(capacities, (stem_kernel,) + plan_blocks(stem),
-                           tuple(plan_blocks(s) for s in sub), tuple(plan_blocks(d) for d in down))
-    if like.capacities[0] != n or like.depth != depth or like.stem[0] != stem_kernel:
+        return PyramidPlan(capacities, stem_kernel, tuple(plan_blocks(s) for s in sub),
+                           tuple(plan_blocks(d) for d in down))
+    if like.capacities[0] != n or like.depth != depth or like.stem_kernel != stem_kernel:
         raise ValueError("plan_pyramid: `like` was made for another input size, depth or stem kernel")
 
     def grow(have, counts):
@@ -125,22 +131,23 @@ def plan_pyramid(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], *, depth: 
         needed = int(np.sum(-(-np.asarray(counts, np.int64) // block)))
         return have if needed <= n_blocks else have[:-1] + (bucket(needed),)
 
-    return PyramidPlan(tuple(max(a, b) for a, b in zip(like.capacities, capacities)), grow(like.stem, stem),
+    return PyramidPlan(tuple(max(a, b) for a, b in zip(like.capacities, capacities)), stem_kernel,
                        tuple(grow(h, c) for h, c in zip(like.submanifold, sub)),
                        tuple(grow(h, c) for h, c in zip(like.down, down)))
 
 
 def standard_plan(capacity: int, *, depth: int, stem_kernel: int = 5, shrink: float = 2.0,
-                  coarse_shrink: float = 8.0 / 3.0, neighbours: float = 8.0, coarse_neighbours: float = 16.0,
-                  stem_neighbours: float = 20.0) -> PyramidPlan:
+                  coarse_shrink: float = 8.0 / 3.0, neighbours: float = 8.0,
+                  coarse_neighbours: float = 16.0) -> PyramidPlan:
     """A plan that depends on the input capacity only (one compiled shape per capacity).
 
     Level 1 holds `capacity / shrink` voxels and each further level `coarse_shrink` times
     fewer; the kernel-3 map of level 0 has room for `neighbours` pairs per row of capacity,
-    those of coarser levels `coarse_neighbours`, the stem's `stem_neighbours`, each strided
-    map one pair per finer row. The defaults hold every patch of 0.5 m voxels measured on the
-    ISPRS samples and the forest tile bcts_2 (whose maps, planned from the data, need up to 6
-    level-0 pairs and 16 stem pairs per row of capacity; levels shrink 2-2.7x, then 3-5x).
+    those of coarser levels `coarse_neighbours`, each strided map one pair per finer row (the
+    stem's table has a slot for every offset and needs no room). The defaults hold every patch
+    of 0.5 m voxels measured on the ISPRS samples and the forest tile bcts_2 (whose maps,
+    planned from the data, need up to 6 level-0 pairs per row of capacity; levels shrink
+    2-2.7x, then 3-5x).
     Data that do not fit grow it (`plan_pyramid(like=...)`).
     """
     caps = [capacity]
@@ -152,7 +159,7 @@ def standard_plan(capacity: int, *, depth: int, stem_kernel: int = 5, shrink: fl
     def room(pairs, k):
         return plan_blocks(np.full(k, int(np.ceil(pairs / k)), np.int64))
 
-    return PyramidPlan(tuple(caps), (stem_kernel,) + room(stem_neighbours * capacity, stem_kernel ** 3),
+    return PyramidPlan(tuple(caps), stem_kernel,
                        tuple(room((neighbours if level == 0 else coarse_neighbours) * c, volume)
                              for level, c in enumerate(caps)),
                        tuple(room(c, 8) for c in caps[:-1]))
@@ -176,7 +183,8 @@ def build_pyramid(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], plan: Pyr
         return pairs_from_table(table, n_in=c.shape[0], block=block, n_blocks=n_blocks,
                                 in_coords=c, in_valid=v, out_coords=c, out_valid=v)
 
-    stem = sub_map(0, *plan.stem)
+    stem = NeighbourTable(neighbour_table(coords, valid, coords, valid, kernel_size=plan.stem_kernel),
+                          coords, valid, coords, valid)
     submanifold = tuple(sub_map(l, 3, *plan.submanifold[l]) for l in range(plan.depth + 1))
     down = []
     for l, (block, n_blocks) in enumerate(plan.down):
@@ -184,7 +192,7 @@ def build_pyramid(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], plan: Pyr
         table = neighbour_table(fc, fv, cc, cv, kernel_size=2, centred=False, stride=2)
         down.append(pairs_from_table(table, n_in=fc.shape[0], block=block, n_blocks=n_blocks,
                                      in_coords=fc, in_valid=fv, out_coords=cc, out_valid=cv))
-    maps = [stem, *submanifold, *down]
+    maps = [*submanifold, *down]
     overflowed = jnp.any(jnp.stack(overflow + [m.overflowed for m in maps]))
     return Pyramid(tuple(c for c, _ in levels), tuple(v for _, v in levels), stem, submanifold, tuple(down),
                    overflowed)
