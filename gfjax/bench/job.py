@@ -42,8 +42,8 @@ def _filter_function(kind: str, name: str, model: str | None = None) -> Callable
         module = methods.get(name)
         options = {}
         if name == "sparsegf":
-            net, config = module.load_model(model)
-            options = {"model": net, "config": config}
+            loaded, config = module.load_model(model)
+            options = {"model": loaded, "config": config}
 
         def run_method(cloud) -> np.ndarray:
             return np.asarray(module.filter(cloud, progress=False, **options).ground, dtype=bool)

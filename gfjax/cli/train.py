@@ -14,6 +14,10 @@ import argparse
 
 from gfjax.cli._common import add_units_option, ranged
 from gfjax.errors import InputError
+from gfjax.sparsegf.config import Config as _Config
+from gfjax.sparsegf.features import FEATURE_SETS
+
+DEFAULT_FEATURES = _Config.features
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -30,6 +34,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=ranged("--seed"), default=0, help="seed of the weights, rotations and order (default 0)")
     parser.add_argument("--validate", nargs="+", default=(), metavar="FILES", help="labelled files scored after each epoch")
     parser.add_argument("--ground-class", type=ranged("--ground-class"), default=2, help="class code of ground in the labels (default 2)")
+    parser.add_argument("--features", choices=FEATURE_SETS, default=DEFAULT_FEATURES,
+                        help="per-point inputs: xyz (the paper's coordinates) or xyz+tophat (and heights over "
+                             f"opened minimum surfaces; default {DEFAULT_FEATURES})")
     parser.add_argument("--no-compression", action="store_true", help="ablation: no context compression, 1 m voxels")
     parser.add_argument("--no-refinement", action="store_true", help="ablation: no point-wise refinement module")
     parser.add_argument("--no-hag-loss", action="store_true", help="ablation: classification loss only (lambda 0)")
@@ -78,30 +85,35 @@ def run(args: argparse.Namespace) -> int:
     from gfjax.sparsegf import checkpoint
     from gfjax.sparsegf import train as sgf_train
     from gfjax.sparsegf.config import Config
-    from gfjax.sparsegf.model import NET_PRESETS, SparseGFNet, count_parameters
+    from gfjax.sparsegf.features import n_features
+    from gfjax.sparsegf.model import NET_PRESETS, count_parameters, init
 
-    net_config = NET_PRESETS[args.preset]
+    config = Config(features=args.features)
+    if args.no_compression:
+        config = dataclasses.replace(config, compression=False, voxel_m=1.0)
+    net_config = dataclasses.replace(NET_PRESETS[args.preset], in_features=n_features(config.features))
     if args.no_refinement:
         net_config = dataclasses.replace(net_config, refine=0)
-    config = Config(compression=False, voxel_m=1.0) if args.no_compression else Config()
     data = _load(inputs, args.units, args.ground_class)
     n_patches = sgf_train.count_patches(data, config)
-    print(f"{args.preset}: {count_parameters(net_config):,} parameters; {n_patches} patches per epoch "
-          f"from {len(inputs)} files; {-(-n_patches // args.batch)} steps per epoch")
+    print(f"{args.preset}: {count_parameters(net_config):,} parameters; about {n_patches} patches per epoch "
+          f"from {len(inputs)} files, up to {args.batch} per step")
     if args.dry_run:
         return 0
     if not args.resume:
         state_path.unlink(missing_ok=True)
     val = _load(validate, args.units, args.ground_class) if validate else None
-    net = SparseGFNet(net_config, key=jax.random.key(args.seed))
+    model = init(net_config, key=jax.random.key(args.seed))
     from tqdm import tqdm
 
-    done = checkpoint.state_epoch(state_path) if args.resume else 0
-    bar = tqdm(total=max(args.epochs - done, 0) * -(-n_patches // args.batch), desc="train", unit="step")
+    bar = tqdm(desc="train", unit="step")
     started = time.perf_counter()
 
-    def on_step(epoch, losses):
-        bar.set_postfix(epoch=epoch + 1, loss=f"{losses[0]:.3f}")
+    def on_step(epoch, step, steps, losses):
+        if step == 0:
+            bar.reset(total=steps)
+            bar.set_description(f"epoch {epoch + 1}/{args.epochs}")
+        bar.set_postfix(loss=f"{losses[0]:.3f}")
         bar.update(1)
 
     def on_epoch(log):
@@ -110,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
                    f"{val_text}, {log.seconds:.0f} s")
 
     lam = 0.0 if args.no_hag_loss else sgf_train.LAMBDA
-    net, logs = sgf_train.fit(net, data, config=config, epochs=args.epochs, batch_size=args.batch, seed=args.seed,
+    model, logs = sgf_train.fit(model, data, config=config, epochs=args.epochs, batch_size=args.batch, seed=args.seed,
                               resume_path=state_path, validate=val, lam=lam, lr=args.lr or sgf_train.LR_START,
                               on_step=on_step, on_epoch=on_epoch)
     bar.close()
@@ -118,6 +130,6 @@ def run(args: argparse.Namespace) -> int:
             "files": [Path(p).name for p in inputs], "validate": [Path(p).name for p in validate],
             "config": dataclasses.asdict(config), "lambda": lam, "lr": args.lr or sgf_train.LR_START, "seconds": time.perf_counter() - started,
             "logs": [log._asdict() for log in logs]}
-    checkpoint.save(out, net, meta)
+    checkpoint.save(out, model, meta)
     print(f"{out}: {args.preset} model after {len(logs)} epochs")
     return 0

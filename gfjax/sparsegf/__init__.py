@@ -15,14 +15,15 @@ for batch in part.batches:
 and the filter itself, with the same shape as every other method:
 
 - `filter(cloud, *, config=None, params=None, returns="all", progress=False, model=None)`:
-  partition -> compress -> voxelize (0.5 m) -> network -> soft vote; `model` is a
-  `SparseGFNet`, a model file, or None for the `tiny` model shipped in gfjax.
-- `SparseGFNet`, `NetConfig`, `NET_PRESETS` (`tiny`, `paper`): the network (`model`);
-  `load_model`, `checkpoint`: model files; `train`: the training loop (`gfjax train`).
+  partition -> features -> compress -> voxelize (0.5 m) -> network -> soft vote; `model` is
+  a `Model`, a model file, or None for the `tiny` model shipped in gfjax.
+- `SparseGFNet`, `NetConfig`, `NET_PRESETS` (`tiny`, `paper`), `Model` (a network and its
+  batch-norm statistics), `init`: the network (`model`); `load_model`, `checkpoint`: model
+  files; `train`: the training loop (`gfjax train`); `features`: the per-point inputs.
 """
 from gfjax.sparsegf.config import PRESETS, Config
 from gfjax.sparsegf.filter import Diagnostics, filter, load_model
-from gfjax.sparsegf.model import NET_PRESETS, NetConfig, SparseGFNet, count_parameters
+from gfjax.sparsegf.model import NET_PRESETS, Model, NetConfig, SparseGFNet, count_parameters, init
 from gfjax.sparsegf.compress import CENTRAL_TOL_M, R_IN_M, R_OC_M, R_OO_M, Compressed, compress, compression_ratio
 from gfjax.sparsegf.hag import HAG_BIN_EDGES_M, N_HAG_BINS, HagTargets, ground_surface, hag_bins, hag_targets
 from gfjax.sparsegf.loss import HAG_WEIGHTS, LAMBDA, HeightAwareLoss, height_aware_loss
@@ -32,7 +33,8 @@ from gfjax.sparsegf.vote import UNCOVERED, Vote, soft_vote
 Params = None      # no thresholds: the network's weights are SparseGF's parameters
 
 __all__ = [
-    "Config", "Diagnostics", "NET_PRESETS", "NetConfig", "PRESETS", "Params", "SparseGFNet", "count_parameters",
+    "Config", "Diagnostics", "Model", "NET_PRESETS", "NetConfig", "PRESETS", "Params", "SparseGFNet",
+    "count_parameters", "init",
     "filter", "load_model",
     "CENTRAL_TOL_M", "R_IN_M", "R_OC_M", "R_OO_M", "STEP_M", "HAG_BIN_EDGES_M", "N_HAG_BINS",
     "HAG_WEIGHTS", "LAMBDA", "UNCOVERED",

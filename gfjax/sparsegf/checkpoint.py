@@ -1,7 +1,8 @@
 """Model files: a one-line JSON header, then the weights as `eqx.tree_serialise_leaves` bytes.
 
 The header names the format, the gfjax version that wrote it, the network's `NetConfig`
-and what the trainer recorded (data, seed, epochs). `load` checks each before reading a
+and what the trainer recorded (data, seed, epochs); the body holds the network and its state
+(the batch norms' running statistics). `load` checks each before reading a
 weight, so a missing, truncated or foreign file fails with one line naming the file.
 """
 from __future__ import annotations
@@ -19,10 +20,10 @@ import equinox as eqx
 import jax
 
 from gfjax.errors import InputError
-from gfjax.sparsegf.model import NetConfig, SparseGFNet
+from gfjax.sparsegf.model import Model, NetConfig, init
 
 MAGIC = "gfjax-sparsegf-model"
-FORMAT = 1
+FORMAT = 2                         # 2: batch norms and their statistics, input features in the settings
 SHIPPED = "sparsegf_tiny.eqx"      # the model inside the package (gfjax/data)
 
 
@@ -35,13 +36,13 @@ def _file_mode() -> int:
 _FILE_MODE = _file_mode()          # what open() would give a new file (mkstemp gives 0600)
 
 
-def save(path: str | Path, net: SparseGFNet, meta: dict[str, Any] | None = None) -> None:
-    """Write `net` to `path` atomically (a temporary file renamed into place)."""
+def save(path: str | Path, model: Model, meta: dict[str, Any] | None = None) -> None:
+    """Write `model` to `path` atomically (a temporary file renamed into place)."""
     from gfjax import __version__
 
     header = {"magic": MAGIC, "format": FORMAT, "gfjax": __version__,
-              "net": dataclasses.asdict(net.config), "meta": meta or {}}
-    _write(path, header, net)
+              "net": dataclasses.asdict(model.net.config), "meta": meta or {}}
+    _write(path, header, tuple(model))
 
 
 def _write(path: str | Path, header: dict[str, Any], tree) -> None:
@@ -87,8 +88,8 @@ def read_header(path: str | Path) -> dict[str, Any]:
     return header
 
 
-def load(path: str | Path | None = None) -> tuple[SparseGFNet, dict[str, Any]]:
-    """The network stored at `path` (default: the model shipped in the package) and its header."""
+def load(path: str | Path | None = None) -> tuple[Model, dict[str, Any]]:
+    """The model stored at `path` (default: the model shipped in the package) and its header."""
     if path is None:
         path = Path(str(resources.files("gfjax") / "data" / SHIPPED))
     path = Path(path)
@@ -97,17 +98,17 @@ def load(path: str | Path | None = None) -> tuple[SparseGFNet, dict[str, Any]]:
         config = NetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in header["net"].items()})
     except (TypeError, ValueError, KeyError) as err:
         raise InputError(f"{path}: model header has an unusable network description ({err})") from None
-    like = SparseGFNet(config, key=jax.random.key(0))
+    like = tuple(init(config, key=jax.random.key(0)))
     with open(path, "rb") as f:
         f.readline(1 << 16)
         try:
-            net = eqx.tree_deserialise_leaves(f, like)
+            model = Model(*eqx.tree_deserialise_leaves(f, like))
         except Exception as err:       # truncated or mismatched weights: report, never a traceback
             raise InputError(f"{path}: model weights are truncated or do not match the header "
                              f"({type(err).__name__})") from None
         if f.read(1):
             raise InputError(f"{path}: model file has trailing bytes after the weights")
-    return net, header
+    return model, header
 
 
 def has_state(path: str | Path) -> bool:
@@ -123,15 +124,16 @@ def state_epoch(path: str | Path) -> int:
         return 0
 
 
-def save_state(path: str | Path, net: SparseGFNet, opt_state, epoch: int, logs: list) -> None:
-    """The training state after `epoch` epochs (network, optimizer state, epoch logs), atomically."""
-    header = {"magic": MAGIC + "-state", "format": FORMAT, "epoch": epoch, "net": dataclasses.asdict(net.config),
-              "logs": [log._asdict() for log in logs]}
-    _write(path, header, (net, opt_state))
+def save_state(path: str | Path, model: Model, opt_state, epoch: int, logs: list) -> None:
+    """The training state after `epoch` epochs (model, optimizer state, epoch logs), atomically."""
+    header = {"magic": MAGIC + "-state", "format": FORMAT, "epoch": epoch,
+              "net": dataclasses.asdict(model.net.config), "logs": [log._asdict() for log in logs]}
+    _write(path, header, (tuple(model), opt_state))
 
 
-def load_state(path: str | Path, net: SparseGFNet, opt_state):
-    """`(net, opt_state, epochs done, logs)` from `save_state`; `net` and `opt_state` give the shapes."""
+def load_state(path: str | Path, model: Model, opt_state):
+    """`(model, opt_state, epochs done, logs)` from `save_state`; `model` and `opt_state` give
+    the shapes."""
     from gfjax.sparsegf.train import EpochLog
 
     path = Path(path)
@@ -142,10 +144,10 @@ def load_state(path: str | Path, net: SparseGFNet, opt_state):
             raise InputError(f"{path}: not a gfjax SparseGF training state") from None
         if not isinstance(header, dict) or header.get("magic") != MAGIC + "-state":
             raise InputError(f"{path}: not a gfjax SparseGF training state")
-        if header.get("net") != json.loads(json.dumps(dataclasses.asdict(net.config))):
+        if header.get("net") != json.loads(json.dumps(dataclasses.asdict(model.net.config))):
             raise InputError(f"{path}: training state of another network preset; remove it or use its preset")
         try:
-            net, opt_state = eqx.tree_deserialise_leaves(f, (net, opt_state))
+            parts, opt_state = eqx.tree_deserialise_leaves(f, (tuple(model), opt_state))
         except Exception as err:
             raise InputError(f"{path}: training state is truncated ({type(err).__name__})") from None
-    return net, opt_state, int(header["epoch"]), [EpochLog(**log) for log in header["logs"]]
+    return Model(*parts), opt_state, int(header["epoch"]), [EpochLog(**log) for log in header["logs"]]

@@ -6,6 +6,7 @@ import dataclasses
 from gfjax import limits
 from gfjax.limits import Range
 from gfjax.sparsegf.compress import R_IN_M, R_OC_M, R_OO_M
+from gfjax.sparsegf.features import FEATURE_SETS
 from gfjax.sparsegf.partition import STEP_M
 
 VOXEL_M = 0.5            # voxel edge of the sparse convolutions [m] (Sec. 3.3)
@@ -34,9 +35,12 @@ class Config:
       r_in_m, r_oc_m, r_oo_m: inner invariant, outer compressed and outer original radii [m]
         (25 sqrt 2, 44, 150).
       compression: apply the context compression (False: the ablation without it).
+      features: the network's per-point inputs, `"xyz"` (the paper's coordinates) or
+        `"xyz+tophat"` (and the heights over eight opened minimum surfaces; see
+        `gfjax.sparsegf.features`).
       max_context_points: points per patch at most (all central ones kept; the periphery
         thinned at random with a fixed seed); a CPU budget, not in the paper.
-      batch_size: patches per network call.
+      batch_size: patches per network call at most (they are packed into one sparse tensor).
       ground_probability: a point is ground when its mean vote exceeds this (0.5, Algorithm 1).
     """
 
@@ -46,12 +50,15 @@ class Config:
     r_oc_m: float = R_OC_M
     r_oo_m: float = R_OO_M
     compression: bool = True
+    features: str = "xyz+tophat"
     max_context_points: int = MAX_CONTEXT_POINTS
-    batch_size: int = 1
+    batch_size: int = 8
     ground_probability: float = 0.5
 
     def __post_init__(self):
         limits.check_fields(self, RANGES)
+        if self.features not in FEATURE_SETS:
+            raise ValueError(f"features must be one of {FEATURE_SETS}, got {self.features!r}")
         if not self.r_in_m < self.r_oc_m <= self.r_oo_m:
             raise ValueError(f"r_in_m < r_oc_m <= r_oo_m needed, got {self.r_in_m}, {self.r_oc_m}, {self.r_oo_m}")
 

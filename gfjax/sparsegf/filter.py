@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import numpy as np
@@ -12,9 +12,10 @@ from gfjax.io.cloud import Cloud
 from gfjax.result import Result
 from gfjax.sparsegf import checkpoint
 from gfjax.sparsegf.config import Config
-from gfjax.sparsegf.model import SparseGFNet
+from gfjax.sparsegf.features import n_features
+from gfjax.sparsegf.model import Model
 from gfjax.sparsegf.partition import PartitionConfig, partition
-from gfjax.sparsegf.pipeline import make_patch, predict_batch, run_with_room, stack
+from gfjax.sparsegf.pipeline import capacity, group, pack, predict, prepare, run_with_room, unpack
 from gfjax.sparsegf.vote import soft_vote
 
 
@@ -27,79 +28,101 @@ class Diagnostics(NamedTuple):
     n_patches: int
 
 
-def patches(xyz_m: np.ndarray, config: Config, *, angle: float = 0.0, seed: int = 0):
-    """Every voxelized patch of a cloud, in partition order."""
-    part = partition(xyz_m, PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m))
+def patches(xyz_m: np.ndarray, config: Config, *, angle: float | Callable[[], float] = 0.0, seed: int = 0,
+            shift_m=(0.0, 0.0)):
+    """Every voxelized patch of a cloud, in partition order (`angle`: a rotation about z [rad]
+    for every patch, or a function drawing one per patch)."""
+    part = partition(xyz_m, PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m),
+                     shift_m=shift_m)
     for batch in part.batches:
         for row, pid in enumerate(batch.patch_id):
             members = batch.index[row][batch.valid[row]]
-            yield make_patch(xyz_m, members, part.centers_m[pid], int(pid), config=config, angle=angle, seed=seed)
+            yield prepare(xyz_m, members, part.centers_m[pid], int(pid), config=config,
+                          angle=angle() if callable(angle) else angle, seed=seed)
 
 
-def ground_probability(net: SparseGFNet, xyz_m: np.ndarray, config: Config, *, progress: bool = False):
-    """Soft-voted ground probability and vote count per point of `xyz_m` `(n, 3)` [m]."""
+def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progress: bool = False):
+    """Soft-voted ground probability and vote count per point of `xyz_m` `(n, 3)` [m].
+
+    Patches are prepared on the host while the previous pack runs (JAX dispatches
+    asynchronously); a pack whose pyramid overflowed its plan is run again with a grown plan.
+    """
     n = len(xyz_m)
-    index, prob, central = [], [], []
-    todo = list(patches(xyz_m, config))
+    index, prob = [], []
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=len(todo), desc="sparsegf patches", unit="patch", leave=False)
-    plans = {}
+        bar = tqdm(desc="sparsegf patches", unit="patch", leave=False)
+    plans: dict = {}
+    pending = None
 
-    def run(batch):
-        b = batch.patch
-        return predict_batch(net, b.coords, b.feats, b.vvalid, b.point_voxel, b.central, batch.plan)
-
-    for start in range(0, len(todo), config.batch_size):
-        group = todo[start:start + config.batch_size]
-        batch = stack(group, plans)
-        b = batch.patch
-        p = np.asarray(jax.device_get(run_with_room(run, batch, plans)))
-        for i in range(len(group)):
-            index.append(b.index[i]), prob.append(p[i]), central.append(b.central[i])
+    def finish(packed, result):
+        p, overflowed = result
+        if bool(overflowed):
+            p = run_with_room(lambda q: predict(model, q), packed, plans)
+        p = np.asarray(p)
+        for patch, values in zip(packed.patches, unpack(packed, p)):
+            index.append(patch.point_index)
+            prob.append(values)
         if bar is not None:
-            bar.update(len(group))
+            bar.update(len(packed.patches))
+
+    for todo in group(patches(xyz_m, config), config.batch_size):
+        packed = pack(todo, config.batch_size, plans)
+        result = predict(model, packed)
+        if pending is not None:
+            finish(*pending)
+        pending = (packed, result)
+    if pending is not None:
+        finish(*pending)
     if bar is not None:
         bar.close()
     if not index:
         return np.zeros(n, np.float32), np.zeros(n, np.int32), 0
-    vote = soft_vote(np.concatenate(index), np.concatenate(prob), n, mask=np.concatenate(central))
-    return np.asarray(vote.prob_ground), np.asarray(vote.count), len(todo)
+    # votes and points padded to powers of two: the vote compiles a few times per machine,
+    # not once per cloud
+    votes = np.concatenate(index)
+    size = capacity(len(votes), 1024)
+    vote = soft_vote(np.concatenate([votes, np.full(size - len(votes), -1)]),
+                     np.concatenate([*prob, np.zeros(size - len(votes), np.float32)]), capacity(n, 1024))
+    return np.asarray(vote.prob_ground)[:n], np.asarray(vote.count)[:n], len(index)
 
 
-def load_model(path=None) -> tuple[SparseGFNet, Config]:
-    """The network at `path` (None: the model shipped in gfjax) and the settings it was trained with."""
-    net, header = checkpoint.load(path)
+def load_model(path=None) -> tuple[Model, Config]:
+    """The model at `path` (None: the model shipped in gfjax) and the settings it was trained with."""
+    model, header = checkpoint.load(path)
     stored = header.get("meta", {}).get("config", {})
     names = {f.name for f in dataclasses.fields(Config)}
     try:
         config = Config(**{k: v for k, v in stored.items() if k in names})
     except (TypeError, ValueError) as err:
         raise InputError(f"{path or checkpoint.SHIPPED}: model settings are unusable ({err})") from None
-    return net, config
+    have = model.net.config.in_features
+    if n_features(config.features) != have:
+        raise InputError(f"{path or checkpoint.SHIPPED}: the network takes {have} input features, "
+                         f"its settings give {n_features(config.features)} ({config.features})")
+    return model, config
 
 
 def filter(cloud: Cloud, *, config: Config | None = None, params=None, returns: str = "all",
-           progress: bool = False, model: SparseGFNet | str | None = None) -> Result:
+           progress: bool = False, model: Model | str | None = None) -> Result:
     """Classify ground points with SparseGF.
 
     Args:
       cloud: the point cloud (`cloud.xyz_m`, metres; only `cloud.filter_mask(returns)` used).
       config: static settings (default: those the model was trained with; `Config()` for a
-        network passed as an object: the paper's radii, 0.5 m voxels).
+        model passed as an object: the paper's radii, 0.5 m voxels).
       params: unused (SparseGF's parameters are the network's weights); must be None.
       returns: "all" or "last".
       progress: show a bar over patches.
-      model: a `SparseGFNet`, a model file path, or None for the model shipped in gfjax.
+      model: a `Model` (`gfjax.sparsegf.init`, `train.fit`), a model file path, or None for
+        the model shipped in gfjax.
 
     Returns:
       `Result(ground, Diagnostics)`; ground = mean vote > `config.ground_probability`.
     """
-    if isinstance(model, SparseGFNet):
-        net = model
-    else:
-        net, trained_with = load_model(model)
+    if not isinstance(model, Model):
+        model, trained_with = load_model(model)
         config = trained_with if config is None else config
     config = Config() if config is None else config
     if params is not None:
@@ -109,7 +132,7 @@ def filter(cloud: Cloud, *, config: Config | None = None, params=None, returns: 
     except ValueError as err:
         raise InputError(f"{cloud.name}: --returns: {err}") from None
     used_index = np.flatnonzero(used)
-    prob, votes, n_patches = ground_probability(net, cloud.xyz_m[used_index], config, progress=progress)
+    prob, votes, n_patches = ground_probability(model, cloud.xyz_m[used_index], config, progress=progress)
     ground = np.zeros(cloud.n_points, bool)
     ground[used_index] = prob > config.ground_probability
     full_prob = np.zeros(cloud.n_points, np.float32)

@@ -61,8 +61,8 @@ class PatchBatch(NamedTuple):
     Attributes:
       patch_id: `(b,)` int32, row of each patch in `Partition.centers_m`.
       center_m: `(b, 2)` float64, the cylinder axes, in the frame of the partitioned xyz [m].
-      index: `(b, capacity)` int32, the cloud's point indices in each cylinder, in
-        increasing order, then `-1` padding.
+      index: `(b, capacity)` int32, the cloud's point indices in each cylinder, grouped by
+        the 50 m cell they lie in (increasing within a cell), then `-1` padding.
       valid: `(b, capacity)` bool, `index >= 0`.
     """
 
@@ -133,12 +133,15 @@ def grid_centers(xy_min: np.ndarray, xy_max: np.ndarray, step_m: float) -> tuple
     return centers, (ny, nx), origin
 
 
-def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None) -> Partition:
+def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift_m=(0.0, 0.0)) -> Partition:
     """Cut a cloud into cylinders of radius `r_oo_m` on a `step_m` grid of axes.
 
     Args:
       xyz_m: points `(n, 3)` (or `(n, 2)`), metres; float64 absolute or float32 local.
       config: geometry (defaults: 50 m step, R_oo = 150 m, R_in = 25 sqrt(2) m).
+      shift_m: `(dx, dy)` [m], moves the grid of axes by this much (modulo the step; the
+        grid grows by a cell per axis to keep covering the cloud). Training draws it at
+        random, so the central regions fall on new places each epoch.
 
     Returns:
       A `Partition`. Every point is within `r_in_m` of at least one kept axis. An empty
@@ -158,6 +161,13 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None) -> Parti
 
     step = config.step_m
     centers, (ny, nx), origin = grid_centers(xy.min(axis=0), xy.max(axis=0), step)
+    shift = np.mod(np.asarray(shift_m, np.float64), step)
+    if np.any(shift > 0):
+        # one more cell per axis, so the shifted grid still covers the box
+        origin = origin - step + shift
+        nx, ny = nx + 1, ny + 1
+        cx, cy = origin[0] + (np.arange(nx) + 0.5) * step, origin[1] + (np.arange(ny) + 0.5) * step
+        centers = np.stack(np.meshgrid(cx, cy, indexing="xy"), axis=-1).reshape(-1, 2)
     cell_ix = np.clip(np.floor((xy - origin) / step).astype(np.int64), 0, [nx - 1, ny - 1])
     home = cell_ix[:, 1] * nx + cell_ix[:, 0]                  # home cell per point
     order = np.argsort(home, kind="stable")                    # points grouped by cell
@@ -182,7 +192,7 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None) -> Parti
         if not np.any(r_sq <= r_in_sq):
             continue                                           # nothing to classify here
         kept.append(cell)
-        members.append(np.sort(cand[r_sq <= r_oo_sq]).astype(np.int32))
+        members.append(cand[r_sq <= r_oo_sq].astype(np.int32))
 
     centers = centers[kept]
     n_points = np.array([len(m) for m in members], dtype=np.int64)

@@ -1,185 +1,267 @@
-"""From a cloud to network inputs and back: partition -> compress -> voxelize -> network -> vote.
+"""From a cloud to network inputs and back: partition -> features -> compress -> voxelize ->
+pack -> network -> soft vote.
 
 Host code drives jitted array functions:
 
 1. `partition` cuts the cloud into cylinders (R_oo = 150 m on a 50 m grid).
-2. Per patch, `_compress_features` (jit) applies the context compression (Eqs. 1-3) and
-   makes the per-point input features; `voxelize` (jit) bins the compressed points into
-   0.5 m voxels. The voxel rows are cut to a capacity bucket of the patch's own count.
-3. Patches of one voxel capacity share one pyramid plan (`standard_plan`, grown from the
-   data only when a patch does not fit) and run under `jax.vmap`, so a capacity compiles once.
-4. Each patch's central ground probabilities go to `soft_vote` (Algorithm 1).
+2. `prepare` (one patch): the per-point features on the patch's own points (`features`),
+   then the context thinning, the rotation (training), the context compression (Eqs. 1-3)
+   and the 0.5 m voxels, whose features are the mean of their points'. It keeps, for each
+   central point, its voxel: the network's output for the voxel is the point's.
+3. `pack` concatenates patches into one sparse tensor, one batch index per patch, padded to
+   `PACK_VOXELS` rows (a patch larger than that alone, to the next power of two): one shape,
+   so a machine compiles the network once, not once per patch shape (each compiled program
+   also holds thousands of memory maps, and a process may only have 65,530). Every patch of a capacity shares one pyramid plan
+   (`standard_plan`, grown from the data only when a pack does not fit it: `run_with_room`).
+4. `predict` runs the network on a pack; each central point takes its voxel's ground
+   probability, and `soft_vote` merges the patches (Algorithm 1).
 
-Context thinning (a CPU budget, not in the paper): a patch keeps every central point, and at
-most `max_context_points` points in all, the peripheral ones chosen at random with a seed
-fixed by the patch; the periphery is compressed about 4-13x, so its voxels stay occupied.
+Context thinning (a CPU budget, not in the paper): a patch keeps every central point and at
+most `max_context_points` peripheral ones, drawn at random with a seed fixed by the patch; the
+periphery is compressed about 4-13x in radius, so its voxels stay occupied.
 """
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gfjax import aot
 from gfjax.nn import sparse
+from gfjax.sparsegf import features as F
 from gfjax.sparsegf.compress import compress
-from gfjax.sparsegf.model import SparseGFNet
+from gfjax.sparsegf.model import Model, SparseGFNet
 
-Z_SCALE_M = 10.0        # heights enter the network as (z - patch mean) / Z_SCALE_M [-]
-
-
-class Patch(NamedTuple):
-    """One voxelized patch (host numpy, rows padded to buckets).
-
-    Attributes:
-      index: `(n,)` int32 cloud index of each point (-1 padding).
-      central: `(n,)` bool, points the network classifies.
-      coords: `(m, 4)` int32 level-0 voxels; feats `(m, f)` their mean features; vvalid `(m,)`.
-      point_voxel: `(n,)` int32 row of each point's voxel (-1 padding).
-      patch_id: the patch's row in the partition.
-    """
-
-    index: np.ndarray
-    central: np.ndarray
-    coords: np.ndarray
-    feats: np.ndarray
-    vvalid: np.ndarray
-    point_voxel: np.ndarray
-    patch_id: int
+DEPTH = 4                  # levels of the U-Net below the input
+PACK_VOXELS = 65_536       # voxel rows of a pack: patches are packed up to this many
+MIN_POINTS = 4_096         # smallest point capacity of the per-patch feature program
 
 
-@functools.partial(jax.jit, static_argnames=("r_in", "r_oc", "r_oo", "use_compression"))
-def _compress_features(local_xyz, valid, angle, *, r_in, r_oc, r_oo, use_compression):
-    """Rotated, compressed xyz `(n, 3)`, central mask and features `(n, 4)` of one patch."""
-    c, s = jnp.cos(angle), jnp.sin(angle)
-    rot = jnp.stack([jnp.stack([c, -s]), jnp.stack([s, c])])
-    xy = local_xyz[:, :2] @ rot.T
-    xyz = jnp.concatenate([xy, local_xyz[:, 2:]], axis=1)
-    out = compress(xyz, jnp.zeros(2, jnp.float32), r_in=r_in, r_oc=r_oc, r_oo=r_oo, valid=valid)
-    pts = out.xyz if use_compression else xyz
-    w = valid.astype(jnp.float32)
-    z_mean = jnp.sum(pts[:, 2] * w) / jnp.maximum(jnp.sum(w), 1.0)
-    pts = jnp.concatenate([pts[:, :2], pts[:, 2:] - z_mean], axis=1)
-    feats = jnp.stack([pts[:, 0] / r_oc, pts[:, 1] / r_oc, pts[:, 2] / Z_SCALE_M, jnp.ones_like(pts[:, 0])], axis=1)
-    return pts, out.central, jnp.where(valid[:, None], feats, 0.0)
-
-
-def bucket(n: int, minimum: int = 16384) -> int:
-    """The power of two (at least `minimum`) holding `n`: few compiled shapes, since one
-    compile of the network costs seconds to tens of seconds on a CPU."""
+def capacity(n: int, minimum: int = PACK_VOXELS) -> int:
+    """The power of two (at least `minimum`) holding `n` rows."""
     size = minimum
     while size < n:
         size *= 2
     return size
 
 
-def thin_context(index: np.ndarray, central: np.ndarray, max_points: int, seed: int) -> np.ndarray:
-    """Rows to keep: every central one, and peripheral ones at random up to `max_points`."""
-    if len(index) <= max_points:
-        return np.arange(len(index))
-    rng = np.random.default_rng(seed)
-    core = np.flatnonzero(central)
+class Patch(NamedTuple):
+    """One voxelized patch (host numpy, exact sizes).
+
+    Attributes:
+      coords: `(m, 3)` int32 level-0 voxels (grid indices of the compressed patch).
+      feats: `(m, f)` float32, the mean features of each voxel's points.
+      point_index: `(c,)` int64, the cloud index of each central point.
+      point_voxel: `(c,)` int32, the row of its voxel in `coords`.
+      patch_id: the patch's row in the partition.
+    """
+
+    coords: np.ndarray
+    feats: np.ndarray
+    point_index: np.ndarray
+    point_voxel: np.ndarray
+    patch_id: int
+
+    def central_counts(self, values: np.ndarray | None = None, n_values: int = 1) -> np.ndarray:
+        """Central points per voxel `(m,)`, or per voxel and value `(m, n_values)` of an int
+        per central point (`values` `(c,)` in `0..n_values-1`, e.g. labels)."""
+        m = len(self.coords)
+        if values is None:
+            return np.bincount(self.point_voxel, minlength=m).astype(np.float32)
+        flat = self.point_voxel.astype(np.int64) * n_values + values
+        return np.bincount(flat, minlength=m * n_values).reshape(m, n_values).astype(np.float32)
+
+
+@functools.partial(jax.jit, static_argnames=("features", "r_in", "r_oc", "r_oo", "use_compression"))
+def _point_inputs(local_xyz, valid, keep, keep_valid, angle, *, features, r_in, r_oc, r_oo, use_compression):
+    """Compressed xyz `(k, 3)` (z relative to the patch's mean), central mask `(k,)` and input
+    features `(k, f)` of the kept points `local_xyz[keep]` of one patch; every valid point of
+    `local_xyz` `(n, 3)` shapes the top-hat surfaces."""
+    kept = local_xyz[keep]
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    rot = jnp.stack([jnp.stack([c, -s]), jnp.stack([s, c])])
+    xyz = jnp.concatenate([kept[:, :2] @ rot.T, kept[:, 2:]], axis=1)
+    out = compress(xyz, jnp.zeros(2, jnp.float32), r_in=r_in, r_oc=r_oc, r_oo=r_oo, valid=keep_valid)
+    pts = out.xyz if use_compression else xyz
+    z_mean = jnp.sum(jnp.where(keep_valid, pts[:, 2], 0.0)) / jnp.maximum(jnp.sum(keep_valid), 1).astype(pts.dtype)
+    pts = pts.at[:, 2].add(-z_mean)
+    f = F.xyz_features(pts, keep_valid, r_oc_m=r_oc)
+    if features == "xyz+tophat":
+        # heights over the surfaces of all the patch's points, before thinning, rotation (a
+        # property of the point, not of the augmentation) and compression
+        surfaces = F.tophat_surfaces(local_xyz, valid, half_extent_m=r_oo)
+        f = jnp.concatenate([f, F.signed_log(F.heights_above(surfaces, kept, keep_valid, half_extent_m=r_oo))], axis=1)
+    return pts, out.central, f
+
+
+def thin_context(central: np.ndarray, max_points: int, seed: int) -> np.ndarray:
+    """Rows to keep: every central one, and at most `max_points` peripheral ones drawn at random."""
     rest = np.flatnonzero(~central)
-    room = max(max_points - len(core), 0)
-    keep = rng.choice(rest, size=min(room, len(rest)), replace=False) if room else np.zeros(0, np.int64)
-    return np.sort(np.concatenate([core, keep]))
+    if len(rest) <= max_points:
+        return np.arange(len(central))
+    keep = np.random.default_rng(seed).choice(rest, size=max_points, replace=False)
+    return np.sort(np.concatenate([np.flatnonzero(central), keep]))
 
 
-def make_patch(xyz_m: np.ndarray, members: np.ndarray, center_m: np.ndarray, patch_id: int, *, config,
-               angle: float = 0.0, seed: int = 0) -> Patch:
+def voxelize(points: np.ndarray, feats: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Voxels of points `(n, 3)` [m] (host): `(coords (m, 3) int32, mean feats (m, f),
+    voxel row of each point (n,))`, voxels in increasing (i, j, k) order."""
+    grid = np.floor(points / voxel_m).astype(np.int64)
+    low = grid.min(axis=0) if len(grid) else np.zeros(3, np.int64)
+    span = (grid.max(axis=0) - low + 1) if len(grid) else np.ones(3, np.int64)
+    key = ((grid[:, 0] - low[0]) * span[1] + (grid[:, 1] - low[1])) * span[2] + (grid[:, 2] - low[2])
+    unique, inverse = np.unique(key, return_inverse=True)
+    count = np.bincount(inverse, minlength=len(unique)).astype(np.float64)
+    mean = np.stack([np.bincount(inverse, weights=feats[:, j], minlength=len(unique)) for j in range(feats.shape[1])],
+                    axis=1) / np.maximum(count, 1)[:, None]
+    k = unique % span[2]
+    ij = unique // span[2]
+    coords = np.stack([ij // span[1] + low[0], ij % span[1] + low[1], k + low[2]], axis=1)
+    return coords.astype(np.int32), mean.astype(np.float32), inverse.astype(np.int32)
+
+
+def _padded(a: np.ndarray, size: int, value=0) -> np.ndarray:
+    out = np.full((size,) + a.shape[1:], value, a.dtype)
+    out[:len(a)] = a
+    return out
+
+
+def prepare(xyz_m: np.ndarray, members: np.ndarray, center_m: np.ndarray, patch_id: int, *, config,
+            angle: float = 0.0, seed: int = 0) -> Patch:
     """Voxelize one cylinder (`members`: its cloud indices) for the network."""
     local = np.empty((len(members), 3), np.float32)
     local[:, :2] = (xyz_m[members, :2] - center_m[None, :]).astype(np.float32)
     local[:, 2] = xyz_m[members, 2].astype(np.float32)
-    central = np.hypot(local[:, 0], local[:, 1]) <= config.r_in_m + 1e-4
-    keep = thin_context(members, central, config.max_context_points, seed + patch_id)
-    members, local = members[keep], local[keep]
-    n = bucket(len(members))
-    pad = n - len(members)
-    local = np.concatenate([local, np.zeros((pad, 3), np.float32)])
-    valid = np.arange(n) < len(members)
-    index = np.concatenate([members.astype(np.int32), np.full(pad, -1, np.int32)])
-    pts, central, feats = _compress_features(jnp.asarray(local), jnp.asarray(valid), jnp.float32(angle),
-                                             r_in=config.r_in_m, r_oc=config.r_oc_m, r_oo=config.r_oo_m,
-                                             use_compression=config.compression)
-    vox = sparse.voxelize(pts, feats, 0, config.voxel_m, valid=valid, capacity=n)
-    count = int(np.sum(np.asarray(vox.tensor.valid)))
-    m = bucket(count)
-    m_rows = min(m, n)
-    coords = np.zeros((m, 4), np.int32)
-    vfeats = np.zeros((m, feats.shape[1]), np.float32)
-    coords[:m_rows] = np.asarray(vox.tensor.coords)[:m_rows]
-    vfeats[:m_rows] = np.asarray(vox.tensor.feats)[:m_rows]
-    return Patch(index, np.asarray(central), coords, vfeats, np.arange(m) < count, np.asarray(vox.point_voxel),
-                 patch_id)
+    # a superset of what `compress` will call central: those are never thinned away
+    near = np.hypot(local[:, 0], local[:, 1]) <= config.r_in_m + 1e-3
+    keep = thin_context(near, config.max_context_points, seed + patch_id)
+    n, k = capacity(len(members), MIN_POINTS), capacity(len(keep), MIN_POINTS)
+    pts, central, feats = jax.device_get(_point_inputs(
+        _padded(local, n), np.arange(n) < len(members), _padded(keep.astype(np.int32), k), np.arange(k) < len(keep),
+        np.float32(angle), features=config.features, r_in=config.r_in_m, r_oc=config.r_oc_m, r_oo=config.r_oo_m,
+        use_compression=config.compression))
+    pts, central, feats = pts[:len(keep)], central[:len(keep)], feats[:len(keep)]
+    coords, vfeats, row = voxelize(pts, feats, config.voxel_m)
+    return Patch(coords, vfeats, members[keep][central].astype(np.int64), row[central], int(patch_id))
 
 
-class Batch(NamedTuple):
-    """Patches stacked for `jax.vmap` (a `Patch` of arrays with a leading axis b; `patch_id`
-    `(b,)`) and the pyramid plan they share."""
+class Pack(NamedTuple):
+    """Patches concatenated into one sparse tensor, padded to a capacity (host numpy).
 
-    patch: Patch
+    Attributes:
+      coords: `(M, 4)` int32 `(b, i, j, k)`, `b` = the patch's slot; feats `(M, f)`;
+      valid: `(M,)` bool; weight `(M,)` float32, central points per voxel.
+      starts: `(slots,)` first row of each slot's patch (unused slots: M).
+      patches: the patches, by slot.
+      plan: the pyramid plan of this capacity.
+    """
+
+    coords: np.ndarray
+    feats: np.ndarray
+    valid: np.ndarray
+    weight: np.ndarray
+    starts: np.ndarray
+    patches: tuple[Patch, ...]
     plan: sparse.PyramidPlan
 
+    @property
+    def slots(self) -> int:
+        return len(self.starts)
 
-DEPTH = 4               # levels of the U-Net below the input
-
-
-def stack(patches: list[Patch], plans: dict[int, sparse.PyramidPlan] | None = None) -> Batch:
-    """Pad patches to common sizes, with the plan kept in `plans` for their voxel capacity
-    (else `standard_plan`, which depends on the capacity only: one compiled shape per
-    capacity; `run_with_room` grows it for data that do not fit)."""
-    n = max(len(p.index) for p in patches)
-    m = max(len(p.coords) for p in patches)
-
-    def pad(a, size, value):
-        extra = size - a.shape[0]
-        return np.concatenate([a, np.full((extra,) + a.shape[1:], value, a.dtype)]) if extra else a
-
-    plan = (plans or {}).get(m) or sparse.standard_plan(m, depth=DEPTH)
-    stacked = Patch(np.stack([pad(p.index, n, -1) for p in patches]), np.stack([pad(p.central, n, False) for p in patches]),
-                    np.stack([pad(p.coords, m, 0) for p in patches]), np.stack([pad(p.feats, m, 0) for p in patches]),
-                    np.stack([pad(p.vvalid, m, False) for p in patches]),
-                    np.stack([pad(p.point_voxel, n, -1) for p in patches]), np.asarray([p.patch_id for p in patches]))
-    return Batch(stacked, plan)
+    def per_voxel(self, columns: list[np.ndarray], width: int) -> np.ndarray:
+        """`(M, width)` float32: each patch's `(m, width)` block at its rows, 0 elsewhere."""
+        out = np.zeros((len(self.coords), width), np.float32)
+        for patch, start, block in zip(self.patches, self.starts, columns):
+            out[start:start + len(patch.coords)] = block
+        return out
 
 
-def grow_plan(batch: Batch) -> Batch:
-    """The batch with a plan grown from its own voxels (a host pass over every patch)."""
-    plan = batch.plan
-    for coords, valid in zip(batch.patch.coords, batch.patch.vvalid):
-        plan = sparse.plan_pyramid(coords, valid, depth=DEPTH, like=plan)
-    return batch._replace(plan=plan)
+def pack(patches: list[Patch], slots: int, plans: dict[int, sparse.PyramidPlan] | None = None) -> Pack:
+    """Concatenate up to `slots` patches (batch index = slot) into a capacity bucket, with
+    the plan kept in `plans` for that capacity (else `standard_plan`)."""
+    if not 1 <= len(patches) <= slots:
+        raise ValueError(f"pack: 1..{slots} patches, got {len(patches)}")
+    total = sum(len(p.coords) for p in patches)
+    size = capacity(total)
+    coords = np.zeros((size, 4), np.int32)
+    feats = np.zeros((size, patches[0].feats.shape[1]), np.float32)
+    weight = np.zeros(size, np.float32)
+    starts = np.full(slots, size, np.int64)
+    row = 0
+    for slot, p in enumerate(patches):
+        m = len(p.coords)
+        coords[row:row + m, 0] = slot
+        coords[row:row + m, 1:] = p.coords
+        feats[row:row + m] = p.feats
+        weight[row:row + m] = p.central_counts()
+        starts[slot] = row
+        row += m
+    plan = (plans or {}).get(size) or sparse.standard_plan(size, depth=DEPTH)
+    return Pack(coords, feats, np.arange(size) < total, weight, starts, tuple(patches), plan)
 
 
-def run_with_room(run, batch: Batch, plans: dict[int, sparse.PyramidPlan]):
-    """`run(batch) -> (result, overflowed)`, run again with a grown plan if the batch did not
-    fit its plan; the grown plan is kept in `plans` for later batches of that capacity."""
-    result, overflowed = run(batch)
+def group(patches, slots: int, max_voxels: int = PACK_VOXELS):
+    """Lists of consecutive patches to pack: at most `slots` patches and `max_voxels` voxels
+    each (a patch larger than that alone)."""
+    out, voxels = [], 0
+    for p in patches:
+        if out and (len(out) == slots or voxels + len(p.coords) > max_voxels):
+            yield out
+            out, voxels = [], 0
+        out.append(p)
+        voxels += len(p.coords)
+    if out:
+        yield out
+
+
+def grow_plan(packed: Pack) -> Pack:
+    """The pack with a plan grown from its own voxels (a host pass)."""
+    return packed._replace(plan=sparse.plan_pyramid(packed.coords, packed.valid, depth=DEPTH, like=packed.plan))
+
+
+def run_with_room(run: Callable, packed: Pack, plans: dict[int, sparse.PyramidPlan]):
+    """`run(packed) -> (result, overflowed)`, run again with a grown plan if the pack did not
+    fit its plan; the grown plan is kept in `plans` for later packs of that capacity."""
+    result, overflowed = run(packed)
     if bool(overflowed):
-        batch = grow_plan(batch)
-        plans[batch.plan.capacities[0]] = batch.plan
-        result, overflowed = run(batch)
+        packed = grow_plan(packed)
+        plans[packed.plan.capacities[0]] = packed.plan
+        result, overflowed = run(packed)
         if bool(overflowed):
             raise RuntimeError("sparsegf: a pyramid plan grown from the data did not fit the data")
     return result
 
 
-def forward(net: SparseGFNet, coords, feats, vvalid, point_voxel, central, plan):
-    """Logits of one patch and whether its pyramid overflowed `plan` (jit-able with `plan`
-    static; vmap over patches)."""
-    pyramid = sparse.build_pyramid(coords, vvalid, plan)
-    x = sparse.SparseTensor(coords, jnp.where(vvalid[:, None], feats, 0.0), vvalid)
-    return net(x, pyramid, point_voxel, central), pyramid.overflowed
+def forward(net: SparseGFNet, state, coords, feats, valid, weight, plan, slots: int):
+    """Per-voxel logits of a pack, the new state and whether its pyramid overflowed `plan`
+    (jit-able with `plan` and `slots` static)."""
+    pyramid = sparse.build_pyramid(coords, valid, plan)
+    x = sparse.SparseTensor(coords, jnp.where(valid[:, None], feats, 0.0), valid, 1, slots)
+    out, state = net(x, pyramid, weight, state)
+    return out, state, pyramid.overflowed
 
 
-@eqx.filter_jit
-def predict_batch(net: SparseGFNet, coords, feats, vvalid, point_voxel, central, plan):
-    """Ground probability `(b, n)` of every point of a batch (0 outside the central mask), and
-    whether any patch overflowed `plan` (the probabilities are then wrong)."""
-    out, overflowed = jax.vmap(lambda c, f, v, pv, ce: forward(net, c, f, v, pv, ce, plan))(
-        coords, feats, vvalid, point_voxel, central)
-    return jax.nn.softmax(out.cls, axis=-1)[..., 1], jnp.any(overflowed)
+@functools.partial(jax.jit, static_argnames=("plan", "slots"))
+def predict_voxels(net: SparseGFNet, state, coords, feats, valid, weight, *, plan: sparse.PyramidPlan, slots: int):
+    """Ground probability `(M,)` of every voxel of a pack and whether it overflowed `plan`
+    (the batch norms in inference mode)."""
+    out, _, overflowed = forward(eqx.nn.inference_mode(net), state, coords, feats, valid, weight, plan, slots)
+    return jax.nn.softmax(out.cls, axis=-1)[:, 1], overflowed
+
+
+def predict(model: Model, packed: Pack):
+    """Ground probability `(M,)` of every voxel of a pack (meaningful where it holds central
+    points) and whether the pack overflowed its plan (the probabilities are then wrong).
+    Returns JAX arrays without waiting for them (asynchronous dispatch). The program is kept
+    across processes when `gfjax.aot` is on (the command line turns it on)."""
+    return aot.call(predict_voxels, model.net, model.state, packed.coords, packed.feats, packed.valid, packed.weight,
+                    plan=packed.plan, slots=packed.slots)
+
+
+def unpack(packed: Pack, voxel_values: np.ndarray) -> list[np.ndarray]:
+    """Each patch's central points' values `(c,)`, read from per-voxel values `(M,)`."""
+    return [voxel_values[start + p.point_voxel] for p, start in zip(packed.patches, packed.starts)]

@@ -1,8 +1,8 @@
 """Training SparseGF (Qin et al. 2026, Sec. 3.3): height-aware loss, Adam, cosine schedule.
 
-One step takes a batch of voxelized patches (random rotation about z, the paper's
-augmentation), runs the network under `jax.vmap`, and minimises the height-aware loss
-(Eqs. 4-5) over the central points. Labels: ground = class 2, every other class non-ground
+One step takes up to 4 voxelized patches (randomly rotated about z, the paper's augmentation,
+on a randomly shifted grid of axes) packed into one sparse tensor, runs the network and
+minimises the height-aware loss (Eqs. 4-5) over their central points. Labels: ground = class 2, every other class non-ground
 (noise included, as the paper relabels outliers); HAG bins from the labelled ground's TIN.
 """
 from __future__ import annotations
@@ -18,10 +18,10 @@ import optax
 
 from gfjax.sparsegf.config import Config
 from gfjax.sparsegf.filter import patches
-from gfjax.sparsegf.hag import hag_targets
-from gfjax.sparsegf.loss import LAMBDA, height_aware_loss
-from gfjax.sparsegf.model import SparseGFNet
-from gfjax.sparsegf.pipeline import Batch, forward, run_with_room, stack
+from gfjax.sparsegf.hag import N_HAG_BINS, hag_targets
+from gfjax.sparsegf.loss import LAMBDA, counted_loss
+from gfjax.sparsegf.model import Model
+from gfjax.sparsegf.pipeline import Pack, forward, group, pack, run_with_room
 
 # The paper's cosine schedule runs from 1e-1 to 1e-3 (Sec. 3.3). With Adam, group norms and
 # batches of 4 patches, 1e-1 made the loss jump from 3.3 to 15.7 at the second step of a tiny
@@ -44,72 +44,90 @@ def labelled(xyz_m: np.ndarray, classification: np.ndarray, *, ground_class: int
     return Labelled(np.asarray(xyz_m, np.float64), t.ground, t.bins)
 
 
+class Step(NamedTuple):
+    """One training step's inputs: a pack and, per voxel, its central points of each class
+    `(M, 2)` and of each HAG bin `(M, 6)`."""
+
+    packed: Pack
+    cls_counts: np.ndarray
+    bin_counts: np.ndarray
+
+
 def training_batches(data: list[Labelled], config: Config, *, batch_size: int, rng: np.random.Generator,
                      plans: dict | None = None):
-    """One epoch of batches: every patch of every cloud once, randomly rotated, in random order.
+    """One epoch of steps: every patch of every cloud once, in random order.
 
-    Patches are batched with others of the same padded shape (`pipeline.bucket`), every
-    batch `batch_size` rows (a short one filled with rows that classify nothing), and each
-    voxel capacity keeps one pyramid plan across epochs in `plans` (`pipeline.stack`; grown
-    only when a patch does not fit), so training compiles its step a few times, not once per
-    batch.
+    Augmentation: the grid of patch axes is shifted at random per cloud (the central regions
+    fall on new places each epoch) and each patch is rotated about z at random (the paper's).
+    Up to `batch_size` patches are packed per step (`pipeline.pack`, at most
+    `pipeline.PACK_VOXELS` voxels unless one patch is larger); each voxel capacity keeps one
+    pyramid plan across epochs in `plans` (grown only when a pack does not fit), so the step
+    compiles once per capacity.
     """
     plans = {} if plans is None else plans
-    groups: dict[tuple[int, int], list] = {}
+    items = []
     for d in data:
-        angle = float(rng.uniform(0.0, 2 * np.pi))
-        for p in patches(d.xyz_m, config, angle=angle, seed=int(rng.integers(1 << 30))):
-            groups.setdefault((len(p.index), len(p.coords)), []).append((d, p))
-    chunks = []
-    for shape in sorted(groups):
-        items = [groups[shape][i] for i in rng.permutation(len(groups[shape]))]
-        chunks += [items[i:i + batch_size] for i in range(0, len(items), batch_size)]
-    for c in rng.permutation(len(chunks)):
-        group = chunks[c]
-        # a short last batch is filled with copies of its first patch that classify nothing
-        # (central mask off: no loss, no gradient), so every step of a shape has `batch_size`
-        # rows and compiles once
-        filler = group[0][1]._replace(central=np.zeros_like(group[0][1].central))
-        batch = stack([p for _, p in group] + [filler] * (batch_size - len(group)), plans)
-        b = batch.patch
-        labels = np.zeros(b.index.shape, np.int32)
-        bins = np.zeros(b.index.shape, np.int32)
-        for row, (d, _) in enumerate(group):
-            ok = b.index[row] >= 0
-            labels[row, ok] = d.ground[b.index[row, ok]]
-            bins[row, ok] = d.hag_bin[b.index[row, ok]]
-        yield batch, labels, bins
+        shift = rng.uniform(0.0, config.step_m, 2)
+        draw = lambda: float(rng.uniform(0.0, 2 * np.pi))           # noqa: E731
+        items += [(d, p) for p in patches(d.xyz_m, config, angle=draw, seed=int(rng.integers(1 << 30)),
+                                          shift_m=shift)]
+    order = [items[i] for i in rng.permutation(len(items))]
+    source = {id(p): d for d, p in order}
+    for todo in group([p for _, p in order], batch_size):
+        packed = pack(todo, batch_size, plans)
+        cls_counts = packed.per_voxel([p.central_counts(source[id(p)].ground[p.point_index].astype(np.int64), 2)
+                                       for p in todo], 2)
+        bin_counts = packed.per_voxel([p.central_counts(source[id(p)].hag_bin[p.point_index].astype(np.int64),
+                                                        N_HAG_BINS) for p in todo], N_HAG_BINS)
+        yield Step(packed, cls_counts, bin_counts)
 
 
-def optimizer(steps: int, lr: float = LR_START) -> optax.GradientTransformation:
-    schedule = optax.cosine_decay_schedule(lr, max(steps, 1), alpha=LR_END_RATIO)
-    return optax.adam(schedule)
+def learning_rate(progress: float, lr: float = LR_START) -> float:
+    """The cosine schedule at `progress` in [0, 1] of the run: `lr` down to `lr * LR_END_RATIO`."""
+    progress = min(max(progress, 0.0), 1.0)
+    return lr * (LR_END_RATIO + (1.0 - LR_END_RATIO) * 0.5 * (1.0 + np.cos(np.pi * progress)))
+
+
+def optimizer() -> optax.GradientTransformation:
+    """Adam whose learning rate is an input of each step (`learning_rate`, set by the host:
+    an epoch's step count is only known once its patches are drawn)."""
+    return optax.inject_hyperparams(optax.adam)(learning_rate=LR_START)
 
 
 @eqx.filter_jit
-def train_step(net: SparseGFNet, opt_state, batch: Batch, labels, bins, opt: optax.GradientTransformation,
-               lam: float = LAMBDA):
-    """One Adam step on a batch; returns `(net, opt_state, loss, overflowed)` (loss:
-    `HeightAwareLoss`; when `overflowed`, the batch did not fit its plan and the step is wrong)."""
-
+def _train_step(net, state, opt_state, coords, feats, valid, weight, cls_counts, bin_counts, plan, slots, opt, lam):
     def loss_fn(net):
-        b = batch.patch
-        out, overflowed = jax.vmap(lambda c, f, v, pv, ce: forward(net, c, f, v, pv, ce, batch.plan))(
-            b.coords, b.feats, b.vvalid, b.point_voxel, b.central)
-        mask = b.central & (b.point_voxel >= 0)
-        loss = height_aware_loss(out.cls, out.hag, labels, bins, mask, lam=lam)
-        return loss.total, (loss, jnp.any(overflowed))
+        out, new_state, overflowed = forward(net, state, coords, feats, valid, weight, plan, slots)
+        loss = counted_loss(out.cls, out.hag, cls_counts, bin_counts, lam=lam)
+        return loss.total, (loss, new_state, overflowed)
 
-    (_, (loss, overflowed)), grads = eqx.filter_value_and_grad(loss_fn, has_aux=True)(net)
+    (_, (loss, state, overflowed)), grads = eqx.filter_value_and_grad(loss_fn, has_aux=True)(net)
     with jax.numpy_dtype_promotion("standard"):          # optax: float ** int32 step count
         updates, opt_state = opt.update(grads, opt_state, eqx.filter(net, eqx.is_array))
-    return eqx.apply_updates(net, updates), opt_state, loss, overflowed
+    return eqx.apply_updates(net, updates), state, opt_state, loss, overflowed
 
 
-def init(net: SparseGFNet, steps: int, lr: float = LR_START):
-    opt = optimizer(steps, lr)
+def train_step(model: Model, opt_state, step: Step, opt: optax.GradientTransformation, lam: float = LAMBDA,
+               lr: float | None = None):
+    """One Adam step on a pack, at learning rate `lr` (None: the state's); returns
+    `(model, opt_state, loss, overflowed)` (loss: `HeightAwareLoss`; the model's batch-norm
+    statistics move towards the pack's; when `overflowed`, the pack did not fit its plan and
+    the step is wrong)."""
+    p = step.packed
+    if lr is not None:
+        opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams,
+                                                     "learning_rate": jnp.asarray(lr, jnp.float32)})
+    net, state, opt_state, loss, overflowed = _train_step(
+        model.net, model.state, opt_state, p.coords, p.feats, p.valid, p.weight, step.cls_counts, step.bin_counts,
+        p.plan, p.slots, opt, lam)
+    return Model(net, state), opt_state, loss, overflowed
+
+
+def init(model: Model):
+    """`(optimizer, its state)` for `model`'s network."""
+    opt = optimizer()
     with jax.numpy_dtype_promotion("standard"):
-        return opt, opt.init(eqx.filter(net, eqx.is_array))
+        return opt, opt.init(eqx.filter(model.net, eqx.is_array))
 
 
 class EpochLog(NamedTuple):
@@ -131,53 +149,57 @@ def count_patches(data: list[Labelled], config: Config) -> int:
     return sum(len(partition(d.xyz_m, pc).centers_m) for d in data)
 
 
-def validation_error(net: SparseGFNet, data: list[Labelled], config: Config) -> float:
-    """Unweighted mean total error (%) of the network on labelled clouds."""
+def validation_error(model: Model, data: list[Labelled], config: Config) -> float:
+    """Unweighted mean total error (%) of the model on labelled clouds."""
     from gfjax.metrics import point_metrics
     from gfjax.sparsegf.filter import ground_probability
 
     errors = []
     for d in data:
-        prob, _, _ = ground_probability(net, d.xyz_m, config)
+        prob, _, _ = ground_probability(model, d.xyz_m, config)
         errors.append(100.0 * point_metrics(prob > config.ground_probability, d.ground)["total_error"])
     return float(np.mean(errors))
 
 
-def fit(net: SparseGFNet, data: list[Labelled], *, config: Config, epochs: int, batch_size: int, seed: int,
+def fit(model: Model, data: list[Labelled], *, config: Config, epochs: int, batch_size: int, seed: int,
         resume_path=None, validate: list[Labelled] | None = None, lam: float = LAMBDA, lr: float = LR_START,
         on_step=None, on_epoch=None):
-    """Train `net` for `epochs` epochs; deterministic given `seed`.
+    """Train `model` for `epochs` epochs; deterministic given `seed`.
 
-    Epoch `e` draws its rotations and order from `numpy.random.default_rng([seed, e])`, so a
-    run resumed from the checkpoint at `resume_path` (written after every epoch: network,
-    optimizer state, epoch) continues exactly as the uninterrupted run would.
-    Returns `(net, [EpochLog])`.
+    The learning rate follows a cosine from `lr` to `lr * LR_END_RATIO` over the run (per
+    step). Epoch `e` draws its grid shifts, rotations, thinning and order from
+    `numpy.random.default_rng([seed, e])`, so a run resumed from the checkpoint at
+    `resume_path` (written after every epoch: model, optimizer state, epoch) continues exactly
+    as the uninterrupted run would. `on_step(epoch, step, steps in the epoch, [loss, cls,
+    hag])` and `on_epoch(EpochLog)` report progress. Returns `(model, [EpochLog])`.
     """
     from gfjax.sparsegf import checkpoint
 
-    steps = epochs * -(-count_patches(data, config) // batch_size)
-    opt, state = init(net, steps, lr)
+    opt, opt_state = init(model)
     first, logs, plans = 0, [], {}
     if resume_path is not None and checkpoint.has_state(resume_path):
-        net, state, first, logs = checkpoint.load_state(resume_path, net, state)
+        model, opt_state, first, logs = checkpoint.load_state(resume_path, model, opt_state)
     for epoch in range(first, epochs):
         start = time.perf_counter()
         totals = []
         rng = np.random.default_rng([seed, epoch])
-        for batch, labels, bins in training_batches(data, config, batch_size=batch_size, rng=rng, plans=plans):
-            def run(batch, net=net, state=state, labels=labels, bins=bins):
-                *step, overflowed = train_step(net, state, batch, labels, bins, opt, lam)
-                return step, overflowed
+        steps = list(training_batches(data, config, batch_size=batch_size, rng=rng, plans=plans))
+        for i, step in enumerate(steps):
+            rate = learning_rate((epoch + i / len(steps)) / epochs, lr)
 
-            net, state, loss = run_with_room(run, batch, plans)
+            def run(packed, model=model, opt_state=opt_state, step=step, rate=rate):
+                *out, overflowed = train_step(model, opt_state, step._replace(packed=packed), opt, lam, rate)
+                return out, overflowed
+
+            model, opt_state, loss = run_with_room(run, step.packed, plans)
             totals.append([float(loss.total), float(loss.cls), float(loss.hag)])
             if on_step is not None:
-                on_step(epoch, totals[-1])
+                on_step(epoch, i, len(steps), totals[-1])
         mean = np.mean(totals, axis=0) if totals else np.zeros(3)
-        val = validation_error(net, validate, config) if validate else None
+        val = validation_error(model, validate, config) if validate else None
         logs.append(EpochLog(epoch, *map(float, mean), val, time.perf_counter() - start))
         if resume_path is not None:
-            checkpoint.save_state(resume_path, net, state, epoch + 1, logs)
+            checkpoint.save_state(resume_path, model, opt_state, epoch + 1, logs)
         if on_epoch is not None:
             on_epoch(logs[-1])
-    return net, logs
+    return model, logs

@@ -1,0 +1,72 @@
+"""SparseGF's host pipeline: voxels, context thinning, packing, the shifted partition grid."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gfjax.nn import sparse
+from gfjax.sparsegf import pipeline
+from gfjax.sparsegf.partition import PartitionConfig, partition
+
+
+def test_host_voxels_equal_the_jax_voxelize():
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(-20, 20, (3000, 3)).astype(np.float32)
+    feats = rng.standard_normal((3000, 5)).astype(np.float32)
+    coords, mean, row = pipeline.voxelize(xyz, feats, 0.5)
+    ref = sparse.voxelize(xyz, feats, 0, 0.5)
+    n = int(np.sum(np.asarray(ref.tensor.valid)))
+    np.testing.assert_array_equal(coords, np.asarray(ref.tensor.coords)[:n, 1:])
+    np.testing.assert_allclose(mean, np.asarray(ref.tensor.feats)[:n], rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(row, np.asarray(ref.point_voxel))
+
+
+def test_thinning_keeps_every_central_point_and_is_seeded():
+    central = np.zeros(1000, bool)
+    central[::7] = True
+    keep = pipeline.thin_context(central, 300, seed=4)
+    assert len(keep) == central.sum() + 300 and central[keep].sum() == central.sum()
+    np.testing.assert_array_equal(keep, pipeline.thin_context(central, 300, seed=4))
+    assert not np.array_equal(keep, pipeline.thin_context(central, 300, seed=5))
+    np.testing.assert_array_equal(pipeline.thin_context(central, 1000 - central.sum(), seed=4), np.arange(1000))
+
+
+def fake_patch(m, c, pid):
+    coords = np.column_stack([np.arange(m), np.zeros(m), np.zeros(m)]).astype(np.int32)
+    return pipeline.Patch(coords, np.ones((m, 2), np.float32), np.arange(c), np.arange(c) % m, pid)
+
+
+def test_packs_hold_at_most_their_slots_and_voxels_in_order():
+    found = [fake_patch(m, 3, i) for i, m in enumerate([100, 200, 30_000, 40_000, 70_000, 10, 10])]
+    groups = list(pipeline.group(found, 3, max_voxels=65_536))
+    assert [[p.patch_id for p in g] for g in groups] == [[0, 1, 2], [3], [4], [5, 6]]
+    packed = pipeline.pack(groups[0], 3)
+    assert packed.coords.shape == (pipeline.capacity(30_300), 4) and packed.slots == 3
+    np.testing.assert_array_equal(packed.starts, [0, 100, 300])
+    np.testing.assert_array_equal(packed.coords[:30_300, 0], np.repeat([0, 1, 2], [100, 200, 30_000]))
+    assert packed.valid.sum() == 30_300 and packed.weight.sum() == 9
+    assert pipeline.pack(groups[2], 3).coords.shape[0] == 131_072        # a patch larger than a pack alone
+    with pytest.raises(ValueError, match="1..3 patches"):
+        pipeline.pack(found[:4], 3)
+
+
+def test_central_counts_per_voxel_and_per_label():
+    p = pipeline.Patch(np.zeros((4, 3), np.int32), np.zeros((4, 1), np.float32), np.arange(5),
+                       np.array([0, 0, 2, 3, 3]), 0)
+    np.testing.assert_array_equal(p.central_counts(), [2, 0, 1, 2])
+    np.testing.assert_array_equal(p.central_counts(np.array([1, 0, 1, 1, 1]), 2), [[1, 1], [0, 0], [0, 1], [0, 2]])
+
+
+@pytest.mark.parametrize("shift", [(0.0, 0.0), (12.5, 40.0), (49.9, 0.1)])
+def test_a_shifted_grid_still_covers_every_point(shift):
+    rng = np.random.default_rng(1)
+    xyz = np.column_stack([rng.uniform(0, 230, (4000, 2)), rng.uniform(0, 5, 4000)]) + [6e5, 5e6, 0]
+    config = PartitionConfig()
+    part = partition(xyz, config, shift_m=shift)
+    d = np.hypot(*(xyz[:, None, :2] - part.centers_m[None]).transpose(2, 0, 1))
+    assert np.all(d.min(axis=1) <= config.r_in_m + 1e-3)
+    if shift != (0.0, 0.0):
+        base = partition(xyz, config).centers_m
+        offsets = np.mod(part.centers_m[:, None] - base[None], config.step_m)
+        np.testing.assert_allclose(offsets[:, 0], np.broadcast_to(np.mod(shift, config.step_m), offsets[:, 0].shape),
+                                   atol=1e-6)
