@@ -2,8 +2,12 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import functools
 import math
 import os
+import shutil
+import textwrap
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import ModuleType
@@ -104,19 +108,62 @@ def add_units_option(parser: argparse.ArgumentParser) -> None:
                              "(default: from the CRS; metres when the file has none)")
 
 
-def add_method_options(parser: argparse.ArgumentParser, *, method_help: str) -> None:
-    """--method, --preset, --set key=value (repeatable), --params params.json."""
-    from gfjax.methods import METHODS
+def add_method_options(parser: argparse.ArgumentParser, *, method_help: str, default_method: bool = False,
+                       tiling: bool = False) -> None:
+    """--method, --preset, --set key=value (repeatable), --params params.json.
 
+    The help ends with each method's presets (`method_table`). `default_method`: the command
+    runs `gfjax.methods.DEFAULT_METHOD` without --method (the help names it); `tiling`: it
+    takes --tile-size / --buffer (the help lists the methods that do).
+    """
+    from gfjax.methods import DEFAULT_METHOD, METHODS
+
+    default = f" (default {DEFAULT_METHOD})" if default_method else ""
     parser.add_argument("--method", default=None, metavar="NAME",
-                        help=f"{method_help} ({', '.join(METHODS)})")
-    parser.add_argument("--preset", default=None, metavar="NAME", help="a named set of option values")
+                        help=f"{method_help}{default}: {', '.join(METHODS)}")
+    parser.add_argument("--preset", default=None, metavar="NAME",
+                        help="a named set of option values of the method (listed below)")
+    # Built only when the help is printed: it imports every method (`gfjax.cli.main._Parser`).
+    parser.epilog = functools.partial(method_table, default_method=default_method, tiling=tiling)
     parser.add_argument("--set", dest="set_values", action="append", default=[], metavar="KEY=VALUE",
                         help="override one Config/Params value in metres, e.g. --set cell_m=0.5 "
                              "(repeatable; wins over --preset and --params)")
     parser.add_argument("--params", default=None, metavar="PARAMS.json",
                         help="fitted thresholds written by `gfjax tune`")
     add_model_option(parser)
+
+
+def method_table(*, default_method: bool = False, tiling: bool = False) -> str:
+    """The end of `--help` for the commands that run a method: each method's presets (its
+    `PRESETS`), the default method marked when `default_method`, and with `tiling` the methods
+    that take `--tile-size` / `--buffer` (a `Config` with `tile_size_m` and `buffer_m`), with
+    their defaults.
+
+    Imports every method package, and so JAX (about a second): called only to print help.
+    """
+    from gfjax import methods
+
+    width = max(shutil.get_terminal_size().columns - 2, 60)
+    lines = ["methods (--method NAME) and their presets (--preset NAME):"]
+    tiled = []
+    for name in methods.METHODS:
+        label = f"  {name}{' (default)' if default_method and name == methods.DEFAULT_METHOD else ''}"
+        try:
+            module = methods.get(name)
+        except (InputError, ImportError):
+            lines.append(f"{label}: not available in this build")
+            continue
+        presets = ", ".join(getattr(module, "PRESETS", None) or {}) or "none"
+        lines.append(textwrap.fill(f"{label}: {presets}", width=width, subsequent_indent=" " * 6,
+                                   break_on_hyphens=False))
+        defaults = {f.name: f.default for f in dataclasses.fields(module.Config)}
+        if "tile_size_m" in defaults and "buffer_m" in defaults:
+            tiled.append(f"{name} (default {defaults['tile_size_m']:g} m, buffer {defaults['buffer_m']:g} m)")
+    if tiling:
+        taken = ", ".join(tiled) if tiled else "none"
+        lines.append(textwrap.fill(f"--tile-size and --buffer apply to the methods that tile: {taken}; "
+                                   "the other methods refuse them.", width=width, break_on_hyphens=False))
+    return "\n".join(lines)
 
 
 def add_model_option(parser: argparse.ArgumentParser) -> None:

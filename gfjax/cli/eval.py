@@ -1,4 +1,4 @@
-"""`gfjax eval IN...`: point accuracy of ground labels (SPEC section 8), as a table or JSON.
+"""`gfjax eval IN...`: point accuracy of ground labels, as a table or JSON.
 
 Two ways to get the labels that are scored:
 

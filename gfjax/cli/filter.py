@@ -1,4 +1,4 @@
-"""`gfjax filter IN... -o OUT`: classify ground points and write LAS/LAZ (SPEC sections 1, 2).
+"""`gfjax filter IN... -o OUT`: classify ground points and write LAS/LAZ.
 
 Ground points get class 2; non-ground points that were class 2 become 1, others keep their
 class (all become 1 with `--reset-nonground`); noise (7, 18), withheld points and, with
@@ -43,11 +43,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("inputs", nargs="+", metavar="IN", help="LAS/LAZ files, folders or globs")
     parser.add_argument("-o", "--output", required=True, metavar="OUT",
                         help="output .las/.laz file, or an existing folder for several inputs")
-    add_method_options(parser, method_help="ground filter (default: gfjax.methods.DEFAULT_METHOD)")
+    add_method_options(parser, method_help="ground filter", default_method=True, tiling=True)
     parser.add_argument("--tile-size", type=positive_float, default=None, metavar="M",
-                        help="tile core side [m] (method default, 500)")
+                        help="tile core side [m], for the methods that tile (listed below)")
     parser.add_argument("--buffer", type=nonnegative_float, default=None, metavar="M",
-                        help="context around each tile [m] (method default, 50)")
+                        help="context around each tile [m], for the methods that tile (listed below)")
     parser.add_argument("--returns", choices=("all", "last"), default="all",
                         help="returns the filter uses (default all)")
     parser.add_argument("--reset-nonground", action="store_true",

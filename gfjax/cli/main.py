@@ -52,7 +52,17 @@ CACHE_SIZE_BYTES = 1 << 30  # bound of the persistent JAX compilation cache
 
 
 class _Parser(argparse.ArgumentParser):
-    """An ArgumentParser whose errors are `InputError`s (one line, exit code 2)."""
+    """An ArgumentParser whose errors are `InputError`s (one line, exit code 2).
+
+    Its `epilog` may be a callable returning the text: it is called only when the help is
+    printed, so a help text that must import the method packages (their presets) costs
+    nothing to the commands that merely parse their options.
+    """
+
+    def format_help(self) -> str:
+        if callable(self.epilog):
+            self.epilog = self.epilog()
+        return super().format_help()
 
     def error(self, message: str):
         message = message.removeprefix("argument ")

@@ -2,13 +2,13 @@
 
 The thresholds (SMRF: slope, threshold_m, scalar; PMF: slope, initial_distance_m,
 max_distance_m; CSF: class_threshold_m) are fitted by Adam on a relaxed (sigmoid) form of the
-filter against the files' reference labels (ground = class 2), SMRF's window on a small grid
-(SPEC section 7). CSF's time step and rigidness act through the cloth simulation (a while
-loop: no gradient), so they are chosen from a grid (`--time-steps` x `--rigidness`, default
-0.5,0.65,0.8 x 1,2,3): each cloth is simulated once per file, then the threshold is fitted on
-each; params.json lists them as grid-searched, never as fitted by gradient. Several files are tuned together (one parameter set, unweighted mean of their losses),
-batched under `jax.vmap` by tile shape. The fit is regularised toward the defaults
-(`--prior`).
+filter against the files' reference labels (ground = class 2), SMRF's window on a small grid.
+CSF's time step and rigidness act through the cloth simulation (a while loop: no gradient), so
+they are chosen from a grid (`--time-steps` x `--rigidness`, default 0.5,0.65,0.8 x 1,2,3):
+each cloth is simulated once per file, then the threshold is fitted on each; params.json lists
+them as grid-searched, never as fitted by gradient. Several files are tuned together (one
+parameter set, unweighted mean of their losses), batched under `jax.vmap` by tile shape. The
+fit is regularised toward the defaults (`--prior`).
 
 Guard (tuned values are often worse than the defaults on other data): the labelled data are
 cross-validated in `--folds` folds, by file when several files are given, else by square
@@ -77,7 +77,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("inputs", nargs="+", metavar="TRAIN", help="labelled LAS/LAZ files (ground = class 2)")
     parser.add_argument("-o", "--output", required=True, metavar="PARAMS.json", help="params file to write")
-    parser.add_argument("--method", default="smrf", help=f"method to tune ({', '.join(TUNABLE)})")
+    parser.add_argument("--method", default="smrf", metavar="NAME",
+                        help=f"method to tune ({', '.join(TUNABLE)}; default smrf)")
     parser.add_argument("--loss", choices=("total-error", "kappa"), default="total-error",
                         help="expected total error (default) or 1 - soft kappa")
     parser.add_argument("--prior", type=ranged("--prior"), default=0.01, metavar="W",
