@@ -155,8 +155,9 @@ def run_files(planned: Sequence[Planned], one: Callable[[Planned], None], *, kee
     job stops there (or goes on with `keep_going`) and prints a summary line; exit code 2.
     An internal error stops the job after the summary (exit 1), or with `keep_going` is
     reported and the job goes on, ending with exit code 1. An interrupt (Ctrl-C, SIGTERM,
-    SIGHUP) prints the summary and ends the job. `report` prints a line on stderr (default
-    `print`; a progress bar passes its own writer).
+    SIGHUP) prints the summary and ends the job. A closed output pipe (`BrokenPipeError`) ends
+    it quietly, as it ends any command (`gfjax.cli.main`). `report` prints a line on stderr
+    (default `print`; a progress bar passes its own writer).
     """
     report = report or (lambda line: print(line, file=sys.stderr))
     if len(planned) == 1:
@@ -167,11 +168,15 @@ def run_files(planned: Sequence[Planned], one: Callable[[Planned], None], *, kee
     internal = False
     current: Path | None = None
     stopped: Path | None = None
+    quiet = False
     try:
         for job in planned:
             current = job.source
             try:
                 one(job)
+            except BrokenPipeError:
+                quiet = True
+                raise
             except InputError as err:
                 failed.append(job.source)
                 report(f"gfjax: error: {_one_line(err)}")
@@ -193,7 +198,7 @@ def run_files(planned: Sequence[Planned], one: Callable[[Planned], None], *, kee
     finally:
         finished = set(done) | set(failed) | {stopped}
         not_started = [job.source for job in planned if job.source not in finished]
-        if failed or not_started or stopped is not None:
+        if (failed or not_started or stopped is not None) and not quiet:
             hint = " (--keep-going goes on after a failed file)" if failed and not_started and not keep_going else ""
             report(summary_line(done, failed, not_started, len(planned), interrupted=stopped) + hint)
     if internal:

@@ -14,7 +14,9 @@ Exit codes: 0 success; 2 bad input or option, printed as one line
 1 internal error, with the traceback only under `--debug` or `GFJAX_DEBUG=1`; 128 + the
 signal number when interrupted: Ctrl-C (130), SIGTERM (143) and SIGHUP (129) are all handled
 alike, as an exception in the main thread, so every temporary file is removed on the way out
-and one line `gfjax: interrupted by SIG...` is printed.
+and one line `gfjax: interrupted by SIG...` is printed. When the reader of the output goes
+away (`gfjax info f.laz | head -1`) the command ends quietly with 141, 128 + SIGPIPE, as GNU
+tools and PDAL do (`_closed_output`).
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ import importlib
 import importlib.util
 import logging
 import os
+import select
 import signal
 import sys
 import threading
@@ -231,6 +234,36 @@ def _one_line(message: str) -> str:
     return " ".join(str(message).split())
 
 
+def _reader_gone(stream) -> bool:
+    """True when `stream` is a pipe or socket whose reading end is closed (poll reports an
+    error on its writing end); False when it is not, or cannot tell (no file descriptor)."""
+    try:
+        poller = select.poll()
+        poller.register(stream.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (AttributeError, OSError, ValueError):
+        return False
+
+
+def _closed_output() -> int:
+    """The exit code when a write met a closed pipe (`BrokenPipeError`): 128 + SIGPIPE.
+
+    GNU tools and PDAL do not catch SIGPIPE: the kernel ends them at the first write to a pipe
+    nobody reads, silently, and the shell reports 141. Python ignores SIGPIPE, so the write
+    raises instead; this ends the command the same way: no message, exit code 141 (what
+    `set -o pipefail` scripts expect of `cmd | head`). A stream whose reader is gone is pointed
+    at /dev/null, so that flushing what it still buffers cannot raise again at exit.
+    """
+    for stream in (sys.stdout, sys.stderr):
+        if _reader_gone(stream):
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            try:
+                os.dup2(devnull, stream.fileno())
+            finally:
+                os.close(devnull)
+    return 128 + int(signal.SIGPIPE)
+
+
 def _end_process(code: int) -> NoReturn:
     """Exit at once with `code`, skipping the interpreter's teardown.
 
@@ -270,7 +303,11 @@ def _run(argv: Sequence[str]) -> int:
             if module is None:
                 raise InputError(f"{args.command}: not available in this build")
             enable_compilation_cache()
-            return int(module.run(args) or 0)
+            code = int(module.run(args) or 0)
+            sys.stdout.flush()              # a closed pipe is found here, not at exit
+            return code
+    except BrokenPipeError:
+        return _closed_output()
     except InputError as err:
         if debug:
             traceback.print_exc()

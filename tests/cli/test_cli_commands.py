@@ -1,8 +1,10 @@
 """`gfjax info`, `gfjax dtm`, `gfjax eval`, and the dispatch of `main`."""
 from __future__ import annotations
 
+import io
 import json
 import os
+import sys
 
 import laspy
 import numpy as np
@@ -165,3 +167,23 @@ def test_only_the_requested_command_is_imported(monkeypatch):
     parser, module = cli_main.build_parser(["--debug", "info", "x.laz"])
     assert imported == ["info"] and module.__name__ == "gfjax.cli.info"
     assert parser.parse_args(["info", "x.laz", "--debug"]).debug is True
+
+
+# ---------------------------------------------------------------- a closed output pipe
+
+
+class _ClosedPipe(io.TextIOBase):
+    """A standard output whose reader has gone: every write raises, as on a closed pipe."""
+
+    def write(self, text: str) -> int:
+        raise BrokenPipeError(32, "Broken pipe")
+
+
+@pytest.mark.parametrize("command", ["info", "filter", "dtm", "eval"])
+def test_a_closed_output_ends_every_command_quietly(tmp_path, capsys, monkeypatch, fake_methods, command):
+    src = write_scene(tmp_path / "in.laz")
+    argv = {"info": ["info", src], "filter": ["filter", src, "-o", tmp_path / "out.laz", "--method", "fake"],
+            "dtm": ["dtm", src, "-o", tmp_path / "d.tif"], "eval": ["eval", src, "--reference", src]}[command]
+    monkeypatch.setattr(sys, "stdout", _ClosedPipe())
+    code = cli_main.main([str(a) for a in argv])
+    assert (code, capsys.readouterr().err) == (141, "")

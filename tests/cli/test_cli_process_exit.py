@@ -14,9 +14,9 @@ from cli_helpers import SCENE_CLASSES, write_scene
 
 REPO = Path(__file__).resolve().parents[2]
 
-# `gfjax filter` as the program (`main()` without argv), with the fake method of the in-process
+# `gfjax` as the program (`main()` without argv), with the fake method of the in-process
 # tests registered first (no JAX compile in a subprocess test).
-_PROGRAM = """
+_SETUP = """
 import sys, types
 import cli_helpers
 from gfjax import methods
@@ -26,15 +26,29 @@ methods.METHODS["fake"] = "_gfjax_test_fake"
 from gfjax.cli import main as cli_main
 cli_main.enable_compilation_cache = lambda: None
 sys.argv = ["gfjax", *sys.argv[1:]]
+"""
+_PROGRAM = _SETUP + """
 print("x" * 100_000, end="")                     # a large buffered write must still come out
 cli_main.main()
 raise SystemExit("main() returned")
 """
 
 
-def _program(*argv) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", _PROGRAM, *map(str, argv)], capture_output=True, text=True,
-                          cwd=REPO, env={**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "tests" / "cli"), str(REPO)])}, timeout=120)
+def _program(*argv, program: str = _PROGRAM, **kwargs) -> subprocess.CompletedProcess:
+    kwargs = kwargs or {"capture_output": True}
+    return subprocess.run([sys.executable, "-c", program, *map(str, argv)], text=True, cwd=REPO,
+                          env={**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "tests" / "cli"), str(REPO)])},
+                          timeout=120, **kwargs)
+
+
+def _program_into_closed_pipe(*argv) -> subprocess.CompletedProcess:
+    """Run `gfjax *argv` with its stdout a pipe whose reader has gone (`gfjax ... | head -1`)."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        return _program(*argv, program=_SETUP + "cli_main.main()\n", stdout=write_end, stderr=subprocess.PIPE)
+    finally:
+        os.close(write_end)
 
 
 def test_program_writes_its_output_and_flushes_before_exiting(tmp_path):
@@ -54,3 +68,19 @@ def test_program_keeps_the_error_exit_code_and_message(tmp_path):
     done = _program("filter", tmp_path / "nope.las", "-o", tmp_path / "out.las", "--method", "fake")
     assert done.returncode == 2
     assert done.stderr.endswith(f"gfjax: error: {tmp_path / 'nope.las'}: no such file or folder\n")
+
+
+def test_program_ends_quietly_with_141_when_its_reader_is_gone(tmp_path):
+    """`gfjax info f.laz | head -1`: no message, 128 + SIGPIPE, as GNU tools and PDAL."""
+    source = write_scene(tmp_path / "in.las")
+    done = _program_into_closed_pipe("info", source)
+    assert (done.returncode, done.stderr) == (141, "")
+
+
+def test_program_whose_reader_is_gone_keeps_the_file_it_wrote(tmp_path):
+    source = write_scene(tmp_path / "in.las")
+    target = tmp_path / "out.laz"
+    done = _program_into_closed_pipe("filter", source, "-o", target, "--method", "fake")
+    assert (done.returncode, done.stderr) == (141, "")
+    assert len(laspy.read(target).points) == len(SCENE_CLASSES)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.las", "out.laz"]
