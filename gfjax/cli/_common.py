@@ -7,6 +7,7 @@ import functools
 import math
 import os
 import shutil
+import sys
 import textwrap
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -18,6 +19,7 @@ from gfjax.io.units import UNIT_CHOICES
 from gfjax.limits import Range
 
 TIF_SUFFIXES = (".tif", ".tiff")
+_NAMED = 3                  # files a warning names before it counts the rest
 
 # The valid range of every numeric option that belongs to a command rather than to a method
 # (`--set` keys, `--tile-size`, `--buffer` and `--cell` have theirs in the method's and the
@@ -169,6 +171,70 @@ def method_table(*, default_method: bool = False, tiling: bool = False) -> str:
 def add_model_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", default=None, metavar="MODEL.eqx",
                         help="SparseGF network written by `gfjax train` (default: the model shipped in gfjax)")
+
+
+def crs_warning(found: Sequence[tuple[Path, Any]], *, metres_matter: bool = True) -> str | None:
+    """One warning line for a whole run about its inputs' CRSs, or None when there is nothing to say.
+
+    Args:
+      found: `(path, gfjax.io.las.CRSUnits)` of every input.
+      metres_matter: the command works in metres (filters, DTMs): files whose coordinates are
+        taken as metres for want of a CRS (and of `--units`) are named too.
+
+    The line names the files whose CRS records are empty or unreadable (read as files without
+    a CRS) and, when metres matter, those without a CRS, then says how to give the units;
+    at most three files of each kind are named, then a count.
+    """
+    unique: dict[Path, Any] = {}
+    for path, f in found:               # an input may also be a reference (`gfjax eval`)
+        unique.setdefault(path, f)
+    found = list(unique.items())
+    ignored = [(path, f.crs_problem) for path, f in found if f.crs_problem is not None]
+    bare = [path for path, f in found if f.crs is None and f.crs_problem is None and f.units.assumed]
+    assumed = metres_matter and any(f.units.assumed for _, f in found)
+    parts = [f"{path}: {problem}, read as no CRS" for path, problem in ignored[:_NAMED]]
+    if len(ignored) > _NAMED:
+        parts.append(f"{len(ignored) - _NAMED} more files with such CRS records")
+    if assumed and bare:
+        parts.append(f"{_some(bare)}: no CRS")
+    if not parts:
+        return None
+    units = "; coordinates taken as metres (pass --units m|ft|us-ft if they are not)" if assumed else ""
+    return f"gfjax: warning: {'; '.join(parts)}{units}"
+
+
+def _some(paths: Sequence[Path]) -> str:
+    names = ", ".join(map(str, paths[:_NAMED]))
+    return names if len(paths) <= _NAMED else f"{names} and {len(paths) - _NAMED} more files"
+
+
+def say_crs_warning(found: Sequence[tuple[Path, Any]], *, metres_matter: bool = True) -> None:
+    """Print `crs_warning` on stderr, if any: once per run, before any file is read whole."""
+    line = crs_warning(found, metres_matter=metres_matter)
+    if line is not None:
+        print(line, file=sys.stderr)
+
+
+def check_inputs(paths: Sequence[Path], *, units: str | None, metres_matter: bool = True) -> list:
+    """Read every input's header, CRS and units before any work (`gfjax.io.las.read_header`,
+    `header_crs_units`), and say once what was assumed of their CRSs (`say_crs_warning`).
+
+    Returns:
+      The headers, one per path.
+
+    Raises:
+      InputError: a file that is not a readable LAS/LAZ file with points, a geographic CRS
+        (without `units`).
+    """
+    from gfjax.io import las as las_io
+
+    headers, found = [], []
+    for path in paths:
+        header = las_io.read_header(path)
+        found.append((path, las_io.header_crs_units(header, name=str(path), units=units)))
+        headers.append(header)
+    say_crs_warning(found, metres_matter=metres_matter)
+    return headers
 
 
 def parse_set_values(items: Sequence[str]) -> dict[str, str]:

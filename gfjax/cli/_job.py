@@ -29,13 +29,15 @@ _LAZ_SLACK = 1.05           # a LAZ rewritten from a LAZ: about its input size (
 
 
 class Planned(NamedTuple):
-    """One input of a job, checked: its path, header, extent [m] and output paths."""
+    """One input of a job, checked: its path, header, extent [m] and output paths; its CRS and
+    units (`gfjax.io.las.CRSUnits`)."""
 
     source: Path
     header: Any
     extent_m: tuple[float, float]
     target: Path
     dtm_target: Path | None
+    crs_units: Any
 
 
 def _extent_m(header, horizontal_m: float) -> tuple[float, float]:
@@ -83,8 +85,8 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
     estimates = getattr(config, "memory_estimates", None)
     for source, target, dtm_target in zip(inputs, targets, dtm_targets):
         header = las_io.read_header(source, trust_data=trust_data)
-        found = las_io.header_units(header, name=str(source), units=units)
-        extent = _extent_m(header, found.horizontal_m)
+        found = las_io.header_crs_units(header, name=str(source), units=units)
+        extent = _extent_m(header, found.units.horizontal_m)
         try:
             if estimates is not None:
                 limits.check_memory(estimates(extent))
@@ -92,7 +94,7 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
                 limits.check_memory([dtm_lib.memory_estimate(extent, dtm_cell_m)])
         except ValueError as err:
             raise InputError(f"{source}: {err}") from None
-        planned.append(Planned(source, header, extent, target, dtm_target))
+        planned.append(Planned(source, header, extent, target, dtm_target, found))
     _check_free_space(planned, dtm_cell_m=dtm_cell_m, extra_bytes_per_point=extra_bytes_per_point)
     return planned
 

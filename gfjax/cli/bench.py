@@ -57,12 +57,12 @@ def run(args: argparse.Namespace) -> int:
 
     from gfjax.bench import harness
     from gfjax.bench import run as bench
+    from gfjax.cli._common import check_inputs
     from gfjax.errors import InputError
     from gfjax.io import las as las_io
 
     inputs = las_io.expand_inputs(args.inputs)
-    for path in inputs:
-        las_io.read_header(path)
+    check_inputs(inputs, units=args.units)
     if args.json:
         las_io.check_output(args.json, input_paths=inputs, suffixes=(".json",), option="--json")
     if args.plot:

@@ -11,7 +11,8 @@ import time
 
 import numpy as np
 
-from gfjax.cli._common import TIF_SUFFIXES, add_units_option, nonnegative_float, positive_float, ranged
+from gfjax.cli._common import (TIF_SUFFIXES, add_units_option, check_inputs, nonnegative_float, positive_float,
+                               ranged)
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 
@@ -53,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     if len(inputs) != 1:
         raise InputError(f"{args.input}: gfjax dtm takes one input file, got {len(inputs)}")
     source = inputs[0]
-    header = las_io.read_header(source)
+    header = check_inputs(inputs, units=args.units)[0]
     _check_grid(header, source, args)
     las_io.check_output(args.output, force=args.force, input_paths=inputs, suffixes=TIF_SUFFIXES, option="-o")
     if args.hillshade:

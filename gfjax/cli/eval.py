@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gfjax.cli._common import add_method_options, add_units_option, method_setup, ranged
+from gfjax.cli._common import add_method_options, add_units_option, check_inputs, method_setup, ranged
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 from gfjax.io.cloud import Cloud
@@ -130,8 +130,9 @@ def run(args: argparse.Namespace) -> int:
                              "give one per input, in the same order")
     elif not (args.method or args.params):
         raise InputError("--reference or --method: give reference files, or a method to run on labelled files")
-    for path in [*inputs, *(r for r in references if r is not None)]:
-        las_io.read_header(path)
+    # Units matter only to a method; matching a reference compares the stored integers.
+    check_inputs([*inputs, *(r for r in references if r is not None)], units=args.units,
+                 metres_matter=bool(args.method or args.params))
     if args.json:
         las_io.check_output(args.json, input_paths=[*inputs, *(r for r in references if r)],
                             suffixes=(".json",), option="--json")

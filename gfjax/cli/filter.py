@@ -32,7 +32,7 @@ import numpy as np
 
 from gfjax.cli import _job
 from gfjax.cli._common import (TIF_SUFFIXES, add_method_options, add_units_option, method_setup,
-                               nonnegative_float, output_targets, positive_float)
+                               nonnegative_float, output_targets, positive_float, say_crs_warning)
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 
@@ -107,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
     planned = _job.precheck(inputs, targets, dtm_targets, units=args.units, config=setup.config,
                             dtm_cell_m=args.cell if args.dtm else None,
                             extra_bytes_per_point=4 if args.instances else 0, trust_data=args.trust_data)
+    say_crs_warning([(job.source, job.crs_units) for job in planned])
     with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder:
         catalog = None
         if len(inputs) > 1 and not args.independent:

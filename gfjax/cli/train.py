@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from gfjax.cli._common import add_units_option, ranged
+from gfjax.cli._common import add_units_option, check_inputs, ranged
 from gfjax.errors import InputError
 from gfjax.sparsegf.config import Config as _Config
 from gfjax.sparsegf.features import FEATURE_SETS
@@ -77,8 +77,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"-o {out}: folder {out.parent} does not exist")
     inputs = las_io.expand_inputs(args.inputs)
     validate = las_io.expand_inputs(args.validate) if args.validate else []
-    for path in [*inputs, *validate]:
-        las_io.read_header(path)
+    check_inputs([*inputs, *validate], units=args.units)
 
     import jax
 

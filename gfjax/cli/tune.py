@@ -27,7 +27,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
-from gfjax.cli._common import add_units_option, positive_float, positive_int, ranged
+from gfjax.cli._common import add_units_option, check_inputs, positive_float, positive_int, ranged
 from gfjax.errors import InputError
 
 TUNABLE = ("smrf", "pmf", "csf")          # gfjax.tune.methods.METHODS (not imported: no JAX at parse time)
@@ -118,8 +118,7 @@ def run(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise InputError(f"-o {out}: folder {out.parent} does not exist")
     inputs = las_io.expand_inputs(args.inputs)
-    for path in inputs:
-        las_io.read_header(path)
+    check_inputs(inputs, units=args.units)
 
     import numpy as np
 

@@ -1,11 +1,14 @@
 """The coordinate reference system of a LAS/LAZ file, read through laspy and pyproj.
 
 A LAS file states its CRS in an OGC WKT VLR (required for point formats 6-10) or in GeoTIFF
-keys (LAS 1.0-1.3). `laspy.LasHeader.parse_crs` builds the `pyproj.CRS` (WKT preferred);
-pyproj supplies every unit of measure, so no WKT is parsed here. Two GeoTIFF keys that
-laspy does not turn into a CRS still carry units and are read from the key directory:
-`ProjLinearUnitsGeoKey` (3076, for user-defined projections) and `VerticalUnitsGeoKey`
-(4099) / `VerticalCSTypeGeoKey` (4096), the z unit of 2D CRSs.
+keys (LAS 1.0-1.3). laspy turns each record into a `pyproj.CRS` (WKT preferred); pyproj
+supplies every unit of measure, so no WKT is parsed here. A record that is empty (a blank
+WKT, as in PDAL's test file `warsaw_small.las`, or a key directory without keys) or that
+pyproj cannot read gives no CRS: the file is read as one without a CRS, and `read_crs` says
+why in words, for the commands to tell the user. Two GeoTIFF keys that laspy does not turn
+into a CRS still carry units and are read from the key directory: `ProjLinearUnitsGeoKey`
+(3076, for user-defined projections) and `VerticalUnitsGeoKey` (4099) /
+`VerticalCSTypeGeoKey` (4096), the z unit of 2D CRSs.
 """
 from __future__ import annotations
 
@@ -17,8 +20,6 @@ import pyproj
 from pyproj.database import get_units_map
 from pyproj.exceptions import CRSError
 
-from gfjax.errors import InputError
-
 if TYPE_CHECKING:
     import rasterio.crs
 
@@ -28,19 +29,44 @@ PROJ_LINEAR_UNITS_KEY = 3076
 VERTICAL_CS_TYPE_KEY = 4096
 VERTICAL_UNITS_KEY = 4099
 _EPSG_CODES = range(1024, 32767)  # GeoTIFF 1.1: values 1024-32766 are EPSG codes
+_BLANK = " \t\r\n\0"
 
 
-def parse_crs(header: laspy.LasHeader, *, name: str) -> pyproj.CRS | None:
-    """The file's CRS (WKT VLR preferred over GeoTIFF keys), or None when it states none.
+def _crs_records(header: laspy.LasHeader) -> list:
+    records = list(header.vlrs)
+    if getattr(header, "evlrs", None):
+        records += list(header.evlrs)
+    return [r for r in records if isinstance(r, (laspy.vlrs.known.WktCoordinateSystemVlr,
+                                                 laspy.vlrs.known.GeoKeyDirectoryVlr))]
 
-    Raises:
-      InputError: the CRS records are present but pyproj cannot understand them.
+
+def read_crs(header: laspy.LasHeader) -> tuple[pyproj.CRS | None, str | None]:
+    """The file's CRS (WKT VLR preferred over GeoTIFF keys), or None; and why not, in words.
+
+    Returns:
+      `(crs, problem)`: `problem` is None when the file has a CRS or holds no CRS record; when
+      it holds CRS records and none gives a CRS, it names them, e.g. "empty WKT CRS record" or
+      "unreadable WKT CRS record (Invalid WKT string: garbage)". Such a file is one without a
+      CRS. (A key directory of a user-defined projection gives no CRS and is no problem: its
+      unit keys still count, `geokey_units_m`.)
     """
-    try:
-        return header.parse_crs(prefer_wkt=True)
-    except (CRSError, ValueError, UnicodeDecodeError) as err:
-        raise InputError(f"{name}: cannot parse the CRS stored in the file ({err}); "
-                         "pass --units m|ft|us-ft to give the units") from None
+    found: dict[str, pyproj.CRS] = {}
+    problems = []
+    for record in _crs_records(header):
+        wkt = isinstance(record, laspy.vlrs.known.WktCoordinateSystemVlr)
+        kind = "WKT" if wkt else "GeoTIFF"
+        if (wkt and not record.string.strip(_BLANK)) or (not wkt and not any(key.id for key in record.geo_keys)):
+            problems.append(f"empty {kind} CRS record")
+            continue
+        try:
+            crs = record.parse_crs()
+        except (CRSError, ValueError, UnicodeDecodeError) as err:
+            problems.append(f"unreadable {kind} CRS record ({' '.join(str(err).split())})")
+            continue
+        if crs is not None:
+            found.setdefault(kind, crs)
+    crs = found.get("WKT", found.get("GeoTIFF"))
+    return crs, (None if crs is not None or not problems else "; ".join(problems))
 
 
 @functools.cache
@@ -57,11 +83,8 @@ def _unit_factor_m(code: int | None) -> float | None:
 
 def _geo_keys(header: laspy.LasHeader) -> dict[int, int]:
     """Short-valued GeoTIFF keys (stored in the directory itself) by key id."""
-    records = list(header.vlrs)
-    if getattr(header, "evlrs", None):
-        records += list(header.evlrs)
     keys: dict[int, int] = {}
-    for record in records:
+    for record in _crs_records(header):
         if isinstance(record, laspy.vlrs.known.GeoKeyDirectoryVlr):
             for key in record.geo_keys:
                 if key.tiff_tag_location == 0:

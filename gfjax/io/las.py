@@ -12,6 +12,7 @@ import glob
 import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING, NamedTuple
 
 import laspy
 import numpy as np
@@ -22,6 +23,9 @@ from gfjax.io import units as units_lib
 from gfjax.io.atomic import atomic_output, check_output, is_temporary
 from gfjax.io.cloud import Cloud
 from gfjax.io.las_layout import INT32_MAX, INT32_MIN, Layout, check_layout
+
+if TYPE_CHECKING:
+    import pyproj
 
 LAS_SUFFIXES = (".las", ".laz")
 # lazrs (Rust) for LAZ, multi-threaded when available; laszip is only used by the tests.
@@ -115,62 +119,68 @@ def check_file(path: str | os.PathLike, *, trust_data: bool = False) -> Layout:
     return layout
 
 
-def read_header(path: str | os.PathLike, *, trust_data: bool = False) -> laspy.LasHeader:
+def read_header(path: str | os.PathLike, *, trust_data: bool = False, allow_empty: bool = False) -> laspy.LasHeader:
     """The header of a LAS/LAZ file (no points read); checks it is a regular LAS/LAZ file whose
     header fits its size, whose point count matches the data (unless `trust_data`) and which
-    has points."""
-    return _read_header(Path(path), trust_data=trust_data)[0]
+    has points (unless `allow_empty`: `gfjax info` describes an empty file)."""
+    return _read_header(Path(path), trust_data=trust_data, allow_empty=allow_empty)[0]
 
 
-def _read_header(path: Path, *, trust_data: bool) -> tuple[laspy.LasHeader, Layout]:
+def _read_header(path: Path, *, trust_data: bool, allow_empty: bool = False) -> tuple[laspy.LasHeader, Layout]:
     layout = check_file(path, trust_data=trust_data)
     try:
         with laspy.open(path, laz_backend=LAZ_BACKENDS, read_evlrs=False) as reader:
             header = reader.header
     except Exception as err:  # noqa: BLE001 (laspy parsing the user's bytes: a bad file, not a bug)
         raise InputError(f"{path}: not a valid LAS/LAZ header ({type(err).__name__}: {err})") from None
-    if layout.data_count == 0:
+    if layout.data_count == 0 and not allow_empty:
         raise InputError(f"{path}: the file holds no points")
     return header, layout
 
 
-def _resolve_units(header: laspy.LasHeader, *, name: str, units: str | units_lib.Units | None):
-    override = units_lib.parse_units_option(units) if isinstance(units, str) else units
-    try:
-        crs = crs_lib.parse_crs(header, name=name)
-    except InputError:
-        if override is None:
-            raise
-        crs = None  # unreadable CRS, but the user stated the units
-    if override is not None:
-        return crs, override
-    horizontal_m, vertical_m = crs_lib.geokey_units_m(header)
-    return crs, units_lib.units_from_crs(crs, name=name, horizontal_unit_m=horizontal_m,
-                                         vertical_unit_m=vertical_m)
+class CRSUnits(NamedTuple):
+    """What a file says of its coordinates.
+
+    Attributes:
+      crs: its CRS, or None when it states none (or its CRS records are empty or unreadable).
+      units: the unit factors used (`--units`, else from the CRS, else metres assumed).
+      crs_problem: CRS records the file holds that gave no CRS, in words ("empty WKT CRS
+        record", `gfjax.io.crs.read_crs`), or None. Such a file is read as one without a CRS.
+    """
+
+    crs: pyproj.CRS | None
+    units: units_lib.Units
+    crs_problem: str | None
 
 
-def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
-         trust_data: bool = False) -> Cloud:
-    """Read a LAS 1.1-1.4 or LAZ file whole, with its CRS and unit factors.
-
-    Args:
-      path: the file. LAZ is decompressed with lazrs.
-      units: `"m"`, `"ft"` or `"us-ft"` (or a `Units`) to override the units of the CRS; by
-        default they come from the CRS, and a file without a CRS is taken as metres.
-      trust_data: when the header's point count disagrees with the points the file holds, read
-        the points present (the cloud's header then counts them) instead of raising.
-
-    Returns:
-      A `Cloud` whose `las` holds every header field, VLR/EVLR and point dimension.
+def header_crs_units(header: laspy.LasHeader, *, name: str,
+                     units: str | units_lib.Units | None = None) -> CRSUnits:
+    """The CRS and unit factors `read` gives a file with this header (`units` overrides the
+    CRS's units), without reading its points.
 
     Raises:
-      InputError: missing file, not a regular file, not LAS/LAZ, a header that does not fit
-        the file (`gfjax.io.las_layout`), a point count the data contradicts (unless
-        `trust_data`), truncated or corrupt data, zero points, coordinates at the int32 limits,
-        an unreadable CRS (without `units`), a geographic CRS in degrees (without `units`).
+      InputError: an unknown `units`. `gfjax.io.units.UnusableUnits` (an InputError): a
+        geographic CRS in degrees or an axis without a linear unit, and no `units`.
+    """
+    override = units_lib.parse_units_option(units) if isinstance(units, str) else units
+    crs, problem = crs_lib.read_crs(header)
+    if override is not None:
+        return CRSUnits(crs, override, problem)
+    horizontal_m, vertical_m = crs_lib.geokey_units_m(header)
+    found = units_lib.units_from_crs(crs, name=name, horizontal_unit_m=horizontal_m,
+                                     vertical_unit_m=vertical_m, crs_problem=problem)
+    return CRSUnits(crs, found, problem)
+
+
+def read_points(path: str | os.PathLike, *, trust_data: bool = False, allow_empty: bool = False) -> laspy.LasData:
+    """Read a LAS 1.1-1.4 or LAZ file whole, checked as `read` checks it, without its units:
+    what `gfjax info` describes (a file with no points when `allow_empty`, or in degrees).
+
+    Raises:
+      InputError: as `read`, except for the CRS and the units.
     """
     path = Path(path)
-    _, layout = _read_header(path, trust_data=trust_data)
+    _, layout = _read_header(path, trust_data=trust_data, allow_empty=allow_empty)
     kind = "LAZ" if layout.compressed else "LAS"
     try:
         with laspy.open(path, laz_backend=LAZ_BACKENDS) as reader:
@@ -185,9 +195,34 @@ def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
         raise InputError(f"{path}: truncated {kind} file: header says {layout.header_count} points, "
                          f"the file holds {len(las.points)}")
     _check_int32_limits(path, las)
-    crs, units_found = _resolve_units(las.header, name=str(path), units=units)
-    return Cloud(las=las, path=path, horizontal_unit_m=units_found.horizontal_m,
-                 vertical_unit_m=units_found.vertical_m, crs=crs, units_source=units_found.source)
+    return las
+
+
+def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
+         trust_data: bool = False) -> Cloud:
+    """Read a LAS 1.1-1.4 or LAZ file whole, with its CRS and unit factors.
+
+    Args:
+      path: the file. LAZ is decompressed with lazrs.
+      units: `"m"`, `"ft"` or `"us-ft"` (or a `Units`) to override the units of the CRS; by
+        default they come from the CRS, and a file without a CRS (or whose CRS records are
+        empty or unreadable: `header_crs_units`) is taken as metres.
+      trust_data: when the header's point count disagrees with the points the file holds, read
+        the points present (the cloud's header then counts them) instead of raising.
+
+    Returns:
+      A `Cloud` whose `las` holds every header field, VLR/EVLR and point dimension.
+
+    Raises:
+      InputError: missing file, not a regular file, not LAS/LAZ, a header that does not fit
+        the file (`gfjax.io.las_layout`), a point count the data contradicts (unless
+        `trust_data`), truncated or corrupt data, zero points, coordinates at the int32 limits,
+        a geographic CRS in degrees (without `units`).
+    """
+    las = read_points(path, trust_data=trust_data)
+    found = header_crs_units(las.header, name=str(path), units=units)
+    return Cloud(las=las, path=Path(path), horizontal_unit_m=found.units.horizontal_m,
+                 vertical_unit_m=found.units.vertical_m, crs=found.crs, units_source=found.units.source)
 
 
 def _check_int32_limits(path: Path, las: laspy.LasData) -> None:
@@ -289,10 +324,9 @@ def _compressors(point_format_id: int, out: Path) -> tuple[laspy.LazBackend, ...
 
 def header_units(header: laspy.LasHeader, *, name: str,
                  units: str | units_lib.Units | None = None) -> units_lib.Units:
-    """The unit factors `read` would give a file with this header (`units` overrides the CRS),
-    without reading its points: checks that its CRS and units are readable.
+    """The unit factors `read` would give a file with this header (`header_crs_units`).
 
     Raises:
-      InputError: as `read` for an unreadable CRS or a geographic CRS in degrees.
+      InputError: as `read` for a geographic CRS in degrees.
     """
-    return _resolve_units(header, name=name, units=units)[1]
+    return header_crs_units(header, name=name, units=units).units

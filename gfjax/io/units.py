@@ -1,8 +1,9 @@
 """Linear units of a LAS file: metres per horizontal and per vertical coordinate unit.
 
-SPEC section 1: algorithms work in metres. The units come from the file's CRS (read by pyproj,
-never by parsing WKT here), or from `--units m|ft|us-ft`; a file without a CRS is taken to
-be in metres, and the returned `Units.source` says so. Horizontal and vertical units may
+Algorithms work in metres. The units come from the file's CRS (read by pyproj, never by
+parsing WKT here), or from `--units m|ft|us-ft`; a file without a CRS (or whose CRS record is
+empty or unreadable) is taken to be in metres, and the returned `Units` says so
+(`assumed`, `source`). Horizontal and vertical units may
 differ (a compound CRS such as `EPSG:2994+6360`, international feet over US survey feet, or a
 GeoTIFF `VerticalUnitsGeoKey`). A 2D CRS with no vertical information gives z the
 horizontal unit, as LAStools and PDAL assume (the Autzen sample is feet in x, y and z).
@@ -33,11 +34,23 @@ class Units(NamedTuple):
       horizontal_m: metres per x/y unit (1.0, 0.3048, 1200/3937, ...).
       vertical_m: metres per z unit.
       source: human-readable origin, e.g. "CRS", "--units ft", "no CRS in file: metres assumed".
+      assumed: True when nothing stated the units (no usable CRS, no unit keys, no `--units`)
+        and metres were assumed; the commands say so once per run.
     """
 
     horizontal_m: float
     vertical_m: float
     source: str
+    assumed: bool = False
+
+
+class UnusableUnits(InputError):
+    """A CRS whose horizontal axes have no linear unit (a geographic CRS in degrees): the
+    filters cannot work in metres. `reason` is the message without the file name."""
+
+    def __init__(self, name: str, reason: str):
+        super().__init__(f"{name}: {reason}")
+        self.reason = reason
 
 
 def snap_factor(factor_m: float) -> float:
@@ -67,16 +80,16 @@ def parse_units_option(text: str) -> Units:
 def _linear_factor(crs: pyproj.CRS, axis_index: int, *, name: str) -> float:
     axis = crs.axis_info[axis_index]
     if crs.is_geographic and axis_index < 2:
-        raise InputError(f"{name}: the CRS {crs.name!r} is geographic (degrees); ground filters need a "
-                         "projected CRS in metres or feet: reproject the file, or pass --units")
+        raise UnusableUnits(name, f"the CRS {crs.name!r} is geographic (degrees); ground filters need a "
+                                  "projected CRS in metres or feet: reproject the file, or pass --units")
     factor = axis.unit_conversion_factor
     if not (factor > 0.0 and math.isfinite(factor)):
-        raise InputError(f"{name}: CRS axis {axis.name!r} has no usable linear unit ({axis.unit_name!r})")
+        raise UnusableUnits(name, f"CRS axis {axis.name!r} has no usable linear unit ({axis.unit_name!r})")
     return snap_factor(factor)
 
 
 def units_from_crs(crs: pyproj.CRS | None, *, name: str, horizontal_unit_m: float | None = None,
-                   vertical_unit_m: float | None = None) -> Units:
+                   vertical_unit_m: float | None = None, crs_problem: str | None = None) -> Units:
     """The units of a file whose CRS is `crs` (None and no GeoTIFF units: metres assumed).
 
     Args:
@@ -86,13 +99,16 @@ def units_from_crs(crs: pyproj.CRS | None, *, name: str, horizontal_unit_m: floa
         when `crs` is None (a user-defined projection that pyproj could not build).
       vertical_unit_m: metres per z unit from GeoTIFF `VerticalUnitsGeoKey` or
         `VerticalCSTypeGeoKey`, used when `crs` has no vertical axis.
+      crs_problem: why the file's CRS records gave no CRS (`gfjax.io.crs.read_crs`), for
+        `source`.
 
     Raises:
-      InputError: a geographic CRS (degrees), or an axis without a linear unit.
+      UnusableUnits: a geographic CRS (degrees), or an axis without a linear unit.
     """
     if crs is None:
         if horizontal_unit_m is None and vertical_unit_m is None:
-            return Units(METRE_M, METRE_M, "no CRS in file: metres assumed")
+            source = "no CRS in file" if crs_problem is None else f"no usable CRS in file ({crs_problem})"
+            return Units(METRE_M, METRE_M, f"{source}: metres assumed", assumed=True)
         h_m = snap_factor(horizontal_unit_m) if horizontal_unit_m is not None else METRE_M
         v_m = snap_factor(vertical_unit_m) if vertical_unit_m is not None else h_m
         return Units(h_m, v_m, "GeoTIFF unit keys (no full CRS)")

@@ -29,6 +29,16 @@ def _las_file(path, *, crs=None, version="1.4", point_format=6, vlrs=()):
     return path
 
 
+def _geokeys(*keys: tuple[int, int]) -> GeoKeyDirectoryVlr:
+    directory = GeoKeyDirectoryVlr()
+    for key_id, value in keys:
+        entry = GeoKeyEntryStruct()
+        entry.id, entry.tiff_tag_location, entry.count, entry.value_offset = key_id, 0, 1, value
+        directory.geo_keys.append(entry)
+    directory.geo_keys_header.number_of_keys = len(keys)
+    return directory
+
+
 def _add_geokey(header: laspy.LasHeader, key_id: int, value: int) -> None:
     directory = header.vlrs.get("GeoKeyDirectoryVlr")[0]
     entry = GeoKeyEntryStruct()
@@ -84,15 +94,13 @@ def test_vertical_units_geokey_differs_from_horizontal(tmp_path):
 
 
 def test_user_defined_projection_units_from_geokeys(tmp_path):
-    directory = GeoKeyDirectoryVlr()
-    for key_id, value in ((1024, 1), (3072, 32767), (3076, 9002)):  # user-defined PCS in feet
-        entry = GeoKeyEntryStruct()
-        entry.id, entry.tiff_tag_location, entry.count, entry.value_offset = key_id, 0, 1, value
-        directory.geo_keys.append(entry)
-    directory.geo_keys_header.number_of_keys = 3
-    cloud = las_io.read(_las_file(tmp_path / "u.las", version="1.2", point_format=1, vlrs=[directory]))
+    directory = _geokeys((1024, 1), (3072, 32767), (3076, 9002))  # user-defined PCS in feet
+    path = _las_file(tmp_path / "u.las", version="1.2", point_format=1, vlrs=[directory])
+    cloud = las_io.read(path)
     assert cloud.crs is None
     assert (cloud.horizontal_unit_m, cloud.vertical_unit_m) == (0.3048, 0.3048)
+    found = las_io.header_crs_units(las_io.read_header(path), name=str(path))
+    assert found.crs_problem is None and not found.units.assumed
 
 
 def test_no_crs_defaults_to_metres_and_says_so(tmp_path):
@@ -100,6 +108,9 @@ def test_no_crs_defaults_to_metres_and_says_so(tmp_path):
     assert cloud.crs is None and crs_lib.crs_wkt(cloud) is None and crs_lib.rasterio_crs(cloud) is None
     assert (cloud.horizontal_unit_m, cloud.vertical_unit_m) == (1.0, 1.0)
     assert cloud.units_source == "no CRS in file: metres assumed"
+    found = las_io.header_crs_units(las_io.read_header(tmp_path / "n.las"), name="n.las")
+    assert found.units.assumed and found.crs_problem is None
+    assert not las_io.header_units(las_io.read_header(tmp_path / "n.las"), name="n.las", units="m").assumed
 
 
 @pytest.mark.parametrize("option,factor", [("m", 1.0), ("ft", 0.3048), ("us-ft", US_FT)])
@@ -123,12 +134,35 @@ def test_geographic_crs_needs_units(tmp_path):
     assert las_io.read(path, units="m").horizontal_unit_m == 1.0
 
 
-def test_unparsable_wkt(tmp_path):
-    path = _las_file(tmp_path / "w.las", vlrs=[WktCoordinateSystemVlr('PROJCS["broken')])
-    with pytest.raises(InputError, match=r"w\.las: cannot parse the CRS stored in the file"):
-        las_io.read(path)
+# CRS records that give no CRS: the file is read as one without a CRS, and says why.
+EMPTY_OR_UNREADABLE = {
+    "empty WKT": ([WktCoordinateSystemVlr("")], "1.4", 6, "empty WKT CRS record"),
+    "blank WKT": ([WktCoordinateSystemVlr(" \n")], "1.4", 6, "empty WKT CRS record"),
+    "broken WKT": ([WktCoordinateSystemVlr('PROJCS["broken')], "1.4", 6, "unreadable WKT CRS record (Invalid projection"),
+    "not WKT": ([WktCoordinateSystemVlr("garbage")], "1.4", 6, "unreadable WKT CRS record (Invalid WKT string: garbage)"),
+    "no GeoTIFF keys": ([_geokeys()], "1.2", 1, "empty GeoTIFF CRS record"),
+    "unknown EPSG code": ([_geokeys((1024, 1), (3072, 9999))], "1.2", 1, "unreadable GeoTIFF CRS record"),
+}
+
+
+@pytest.mark.parametrize("case", list(EMPTY_OR_UNREADABLE))
+def test_empty_or_unreadable_crs_record_is_no_crs(tmp_path, case):
+    vlrs, version, point_format, problem = EMPTY_OR_UNREADABLE[case]
+    path = _las_file(tmp_path / "w.las", vlrs=vlrs, version=version, point_format=point_format)
+    found = las_io.header_crs_units(las_io.read_header(path), name=str(path))
+    assert found.crs is None and found.crs_problem.startswith(problem)
+    assert found.units.assumed and (found.units.horizontal_m, found.units.vertical_m) == (1.0, 1.0)
+    cloud = las_io.read(path)
+    assert cloud.crs is None and cloud.units_source == f"no usable CRS in file ({found.crs_problem}): metres assumed"
     cloud = las_io.read(path, units="ft")
     assert cloud.crs is None and cloud.horizontal_unit_m == 0.3048
+
+
+def test_unreadable_wkt_beside_good_geotiff_keys(tmp_path):
+    path = _las_file(tmp_path / "w.las", version="1.2", point_format=1,
+                     vlrs=[WktCoordinateSystemVlr("garbage"), _geokeys((1024, 1), (3072, 32632))])
+    found = las_io.header_crs_units(las_io.read_header(path), name=str(path))
+    assert found.crs.to_epsg() == 32632 and found.crs_problem is None and not found.units.assumed
 
 
 def test_unit_helpers():
