@@ -99,15 +99,15 @@ def units_from_crs(crs: pyproj.CRS | None, *, name: str, horizontal_unit_m: floa
         when `crs` is None (a user-defined projection that pyproj could not build).
       vertical_unit_m: metres per z unit from GeoTIFF `VerticalUnitsGeoKey` or
         `VerticalCSTypeGeoKey`, used when `crs` has no vertical axis.
-      crs_problem: why the file's CRS records gave no CRS (`gfjax.io.crs.read_crs`), for
-        `source`.
+      crs_problem: why the file's CRS records gave no CRS (`gfjax.io.crs.read_crs`), or None
+        when it holds none; `source` then says "no usable CRS" rather than "no CRS".
 
     Raises:
       UnusableUnits: a geographic CRS (degrees), or an axis without a linear unit.
     """
     if crs is None:
         if horizontal_unit_m is None and vertical_unit_m is None:
-            source = "no CRS in file" if crs_problem is None else f"no usable CRS in file ({crs_problem})"
+            source = "no CRS in file" if crs_problem is None else "no usable CRS in file"
             return Units(METRE_M, METRE_M, f"{source}: metres assumed", assumed=True)
         h_m = snap_factor(horizontal_unit_m) if horizontal_unit_m is not None else METRE_M
         v_m = snap_factor(vertical_unit_m) if vertical_unit_m is not None else h_m

@@ -8,6 +8,7 @@ import sys
 
 import laspy
 import numpy as np
+import pyproj
 import pytest
 from cli_helpers import (SCENE_CLASSES, error_line, fake_methods, no_compilation_cache,  # noqa: F401
                          run_cli, write_scene)
@@ -51,6 +52,32 @@ def test_info_json_of_several_files(tmp_path, capsys):
     summaries = json.loads(out)
     assert [os.path.basename(s["path"]) for s in summaries] == ["a.laz", "b.laz"]
     assert summaries[0]["vertical_unit_m"] == 1200 / 3937
+
+
+def test_info_describes_a_file_in_degrees(tmp_path, capsys):
+    src = write_scene(tmp_path / "geo.laz", crs=pyproj.CRS.from_epsg(4326))
+    code, out, err = run_cli(capsys, "info", src)
+    assert code == 0, err
+    assert "CRS         WGS 84 (EPSG:4326)" in out and "8 points" in out and "2  ground" in out
+    assert "units       none usable: the CRS 'WGS 84' is geographic (degrees)" in out
+    code, out, err = run_cli(capsys, "info", src, "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert (summary["epsg"], summary["horizontal_unit_m"], summary["vertical_unit_m"]) == (4326, None, None)
+    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz")        # filtering needs metres
+    assert code == 2 and "is geographic (degrees)" in error_line(err)
+
+
+@pytest.mark.parametrize("name", ["empty.las", "empty.laz"])
+def test_info_describes_a_file_without_points(tmp_path, capsys, name):
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.add_crs(pyproj.CRS.from_epsg(32632))
+    laspy.LasData(header).write(tmp_path / name)
+    code, out, err = run_cli(capsys, "info", tmp_path / name)
+    assert code == 0, err
+    assert ", 0 points" in out and "WGS 84 / UTM zone 32N (EPSG:32632)" in out and "none (no points)" in out
+    code, _, err = run_cli(capsys, "dtm", tmp_path / name, "-o", tmp_path / "d.tif")    # a DTM needs points
+    assert code == 2 and "the file holds no points" in error_line(err)
 
 
 @pytest.mark.data

@@ -56,4 +56,5 @@ def test_info_describes_a_file_whose_crs_record_is_empty(tmp_path, capsys):
     source = _blank_wkt_scene(tmp_path / "w.las")
     code, out, err = run_cli(capsys, "info", source)
     assert code == 0, err
-    assert "no usable CRS in file (empty WKT CRS record): metres assumed" in out
+    assert "CRS         none (empty WKT CRS record, read as no CRS)" in out
+    assert "[no usable CRS in file: metres assumed]" in out
