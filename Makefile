@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml constraints.txt
 install: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/gfjax demo
+	$(BIN)/gfjax demo --force
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q

@@ -1,6 +1,8 @@
 """A job over several files: everything checked before the first file, then one file at a time
 with a summary of what was done when a file fails (`gfjax filter`).
 
+Before anything is read, `check_outputs` checks every output path: writable, not an input,
+and not an existing file unless `--force` (the rule of every command that writes files).
 Before the first file is filtered, `precheck` reads every input's header (readable, has
 points, CRS and units readable), checks the memory the method's and the DTM's rasters would
 need over the file's extent (`gfjax.limits`), and estimates the space the outputs need
@@ -22,6 +24,7 @@ from typing import Any, NamedTuple
 from gfjax import limits
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
+from gfjax.io.atomic import existing_output_message
 
 _GIB = float(1 << 30)
 _LAZ_OF_LAS = 0.25          # a LAZ written from LAS points: at most about a quarter of the LAS size
@@ -56,6 +59,30 @@ def output_bytes(header, source: Path, target: Path, *, extra_bytes_per_point: i
     return las_size * _LAZ_OF_LAS
 
 
+def check_outputs(outputs: Sequence[tuple[str, str | os.PathLike, tuple[str, ...] | None]], *,
+                  inputs: Sequence[Path] = (), force: bool = False) -> None:
+    """Check every output of a command before anything is read or written.
+
+    Args:
+      outputs: `(option, path, suffixes)` of each file the command writes, e.g.
+        `("-o", "out.laz", (".las", ".laz"))`.
+      inputs: the command's input files: an output may be one only with `force`.
+      force: `--force`: existing outputs (and inputs) are overwritten.
+
+    Raises:
+      InputError: an output that cannot be written (`gfjax.io.atomic.check_output`), or, without
+        `force`, one that is an input or that exists: the first is named, with the count of
+        the others, so a run over many files is refused before its first file is written.
+    """
+    existing = []
+    for option, path, suffixes in outputs:
+        out = las_io.check_output(path, force=force, input_paths=inputs, suffixes=suffixes, option=option)
+        if not force and os.path.lexists(out):
+            existing.append(f"{option} {out}")
+    if existing:
+        raise InputError(existing_output_message(existing[0], more=len(existing) - 1))
+
+
 def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Sequence[Path | None], *,
              units: str | None, config: Any, dtm_cell_m: float | None, extra_bytes_per_point: int = 0,
              trust_data: bool = False) -> list[Planned]:
@@ -63,7 +90,7 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
 
     Args:
       inputs, targets, dtm_targets: one output (and DTM or None) per input; the output paths
-        were checked by `gfjax.io.atomic.check_output` already.
+        were checked by `check_outputs` already.
       units: the `--units` override, or None (the CRS decides).
       trust_data: `--trust-data` (a header whose point count disagrees with the data passes).
       config: the method's Config; its `memory_estimates(extent_m)` (when it has one) is

@@ -49,6 +49,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="give up on one (file, filter) run after S seconds (default: no limit)")
     add_model_option(parser)
     add_units_option(parser)
+    parser.add_argument("--force", action="store_true", help="overwrite existing --json and --plot files")
     return parser
 
 
@@ -57,16 +58,15 @@ def run(args: argparse.Namespace) -> int:
 
     from gfjax.bench import harness
     from gfjax.bench import run as bench
+    from gfjax.cli import _job
     from gfjax.cli._common import check_inputs
     from gfjax.errors import InputError
     from gfjax.io import las as las_io
 
     inputs = las_io.expand_inputs(args.inputs)
     check_inputs(inputs, units=args.units)
-    if args.json:
-        las_io.check_output(args.json, input_paths=inputs, suffixes=(".json",), option="--json")
-    if args.plot:
-        las_io.check_output(args.plot, input_paths=inputs, suffixes=(".png",), option="--plot")
+    _job.check_outputs([*([("--json", args.json, (".json",))] if args.json else []),
+                        *([("--plot", args.plot, (".png",))] if args.plot else [])], inputs=inputs, force=args.force)
     if args.threads is not None:
         try:
             harness.choose_cpus(args.threads)
@@ -97,10 +97,12 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         document = bench.document(records, repeat=args.repeat, notes=notes, command=bench.command_line(),
                                   threads=args.threads, compile_cache=args.compile_cache is not None)
-        with las_io.atomic_output(args.json, input_paths=inputs, suffixes=(".json",), option="--json") as tmp:
+        with las_io.atomic_output(args.json, force=args.force, input_paths=inputs, suffixes=(".json",),
+                                  option="--json") as tmp:
             tmp.write_text(json.dumps(bench.json_safe(document), indent=2, allow_nan=False) + "\n")
     if args.plot and bench.has_accuracy(records):
-        with las_io.atomic_output(args.plot, input_paths=inputs, suffixes=(".png",), option="--plot") as tmp:
+        with las_io.atomic_output(args.plot, force=args.force, input_paths=inputs, suffixes=(".png",),
+                                  option="--plot") as tmp:
             bench.plot(records, tmp)
     elif args.plot:
         print(f"--plot {args.plot}: no labelled file ran, nothing drawn", file=sys.stderr)

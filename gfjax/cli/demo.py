@@ -7,7 +7,8 @@ Reads ISPRS reference sample 12 (shipped in `gfjax/data`, CC BY 4.0, see its REA
 - `samp12-dtm.tif`: the DTM (1 m cell means of the ground points, TIN-filled), EPSG:32632;
 - `samp12-demo.png`: the classification in plan view beside the hillshaded DTM.
 
-It prints the accuracy against the sample's own hand-made labels and the paths written.
+It prints the accuracy against the sample's own hand-made labels and the paths written. Files
+of an earlier run are overwritten only with `--force`.
 """
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                         help=f"output folder, created if missing (default ./{DEFAULT_OUT})")
+    parser.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     return parser
 
 
@@ -93,19 +95,22 @@ def run(args: argparse.Namespace) -> int:
     import gfjax
     from gfjax import dtm as dtm_lib
     from gfjax import metrics, smrf
+    from gfjax.cli import _job
     from gfjax.data import demo_sample
 
     out = _output_folder(args.out)
-    start = time.perf_counter()
     sample = demo_sample()
+    stem = sample.name.split("-")[0]
+    laz_path, tif_path, png_path = out / f"{stem}-smrf.laz", out / f"{stem}-dtm.tif", out / f"{stem}-demo.png"
+    _job.check_outputs([("--out", path, None) for path in (laz_path, tif_path, png_path)],
+                       force=args.force)
+    start = time.perf_counter()
     cloud = gfjax.read(sample)
     result = smrf.filter(cloud)
     filtered = time.perf_counter()
     reference = cloud.classification == 2
     scores = metrics.point_metrics(result.ground, reference)
 
-    stem = sample.name.split("-")[0]
-    laz_path, tif_path, png_path = out / f"{stem}-smrf.laz", out / f"{stem}-dtm.tif", out / f"{stem}-demo.png"
     gfjax.write(cloud.with_ground(result.ground), laz_path)
     dtm = dtm_lib.build(cloud, result.ground, cell_m=1.0)
     dtm.to_geotiff(tif_path)

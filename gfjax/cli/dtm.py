@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from gfjax.cli import _job
 from gfjax.cli._common import (TIF_SUFFIXES, add_units_option, check_inputs, nonnegative_float, positive_float,
                                ranged)
 from gfjax.errors import InputError
@@ -29,7 +30,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--ground-class", type=ranged("--ground-class"), default=2, metavar="CODE",
                         help="class code of ground points (default 2)")
     add_units_option(parser)
-    parser.add_argument("--force", action="store_true", help="overwrite an input file")
+    parser.add_argument("--force", action="store_true", help="overwrite existing output files")
     return parser
 
 
@@ -56,10 +57,9 @@ def run(args: argparse.Namespace) -> int:
     source = inputs[0]
     header = check_inputs(inputs, units=args.units)[0]
     _check_grid(header, source, args)
-    las_io.check_output(args.output, force=args.force, input_paths=inputs, suffixes=TIF_SUFFIXES, option="-o")
-    if args.hillshade:
-        las_io.check_output(args.hillshade, force=args.force, input_paths=inputs, suffixes=(".png",),
-                            option="--hillshade")
+    _job.check_outputs([("-o", args.output, TIF_SUFFIXES),
+                        *([("--hillshade", args.hillshade, (".png",))] if args.hillshade else [])],
+                       inputs=inputs, force=args.force)
     start = time.perf_counter()
     cloud = las_io.read(source, units=args.units)
     ground = cloud.classification == np.uint8(args.ground_class)

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gfjax.cli import _job
 from gfjax.cli._common import add_method_options, add_units_option, check_inputs, method_setup, ranged
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
@@ -45,6 +46,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="returns the method uses and that are scored (default all)")
     parser.add_argument("--json", default=None, metavar="OUT.json", help="also write the metrics as JSON")
     add_units_option(parser)
+    parser.add_argument("--force", action="store_true", help="overwrite an existing --json file")
     return parser
 
 
@@ -134,8 +136,8 @@ def run(args: argparse.Namespace) -> int:
     check_inputs([*inputs, *(r for r in references if r is not None)], units=args.units,
                  metres_matter=bool(args.method or args.params))
     if args.json:
-        las_io.check_output(args.json, input_paths=[*inputs, *(r for r in references if r)],
-                            suffixes=(".json",), option="--json")
+        _job.check_outputs([("--json", args.json, (".json",))], inputs=[*inputs, *(r for r in references if r)],
+                           force=args.force)
     setup = method_setup(args) if (args.method or args.params) else None
 
     rows, records = [], []
@@ -158,6 +160,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         document = {"method": setup.name if setup else None, "reference_class": args.reference_class,
                     "returns": args.returns, "files": records, "mean": mean}
-        with las_io.atomic_output(args.json, input_paths=inputs, suffixes=(".json",), option="--json") as tmp:
+        with las_io.atomic_output(args.json, force=args.force, input_paths=inputs, suffixes=(".json",),
+                                  option="--json") as tmp:
             tmp.write_text(json.dumps(document, indent=2) + "\n")
     return 0

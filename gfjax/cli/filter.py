@@ -14,7 +14,8 @@ filters each file on its own instead.
 
 Every option, input and output is checked before the first file is filtered (option ranges
 and the memory their rasters need, headers, CRS and units, output folders, free space), so a
-bad option or path fails at once and leaves no file behind. A file that fails later leaves
+bad option or path fails at once and leaves no file behind. An existing output file (or an
+input given as output) is overwritten only with `--force`. A file that fails later leaves
 the outputs already written (each complete), and a summary line says which files were done,
 failed or not started (exit 2); `--keep-going` goes on with the other files. With `--dtm`,
 a file's DTM and point cloud are both written or neither.
@@ -64,7 +65,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--trust-data", action="store_true",
                         help="when a header's point count disagrees with the points the file holds, "
                              "filter the points present (and say so) instead of stopping")
-    parser.add_argument("--force", action="store_true", help="overwrite input files")
+    parser.add_argument("--force", action="store_true",
+                        help="overwrite existing output files, and input files given as outputs")
     parser.add_argument("--keep-going", action="store_true",
                         help="with several inputs, go on with the other files after one fails (exit 2 at the end)")
     return parser
@@ -87,15 +89,15 @@ def _tiling_layers(args: argparse.Namespace, module) -> list[tuple[str, dict[str
 def run(args: argparse.Namespace) -> int:
     inputs = las_io.expand_inputs(args.inputs)
     targets = output_targets(inputs, args.output, suffixes=las_io.LAS_SUFFIXES)
-    for target in targets:
-        las_io.check_output(target, force=args.force, input_paths=inputs, suffixes=las_io.LAS_SUFFIXES, option="-o")
     dtm_targets = [None] * len(inputs)
     if args.dtm is not None:
         dtm_targets = output_targets(inputs, args.dtm, option="--dtm", suffixes=TIF_SUFFIXES,
                                      rename_suffix=".tif")
-        for target in dtm_targets:
-            las_io.check_output(target, force=args.force, input_paths=inputs, suffixes=TIF_SUFFIXES,
-                                option="--dtm")
+    # Every output before any file is read: none may exist (or be an input) without --force.
+    _job.check_outputs([*(("-o", t, las_io.LAS_SUFFIXES) for t in targets),
+                        *(("--dtm", t, TIF_SUFFIXES) for t in dtm_targets if t is not None)],
+                       inputs=inputs, force=args.force)
+    if args.dtm is not None:
         if set(map(Path.resolve, dtm_targets)) & set(map(Path.resolve, targets)):
             raise InputError(f"--dtm {args.dtm}: same path as an output point cloud")
         from gfjax import dtm as dtm_lib  # imported before any filtering: fail early if absent

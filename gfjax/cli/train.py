@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import argparse
 
+from gfjax.cli import _job
 from gfjax.cli._common import add_units_option, check_inputs, ranged
 from gfjax.errors import InputError
+from gfjax.io.atomic import existing_output_message
 from gfjax.sparsegf.config import Config as _Config
 from gfjax.sparsegf.features import FEATURE_SETS
 
@@ -71,12 +73,12 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     state_path = Path(str(out) + ".state")
-    if out.exists() and not (args.force or args.resume):
-        raise InputError(f"-o {out}: exists (use --force to overwrite or --resume to continue)")
-    if not out.parent.is_dir():
-        raise InputError(f"-o {out}: folder {out.parent} does not exist")
     inputs = las_io.expand_inputs(args.inputs)
     validate = las_io.expand_inputs(args.validate) if args.validate else []
+    if out.exists() and not (args.force or args.resume):
+        raise InputError(f"{existing_output_message(f'-o {out}')} (or --resume to continue training it)")
+    # --resume continues the model at -o: that one may exist.
+    _job.check_outputs([("-o", out, None)], inputs=[*inputs, *validate], force=args.force or args.resume)
     check_inputs([*inputs, *validate], units=args.units)
 
     import jax

@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
+from gfjax.cli import _job
 from gfjax.cli._common import add_units_option, check_inputs, positive_float, positive_int, ranged
 from gfjax.errors import InputError
 
@@ -111,13 +112,8 @@ def run(args: argparse.Namespace) -> int:
     if args.method not in TUNABLE:
         raise InputError(f"--method: {args.method!r} cannot be tuned yet; tunable: {', '.join(TUNABLE)}")
     out = Path(args.output)
-    if out.suffix.lower() != ".json":
-        raise InputError(f"-o {out}: the params file must end in .json")
-    if out.exists() and not args.force:
-        raise InputError(f"-o {out}: exists (use --force to overwrite)")
-    if not out.parent.is_dir():
-        raise InputError(f"-o {out}: folder {out.parent} does not exist")
     inputs = las_io.expand_inputs(args.inputs)
+    _job.check_outputs([("-o", out, (".json",))], inputs=inputs, force=args.force)
     check_inputs(inputs, units=args.units)
 
     import numpy as np

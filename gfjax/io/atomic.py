@@ -109,12 +109,17 @@ def _same_file(a: Path, b: Path) -> bool:
 
 def check_output(path: str | os.PathLike, *, force: bool = False,
                  input_paths: Iterable[str | os.PathLike] = (),
-                 suffixes: tuple[str, ...] | None = None, option: str = "") -> Path:
+                 suffixes: tuple[str, ...] | None = None, option: str = "",
+                 refuse_existing: bool = False) -> Path:
     """Check that `path` can be written, before any work is done; returns it as a `Path`.
 
+    `refuse_existing` applies the command line's rule: an existing file is not overwritten
+    unless `force` (`--force`). The Python API replaces an existing file, as `open(path, "w")`.
+
     Raises:
-      InputError: an empty name, a name the system refuses (too long), a wrong suffix, a folder that does not exist / is not a folder / is not
-        writable, `path` is a folder, or `path` is one of `input_paths` and not `force`.
+      InputError: an empty name, a name the system refuses (too long), a wrong suffix, a folder
+        that does not exist / is not a folder / is not writable, `path` is a folder, `path` is
+        one of `input_paths` and not `force`, or `path` exists, `refuse_existing` and not `force`.
     """
     if os.fspath(path) == "":
         raise InputError(f"{option + ' ' if option else ''}'': empty output name")
@@ -139,7 +144,17 @@ def check_output(path: str | os.PathLike, *, force: bool = False,
         raise InputError(f"{where}: is a folder, expected a file name")
     if not force and any(_same_file(out, Path(p)) for p in input_paths):
         raise InputError(f"{where}: is an input file; pass --force to overwrite it")
+    if refuse_existing and not force and os.path.lexists(out):
+        raise InputError(existing_output_message(where))
     return out
+
+
+def existing_output_message(where: str, *, more: int = 0) -> str:
+    """The one line that refuses an existing output, `where` naming it ("-o out.laz"), with
+    `more` other existing outputs of the same run counted."""
+    if more:
+        return f"{where}: exists, and {more} more of the outputs; pass --force to overwrite them"
+    return f"{where}: exists; pass --force to overwrite it"
 
 
 @contextlib.contextmanager
@@ -180,5 +195,5 @@ def atomic_output(path: str | os.PathLike, *, force: bool = False,
             os.close(dir_fd)
 
 
-__all__ = ["atomic_output", "check_output", "temporary_name", "is_temporary", "is_stale",
+__all__ = ["atomic_output", "check_output", "existing_output_message", "temporary_name", "is_temporary", "is_stale",
            "remove_stale_temporaries", "STALE_AGE_S"]

@@ -26,7 +26,7 @@ def test_demo_is_a_subcommand_without_required_arguments():
 
 def test_demo_writes_laz_dtm_png(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert demo.run(argparse.Namespace(out=str(out))) == 0
+    assert demo.run(argparse.Namespace(out=str(out), force=False)) == 0
     printed = capsys.readouterr().out
     assert "total error" in printed and str(out / "samp12-smrf.laz") in printed
     classified = gfjax.read(out / "samp12-smrf.laz")
@@ -42,7 +42,15 @@ def test_demo_writes_laz_dtm_png(tmp_path, capsys):
 
 def test_demo_bad_output_folder(tmp_path):
     with pytest.raises(InputError, match="--out"):
-        demo.run(argparse.Namespace(out=str(tmp_path / "missing" / "demo")))
+        demo.run(argparse.Namespace(out=str(tmp_path / "missing" / "demo"), force=False))
     (tmp_path / "file").write_text("x")
     with pytest.raises(InputError, match="not a folder"):
-        demo.run(argparse.Namespace(out=str(tmp_path / "file")))
+        demo.run(argparse.Namespace(out=str(tmp_path / "file"), force=False))
+
+
+def test_demo_overwrites_an_earlier_run_only_with_force(tmp_path):
+    (tmp_path / "samp12-dtm.tif").write_text("an earlier run")
+    with pytest.raises(InputError, match=r"^--out .*samp12-dtm.tif: exists; pass --force to overwrite it$"):
+        demo.run(argparse.Namespace(out=str(tmp_path), force=False))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["samp12-dtm.tif"]
+    assert build_parser(["demo", "--force"])[0].parse_args(["demo", "--force"]).force
