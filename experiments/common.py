@@ -6,8 +6,9 @@
         first_s, again_s, result = first_and_again(lambda: gfjax.smrf.filter(cloud))
         m = score(result.ground, cloud)
 
-The shared data live in `../shared/data` next to the repository (or `$GFJAX_SHARED_DATA`);
-ISPRS reference ground is ASPRS class 2, every other class non-ground (data/README.md).
+The labelled data are not shipped (README, "Data": where each file comes from and how to get
+it): they are read from `$GFJAX_SHARED_DATA`, by default `../shared/data` beside the
+repository. ISPRS reference ground is ASPRS class 2, every other class non-ground.
 Scores are those of `gfjax.metrics.point_metrics` (SPEC section 8).
 """
 from __future__ import annotations

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -23,7 +24,8 @@ import gfjax
 from gfjax import dmf, metrics
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = (ROOT / ".." / "shared" / "data").resolve()
+sys.path.insert(0, str(ROOT))
+from experiments.common import DATA as SHARED  # noqa: E402  ($GFJAX_SHARED_DATA; README, "Data")
 SAMPLES = ["samp12", "samp21", "samp22", "samp24", "samp31", "samp41", "samp42", "samp51", "samp52", "samp54", "samp71"]
 BCTS = ["bcts_1", "bcts_2"]
 KEYS = ("total_error", "type1", "type2", "kappa")

@@ -41,9 +41,10 @@ from gfjax.bench import harness  # noqa: E402
 from gfjax.bench.peers import PEERS  # noqa: E402
 from gfjax.bench.run import machine  # noqa: E402
 import numpy as np  # noqa: E402
+from experiments.common import DATA as SHARED_DATA  # noqa: E402  ($GFJAX_SHARED_DATA; README, "Data")
 
 REPEAT = 3
-DATA = (ROOT / ".." / "shared" / "data" / "lasR_bcts" / "bcts_2.laz").resolve()
+DATA = (SHARED_DATA / "lasR_bcts" / "bcts_2.laz").resolve()
 
 
 def _cli(path: Path, out: Path, *, export_cache: bool = True) -> float:

@@ -2,7 +2,7 @@
 cache alone: whole `gfjax filter` processes with warm caches, per method and file.
 
     nice .venv/bin/python experiments/program_cache.py \\
-        ../shared/data/isprs_filtertest/reference/samp12-utm.laz ../shared/data/lasR_bcts/bcts_1.laz \\
+        gfjax/data/samp12-utm.laz ../shared/data/lasR_bcts/bcts_1.laz \\
         --methods smrf,pmf,csf,dmf --runs 5 -o experiments/results/program_cache_rerun.md
 
 A: `gfjax filter FILE -o OUT --method M --force` with both caches (the default);

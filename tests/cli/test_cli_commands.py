@@ -17,6 +17,7 @@ from conftest import shared_file
 from gfjax.cli import eval as eval_cli
 from gfjax.cli import info as info_cli
 from gfjax.cli import main as cli_main
+from gfjax.data import demo_sample
 from gfjax.io import las as las_io
 
 # ---------------------------------------------------------------- info
@@ -91,11 +92,10 @@ def test_info_autzen_feet(capsys):
 # ---------------------------------------------------------------- dtm
 
 
-@pytest.mark.data
-def test_dtm_of_isprs_sample_has_epsg_32632(tmp_path, capsys, isprs_sample):
+def test_dtm_of_isprs_sample_has_epsg_32632(tmp_path, capsys):
     pytest.importorskip("gfjax.dtm")
     rasterio = pytest.importorskip("rasterio")
-    code, out, err = run_cli(capsys, "dtm", isprs_sample("samp24"), "-o", tmp_path / "dtm.tif", "--cell", "1",
+    code, out, err = run_cli(capsys, "dtm", demo_sample(), "-o", tmp_path / "dtm.tif", "--cell", "1",
                              "--hillshade", tmp_path / "hs.png")
     assert code == 0, err
     with rasterio.open(tmp_path / "dtm.tif") as dtm:

@@ -178,6 +178,7 @@ def test_single_point_and_one_row():
     assert dtm.valid.sum() == 10                               # collinear: no triangle, no fill
 
 
+@pytest.mark.data
 def test_feet_cell_is_converted():
     path = shared_file("pdal_autzen/autzen_trim.laz")
     cloud = gfjax.io.las.read(path)                       # feet from the file's CRS

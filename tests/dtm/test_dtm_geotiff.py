@@ -5,19 +5,18 @@ import matplotlib.image
 import numpy as np
 import pytest
 import rasterio
-from conftest import shared_file
 from rasterio.transform import Affine
 
 import gfjax.dtm
 import gfjax.io.las
+from gfjax.data import demo_sample
 from gfjax.dtm.geotiff import write_geotiff
 from gfjax.errors import InputError
 
 
 @pytest.fixture(scope="module")
 def samp12_dtm():
-    path = shared_file("isprs_filtertest/reference/samp12-utm.laz")
-    cloud = gfjax.io.las.read(path)
+    cloud = gfjax.io.las.read(demo_sample())                # ISPRS sample 12, shipped in gfjax
     return gfjax.dtm.build(cloud, cloud.classification == 2, cell_m=1.0)
 
 

@@ -9,6 +9,7 @@ from conftest import shared_file
 from laspy.vlrs.geotiff import GeoKeyEntryStruct
 from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
 
+from gfjax.data import demo_sample
 from gfjax.errors import InputError
 from gfjax.io import crs as crs_lib
 from gfjax.io import las as las_io
@@ -56,9 +57,8 @@ def test_autzen_is_in_international_feet():
     assert crs_lib.rasterio_crs(cloud).linear_units == "foot"
 
 
-@pytest.mark.data
-def test_isprs_is_utm_32n_in_metres(isprs_sample):
-    cloud = las_io.read(isprs_sample("samp12"))
+def test_isprs_is_utm_32n_in_metres():
+    cloud = las_io.read(demo_sample())                      # ISPRS sample 12, shipped in gfjax
     assert (cloud.horizontal_unit_m, cloud.vertical_unit_m) == (1.0, 1.0)
     assert cloud.crs.to_epsg() == 32632
     assert crs_lib.describe(cloud.crs) == "WGS 84 / UTM zone 32N (EPSG:32632)"
