@@ -56,7 +56,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-__all__ = ["enable", "disable", "enabled_folder", "private_folder", "call", "prefetch", "program_key",
+__all__ = ["enable", "disable", "enabled_folder", "private_folder", "call", "prefetch", "program_key", "on_compile",
            "MAX_FILES", "MAX_BYTES"]
 
 MAX_FILES = 512                 # artifacts kept (least recently used go first); each is ~0.1-2 MB
@@ -512,6 +512,13 @@ def prefetch(fn: Callable, *specs, tag=None, **static) -> None:
         _load_or_compile(fn, specs, static, folder, key)
 
 
+def on_compile(callback: Callable[[str], None] | None) -> None:
+    """Call `callback(module)` just before a program is compiled rather than loaded (`module`:
+    the compiled function's module, e.g. `gfjax.smrf.stages`), so a command can say that it is
+    compiling instead of sitting silent; None: no calls."""
+    _state["on_compile"] = callback
+
+
 def _load_or_compile(fn, args, static, folder: Path, key: str):
     """The stored program of `key` (a function of the leaves of `args`), loaded or built and
     stored; None when it runs through plain jit: it cannot be stored (a marker file then says
@@ -538,6 +545,8 @@ def _load_or_compile_in(fn, args, static, dir_fd: int, key: str):
     if program is not None:
         _from_disk.add(key)
     else:
+        if _state.get("on_compile") is not None:
+            _state["on_compile"](getattr(fn, "__module__", None) or "gfjax")
         compiled, fresh = _compile_fresh(fn, args, static)
         if compiled is not None:
             program = compiled

@@ -78,6 +78,19 @@ def test_compiles_once_then_loads_from_disk(folder, monkeypatch):
     _same(_call(scale_and_sum, *_args(), factor=3), expected)
 
 
+def test_on_compile_is_called_before_a_compile_not_a_load(folder):
+    seen = []
+    aot.on_compile(seen.append)
+    try:
+        _call(scale_and_sum, *_args(), factor=5)
+        _call(scale_and_sum, *_args(), factor=5)          # in this process: no new compile
+        aot._loaded.clear()                               # as a new process would start
+        _call(scale_and_sum, *_args(), factor=5)          # loaded from the folder
+    finally:
+        aot.on_compile(None)
+    assert seen == [__name__]
+
+
 def test_a_new_process_loads_the_stored_program(folder):
     """A second interpreter finds the artifact the first one wrote (no compile there)."""
     script = (

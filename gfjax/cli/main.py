@@ -101,6 +101,7 @@ def build_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, ModuleTy
     parser = _Parser(prog="gfjax", description="Ground filtering of airborne LiDAR point clouds (JAX).")
     parser.add_argument("--version", action="version", version=f"gfjax {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars and no compile notices")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     requested = _requested_command(argv)
     module = None
@@ -112,6 +113,9 @@ def build_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, ModuleTy
             if not any("--debug" in action.option_strings for action in sub._actions):
                 sub.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                                  help="show tracebacks of errors")
+            if not any("--quiet" in action.option_strings for action in sub._actions):
+                sub.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                                 help="no progress bars and no compile notices")
         elif name in ALWAYS_LISTED or _module_present(name):
             subparsers.add_parser(name, help=summary, description=summary)
     return parser, module
@@ -185,6 +189,53 @@ def enable_compilation_cache() -> Path | None:
         else:  # read by JAX when it is first imported; no JAX import for `gfjax info`
             os.environ[key.upper()] = str(value)
     return folder
+
+
+def _method_of(args: argparse.Namespace) -> str | None:
+    """The one method a command runs, if it names one (`filter` without `--method`: the default)."""
+    method = getattr(args, "method", None)
+    if method is None and args.command == "filter":
+        from gfjax.methods import DEFAULT_METHOD
+
+        return DEFAULT_METHOD
+    return method if isinstance(method, str) else None
+
+
+@contextlib.contextmanager
+def _talk(*, quiet: bool, method: str | None):
+    """While a command runs: say once on stderr when it must compile (a first run of a new
+    input shape sits silent for seconds otherwise), or, `quiet`, no such line and no progress
+    bars (tqdm reads `TQDM_DISABLE` when first imported; the commands import it late)."""
+    said = []
+
+    def notice(module: str) -> None:
+        if said:
+            return
+        said.append(module)
+        from gfjax.methods import METHODS
+
+        package = module.split(".")[1] if module.startswith("gfjax.") else ""
+        what = package if package in METHODS else method or ""
+        what = f"{what} " if what else ""
+        line = f"gfjax: compiling {what}for a new input shape (kept, so later runs of this shape start at once)"
+        if "tqdm" in sys.modules:                       # between progress bars, not through one
+            sys.modules["tqdm"].tqdm.write(line, file=sys.stderr)
+        else:
+            print(line, file=sys.stderr, flush=True)
+
+    before = os.environ.get("TQDM_DISABLE")
+    if quiet:
+        os.environ["TQDM_DISABLE"] = "1"
+    else:
+        aot.on_compile(notice)
+    try:
+        yield
+    finally:
+        aot.on_compile(None)
+        if quiet and before is None:
+            os.environ.pop("TQDM_DISABLE", None)
+        elif quiet:
+            os.environ["TQDM_DISABLE"] = before
 
 
 def _turn_off_jax_cache(jax) -> None:
@@ -303,7 +354,8 @@ def _run(argv: Sequence[str]) -> int:
             if module is None:
                 raise InputError(f"{args.command}: not available in this build")
             enable_compilation_cache()
-            code = int(module.run(args) or 0)
+            with _talk(quiet=args.quiet, method=_method_of(args)):
+                code = int(module.run(args) or 0)
             sys.stdout.flush()              # a closed pipe is found here, not at exit
             return code
     except BrokenPipeError:

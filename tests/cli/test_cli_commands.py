@@ -4,6 +4,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import subprocess
 import sys
 
 import laspy
@@ -214,3 +215,35 @@ def test_a_closed_output_ends_every_command_quietly(tmp_path, capsys, monkeypatc
     monkeypatch.setattr(sys, "stdout", _ClosedPipe())
     code = cli_main.main([str(a) for a in argv])
     assert (code, capsys.readouterr().err) == (141, "")
+
+
+def test_a_command_that_compiles_says_so_once_naming_the_method(capsys):
+    from gfjax import aot
+
+    with cli_main._talk(quiet=False, method="pmf"):
+        aot._state["on_compile"]("gfjax.raster.morphology")   # a shared kernel: the command's method
+        aot._state["on_compile"]("gfjax.smrf.stages")
+    err = capsys.readouterr().err
+    assert err.count("compiling") == 1
+    assert "gfjax: compiling pmf for a new input shape (kept, so later runs of this shape start at once)" in err
+    assert aot._state["on_compile"] is None
+
+
+def test_quiet_turns_off_progress_bars_and_compile_notices(monkeypatch):
+    from gfjax import aot
+
+    monkeypatch.delenv("TQDM_DISABLE", raising=False)
+    with cli_main._talk(quiet=True, method="smrf"):
+        assert os.environ["TQDM_DISABLE"] == "1" and aot._state.get("on_compile") is None
+    assert "TQDM_DISABLE" not in os.environ
+    args = cli_main.build_parser(["filter", "a.laz", "-o", "b.laz", "-q"])[0].parse_args(
+        ["filter", "a.laz", "-o", "b.laz", "-q"])
+    assert args.quiet and cli_main._method_of(args) == "smrf"
+
+
+def test_quiet_run_prints_no_progress_bar(tmp_path):
+    scene = write_scene(tmp_path / "a.las")
+    env = {**os.environ, "GFJAX_EXPORT_CACHE": "0"}
+    out = subprocess.run([sys.executable, "-c", "from gfjax.cli.main import main; main()", "filter", str(scene), "-o", str(tmp_path / "b.las"),
+                          "--method", "pmf", "--quiet"], capture_output=True, text=True, env=env, check=True)
+    assert out.stderr.strip() == "" and "b.las" in out.stdout
