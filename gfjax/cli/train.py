@@ -28,7 +28,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("inputs", nargs="+", metavar="DATA", help="labelled LAS/LAZ files, folders or globs")
     parser.add_argument("-o", "--output", required=True, metavar="MODEL.eqx", help="model file to write")
     parser.add_argument("--preset", choices=("tiny", "paper"), default="tiny",
-                        help="network size: tiny (0.81 M parameters, trains on a CPU) or paper (MinkUNet34C, 37.9 M)")
+                        help="network size: tiny (0.83 M parameters, trains on a CPU) or paper (MinkUNet34C, 37.9 M)")
     parser.add_argument("--epochs", type=ranged("--epochs"), default=12, help="epochs (default 12, the paper's)")
     parser.add_argument("--batch", type=ranged("--batch"), default=4, help="patches per step (default 4, the paper's)")
     parser.add_argument("--lr", type=ranged("--lr"), default=None,

@@ -10,7 +10,7 @@ from gfjax.sparsegf.features import FEATURE_SETS
 from gfjax.sparsegf.partition import STEP_M
 
 VOXEL_M = 0.5            # voxel edge of the sparse convolutions [m] (Sec. 3.3)
-MAX_CONTEXT_POINTS = 60_000
+MAX_CONTEXT_POINTS = 10_000
 
 # The valid range of every numeric Config field (`gfjax.limits`).
 RANGES: dict[str, Range] = {

@@ -22,10 +22,13 @@ encoder scales through an LBR (Linear, norm, ReLU), concatenates them and fuses 
 fifth LBR; the result is concatenated with the decoder's output and fed to the two linear
 heads. Norms are batch norms, as in the paper and MinkUNet (over the valid voxels of a batch;
 in the refinement module over central points, each voxel weighted by the central points it
-holds, so the statistics are the per-point ones); inference uses their running statistics, so
-a patch's output does not depend on the patches it is packed with. (A per-patch group norm,
-tried first, re-centres every patch on its own mean and blurs the absolute heights that
-separate a roof from the ground: it fitted the training files worse than a per-point MLP.)
+holds, so the statistics are the per-point ones), with their statistics measured on the
+training data before the first step and then frozen (`train.calibrate`): training and
+inference compute the same function, and a patch's output does not depend on the patches it
+is packed with. (Tried and measured first: a per-patch group norm re-centres every patch on
+its own mean and blurs the absolute heights that separate a roof from the ground; batch
+statistics in every step normalise a dense forest pack by its own statistics in training and
+by the average of all packs in inference.)
 
 Pure JAX + equinox. A call takes one sparse tensor, which may hold several patches under
 different batch indices (`gfjax.sparsegf.pipeline.pack`).

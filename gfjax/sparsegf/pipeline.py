@@ -32,6 +32,7 @@ import numpy as np
 
 from gfjax import aot
 from gfjax.nn import sparse
+from gfjax.nn.sparse import keys as K
 from gfjax.sparsegf import features as F
 from gfjax.sparsegf.compress import compress
 from gfjax.sparsegf.model import Model, SparseGFNet
@@ -109,7 +110,11 @@ def thin_context(central: np.ndarray, max_points: int, seed: int) -> np.ndarray:
 
 def voxelize(points: np.ndarray, feats: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Voxels of points `(n, 3)` [m] (host): `(coords (m, 3) int32, mean feats (m, f),
-    voxel row of each point (n,))`, voxels in increasing (i, j, k) order."""
+    voxel row of each point (n,))`, voxels in increasing (i, j, k) order.
+
+    The same voxels as `gfjax.nn.sparse.voxelize` (tested), in numpy: that one is jitted and
+    needs a static capacity, so it would compile once per patch size; here the sizes are exact.
+    """
     grid = np.floor(points / voxel_m).astype(np.int64)
     low = grid.min(axis=0) if len(grid) else np.zeros(3, np.int64)
     span = (grid.max(axis=0) - low + 1) if len(grid) else np.ones(3, np.int64)
@@ -180,13 +185,15 @@ class Pack(NamedTuple):
         return out
 
 
-def pack(patches: list[Patch], slots: int, plans: dict[int, sparse.PyramidPlan] | None = None) -> Pack:
-    """Concatenate up to `slots` patches (batch index = slot) into a capacity bucket, with
-    the plan kept in `plans` for that capacity (else `standard_plan`)."""
+def pack(patches: list[Patch], slots: int, plans: dict[int, sparse.PyramidPlan] | None = None, *,
+         min_capacity: int = PACK_VOXELS) -> Pack:
+    """Concatenate up to `slots` patches (batch index = slot) into the smallest power of two
+    (at least `min_capacity`) that holds them, with the plan kept in `plans` for that capacity
+    (else `standard_plan`)."""
     if not 1 <= len(patches) <= slots:
         raise ValueError(f"pack: 1..{slots} patches, got {len(patches)}")
     total = sum(len(p.coords) for p in patches)
-    size = capacity(total)
+    size = capacity(total, min_capacity)
     coords = np.zeros((size, 4), np.int32)
     feats = np.zeros((size, patches[0].feats.shape[1]), np.float32)
     weight = np.zeros(size, np.float32)
@@ -200,6 +207,7 @@ def pack(patches: list[Patch], slots: int, plans: dict[int, sparse.PyramidPlan] 
         weight[row:row + m] = p.central_counts()
         starts[slot] = row
         row += m
+    K.check_range(coords, np.arange(size) < total, "sparsegf pack")
     plan = (plans or {}).get(size) or sparse.standard_plan(size, depth=DEPTH)
     return Pack(coords, feats, np.arange(size) < total, weight, starts, tuple(patches), plan)
 
@@ -245,11 +253,11 @@ def forward(net: SparseGFNet, state, coords, feats, valid, weight, plan, slots: 
     return out, state, pyramid.overflowed
 
 
-@functools.partial(jax.jit, static_argnames=("plan", "slots"))
-def predict_voxels(net: SparseGFNet, state, coords, feats, valid, weight, *, plan: sparse.PyramidPlan, slots: int):
-    """Ground probability `(M,)` of every voxel of a pack and whether it overflowed `plan`
-    (the batch norms in inference mode)."""
-    out, _, overflowed = forward(eqx.nn.inference_mode(net), state, coords, feats, valid, weight, plan, slots)
+@functools.partial(jax.jit, static_argnames=("skeleton", "plan", "slots"))
+def predict_voxels(arrays, state, coords, feats, valid, weight, *, skeleton, plan: sparse.PyramidPlan, slots: int):
+    """Ground probability `(M,)` of every voxel of a pack and whether it overflowed `plan`;
+    the network is `eqx.combine(arrays, skeleton)`, its batch norms in inference mode."""
+    out, _, overflowed = forward(eqx.combine(arrays, skeleton), state, coords, feats, valid, weight, plan, slots)
     return jax.nn.softmax(out.cls, axis=-1)[:, 1], overflowed
 
 
@@ -257,9 +265,11 @@ def predict(model: Model, packed: Pack):
     """Ground probability `(M,)` of every voxel of a pack (meaningful where it holds central
     points) and whether the pack overflowed its plan (the probabilities are then wrong).
     Returns JAX arrays without waiting for them (asynchronous dispatch). The program is kept
-    across processes when `gfjax.aot` is on (the command line turns it on)."""
-    return aot.call(predict_voxels, model.net, model.state, packed.coords, packed.feats, packed.valid, packed.weight,
-                    plan=packed.plan, slots=packed.slots)
+    across processes when `gfjax.aot` is on (the command line turns it on): its arguments are
+    arrays, and the rest of the network (layer settings, the inference flags) is static."""
+    arrays, skeleton = eqx.partition(eqx.nn.inference_mode(model.net), eqx.is_array)
+    return aot.call(predict_voxels, arrays, model.state, packed.coords, packed.feats, packed.valid, packed.weight,
+                    skeleton=skeleton, plan=packed.plan, slots=packed.slots)
 
 
 def unpack(packed: Pack, voxel_values: np.ndarray) -> list[np.ndarray]:

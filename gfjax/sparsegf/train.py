@@ -28,6 +28,8 @@ from gfjax.sparsegf.pipeline import Pack, forward, group, pack, run_with_room
 # run here, so the default starts at 1e-2 and ends 100 times lower, as the paper's does.
 LR_START = 1e-2
 LR_END_RATIO = 1e-2
+TRAIN_MIN_CAPACITY = 32_768   # voxel rows of the smaller training packs (half a step's time)
+CALIBRATION_PASSES = 30       # packs that measure the batch-norm statistics before the first step
 
 
 class Labelled(NamedTuple):
@@ -60,9 +62,10 @@ def training_batches(data: list[Labelled], config: Config, *, batch_size: int, r
     Augmentation: the grid of patch axes is shifted at random per cloud (the central regions
     fall on new places each epoch) and each patch is rotated about z at random (the paper's).
     Up to `batch_size` patches are packed per step (`pipeline.pack`, at most
-    `pipeline.PACK_VOXELS` voxels unless one patch is larger); each voxel capacity keeps one
-    pyramid plan across epochs in `plans` (grown only when a pack does not fit), so the step
-    compiles once per capacity.
+    `pipeline.PACK_VOXELS` voxels unless one patch is larger), into `TRAIN_MIN_CAPACITY` or
+    `PACK_VOXELS` rows (a few sparse ISPRS patches fill the first, a dense forest patch needs
+    the second); each capacity keeps one pyramid plan across epochs in `plans` (grown only
+    when a pack does not fit), so the step compiles once per capacity.
     """
     plans = {} if plans is None else plans
     items = []
@@ -74,7 +77,7 @@ def training_batches(data: list[Labelled], config: Config, *, batch_size: int, r
     order = [items[i] for i in rng.permutation(len(items))]
     source = {id(p): d for d, p in order}
     for todo in group([p for _, p in order], batch_size):
-        packed = pack(todo, batch_size, plans)
+        packed = pack(todo, batch_size, plans, min_capacity=TRAIN_MIN_CAPACITY)
         cls_counts = packed.per_voxel([p.central_counts(source[id(p)].ground[p.point_index].astype(np.int64), 2)
                                        for p in todo], 2)
         bin_counts = packed.per_voxel([p.central_counts(source[id(p)].hag_bin[p.point_index].astype(np.int64),
@@ -97,30 +100,54 @@ def optimizer() -> optax.GradientTransformation:
 @eqx.filter_jit
 def _train_step(net, state, opt_state, coords, feats, valid, weight, cls_counts, bin_counts, plan, slots, opt, lam):
     def loss_fn(net):
-        out, new_state, overflowed = forward(net, state, coords, feats, valid, weight, plan, slots)
+        out, _, overflowed = forward(eqx.nn.inference_mode(net), state, coords, feats, valid, weight, plan, slots)
         loss = counted_loss(out.cls, out.hag, cls_counts, bin_counts, lam=lam)
-        return loss.total, (loss, new_state, overflowed)
+        return loss.total, (loss, overflowed)
 
-    (_, (loss, state, overflowed)), grads = eqx.filter_value_and_grad(loss_fn, has_aux=True)(net)
+    (_, (loss, overflowed)), grads = eqx.filter_value_and_grad(loss_fn, has_aux=True)(net)
     with jax.numpy_dtype_promotion("standard"):          # optax: float ** int32 step count
         updates, opt_state = opt.update(grads, opt_state, eqx.filter(net, eqx.is_array))
-    return eqx.apply_updates(net, updates), state, opt_state, loss, overflowed
+    return eqx.apply_updates(net, updates), opt_state, loss, overflowed
 
 
 def train_step(model: Model, opt_state, step: Step, opt: optax.GradientTransformation, lam: float = LAMBDA,
                lr: float | None = None):
     """One Adam step on a pack, at learning rate `lr` (None: the state's); returns
-    `(model, opt_state, loss, overflowed)` (loss: `HeightAwareLoss`; the model's batch-norm
-    statistics move towards the pack's; when `overflowed`, the pack did not fit its plan and
-    the step is wrong)."""
+    `(model, opt_state, loss, overflowed)` (loss: `HeightAwareLoss`; when `overflowed`, the
+    pack did not fit its plan and the step is wrong). The batch norms use the model's frozen
+    statistics (`calibrate`), as in inference."""
     p = step.packed
     if lr is not None:
         opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams,
                                                      "learning_rate": jnp.asarray(lr, jnp.float32)})
-    net, state, opt_state, loss, overflowed = _train_step(
+    net, opt_state, loss, overflowed = _train_step(
         model.net, model.state, opt_state, p.coords, p.feats, p.valid, p.weight, step.cls_counts, step.bin_counts,
         p.plan, p.slots, opt, lam)
-    return Model(net, state), opt_state, loss, overflowed
+    return Model(net, model.state), opt_state, loss, overflowed
+
+
+@eqx.filter_jit
+def _measure(net, state, coords, feats, valid, weight, plan, slots):
+    return forward(net, state, coords, feats, valid, weight, plan, slots)[1]
+
+
+def calibrate(model: Model, steps: list[Step], passes: int = CALIBRATION_PASSES) -> Model:
+    """The model with its batch norms' statistics measured on up to `passes` packs.
+
+    Each pass normalises with the pack's own statistics and moves the running ones towards
+    them (`SparseBatchNorm`'s momentum, 0.1: after 30 packs the initial values weigh 4 %).
+    Training then keeps them frozen within an epoch (`fit` measures them again at the start of
+    each, as the weights move) and learns the norms' scales and shifts, so the network computes
+    the same function in training and in inference. Batch statistics in every step
+    would not: a pack holds one dense forest patch or several sparse urban ones, so each
+    domain would be normalised by its own statistics in training and by their average in
+    inference (measured: a forest tile it was trained on lost 92 % of its ground).
+    """
+    state = model.state
+    for step in steps[:passes]:
+        p = step.packed
+        state = _measure(model.net, state, p.coords, p.feats, p.valid, p.weight, p.plan, p.slots)
+    return Model(model.net, state)
 
 
 def init(model: Model):
@@ -184,6 +211,7 @@ def fit(model: Model, data: list[Labelled], *, config: Config, epochs: int, batc
         totals = []
         rng = np.random.default_rng([seed, epoch])
         steps = list(training_batches(data, config, batch_size=batch_size, rng=rng, plans=plans))
+        model = calibrate(model, steps)
         for i, step in enumerate(steps):
             rate = learning_rate((epoch + i / len(steps)) / epochs, lr)
 

@@ -104,12 +104,17 @@ def test_training_steps_lower_the_loss_and_are_deterministic(net):
         step = steps[0]
         np.testing.assert_array_equal(step.cls_counts.sum(axis=1), step.packed.weight)
         np.testing.assert_array_equal(step.bin_counts.sum(axis=1), step.packed.weight)
-        opt, state = train.init(net)
-        model, losses = net, []
+        model = train.calibrate(net, steps)
+        measured = jax.tree.leaves(model.state)
+        assert any(not np.array_equal(a, b) for a, b in zip(measured, jax.tree.leaves(net.state)))
+        opt, state = train.init(model)
+        losses = []
         for _ in range(6):
             model, state, loss, overflowed = train.train_step(model, state, step, opt, lr=1e-2)
             assert not overflowed
             losses.append(float(loss.total))
+        for a, b in zip(measured, jax.tree.leaves(model.state)):       # statistics stay frozen
+            np.testing.assert_array_equal(a, b)
         return losses
 
     first = run()
