@@ -32,7 +32,7 @@ def test_thinning_keeps_every_central_point_and_is_seeded():
 
 
 def fake_patch(m, c, pid):
-    coords = np.column_stack([np.arange(m), np.zeros(m), np.zeros(m)]).astype(np.int32)
+    coords = np.column_stack([np.arange(m) % 256, np.arange(m) // 256, np.zeros(m)]).astype(np.int32)
     return pipeline.Patch(coords, np.ones((m, 2), np.float32), np.arange(c), np.arange(c) % m, pid)
 
 
