@@ -146,8 +146,7 @@ def test_bench_runs_sparsegf_with_the_model_it_is_given(scene, tmp_path):
     from gfjax.sparsegf import checkpoint
     from gfjax.sparsegf.model import NetConfig
 
-    net = sparsegf.SparseGFNet(NetConfig(stem=4, planes=(4,) * 8, layers=(1,) * 8, refine=4, groups=2),
-                               key=jax.random.key(5))
+    net = sparsegf.init(NetConfig(stem=4, planes=(4,) * 8, layers=(1,) * 8, refine=4), key=jax.random.key(5))
     model = tmp_path / "micro.eqx"
     checkpoint.save(model, net, {})
     runners, _ = bench.plan("sparsegf", "none", model=str(model))
