@@ -23,7 +23,7 @@ from gfjax.errors import InputError
 from gfjax.sparsegf.model import Model, NetConfig, init
 
 MAGIC = "gfjax-sparsegf-model"
-FORMAT = 2                         # 2: batch norms and their statistics, input features in the settings
+FORMAT = 3                         # 3: the point branch; 2: batch norms and their statistics, input features in the settings
 SHIPPED = "sparsegf_tiny.eqx"      # the model inside the package (gfjax/data)
 
 

@@ -87,41 +87,12 @@ def _height_aware_loss(logits_cls, logits_hag, labels, hag_bins, mask, weights, 
     on = mask[..., None].astype(logits_cls.dtype)
     cls_counts = jax.nn.one_hot(jnp.where(mask, labels, 0), 2, dtype=logits_cls.dtype) * on
     bin_counts = jax.nn.one_hot(jnp.where(mask, hag_bins, 0), weights.shape[0], dtype=logits_cls.dtype) * on
-    return _counted_loss(jnp.where(mask[..., None], logits_cls, 0.0), jnp.where(mask[..., None], logits_hag, 0.0),
-                         cls_counts, bin_counts, weights, lam)
+    return _loss_of_counts(jnp.where(mask[..., None], logits_cls, 0.0), jnp.where(mask[..., None], logits_hag, 0.0),
+                           cls_counts, bin_counts, weights, lam)
 
 
-def counted_loss(logits_cls: Float[ArrayLike, "*m 2"], logits_hag: Float[ArrayLike, "*m c"],
-                 cls_counts: Float[ArrayLike, "*m 2"], bin_counts: Float[ArrayLike, "*m c"], *,
-                 weights: tuple[float, ...] = HAG_WEIGHTS,
-                 lam: float | Float[Array, ""] = LAMBDA) -> HeightAwareLoss:
-    """The height-aware loss of groups of points that share their logits (Eqs. 4-5).
-
-    A level-0 voxel's central points all get the voxel's logits (`SparseGFNet`), so the sum
-    over points of Eq. 4 is a sum over voxels of the counts of each label times its
-    log-probability: the same value as `height_aware_loss` on the points, with no point
-    arrays.
-
-    Args:
-      logits_cls, logits_hag: `(..., 2)` and `(..., C)` logits per group.
-      cls_counts: `(..., 2)` points of each class in the group (index 1 = ground).
-      bin_counts: `(..., C)` points of each HAG bin in the group.
-      weights, lam: as `height_aware_loss`.
-
-    Returns:
-      `HeightAwareLoss`; N is the total count. All 0 when the counts are all 0.
-    """
-    logits_cls, logits_hag, cls_counts, bin_counts = (
-        jnp.asarray(a, jnp.float32) for a in (logits_cls, logits_hag, cls_counts, bin_counts))
-    if cls_counts.shape != logits_cls.shape or bin_counts.shape != logits_hag.shape:
-        raise ValueError(f"counted_loss: counts {cls_counts.shape}, {bin_counts.shape} must have the shapes of the "
-                         f"logits {logits_cls.shape}, {logits_hag.shape}")
-    if logits_hag.shape[-1] != len(weights):
-        raise ValueError(f"counted_loss: {logits_hag.shape[-1]} HAG logits for {len(weights)} weights")
-    return _counted_loss(logits_cls, logits_hag, cls_counts, bin_counts, jnp.asarray(weights, jnp.float32), lam)
-
-
-def _counted_loss(logits_cls, logits_hag, cls_counts, bin_counts, weights, lam):
+def _loss_of_counts(logits_cls, logits_hag, cls_counts, bin_counts, weights, lam):
+    """Eqs. 4-5 from the one-hot counts `(..., 2)`, `(..., C)` of each row's class and bin."""
     n = jnp.sum(cls_counts)
     inv_n = jnp.where(n > 0, 1.0 / jnp.maximum(n, 1.0), 0.0)
     l_cls = -jnp.sum(cls_counts * jax.nn.log_softmax(logits_cls, axis=-1)) * inv_n

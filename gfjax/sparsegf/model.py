@@ -4,6 +4,7 @@
                   <-- 4 x [k2 s2 transposed conv + skip concat + residual blocks]  (decoder)
     central points <- projected encoder features of the 4 down blocks --4 LBR--> concat --LBR-->
                    <- projected decoder output -------------------------------------> concat
+                   <- the point's own features less its voxel's --LR-------------------> concat
                    --> classification head (ground / non-ground), HAG head (6 bins)
 
 The backbone is MinkUNet (Choy et al. 2019): stem convolution of kernel 5, then per level a
@@ -14,13 +15,14 @@ same level (U-Net skips). `paper` has MinkUNet34C's widths and depths, as the pa
 so that it trains on 2 CPU cores.
 
 Central points take the features of the voxel that holds them at each level ("projection":
-nearest, as MinkowskiEngine's slicing, no interpolation). Points of one level-0 voxel thus
-get identical features and identical outputs, so the network computes its point-wise part
-once per level-0 voxel that holds central points, and the caller gives each central point
-its voxel's output. The point-wise refinement module (Sec. 2.2.1) passes each of the four
-encoder scales through an LBR (Linear, norm, ReLU), concatenates them and fuses them with a
-fifth LBR; the result is concatenated with the decoder's output and fed to the two linear
-heads. Norms are batch norms, as in the paper and MinkUNet (over the valid voxels of a batch;
+nearest, as MinkowskiEngine's slicing, no interpolation). The point-wise refinement module
+(Sec. 2.2.1) passes each of the four encoder scales through an LBR (Linear, norm, ReLU),
+concatenates them and fuses them with a fifth LBR; as every point of a level-0 voxel gets the
+same projected features, this part runs once per voxel that holds central points. Its result
+is concatenated with the decoder's output, gathered to the central points and concatenated
+with what is the point's own, the point branch of a voxel-point network: its input features
+less its voxel's mean, through a Linear and a ReLU. The two linear heads read that, so two
+points of one 0.5 m voxel (a ground return under a shrub) can get different labels. Norms are batch norms, as in the paper and MinkUNet (over the valid voxels of a batch;
 in the refinement module over central points, each voxel weighted by the central points it
 holds, so the statistics are the per-point ones), with their statistics measured on the
 training data before the first step and then frozen (`train.calibrate`): training and
@@ -42,7 +44,7 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from gfjax.nn import sparse
 from gfjax.sparsegf.features import n_features
@@ -58,6 +60,7 @@ class NetConfig:
       planes: output channels of the 4 encoder levels then the 4 decoder levels.
       layers: residual blocks after each of those 8 (strided or transposed) convolutions.
       refine: channels of each refinement LBR (0: no refinement module, the ablation).
+      point: channels of the point branch (a point's own features).
       in_features: per-point input features (`features.n_features`).
     """
 
@@ -65,12 +68,13 @@ class NetConfig:
     planes: tuple[int, ...] = (32, 64, 128, 256, 256, 128, 96, 96)
     layers: tuple[int, ...] = (2, 3, 4, 6, 2, 2, 2, 2)
     refine: int = 32
+    point: int = 32
     in_features: int = n_features("xyz+tophat")
 
     def __post_init__(self):
         if len(self.planes) != 8 or len(self.layers) != 8:
             raise ValueError(f"NetConfig: planes and layers need 8 entries each, got {self.planes}, {self.layers}")
-        if self.stem < 1 or min(self.planes) < 1 or min(self.layers) < 0 or self.refine < 0:
+        if self.stem < 1 or min(self.planes) < 1 or min(self.layers) < 0 or self.refine < 0 or self.point < 1:
             raise ValueError("NetConfig: channel counts must be >= 1 and block counts >= 0")
 
     @property
@@ -80,7 +84,7 @@ class NetConfig:
 
 NET_PRESETS: dict[str, NetConfig] = {
     "tiny": NetConfig(stem=16, planes=(16, 32, 48, 64, 48, 32, 24, 24), layers=(1, 1, 1, 1, 1, 1, 1, 1),
-                      refine=16),
+                      refine=16, point=16),
     "paper": NetConfig(),
 }
 
@@ -101,11 +105,11 @@ class _LBR(eqx.Module):
 
 
 class Outputs(eqx.Module):
-    """Per level-0 voxel: `cls` `(m, 2)` logits (index 1 = ground) and `hag` `(m, 6)`
-    logits of the central points it holds; rows without central points are 0."""
+    """Per central point row: `cls` `(p, 2)` logits (index 1 = ground) and `hag` `(p, 6)`
+    logits; padding rows are 0."""
 
-    cls: Float[Array, "m 2"]
-    hag: Float[Array, "m c"]
+    cls: Float[Array, "p 2"]
+    hag: Float[Array, "p c"]
 
 
 class SparseGFNet(eqx.Module):
@@ -120,6 +124,7 @@ class SparseGFNet(eqx.Module):
     up_norm: tuple[sparse.SparseBatchNorm, ...]
     dec: tuple[tuple[sparse.SparseResBlock, ...], ...]
     refine: tuple[_LBR, ...]
+    point: sparse.SparseLinear
     head_cls: sparse.SparseLinear
     head_hag: sparse.SparseLinear
     config: NetConfig = eqx.field(static=True)
@@ -162,18 +167,24 @@ class SparseGFNet(eqx.Module):
         else:
             self.refine = ()
             head_in = width
+        self.point = sparse.SparseLinear(c.in_features, c.point, key=next(keys))
+        head_in += c.point
         self.head_cls = sparse.SparseLinear(head_in, 2, key=next(keys))
         self.head_hag = sparse.SparseLinear(head_in, N_HAG_BINS, key=next(keys))
 
     def __call__(self, x: sparse.SparseTensor, pyramid: sparse.Pyramid, weight: Float[Array, " m"],
+                 point_row: Int[Array, " p"], point_feats: Float[Array, "p f"], point_valid: Bool[Array, " p"],
                  state: eqx.nn.State) -> tuple[Outputs, eqx.nn.State]:
-        """Logits of the central points, per level-0 voxel, and the new state.
+        """Logits of the central points and the new state.
 
         Args:
           x: level-0 voxels of one or more compressed patches (batch index = patch), features
             `(m, in_features)`.
           pyramid: `build_pyramid(x.coords, x.valid, plan)`, depth 4.
           weight: `(m,)` float, the central points each voxel holds (0: context only).
+          point_row: `(p,)` int32, each central point's level-0 voxel (a row of `x`).
+          point_feats: `(p, in_features)`, its input features less its voxel's.
+          point_valid: `(p,)` bool, real rows (the others are padding).
           state: the batch norms' running statistics (`init`); updated in training, read in
             inference (`eqx.nn.inference_mode(net)`).
         """
@@ -206,8 +217,9 @@ class SparseGFNet(eqx.Module):
                 scales.append(f)
             f, state = self.refine[4](points, jnp.concatenate(scales, axis=1), weight, state)
             features.append(f)
-        f = jnp.concatenate(features, axis=1)
-        mask = central[:, None]
+        own = jax.nn.relu(self.point(jnp.where(point_valid[:, None], point_feats, 0.0)))
+        f = jnp.concatenate([jnp.concatenate(features, axis=1)[point_row], own], axis=1)
+        mask = point_valid[:, None]
         return Outputs(jnp.where(mask, self.head_cls(f), 0.0), jnp.where(mask, self.head_hag(f), 0.0)), state
 
 

@@ -7,14 +7,16 @@ Host code drives jitted array functions:
 2. `prepare` (one patch): the per-point features on the patch's own points (`features`),
    then the context thinning, the rotation (training), the context compression (Eqs. 1-3)
    and the 0.5 m voxels, whose features are the mean of their points'. It keeps, for each
-   central point, its voxel: the network's output for the voxel is the point's.
+   central point, its voxel and its own features less the voxel's mean (what sets it apart
+   from the other points of its voxel: the network's point head reads both).
 3. `pack` concatenates patches into one sparse tensor, one batch index per patch, padded to
-   `PACK_VOXELS` rows (a patch larger than that alone, to the next power of two): one shape,
+   `PACK_VOXELS` rows and their central points to `POINTS_PER_VOXEL` times as many (a patch
+   larger than that alone, to the next power of two): one shape,
    so a machine compiles the network once, not once per patch shape (each compiled program
    also holds thousands of memory maps, and a process may only have 65,530). Every patch of a capacity shares one pyramid plan
    (`standard_plan`, grown from the data only when a pack does not fit it: `run_with_room`).
-4. `predict` runs the network on a pack; each central point takes its voxel's ground
-   probability, and `soft_vote` merges the patches (Algorithm 1).
+4. `predict` runs the network on a pack: the ground probability of each central point, and
+   `soft_vote` merges the patches (Algorithm 1).
 
 Context thinning (a CPU budget, not in the paper): a patch keeps every central point and at
 most `max_context_points` peripheral ones, drawn at random with a seed fixed by the patch; the
@@ -40,6 +42,7 @@ from gfjax.sparsegf.model import Model, SparseGFNet
 DEPTH = 4                  # levels of the U-Net below the input
 PACK_VOXELS = 65_536       # voxel rows of a pack: patches are packed up to this many
 MIN_POINTS = 4_096         # smallest point capacity of the per-patch feature program
+POINTS_PER_VOXEL = 4       # central point rows of a pack per voxel row
 
 
 def capacity(n: int, minimum: int = PACK_VOXELS) -> int:
@@ -58,6 +61,7 @@ class Patch(NamedTuple):
       feats: `(m, f)` float32, the mean features of each voxel's points.
       point_index: `(c,)` int64, the cloud index of each central point.
       point_voxel: `(c,)` int32, the row of its voxel in `coords`.
+      point_feats: `(c, f)` float32, its features less its voxel's (mean) features.
       patch_id: the patch's row in the partition.
     """
 
@@ -65,16 +69,12 @@ class Patch(NamedTuple):
     feats: np.ndarray
     point_index: np.ndarray
     point_voxel: np.ndarray
+    point_feats: np.ndarray
     patch_id: int
 
-    def central_counts(self, values: np.ndarray | None = None, n_values: int = 1) -> np.ndarray:
-        """Central points per voxel `(m,)`, or per voxel and value `(m, n_values)` of an int
-        per central point (`values` `(c,)` in `0..n_values-1`, e.g. labels)."""
-        m = len(self.coords)
-        if values is None:
-            return np.bincount(self.point_voxel, minlength=m).astype(np.float32)
-        flat = self.point_voxel.astype(np.int64) * n_values + values
-        return np.bincount(flat, minlength=m * n_values).reshape(m, n_values).astype(np.float32)
+    def central_counts(self) -> np.ndarray:
+        """Central points per voxel `(m,)` float32."""
+        return np.bincount(self.point_voxel, minlength=len(self.coords)).astype(np.float32)
 
 
 @functools.partial(jax.jit, static_argnames=("features", "r_in", "r_oc", "r_oo", "use_compression"))
@@ -151,7 +151,8 @@ def prepare(xyz_m: np.ndarray, members: np.ndarray, center_m: np.ndarray, patch_
         use_compression=config.compression))
     pts, central, feats = pts[:len(keep)], central[:len(keep)], feats[:len(keep)]
     coords, vfeats, row = voxelize(pts, feats, config.voxel_m)
-    return Patch(coords, vfeats, members[keep][central].astype(np.int64), row[central], int(patch_id))
+    return Patch(coords, vfeats, members[keep][central].astype(np.int64), row[central],
+                 feats[central] - vfeats[row[central]], int(patch_id))
 
 
 class Pack(NamedTuple):
@@ -160,7 +161,10 @@ class Pack(NamedTuple):
     Attributes:
       coords: `(M, 4)` int32 `(b, i, j, k)`, `b` = the patch's slot; feats `(M, f)`;
       valid: `(M,)` bool; weight `(M,)` float32, central points per voxel.
-      starts: `(slots,)` first row of each slot's patch (unused slots: M).
+      point_row: `(P,)` int32, the row of each central point's voxel (padding: 0);
+      point_feats: `(P, f)` (`Patch.point_feats`); point_valid: `(P,)` bool.
+      starts, point_starts: `(slots,)` first voxel row and first point row of each slot's
+        patch (unused slots: M, P).
       patches: the patches, by slot.
       plan: the pyramid plan of this capacity.
     """
@@ -169,7 +173,11 @@ class Pack(NamedTuple):
     feats: np.ndarray
     valid: np.ndarray
     weight: np.ndarray
+    point_row: np.ndarray
+    point_feats: np.ndarray
+    point_valid: np.ndarray
     starts: np.ndarray
+    point_starts: np.ndarray
     patches: tuple[Patch, ...]
     plan: sparse.PyramidPlan
 
@@ -177,51 +185,63 @@ class Pack(NamedTuple):
     def slots(self) -> int:
         return len(self.starts)
 
-    def per_voxel(self, columns: list[np.ndarray], width: int) -> np.ndarray:
-        """`(M, width)` float32: each patch's `(m, width)` block at its rows, 0 elsewhere."""
-        out = np.zeros((len(self.coords), width), np.float32)
-        for patch, start, block in zip(self.patches, self.starts, columns):
-            out[start:start + len(patch.coords)] = block
+    def per_point(self, columns: list[np.ndarray]) -> np.ndarray:
+        """`(P,)`: each patch's `(c,)` values of its central points at their rows, 0 elsewhere."""
+        out = np.zeros(len(self.point_row), columns[0].dtype if columns else np.int32)
+        for patch, start, values in zip(self.patches, self.point_starts, columns):
+            out[start:start + len(patch.point_index)] = values
         return out
 
 
 def pack(patches: list[Patch], slots: int, plans: dict[int, sparse.PyramidPlan] | None = None, *,
          min_capacity: int = PACK_VOXELS) -> Pack:
     """Concatenate up to `slots` patches (batch index = slot) into the smallest power of two
-    (at least `min_capacity`) that holds them, with the plan kept in `plans` for that capacity
-    (else `standard_plan`)."""
+    (at least `min_capacity`) that holds them, their central points into `POINTS_PER_VOXEL`
+    times as many rows (or more, a power of two times that, for a patch that needs it), with
+    the plan kept in `plans` for that capacity (else `standard_plan`)."""
     if not 1 <= len(patches) <= slots:
         raise ValueError(f"pack: 1..{slots} patches, got {len(patches)}")
     total = sum(len(p.coords) for p in patches)
     size = capacity(total, min_capacity)
+    n_points = sum(len(p.point_index) for p in patches)
+    points = capacity(n_points, POINTS_PER_VOXEL * size)
     coords = np.zeros((size, 4), np.int32)
     feats = np.zeros((size, patches[0].feats.shape[1]), np.float32)
     weight = np.zeros(size, np.float32)
+    point_row = np.zeros(points, np.int32)
+    point_feats = np.zeros((points, patches[0].feats.shape[1]), np.float32)
     starts = np.full(slots, size, np.int64)
-    row = 0
+    point_starts = np.full(slots, points, np.int64)
+    row = at = 0
     for slot, p in enumerate(patches):
-        m = len(p.coords)
+        m, c = len(p.coords), len(p.point_index)
         coords[row:row + m, 0] = slot
         coords[row:row + m, 1:] = p.coords
         feats[row:row + m] = p.feats
         weight[row:row + m] = p.central_counts()
-        starts[slot] = row
+        point_row[at:at + c] = row + p.point_voxel
+        point_feats[at:at + c] = p.point_feats
+        starts[slot], point_starts[slot] = row, at
         row += m
+        at += c
     K.check_range(coords, np.arange(size) < total, "sparsegf pack")
     plan = (plans or {}).get(size) or sparse.standard_plan(size, depth=DEPTH)
-    return Pack(coords, feats, np.arange(size) < total, weight, starts, tuple(patches), plan)
+    return Pack(coords, feats, np.arange(size) < total, weight, point_row, point_feats, np.arange(points) < n_points,
+                starts, point_starts, tuple(patches), plan)
 
 
 def group(patches, slots: int, max_voxels: int = PACK_VOXELS):
-    """Lists of consecutive patches to pack: at most `slots` patches and `max_voxels` voxels
-    each (a patch larger than that alone)."""
-    out, voxels = [], 0
+    """Lists of consecutive patches to pack: at most `slots` patches, `max_voxels` voxels and
+    `POINTS_PER_VOXEL * max_voxels` central points each (a patch larger than that alone)."""
+    out, voxels, points = [], 0, 0
     for p in patches:
-        if out and (len(out) == slots or voxels + len(p.coords) > max_voxels):
+        if out and (len(out) == slots or voxels + len(p.coords) > max_voxels
+                    or points + len(p.point_index) > POINTS_PER_VOXEL * max_voxels):
             yield out
-            out, voxels = [], 0
+            out, voxels, points = [], 0, 0
         out.append(p)
         voxels += len(p.coords)
+        points += len(p.point_index)
     if out:
         yield out
 
@@ -244,34 +264,50 @@ def run_with_room(run: Callable, packed: Pack, plans: dict[int, sparse.PyramidPl
     return result
 
 
-def forward(net: SparseGFNet, state, coords, feats, valid, weight, plan, slots: int):
-    """Per-voxel logits of a pack, the new state and whether its pyramid overflowed `plan`
-    (jit-able with `plan` and `slots` static)."""
-    pyramid = sparse.build_pyramid(coords, valid, plan)
-    x = sparse.SparseTensor(coords, jnp.where(valid[:, None], feats, 0.0), valid, 1, slots)
-    out, state = net(x, pyramid, weight, state)
+class Inputs(NamedTuple):
+    """The arrays of a pack that the network reads (`Pack`'s fields of the same names)."""
+
+    coords: jax.Array
+    feats: jax.Array
+    valid: jax.Array
+    weight: jax.Array
+    point_row: jax.Array
+    point_feats: jax.Array
+    point_valid: jax.Array
+
+
+def inputs(packed: Pack) -> Inputs:
+    return Inputs(*(getattr(packed, name) for name in Inputs._fields))
+
+
+def forward(net: SparseGFNet, state, x: Inputs, plan, slots: int):
+    """Per-point logits of a pack's central points, the new state and whether its pyramid
+    overflowed `plan` (jit-able with `plan` and `slots` static)."""
+    pyramid = sparse.build_pyramid(x.coords, x.valid, plan)
+    voxels = sparse.SparseTensor(x.coords, jnp.where(x.valid[:, None], x.feats, 0.0), x.valid, 1, slots)
+    out, state = net(voxels, pyramid, x.weight, x.point_row, x.point_feats, x.point_valid, state)
     return out, state, pyramid.overflowed
 
 
 @functools.partial(jax.jit, static_argnames=("skeleton", "plan", "slots"))
-def predict_voxels(arrays, state, coords, feats, valid, weight, *, skeleton, plan: sparse.PyramidPlan, slots: int):
-    """Ground probability `(M,)` of every voxel of a pack and whether it overflowed `plan`;
-    the network is `eqx.combine(arrays, skeleton)`, its batch norms in inference mode."""
-    out, _, overflowed = forward(eqx.combine(arrays, skeleton), state, coords, feats, valid, weight, plan, slots)
+def predict_points(arrays, state, x: Inputs, *, skeleton, plan: sparse.PyramidPlan, slots: int):
+    """Ground probability `(P,)` of every central point of a pack and whether it overflowed
+    `plan`; the network is `eqx.combine(arrays, skeleton)`, its batch norms in inference mode."""
+    out, _, overflowed = forward(eqx.combine(arrays, skeleton), state, x, plan, slots)
     return jax.nn.softmax(out.cls, axis=-1)[:, 1], overflowed
 
 
 def predict(model: Model, packed: Pack):
-    """Ground probability `(M,)` of every voxel of a pack (meaningful where it holds central
-    points) and whether the pack overflowed its plan (the probabilities are then wrong).
+    """Ground probability `(P,)` of every central point row of a pack (meaningful where
+    `point_valid`) and whether the pack overflowed its plan (the probabilities are then wrong).
     Returns JAX arrays without waiting for them (asynchronous dispatch). The program is kept
     across processes when `gfjax.aot` is on (the command line turns it on): its arguments are
     arrays, and the rest of the network (layer settings, the inference flags) is static."""
     arrays, skeleton = eqx.partition(eqx.nn.inference_mode(model.net), eqx.is_array)
-    return aot.call(predict_voxels, arrays, model.state, packed.coords, packed.feats, packed.valid, packed.weight,
-                    skeleton=skeleton, plan=packed.plan, slots=packed.slots)
+    return aot.call(predict_points, arrays, model.state, inputs(packed), skeleton=skeleton, plan=packed.plan,
+                    slots=packed.slots)
 
 
-def unpack(packed: Pack, voxel_values: np.ndarray) -> list[np.ndarray]:
-    """Each patch's central points' values `(c,)`, read from per-voxel values `(M,)`."""
-    return [voxel_values[start + p.point_voxel] for p, start in zip(packed.patches, packed.starts)]
+def unpack(packed: Pack, point_values: np.ndarray) -> list[np.ndarray]:
+    """Each patch's central points' values `(c,)`, read from per-point-row values `(P,)`."""
+    return [point_values[start:start + len(p.point_index)] for p, start in zip(packed.patches, packed.point_starts)]

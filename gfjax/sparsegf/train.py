@@ -18,10 +18,10 @@ import optax
 
 from gfjax.sparsegf.config import Config
 from gfjax.sparsegf.filter import patches
-from gfjax.sparsegf.hag import N_HAG_BINS, hag_targets
-from gfjax.sparsegf.loss import LAMBDA, counted_loss
+from gfjax.sparsegf.hag import hag_targets
+from gfjax.sparsegf.loss import LAMBDA, height_aware_loss
 from gfjax.sparsegf.model import Model
-from gfjax.sparsegf.pipeline import Pack, forward, group, pack, run_with_room
+from gfjax.sparsegf.pipeline import Pack, forward, group, inputs, pack, run_with_room
 
 # The paper's cosine schedule runs from 1e-1 to 1e-3 (Sec. 3.3). With Adam, group norms and
 # batches of 4 patches, 1e-1 made the loss jump from 3.3 to 15.7 at the second step of a tiny
@@ -47,12 +47,12 @@ def labelled(xyz_m: np.ndarray, classification: np.ndarray, *, ground_class: int
 
 
 class Step(NamedTuple):
-    """One training step's inputs: a pack and, per voxel, its central points of each class
-    `(M, 2)` and of each HAG bin `(M, 6)`."""
+    """One training step's inputs: a pack and, per central point row `(P,)` int32, its label
+    (1 = ground) and its HAG bin."""
 
     packed: Pack
-    cls_counts: np.ndarray
-    bin_counts: np.ndarray
+    labels: np.ndarray
+    bins: np.ndarray
 
 
 def training_batches(data: list[Labelled], config: Config, *, batch_size: int, rng: np.random.Generator,
@@ -78,11 +78,9 @@ def training_batches(data: list[Labelled], config: Config, *, batch_size: int, r
     source = {id(p): d for d, p in order}
     for todo in group([p for _, p in order], batch_size):
         packed = pack(todo, batch_size, plans, min_capacity=TRAIN_MIN_CAPACITY)
-        cls_counts = packed.per_voxel([p.central_counts(source[id(p)].ground[p.point_index].astype(np.int64), 2)
-                                       for p in todo], 2)
-        bin_counts = packed.per_voxel([p.central_counts(source[id(p)].hag_bin[p.point_index].astype(np.int64),
-                                                        N_HAG_BINS) for p in todo], N_HAG_BINS)
-        yield Step(packed, cls_counts, bin_counts)
+        labels = packed.per_point([source[id(p)].ground[p.point_index].astype(np.int32) for p in todo])
+        bins = packed.per_point([source[id(p)].hag_bin[p.point_index].astype(np.int32) for p in todo])
+        yield Step(packed, labels, bins)
 
 
 def learning_rate(progress: float, lr: float = LR_START) -> float:
@@ -98,10 +96,10 @@ def optimizer() -> optax.GradientTransformation:
 
 
 @eqx.filter_jit
-def _train_step(net, state, opt_state, coords, feats, valid, weight, cls_counts, bin_counts, plan, slots, opt, lam):
+def _train_step(net, state, opt_state, x, labels, bins, plan, slots, opt, lam):
     def loss_fn(net):
-        out, _, overflowed = forward(eqx.nn.inference_mode(net), state, coords, feats, valid, weight, plan, slots)
-        loss = counted_loss(out.cls, out.hag, cls_counts, bin_counts, lam=lam)
+        out, _, overflowed = forward(eqx.nn.inference_mode(net), state, x, plan, slots)
+        loss = height_aware_loss(out.cls, out.hag, labels, bins, x.point_valid, lam=lam)
         return loss.total, (loss, overflowed)
 
     (_, (loss, overflowed)), grads = eqx.filter_value_and_grad(loss_fn, has_aux=True)(net)
@@ -121,14 +119,13 @@ def train_step(model: Model, opt_state, step: Step, opt: optax.GradientTransform
         opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams,
                                                      "learning_rate": jnp.asarray(lr, jnp.float32)})
     net, opt_state, loss, overflowed = _train_step(
-        model.net, model.state, opt_state, p.coords, p.feats, p.valid, p.weight, step.cls_counts, step.bin_counts,
-        p.plan, p.slots, opt, lam)
+        model.net, model.state, opt_state, inputs(p), step.labels, step.bins, p.plan, p.slots, opt, lam)
     return Model(net, model.state), opt_state, loss, overflowed
 
 
 @eqx.filter_jit
-def _measure(net, state, coords, feats, valid, weight, plan, slots):
-    return forward(net, state, coords, feats, valid, weight, plan, slots)[1]
+def _measure(net, state, x, plan, slots):
+    return forward(net, state, x, plan, slots)[1]
 
 
 def calibrate(model: Model, steps: list[Step], passes: int = CALIBRATION_PASSES) -> Model:
@@ -146,7 +143,7 @@ def calibrate(model: Model, steps: list[Step], passes: int = CALIBRATION_PASSES)
     state = model.state
     for step in steps[:passes]:
         p = step.packed
-        state = _measure(model.net, state, p.coords, p.feats, p.valid, p.weight, p.plan, p.slots)
+        state = _measure(model.net, state, inputs(p), p.plan, p.slots)
     return Model(model.net, state)
 
 

@@ -10,7 +10,6 @@ import pytest
 from jax.test_util import check_grads
 
 from gfjax.sparsegf import HAG_WEIGHTS, height_aware_loss
-from gfjax.sparsegf.loss import counted_loss
 
 N = 16
 
@@ -165,20 +164,3 @@ def test_bad_shapes_and_lambda_raise():
         height_aware_loss(**{**case, "labels": case["labels"][:3]})
     with pytest.raises(ValueError, match="lam"):
         height_aware_loss(**case, lam=1.5)
-
-
-@pytest.mark.parametrize("name", sorted(CASES))
-def test_counts_per_group_equal_the_loss_of_their_points(name):
-    case = random_case(**CASES[name])
-    groups = np.random.default_rng(5).integers(0, 5, N)            # points sharing logits
-    logits_cls = np.random.default_rng(6).normal(0, 2, (5, 2)).astype(np.float32)
-    logits_hag = np.random.default_rng(7).normal(0, 2, (5, 6)).astype(np.float32)
-    mask = case["central_mask"]
-    per_point = height_aware_loss(logits_cls[groups], logits_hag[groups], case["labels"], case["hag_bins"], mask)
-    cls_counts = np.zeros((5, 2), np.float32)
-    bin_counts = np.zeros((5, 6), np.float32)
-    np.add.at(cls_counts, (groups[mask], case["labels"][mask]), 1)
-    np.add.at(bin_counts, (groups[mask], case["hag_bins"][mask]), 1)
-    grouped = jax.jit(counted_loss)(logits_cls, logits_hag, cls_counts, bin_counts)
-    for a, b in zip(per_point, grouped):
-        np.testing.assert_allclose(float(a), float(b), rtol=1e-5, atol=1e-6)

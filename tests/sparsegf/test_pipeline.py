@@ -33,7 +33,8 @@ def test_thinning_keeps_every_central_point_and_is_seeded():
 
 def fake_patch(m, c, pid):
     coords = np.column_stack([np.arange(m) % 256, np.arange(m) // 256, np.zeros(m)]).astype(np.int32)
-    return pipeline.Patch(coords, np.ones((m, 2), np.float32), np.arange(c), np.arange(c) % m, pid)
+    return pipeline.Patch(coords, np.ones((m, 2), np.float32), np.arange(c), np.arange(c) % m,
+                          np.full((c, 2), pid, np.float32), pid)
 
 
 def test_packs_hold_at_most_their_slots_and_voxels_in_order():
@@ -45,16 +46,29 @@ def test_packs_hold_at_most_their_slots_and_voxels_in_order():
     np.testing.assert_array_equal(packed.starts, [0, 100, 300])
     np.testing.assert_array_equal(packed.coords[:30_300, 0], np.repeat([0, 1, 2], [100, 200, 30_000]))
     assert packed.valid.sum() == 30_300 and packed.weight.sum() == 9
+    assert len(packed.point_row) == pipeline.POINTS_PER_VOXEL * len(packed.coords) and packed.point_valid.sum() == 9
+    np.testing.assert_array_equal(packed.point_starts, [0, 3, 6])
+    np.testing.assert_array_equal(packed.point_row[:9], np.repeat(packed.starts, 3) + np.tile(np.arange(3), 3))
+    np.testing.assert_array_equal(packed.point_feats[:9, 0], np.repeat([0, 1, 2], 3))
+    np.testing.assert_array_equal(packed.per_point([np.arange(3), np.arange(3) + 3, np.arange(3) + 6])[:10],
+                                  [0, 1, 2, 3, 4, 5, 6, 7, 8, 0])
     assert pipeline.pack(groups[2], 3).coords.shape[0] == 131_072        # a patch larger than a pack alone
     with pytest.raises(ValueError, match="1..3 patches"):
         pipeline.pack(found[:4], 3)
 
 
-def test_central_counts_per_voxel_and_per_label():
+def test_packs_hold_at_most_their_share_of_central_points():
+    per_pack = pipeline.POINTS_PER_VOXEL * 1_000
+    found = [fake_patch(10, c, i) for i, c in enumerate([per_pack // 2, per_pack // 2, 1, pipeline.POINTS_PER_VOXEL * 1_024 + 5])]
+    groups = list(pipeline.group(found, 8, max_voxels=1_000))
+    assert [[p.patch_id for p in g] for g in groups] == [[0, 1], [2], [3]]
+    assert len(pipeline.pack(groups[2], 8, min_capacity=1_024).point_row) == 2 * pipeline.POINTS_PER_VOXEL * 1_024
+
+
+def test_central_counts_per_voxel():
     p = pipeline.Patch(np.zeros((4, 3), np.int32), np.zeros((4, 1), np.float32), np.arange(5),
-                       np.array([0, 0, 2, 3, 3]), 0)
+                       np.array([0, 0, 2, 3, 3]), np.zeros((5, 1), np.float32), 0)
     np.testing.assert_array_equal(p.central_counts(), [2, 0, 1, 2])
-    np.testing.assert_array_equal(p.central_counts(np.array([1, 0, 1, 1, 1]), 2), [[1, 1], [0, 0], [0, 1], [0, 2]])
 
 
 @pytest.mark.parametrize("shift", [(0.0, 0.0), (12.5, 40.0), (49.9, 0.1)])
