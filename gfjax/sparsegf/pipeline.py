@@ -277,6 +277,7 @@ class Inputs(NamedTuple):
 
 
 def inputs(packed: Pack) -> Inputs:
+    """The network's arrays of `packed` (its plan and slot count are passed as static)."""
     return Inputs(*(getattr(packed, name) for name in Inputs._fields))
 
 
