@@ -35,6 +35,7 @@ RANGES: dict[str, Range] = {
     "--batch": Range(1, 1024, integer=True),
     "--lr": Range(0, 10, low_open=True),
     "--seed": Range(0, 2**32 - 1, integer=True),
+    "--min-patches-per-file": Range(0, 100_000, integer=True),
     "--repeat": Range(1, 10_000, integer=True),
     "--timeout": Range(0, 1e7, low_open=True, unit="s"),
 }

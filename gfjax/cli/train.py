@@ -34,6 +34,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--lr", type=ranged("--lr"), default=None,
                         help="initial learning rate of the cosine schedule (default 1e-2; the paper's 1e-1 diverged here)")
     parser.add_argument("--seed", type=ranged("--seed"), default=0, help="seed of the weights, rotations and order (default 0)")
+    parser.add_argument("--min-patches-per-file", type=ranged("--min-patches-per-file"), default=0, metavar="N",
+                        help="draw a file with fewer patches again (new shifts and rotations) until it gives N "
+                             "per epoch, so small tiles weigh as much as large ones (default 0: every patch once)")
     parser.add_argument("--validate", nargs="+", default=(), metavar="FILES", help="labelled files scored after each epoch")
     parser.add_argument("--ground-class", type=ranged("--ground-class"), default=2, help="class code of ground in the labels (default 2)")
     parser.add_argument("--features", choices=FEATURE_SETS, default=DEFAULT_FEATURES,
@@ -96,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     if args.no_refinement:
         net_config = dataclasses.replace(net_config, refine=0)
     data = _load(inputs, args.units, args.ground_class)
-    n_patches = sgf_train.count_patches(data, config)
+    n_patches = sgf_train.count_patches(data, config, args.min_patches_per_file)
     print(f"{args.preset}: {count_parameters(net_config):,} parameters; about {n_patches} patches per epoch "
           f"from {len(inputs)} files, up to {args.batch} per step")
     if args.dry_run:
@@ -125,9 +128,11 @@ def run(args: argparse.Namespace) -> int:
     lam = 0.0 if args.no_hag_loss else sgf_train.LAMBDA
     model, logs = sgf_train.fit(model, data, config=config, epochs=args.epochs, batch_size=args.batch, seed=args.seed,
                               resume_path=state_path, validate=val, lam=lam, lr=args.lr or sgf_train.LR_START,
+                              min_patches=args.min_patches_per_file,
                               on_step=on_step, on_epoch=on_epoch)
     bar.close()
     meta = {"preset": args.preset, "seed": args.seed, "epochs": args.epochs, "batch": args.batch,
+            "min_patches_per_file": args.min_patches_per_file,
             "files": [Path(p).name for p in inputs], "validate": [Path(p).name for p in validate],
             "config": dataclasses.asdict(config), "lambda": lam, "lr": args.lr or sgf_train.LR_START, "seconds": time.perf_counter() - started,
             "logs": [log._asdict() for log in logs]}

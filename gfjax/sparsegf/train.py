@@ -56,11 +56,14 @@ class Step(NamedTuple):
 
 
 def training_batches(data: list[Labelled], config: Config, *, batch_size: int, rng: np.random.Generator,
-                     plans: dict | None = None):
+                     plans: dict | None = None, min_patches: int = 0):
     """One epoch of steps: every patch of every cloud once, in random order.
 
     Augmentation: the grid of patch axes is shifted at random per cloud (the central regions
     fall on new places each epoch) and each patch is rotated about z at random (the paper's).
+    A cloud with fewer than `min_patches` patches is drawn again on new shifts and rotations
+    until it gives `min_patches`, so a small tile (a forest plot among city blocks) weighs as
+    much as the others in an epoch; 0 keeps the paper's one pass.
     Up to `batch_size` patches are packed per step (`pipeline.pack`, at most
     `pipeline.PACK_VOXELS` voxels unless one patch is larger), into `TRAIN_MIN_CAPACITY` or
     `PACK_VOXELS` rows (a few sparse ISPRS patches fill the first, a dense forest patch needs
@@ -70,10 +73,18 @@ def training_batches(data: list[Labelled], config: Config, *, batch_size: int, r
     plans = {} if plans is None else plans
     items = []
     for d in data:
-        shift = rng.uniform(0.0, config.step_m, 2)
-        draw = lambda: float(rng.uniform(0.0, 2 * np.pi))           # noqa: E731
-        items += [(d, p) for p in patches(d.xyz_m, config, angle=draw, seed=int(rng.integers(1 << 30)),
-                                          shift_m=shift)]
+        drawn = []
+        while True:
+            shift = rng.uniform(0.0, config.step_m, 2)
+            draw = lambda: float(rng.uniform(0.0, 2 * np.pi))           # noqa: E731
+            more = list(patches(d.xyz_m, config, angle=draw, seed=int(rng.integers(1 << 30)), shift_m=shift))
+            if not more:
+                break
+            need = min_patches - len(drawn)
+            drawn += more if not drawn or need >= len(more) else [more[i] for i in rng.permutation(len(more))[:need]]
+            if len(drawn) >= min_patches:
+                break
+        items += [(d, p) for p in drawn]
     order = [items[i] for i in rng.permutation(len(items))]
     source = {id(p): d for d, p in order}
     for todo in group([p for _, p in order], batch_size):
@@ -166,11 +177,13 @@ class EpochLog(NamedTuple):
     seconds: float
 
 
-def count_patches(data: list[Labelled], config: Config) -> int:
+def count_patches(data: list[Labelled], config: Config, min_patches: int = 0) -> int:
+    """Patches in an epoch of `training_batches` (about: the count varies with the grid shift)."""
     from gfjax.sparsegf.partition import PartitionConfig, partition
 
     pc = PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m)
-    return sum(len(partition(d.xyz_m, pc).centers_m) for d in data)
+    counts = [len(partition(d.xyz_m, pc).centers_m) for d in data]
+    return sum(max(c, min_patches) if c else 0 for c in counts)
 
 
 def validation_error(model: Model, data: list[Labelled], config: Config) -> float:
@@ -187,11 +200,11 @@ def validation_error(model: Model, data: list[Labelled], config: Config) -> floa
 
 def fit(model: Model, data: list[Labelled], *, config: Config, epochs: int, batch_size: int, seed: int,
         resume_path=None, validate: list[Labelled] | None = None, lam: float = LAMBDA, lr: float = LR_START,
-        on_step=None, on_epoch=None):
+        min_patches: int = 0, on_step=None, on_epoch=None):
     """Train `model` for `epochs` epochs; deterministic given `seed`.
 
     The learning rate follows a cosine from `lr` to `lr * LR_END_RATIO` over the run (per
-    step). Epoch `e` draws its grid shifts, rotations, thinning and order from
+    step); `min_patches` is `training_batches`'. Epoch `e` draws its grid shifts, rotations, thinning and order from
     `numpy.random.default_rng([seed, e])`, so a run resumed from the checkpoint at
     `resume_path` (written after every epoch: model, optimizer state, epoch) continues exactly
     as the uninterrupted run would. `on_step(epoch, step, steps in the epoch, [loss, cls,
@@ -207,7 +220,8 @@ def fit(model: Model, data: list[Labelled], *, config: Config, epochs: int, batc
         start = time.perf_counter()
         totals = []
         rng = np.random.default_rng([seed, epoch])
-        steps = list(training_batches(data, config, batch_size=batch_size, rng=rng, plans=plans))
+        steps = list(training_batches(data, config, batch_size=batch_size, rng=rng, plans=plans,
+                                      min_patches=min_patches))
         model = calibrate(model, steps)
         for i, step in enumerate(steps):
             rate = learning_rate((epoch + i / len(steps)) / epochs, lr)

@@ -135,6 +135,23 @@ def test_training_steps_lower_the_loss_and_are_deterministic(net):
     assert run() == first
 
 
+def test_a_small_file_is_drawn_again_until_it_gives_min_patches():
+    xyz, cls = scene()
+    big = np.column_stack([xyz[:, 0] * 4 - 3 * xyz[0, 0], xyz[:, 1] * 4 - 3 * xyz[0, 1], xyz[:, 2]])
+    data = [train.labelled(xyz, cls), train.labelled(big, cls)]     # about 2 and 20 patches a pass
+
+    def count(min_patches):
+        steps = train.training_batches(data, Config(), batch_size=4, rng=np.random.default_rng(3),
+                                       min_patches=min_patches)
+        return sum(len(step.packed.patches) for step in steps)
+
+    one_pass = count(0)
+    assert 10 < one_pass < 40
+    assert count(1) == one_pass                       # a minimum every file meets changes nothing
+    assert count(40) == 80                            # both files topped up to exactly 40
+    assert train.count_patches(data, Config(), 40) == 80
+
+
 def test_a_pack_that_overflows_the_standard_plan_runs_again_with_a_grown_plan(net):
     # a solid 48 x 48 x 16 block of voxels: 27 kernel-3 neighbours each, more than the
     # standard plan's room, so the first run overflows
