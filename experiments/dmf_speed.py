@@ -86,8 +86,8 @@ _ANATOMY_CHILD = r"""
 import time
 marks = [("interpreter start", time.time())]
 import json, sys
-from gfjax.cli import main as cli_main
-cli_main.enable_compilation_cache()
+from gfjax import cache
+cache.enable()
 import jax
 from jax import monitoring
 jit = {}

@@ -7,17 +7,22 @@ result = gfjax.smrf.filter(cloud)
 gfjax.write(cloud.with_ground(result.ground), "out.laz")
 ```
 Method packages (`gfjax.smrf`, `gfjax.dmf`, ...) are imported on first attribute access.
+Compiled programs are kept in `~/.cache/gfjax` for later processes (`gfjax.cache`;
+`GFJAX_CACHE=0` turns that off).
 """
 from __future__ import annotations
 
 import importlib
 
+from gfjax import cache as _cache
 from gfjax.io.cloud import Cloud
 from gfjax.result import Result
 
 __version__ = "0.1.0"
 
-_LAZY = {"data", "bench", "smrf", "dmf", "masf", "pmf", "csf", "sparsegf", "raster", "dtm", "metrics", "tune", "io", "methods"}
+_cache.setup()
+
+_LAZY = {"data", "bench", "smrf", "dmf", "masf", "pmf", "csf", "sparsegf", "raster", "dtm", "metrics", "tune", "io", "methods", "cache", "aot"}
 _LAZY_FUNCS = {"read": "gfjax.io.las", "write": "gfjax.io.las"}
 
 

@@ -22,6 +22,13 @@ if "GFJAX_TEST_KEEP_CACHE" not in os.environ:
     import tempfile
     os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="gfjax-test-cache-")
 
+# `import gfjax` turns the persistent caches on (`gfjax.cache.setup`); the tests' own process
+# keeps them off, so each test sees plain jit unless it enables a cache itself. Subprocesses
+# get the default (caches on, in the folder above).
+os.environ["GFJAX_CACHE"] = "0"
+import gfjax  # noqa: E402,F401
+del os.environ["GFJAX_CACHE"]
+
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
 jax.config.update("jax_enable_x64", False)
@@ -46,7 +53,7 @@ def isprs_sample():
 @pytest.fixture(autouse=True)
 def _program_cache_off_after_each_test():
     """`gfjax.cli.main` turns `gfjax.aot` on for its process; an in-process CLI test must not
-    leave it on for the next test of the same worker (the Python API default is off)."""
+    leave it on for the next test of the same worker (it is off in the tests' process)."""
     yield
     from gfjax import aot
 

@@ -14,7 +14,7 @@ import pytest
 
 import gfjax
 from gfjax import aot, dmf
-from gfjax.cli import main as cli_main
+from gfjax import cache
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "dmf"))
 import dmf_scenes as scenes  # noqa: E402
@@ -59,7 +59,7 @@ def _same(a, b):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
-def test_off_by_default_is_the_plain_call(tmp_path):
+def test_off_is_the_plain_call(tmp_path):
     assert aot.enabled_folder() is None
     out = _call(scale_and_sum, *_args(), factor=3)
     _same(out, scale_and_sum(*_args(), factor=3))
@@ -210,14 +210,14 @@ def test_dmf_through_the_cache_equals_the_plain_call(folder):
 
 
 @pytest.mark.parametrize("setting, expected", [(None, "default"), ("", None), ("0", None), ("/tmp/gfjax-x", "/tmp/gfjax-x")])
-def test_cli_export_cache_folder(monkeypatch, setting, expected):
+def test_export_cache_folder(monkeypatch, setting, expected):
     if setting is None:
         monkeypatch.delenv("GFJAX_EXPORT_CACHE", raising=False)
     else:
         monkeypatch.setenv("GFJAX_EXPORT_CACHE", setting)
-    folder = cli_main.export_cache_folder()
+    folder = cache.export_folder()
     if expected == "default":
-        assert folder == cli_main.cache_folder().parent / "export"
+        assert folder == cache.folder().parent / "export"
     else:
         assert folder == (None if expected is None else type(folder)(expected))
 
@@ -260,7 +260,8 @@ def test_stored_programs_run_in_a_new_process_when_jax_cache_is_warm(tmp_path):
 
     def run(export_folder):
         return subprocess.run([sys.executable, "-c", _PROCESS, str(jax_cache), export_folder, here],
-                              capture_output=True, text=True, check=True).stdout.strip()
+                              capture_output=True, text=True, check=True,
+                              env={**os.environ, "GFJAX_CACHE": "0"}).stdout.strip()
 
     plain = run("-")
     assert run(str(export)) == plain

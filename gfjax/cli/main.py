@@ -32,11 +32,10 @@ import sys
 import threading
 import traceback
 from collections.abc import Sequence
-from pathlib import Path
 from types import ModuleType
 from typing import NoReturn
 
-from gfjax import aot
+from gfjax import aot, cache
 from gfjax.errors import InputError
 
 # Subcommand module names, in help order, with their one-line help (shown without importing).
@@ -51,7 +50,6 @@ SUBCOMMANDS: dict[str, str] = {
     "demo": "filter the embedded sample (no arguments, no network)",
 }
 ALWAYS_LISTED = ("demo",)
-CACHE_SIZE_BYTES = 1 << 30  # bound of the persistent JAX compilation cache
 
 
 class _Parser(argparse.ArgumentParser):
@@ -135,62 +133,6 @@ def _refuse_empty_arguments(parser: argparse.ArgumentParser, args: argparse.Name
             raise InputError(f"{label}: empty argument ''")
 
 
-def cache_folder() -> Path:
-    """`$XDG_CACHE_HOME/gfjax/jax`, by default `~/.cache/gfjax/jax`."""
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "gfjax" / "jax"
-
-
-def export_cache_folder() -> Path | None:
-    """`$GFJAX_EXPORT_CACHE` if set (empty or "0": no export cache), else `gfjax/export` beside
-    `cache_folder()`."""
-    setting = os.environ.get("GFJAX_EXPORT_CACHE")
-    if setting is None:
-        return cache_folder().parent / "export"
-    return None if setting in ("", "0") else Path(setting)
-
-
-def enable_compilation_cache() -> Path | None:
-    """Turn on JAX's persistent compilation cache in `cache_folder()` (before any compile), and
-    gfjax's cache of compiled programs (`gfjax.aot`) beside it, in `export_cache_folder()`.
-
-    Every compiled program is kept (`min_compile_time_secs = 0`), up to `CACHE_SIZE_BYTES`
-    (JAX needs the `filelock` package to enforce that bound; without it the cache is unbounded).
-    Settings the user made through `JAX_*` environment variables win.
-
-    JAX's cache holds executables, so its folder obeys `gfjax.aot`'s rule
-    (`aot.private_folder`): private to this user (0700), every folder above it writable by no
-    one else. A folder named in `JAX_COMPILATION_CACHE_DIR` is checked too (a remote URL is
-    left to JAX). A refused folder means no persistent cache for this process (one warning
-    line on stderr). Returns the local folder in use, or None.
-    """
-    export_folder = export_cache_folder()
-    if export_folder is not None:
-        aot.enable(export_folder)
-    jax = sys.modules.get("jax")
-    user_folder = os.environ.get("JAX_COMPILATION_CACHE_DIR")
-    if user_folder and "://" in user_folder:    # a remote store (gs://...): no owner or mode to check
-        return None
-    folder = aot.private_folder(user_folder or cache_folder(), what="persistent compilation cache")
-    if folder is None:
-        if user_folder:
-            _turn_off_jax_cache(jax)
-        return None
-    settings = {"jax_compilation_cache_dir": str(folder),
-                "jax_persistent_cache_min_compile_time_secs": 0.0,
-                "jax_persistent_cache_min_entry_size_bytes": 0}
-    if importlib.util.find_spec("filelock") is not None:
-        settings["jax_compilation_cache_max_size"] = CACHE_SIZE_BYTES
-    for key, value in settings.items():
-        if key.upper() in os.environ:
-            continue
-        if jax is not None:
-            jax.config.update(key, value)
-        else:  # read by JAX when it is first imported; no JAX import for `gfjax info`
-            os.environ[key.upper()] = str(value)
-    return folder
-
-
 def _method_of(args: argparse.Namespace) -> str | None:
     """The one method a command runs, if it names one (`filter` without `--method`: the default)."""
     method = getattr(args, "method", None)
@@ -236,13 +178,6 @@ def _talk(*, quiet: bool, method: str | None):
             os.environ.pop("TQDM_DISABLE", None)
         elif quiet:
             os.environ["TQDM_DISABLE"] = before
-
-
-def _turn_off_jax_cache(jax) -> None:
-    """No persistent compilation cache in this process (JAX reads its folder when first used)."""
-    if jax is not None:
-        jax.config.update("jax_compilation_cache_dir", None)
-    os.environ["JAX_COMPILATION_CACHE_DIR"] = ""     # read by JAX when it is first imported
 
 
 HANDLED_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
@@ -353,7 +288,7 @@ def _run(argv: Sequence[str]) -> int:
             _refuse_empty_arguments(parser, args)
             if module is None:
                 raise InputError(f"{args.command}: not available in this build")
-            enable_compilation_cache()
+            cache.setup()
             with _talk(quiet=args.quiet, method=_method_of(args)):
                 code = int(module.run(args) or 0)
             sys.stdout.flush()              # a closed pipe is found here, not at exit

@@ -11,6 +11,7 @@ import numpy as np
 import pyproj
 import pytest
 
+from gfjax import cache
 from gfjax.cli import main as cli_main
 from gfjax.result import Result
 
@@ -97,7 +98,7 @@ def fake_methods(monkeypatch):
 @pytest.fixture(autouse=True)
 def no_compilation_cache(monkeypatch):
     """Keep the in-process tests from pointing JAX at the user's cache folder."""
-    monkeypatch.setattr(cli_main, "enable_compilation_cache", lambda: None)
+    monkeypatch.setattr(cache, "setup", lambda: None)
 
 
 def run_cli(capsys, *argv) -> tuple[int, str, str]:

@@ -148,7 +148,7 @@ def test_subprocess_exit_codes_and_messages(files):
 
 
 def test_subprocess_enables_the_compilation_cache(tmp_path):
-    script = ("import sys; from gfjax.cli.main import enable_compilation_cache as e; folder = e(); "
+    script = ("import sys; from gfjax.cache import enable as e; folder = e(); "
               "import jax; c = jax.config; "
               "print(folder, c.jax_compilation_cache_dir, c.jax_persistent_cache_min_compile_time_secs, "
               "c.jax_compilation_cache_max_size)")

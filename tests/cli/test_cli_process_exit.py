@@ -24,7 +24,8 @@ module = cli_helpers._fake_module("fake", instances=False)
 sys.modules["_gfjax_test_fake"] = module
 methods.METHODS["fake"] = "_gfjax_test_fake"
 from gfjax.cli import main as cli_main
-cli_main.enable_compilation_cache = lambda: None
+import gfjax.cache
+gfjax.cache.setup = lambda: None
 sys.argv = ["gfjax", *sys.argv[1:]]
 """
 _PROGRAM = _SETUP + """

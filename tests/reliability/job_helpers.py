@@ -53,7 +53,8 @@ module = cli_helpers._fake_module("fake", instances=False)
 sys.modules["_gfjax_test_fake"] = module
 methods.METHODS["fake"] = "_gfjax_test_fake"
 from gfjax.cli import main as cli_main
-cli_main.enable_compilation_cache = lambda: None
+import gfjax.cache
+gfjax.cache.setup = lambda: None
 if os.environ.get("GFJAX_TEST_SLOW_WRITE"):
     from gfjax.io import las as las_io
     real_write, count = las_io._write_las, [0]

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
-_SCRIPT = ("from gfjax.cli.main import enable_compilation_cache as e; folder = e(); "
+_SCRIPT = ("from gfjax.cache import enable as e; folder = e(); "
            "import jax; print(folder, jax.config.jax_compilation_cache_dir or None)")  # "" is off too
 
 
