@@ -146,31 +146,6 @@ def ring_stats(labels: np.ndarray, values: np.ndarray, valid: np.ndarray, connec
     return count, vcount, vmin, vmax, mean
 
 
-def patch_stats(labels: np.ndarray, values: np.ndarray, valid: np.ndarray, num_labels: int) -> dict:
-    """Per-label statistics by boolean indexing, one label at a time."""
-    h, w = labels.shape
-    out = {key: [] for key in ("count", "valid_count", "min", "max", "mean", "row_min", "row_max",
-                                "col_min", "col_max", "touches_north", "touches_south", "touches_west", "touches_east")}
-    for lab in range(num_labels + 1):
-        region = labels == lab
-        sel = region & valid
-        rr, cc = np.nonzero(region)
-        out["count"].append(region.sum())
-        out["valid_count"].append(sel.sum())
-        out["min"].append(values[sel].min() if sel.any() else np.inf)
-        out["max"].append(values[sel].max() if sel.any() else -np.inf)
-        out["mean"].append(values[sel].astype(np.float64).mean() if sel.any() else 0.0)
-        out["row_min"].append(rr.min() if rr.size else h)
-        out["row_max"].append(rr.max() if rr.size else -1)
-        out["col_min"].append(cc.min() if cc.size else w)
-        out["col_max"].append(cc.max() if cc.size else -1)
-        out["touches_north"].append(bool(region[0].any()))
-        out["touches_south"].append(bool(region[-1].any()))
-        out["touches_west"].append(bool(region[:, 0].any()))
-        out["touches_east"].append(bool(region[:, -1].any()))
-    return {key: np.asarray(v) for key, v in out.items()}
-
-
 def rasterize(xy: np.ndarray, z: np.ndarray, valid: np.ndarray, cell_m: float, shape: tuple[int, int]) -> dict:
     """Per-cell min/max/mean/count/argmin by a Python loop over the points (row 0 = north)."""
     h, w = shape

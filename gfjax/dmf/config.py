@@ -6,10 +6,10 @@ rule): 13.54 % mean total error on the 11 shared ISPRS samples. The defaults are
 chosen by `experiments/dmf_readings.py` (`experiments/results/dmf_readings.md`) among the 96
 readings that meet the forest criterion (DTM RMSE <= 0.3 m and R_O <= 5 % on both BCTS tiles):
 leave-one-out on the 11 ISPRS samples (choose on 10, score the 11th) gave 10.48 % mean total
-error against 13.54 % for the SPEC reading, and the reading chosen on all 11, now the default,
+error against 13.54 % for the SPEC reading, and the reading chosen on all 11 (these defaults)
 scores 9.32 % (worst sample 20.9 %) with DTM RMSE 0.172 m / 0.234 m on bcts_1 / bcts_2:
 per-node basal stop, per-hole test, closing of every patch, height rule at 0.15 W above the
-support surface (the previous default, 0.5 m, scored 9.91 % but 0.343 m on bcts_2).
+support surface (a fixed 0.5 m there scores 9.91 % but 0.343 m on bcts_2).
 """
 from __future__ import annotations
 

@@ -24,7 +24,6 @@ from gfjax import aot
 from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import extract, neighbours, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params
-from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
 from gfjax.io.tiled import checked_options
 from gfjax.raster import label_components, relabel_consecutive

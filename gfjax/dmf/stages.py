@@ -301,8 +301,8 @@ def patch_correction(ngnem: Raster, layer: Labels, bi: Mask, inside: Mask,
                                              "close_all"))
 def raster_stages(z: Raster, layer: Labels, valid: Mask, inside: Mask, cell_m: Float[Array, ""],
                   rc_min_share: Float[Array, ""] = 1.0, *,
-                  max_filter_px: int = 2, max_close_px: int = 15,
-                  border_patches: bool = True, hole_test: str = "patch", close_all: bool = False) -> RasterStages:
+                  max_filter_px: int, max_close_px: int, border_patches: bool, hole_test: str,
+                  close_all: bool) -> RasterStages:
     """Steps 4-6 of DMF on one tile (Wu et al. 2025, Sec. 2.3 end - 2.5).
 
     Args:

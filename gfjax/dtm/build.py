@@ -1,6 +1,6 @@
 """Build a DTM raster from the ground points of a cloud: cell means, TIN fill, nodata.
 
-Steps (issue 2, part 5; SPEC section 1 "dtm.build"):
+Steps (SPEC section 1 "dtm.build"):
 1. A grid of square cells of `cell_m` metres, converted to the file's horizontal unit (feet
    data get a 3.2808 ft cell for 1 m), with its origin snapped to whole multiples of the cell
    so DTMs of neighbouring tiles line up. It covers the x-y extent of the cloud's points

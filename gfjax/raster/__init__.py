@@ -5,20 +5,9 @@ are carried by a `valid` mask, never NaN. Row 0 of a raster is its northern edge
 `gfjax.raster.grid`). The contract is `docs/ARCHITECTURE.md`, section "Raster kernels".
 """
 from gfjax.raster.fill import fill_holes, inpaint_harmonic, inpaint_nearest, nearest_valid_index, solve_harmonic
-from gfjax.raster.grid import Grid, cell_index, sample_bilinear
-from gfjax.raster.label import (
-    PatchStats,
-    RingStats,
-    boundary_ring,
-    label_components,
-    patch_stats,
-    relabel_consecutive,
-)
+from gfjax.raster.grid import cell_index, sample_bilinear
+from gfjax.raster.label import RingStats, boundary_ring, label_components, relabel_consecutive
 from gfjax.raster.morphology import (
-    binary_closing,
-    binary_dilate,
-    binary_erode,
-    binary_opening,
     chord_half_widths,
     closing,
     dilate,
@@ -31,9 +20,8 @@ from gfjax.raster.morphology import (
 from gfjax.raster.rasterize import CellStats, flat_cell, rasterize
 
 __all__ = [
-    "Grid", "cell_index", "sample_bilinear", "CellStats", "rasterize", "flat_cell",
+    "cell_index", "sample_bilinear", "CellStats", "rasterize", "flat_cell",
     "inpaint_nearest", "inpaint_harmonic", "solve_harmonic", "nearest_valid_index", "fill_holes",
     "disk", "chord_half_widths", "min_filter", "max_filter", "erode", "dilate", "opening", "closing",
-    "binary_erode", "binary_dilate", "binary_opening", "binary_closing",
-    "label_components", "relabel_consecutive", "PatchStats", "patch_stats", "RingStats", "boundary_ring",
+    "label_components", "relabel_consecutive", "RingStats", "boundary_ring",
 ]

@@ -11,14 +11,12 @@ and the centre of cell `(row, col)` is at `x = (col + 0.5) * cell_m`,
 """
 from __future__ import annotations
 
-import dataclasses
-
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from gfjax._types import XY, Raster
 
-__all__ = ["Grid", "cell_index", "sample_bilinear"]
+__all__ = ["cell_index", "sample_bilinear"]
 
 
 def _check_cell_shape(cell_m: float, shape: tuple[int, int]) -> None:
@@ -26,52 +24,6 @@ def _check_cell_shape(cell_m: float, shape: tuple[int, int]) -> None:
         raise ValueError(f"cell_m must be > 0, got {cell_m}")
     if len(shape) != 2 or min(shape) < 1:
         raise ValueError(f"shape must be (h, w) with h, w >= 1, got {shape}")
-
-
-@dataclasses.dataclass(frozen=True)
-class Grid:
-    """A north-up raster geometry (static, hashable: usable as a `static_argnames` value).
-
-    Attributes:
-      origin_m: `(x0, y0)` of the raster's south-west corner in the caller's frame [m]. Local
-        coordinates are `xy - origin_m`.
-      cell_m: cell side [m].
-      shape: `(h, w)` rows x columns; row 0 is the northern edge.
-    """
-
-    origin_m: tuple[float, float]
-    cell_m: float
-    shape: tuple[int, int]
-
-    def __post_init__(self) -> None:
-        _check_cell_shape(self.cell_m, self.shape)
-
-    @classmethod
-    def covering(cls, xy_min_m: tuple[float, float], xy_max_m: tuple[float, float], cell_m: float) -> Grid:
-        """The smallest grid anchored at `xy_min_m` whose cells cover `[xy_min_m, xy_max_m]`.
-
-        A point exactly on the max edge gets a cell of its own (one extra row/column), so every
-        point of a bounding box is inside. Host-side (plain floats), call outside jit.
-        """
-        w = int(max(1, (xy_max_m[0] - xy_min_m[0]) // cell_m + 1))
-        h = int(max(1, (xy_max_m[1] - xy_min_m[1]) // cell_m + 1))
-        return cls((float(xy_min_m[0]), float(xy_min_m[1])), float(cell_m), (h, w))
-
-    def local(self, xy: XY) -> XY:
-        """Coordinates relative to the south-west corner, shape `(n, 2)` [m]."""
-        origin = jnp.asarray(self.origin_m, dtype=xy.dtype)
-        return xy - origin[None, :]
-
-    def cell_index(self, xy: XY):
-        """`cell_index` of `xy` given in the grid's frame (see the module function)."""
-        return cell_index(self.local(xy), cell_m=self.cell_m, shape=self.shape)
-
-    def centres(self) -> tuple[Raster, Raster]:
-        """Cell-centre coordinates `(x, y)` in the grid's frame, each shape `(h, w)` [m]."""
-        h, w = self.shape
-        col = (jnp.arange(w, dtype=jnp.float32) + 0.5) * self.cell_m + self.origin_m[0]
-        row_y = (h - 1 - jnp.arange(h, dtype=jnp.float32) + 0.5) * self.cell_m + self.origin_m[1]
-        return jnp.broadcast_to(col[None, :], (h, w)), jnp.broadcast_to(row_y[:, None], (h, w))
 
 
 def cell_index(

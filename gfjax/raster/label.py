@@ -22,7 +22,7 @@ from gfjax._types import Labels, Mask, Raster
 
 __all__ = [
     "label_components", "relabel_consecutive", "neighbour_offsets", "shift",
-    "PatchStats", "patch_stats", "RingStats", "boundary_ring",
+    "RingStats", "boundary_ring",
 ]
 
 
@@ -124,78 +124,6 @@ def relabel_consecutive(labels: Labels) -> tuple[Labels, Int[Array, ""]]:
     rank = jnp.cumsum(is_first.astype(jnp.int32))                      # new id at first cells
     new = jnp.where(flat > 0, rank[jnp.clip(first[flat], 0, n - 1)], 0)
     return new.reshape(h, w), rank[-1]
-
-
-class PatchStats(NamedTuple):
-    """Per-label statistics, every field of length `num_labels + 1`, indexed by label id
-    (index 0 = background; ids above `num_labels` are dropped).
-
-    Attributes:
-      count: cells of the label, int32.
-      valid_count: cells of the label where `valid`, int32 (those the value stats use).
-      min, max, mean: of `values` over the label's valid cells (`+inf`, `-inf`, 0 if none).
-      row_min, row_max, col_min, col_max: bounding box in cells, int32 (`h, -1, w, -1` if empty).
-      touches_north, touches_south, touches_west, touches_east: the label has a cell in
-        row 0, row h-1, column 0, column w-1.
-    """
-
-    count: Int[Array, " k"]
-    valid_count: Int[Array, " k"]
-    min: Float[Array, " k"]
-    max: Float[Array, " k"]
-    mean: Float[Array, " k"]
-    row_min: Int[Array, " k"]
-    row_max: Int[Array, " k"]
-    col_min: Int[Array, " k"]
-    col_max: Int[Array, " k"]
-    touches_north: Bool[Array, " k"]
-    touches_south: Bool[Array, " k"]
-    touches_west: Bool[Array, " k"]
-    touches_east: Bool[Array, " k"]
-
-
-def patch_stats(labels: Labels, values: Raster, valid: Mask | None = None, *, num_labels: int) -> PatchStats:
-    """Statistics of a value raster per label (`jax.ops.segment_*` over label ids).
-
-    Args:
-      labels: int `(h, w)`, ids in `[0, num_labels]` (e.g. from `relabel_consecutive`).
-      values: `(h, w)` float, e.g. NGNEM elevations [m].
-      valid: cells whose value counts, bool `(h, w)`; None = all.
-      num_labels: largest id kept (static): output length `num_labels + 1`.
-
-    Returns:
-      `PatchStats`. DMF (Wu et al. 2025, Sec. 2.4-2.5) compares a patch's mean and maximum
-      elevation with its holes and boundary ring.
-    """
-    h, w = labels.shape
-    k = int(num_labels) + 1
-    ids = labels.reshape(-1).astype(jnp.int32)
-    ids = jnp.where((ids >= 0) & (ids < k), ids, k)          # out-of-range ids -> dropped slot
-    valid_flat = jnp.ones(h * w, bool) if valid is None else valid.reshape(-1)
-    v = values.reshape(-1)
-    vid = jnp.where(valid_flat, ids, k)
-    rows = jnp.repeat(jnp.arange(h, dtype=jnp.int32), w)
-    cols = jnp.tile(jnp.arange(w, dtype=jnp.int32), h)
-    seg = dict(num_segments=k + 1)
-    count = jax.ops.segment_sum(jnp.ones(h * w, jnp.int32), ids, **seg)[:k]
-    valid_count = jax.ops.segment_sum(jnp.ones(h * w, jnp.int32), vid, **seg)[:k]
-    total = jax.ops.segment_sum(jnp.where(valid_flat, v, 0), vid, **seg)[:k]
-    has = valid_count > 0
-    return PatchStats(
-        count=count,
-        valid_count=valid_count,
-        min=jnp.where(has, jax.ops.segment_min(v, vid, **seg)[:k], jnp.inf).astype(v.dtype),
-        max=jnp.where(has, jax.ops.segment_max(v, vid, **seg)[:k], -jnp.inf).astype(v.dtype),
-        mean=jnp.where(has, total / jnp.maximum(valid_count, 1).astype(v.dtype), 0).astype(v.dtype),
-        row_min=jnp.where(count > 0, jax.ops.segment_min(rows, ids, **seg)[:k], h),
-        row_max=jnp.where(count > 0, jax.ops.segment_max(rows, ids, **seg)[:k], -1),
-        col_min=jnp.where(count > 0, jax.ops.segment_min(cols, ids, **seg)[:k], w),
-        col_max=jnp.where(count > 0, jax.ops.segment_max(cols, ids, **seg)[:k], -1),
-        touches_north=jax.ops.segment_max((rows == 0).astype(jnp.int32), ids, **seg)[:k] > 0,
-        touches_south=jax.ops.segment_max((rows == h - 1).astype(jnp.int32), ids, **seg)[:k] > 0,
-        touches_west=jax.ops.segment_max((cols == 0).astype(jnp.int32), ids, **seg)[:k] > 0,
-        touches_east=jax.ops.segment_max((cols == w - 1).astype(jnp.int32), ids, **seg)[:k] > 0,
-    )
 
 
 class RingStats(NamedTuple):

@@ -1,10 +1,10 @@
-"""Grey and binary morphology on masked rasters: min/max filters, opening, closing.
+"""Grey morphology on masked rasters: min/max filters, opening, closing.
 
 Footprints (static): `"disk"` of radius r = `skimage.morphology.disk(r)` (cells with
 `dx^2 + dy^2 <= r^2`), `"square"` of radius r = `(2r + 1) x (2r + 1)` cells.
 
 Masking: cells with `~valid`, and everything beyond the raster border, hold the identity of the
-reduction (`+inf` for min, `-inf` for max; True/False for binary erosion/dilation), i.e.
+reduction (`+inf` for min, `-inf` for max; True/False on a bool raster), i.e.
 `scipy.ndimage.grey_erosion(where(valid, z, inf), footprint=..., mode="constant", cval=inf)`.
 Results are bit-identical to scipy (min and max only select values). A window holding no valid
 cell gives the identity (`+inf` from `min_filter`, `-inf` from `max_filter`).
@@ -37,7 +37,6 @@ from gfjax.raster._window import SparseTable, pad_axis, running_direct, running_
 
 __all__ = [
     "disk", "chord_half_widths", "min_filter", "max_filter", "erode", "dilate", "opening", "closing",
-    "binary_erode", "binary_dilate", "binary_opening", "binary_closing",
 ]
 
 FOOTPRINTS = ("disk", "square")
@@ -189,33 +188,3 @@ def closing(
     dilated = max_filter(z, valid, radius_px=radius_px, footprint=footprint, algorithm=algorithm)
     return min_filter(dilated, valid, radius_px=radius_px, footprint=footprint, algorithm=algorithm)
 
-
-def _as_u8(mask: Mask) -> Array:
-    mask = jnp.asarray(mask)
-    if mask.dtype != jnp.bool_:
-        raise ValueError(f"binary morphology needs a bool mask, got {mask.dtype}")
-    return mask.astype(jnp.uint8)
-
-
-def binary_erode(mask: Mask, *, radius_px: int, footprint: str = "disk") -> Mask:
-    """Binary erosion; cells beyond the border count as True (identity of AND), so it equals
-    `scipy.ndimage.binary_erosion(mask, F, border_value=1)`. Returns bool `(h, w)`."""
-    return min_filter(_as_u8(mask), radius_px=radius_px, footprint=footprint) > 0
-
-
-def binary_dilate(mask: Mask, *, radius_px: int, footprint: str = "disk") -> Mask:
-    """Binary dilation (border False) = `scipy.ndimage.binary_dilation(mask, F)`. bool `(h, w)`."""
-    return max_filter(_as_u8(mask), radius_px=radius_px, footprint=footprint) > 0
-
-
-def binary_opening(mask: Mask, *, radius_px: int, footprint: str = "disk") -> Mask:
-    """Binary opening (erosion with border True, then dilation): `<= mask`. bool `(h, w)`."""
-    eroded = binary_erode(mask, radius_px=radius_px, footprint=footprint)
-    return binary_dilate(eroded, radius_px=radius_px, footprint=footprint)
-
-
-def binary_closing(mask: Mask, *, radius_px: int, footprint: str = "disk") -> Mask:
-    """Binary closing (dilation, then erosion with border True): `>= mask`, idempotent, so a
-    patch touching the border is closed against it. bool `(h, w)`."""
-    dilated = binary_dilate(mask, radius_px=radius_px, footprint=footprint)
-    return binary_erode(dilated, radius_px=radius_px, footprint=footprint)

@@ -4,7 +4,6 @@ from __future__ import annotations
 import dataclasses
 from typing import Callable, NamedTuple
 
-import jax
 import numpy as np
 
 from gfjax.errors import InputError

@@ -1,4 +1,4 @@
-"""Differentiable tuning of filter thresholds (SPEC section 7, issue 9).
+"""Differentiable tuning of filter thresholds (SPEC section 7).
 
 ```python
 import gfjax

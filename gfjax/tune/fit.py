@@ -13,7 +13,7 @@ Every `eval_every` steps the hard (plain-filter) total error is measured and the
 iterate per group is kept, so the result is never worse on the training labels than the
 starting point. The static window is searched on `GRID["window_m"]`: a fit per value.
 
-The out-of-sample guard of issue 9 (cross-validation and a paired test against the
+The out-of-sample guard (cross-validation and a paired test against the
 defaults) is `gfjax.tune.guard.validate`.
 """
 from __future__ import annotations

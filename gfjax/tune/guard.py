@@ -1,8 +1,8 @@
-"""The out-of-sample guard of `gfjax tune` (issue 9): keep a fit only where held-out labels
+"""The out-of-sample guard of `gfjax tune`: keep a fit only where held-out labels
 say, with statistical confidence, that it beats the defaults.
 
-Tuned thresholds often do worse than the defaults on data they were not fitted to (issue 9:
-on the ISPRS samples a fit to one half of a sample, or to other samples, was worse on
+Tuned thresholds often do worse than the defaults on data they were not fitted to (on the
+ISPRS samples a fit to one half of a sample, or to other samples, was worse on
 average). `validate` therefore decides per parameter group g, on the group's labelled
 points only, by cross-validation and a paired test:
 

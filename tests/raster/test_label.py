@@ -1,4 +1,4 @@
-"""Connected components (as partitions vs scipy.ndimage.label), relabelling, patch and ring stats."""
+"""Connected components (as partitions vs scipy.ndimage.label), relabelling, ring stats."""
 from __future__ import annotations
 
 import functools
@@ -120,8 +120,7 @@ NUM_LABELS = 40
 @functools.cache
 def jitted_stats(connectivity: int):
     def fn(labels, values, valid):
-        return (raster.patch_stats(labels, values, valid, num_labels=NUM_LABELS),
-                raster.boundary_ring(labels, values, valid, num_labels=NUM_LABELS, connectivity=connectivity))
+        return raster.boundary_ring(labels, values, valid, num_labels=NUM_LABELS, connectivity=connectivity)
     return jax.jit(fn)
 
 
@@ -137,17 +136,10 @@ def _stats_input(seed: int):
 
 @pytest.mark.parametrize("connectivity", [4, 8])
 @pytest.mark.parametrize("seed", [0, 1])
-def test_patch_and_ring_stats_match_reference(seed, connectivity):
+def test_ring_stats_match_reference(seed, connectivity):
     labels, values, valid = _stats_input(seed)
     assert labels.max() <= NUM_LABELS
-    patch, ring = jitted_stats(connectivity)(labels, values, valid)
-    expected = reference.patch_stats(labels, values, valid, NUM_LABELS)
-    for key, want in expected.items():
-        got = np.asarray(getattr(patch, key))
-        if key == "mean":
-            np.testing.assert_allclose(got, want, rtol=1e-6)
-        else:
-            np.testing.assert_array_equal(got, want, err_msg=key)
+    ring = jitted_stats(connectivity)(labels, values, valid)
     count, vcount, vmin, vmax, mean = reference.ring_stats(labels, values, valid, connectivity, NUM_LABELS)
     np.testing.assert_array_equal(np.asarray(ring.count)[1:], count[1:])
     np.testing.assert_array_equal(np.asarray(ring.valid_count)[1:], vcount[1:])
@@ -176,8 +168,7 @@ def test_rings_of_touching_labels_overlap_exactly():
 def test_stats_jit_eager_and_vmap():
     inputs = [_stats_input(s) for s in range(3)]
     fn = jitted_stats(8)
-    eager = (raster.patch_stats(*map(jnp.asarray, inputs[0]), num_labels=NUM_LABELS),
-             raster.boundary_ring(*map(jnp.asarray, inputs[0]), num_labels=NUM_LABELS, connectivity=8))
+    eager = raster.boundary_ring(*map(jnp.asarray, inputs[0]), num_labels=NUM_LABELS, connectivity=8)
     for got, want in zip(jax.tree.leaves(fn(*inputs[0])), jax.tree.leaves(eager)):
         np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
     stacked = [np.stack(x) for x in zip(*inputs)]

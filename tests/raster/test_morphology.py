@@ -1,4 +1,4 @@
-"""Grey and binary morphology: exactly scipy.ndimage (floats included), under jit and vmap."""
+"""Grey morphology: exactly scipy.ndimage (floats included), under jit and vmap."""
 from __future__ import annotations
 
 import functools
@@ -147,25 +147,6 @@ def test_bool_raster_grey_ops_with_mask():
     assert got.dtype == jnp.bool_
 
 
-BINARY = {
-    "binary_erode": lambda m, f: ndi.binary_erosion(m, f, border_value=1),
-    "binary_dilate": lambda m, f: ndi.binary_dilation(m, f),
-    "binary_opening": lambda m, f: ndi.binary_dilation(ndi.binary_erosion(m, f, border_value=1), f),
-    "binary_closing": lambda m, f: ndi.binary_erosion(ndi.binary_dilation(m, f), f, border_value=1),
-}
-
-
-@pytest.mark.parametrize("footprint", FOOTPRINTS)
-@pytest.mark.parametrize("op", BINARY)
-@pytest.mark.parametrize("case", [CASES[0], CASES[3], CASES[6]], ids=str)
-def test_binary_matches_scipy(case, op, footprint):
-    _, mask = reference.random_raster(Case(case.name, case.shape, case.radius, 0.6), seed=6)
-    got = np.asarray(jitted_all(case.radius, footprint, tuple(BINARY))(mask)[list(BINARY).index(op)])
-    np.testing.assert_array_equal(got, BINARY[op](mask, reference.footprint(footprint, case.radius)))
-    if op == "binary_closing":
-        assert np.all(got >= mask)
-
-
 def test_bad_arguments():
     z = jnp.zeros((4, 4), jnp.float32)
     with pytest.raises(ValueError, match="radius_px"):
@@ -178,5 +159,3 @@ def test_bad_arguments():
         raster.min_filter(z, radius_px=1, algorithm="naive")
     with pytest.raises(ValueError, match="valid shape"):
         raster.min_filter(z, jnp.ones((3, 4), bool), radius_px=1)
-    with pytest.raises(ValueError, match="bool"):
-        raster.binary_erode(z, radius_px=1)

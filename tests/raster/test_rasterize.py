@@ -1,4 +1,4 @@
-"""Grid convention, rasterisation (vs a Python loop) and bilinear sampling (vs scipy)."""
+"""Cell-index convention, rasterisation (vs a Python loop) and bilinear sampling (vs scipy)."""
 from __future__ import annotations
 
 import functools
@@ -43,18 +43,6 @@ def test_cell_index_convention_row0_is_north():
     np.testing.assert_array_equal(np.asarray(row)[:2], [0, h - 1])
     np.testing.assert_array_equal(np.asarray(col)[:2], [0, w - 1])
     np.testing.assert_array_equal(np.asarray(inside), [True, True, False, False, False])
-
-
-def test_grid_centres_and_covering():
-    grid = raster.Grid.covering((100.0, 200.0), (104.9, 205.0), cell_m=CELL_M)
-    assert grid.shape == (11, 10)
-    x, y = grid.centres()
-    row, col, inside = grid.cell_index(jnp.stack([x.ravel(), y.ravel()], axis=1))
-    assert bool(jnp.all(inside))
-    np.testing.assert_array_equal(np.asarray(row).reshape(grid.shape), np.repeat(np.arange(11)[:, None], 10, 1))
-    np.testing.assert_array_equal(np.asarray(col).reshape(grid.shape), np.repeat(np.arange(10)[None, :], 11, 0))
-    with pytest.raises(ValueError, match="cell_m"):
-        raster.Grid((0.0, 0.0), 0.0, (2, 2))
 
 
 @pytest.mark.parametrize("n", [1, 400])
