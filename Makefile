@@ -16,6 +16,7 @@ install: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/gfjax demo --force
+	$(BIN)/gfjax warmup
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q

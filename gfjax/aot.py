@@ -56,7 +56,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-__all__ = ["enable", "disable", "enabled_folder", "private_folder", "call", "prefetch", "program_key", "on_compile",
+__all__ = ["enable", "disable", "enabled_folder", "private_folder", "call", "prefetch", "prefetching", "program_key",
+           "on_compile",
            "MAX_FILES", "MAX_BYTES"]
 
 MAX_FILES = 512                 # artifacts kept (least recently used go first); each is ~0.1-2 MB
@@ -290,6 +291,18 @@ def _trace_options() -> str:
     return repr([(name, getattr(jax.config, name, None)) for name in names])
 
 
+def _placement(a) -> str:
+    """The sharding of an argument committed elsewhere than the default device; "" for one on
+    it, committed or not (the same program runs both: an output of an exported program is
+    committed, the spec `prefetch` gets for it is not)."""
+    import jax
+
+    if not (isinstance(a, jax.Array) and a.committed):
+        return ""
+    devices = a.sharding.device_set
+    return "" if len(devices) == 1 and next(iter(devices)) == jax.devices()[0] else repr(a.sharding)
+
+
 def program_key(fn: Callable, args: tuple, static: dict, tag=None) -> str:
     """The cache key of `fn(*args, **static)` (hex sha256; see the module docstring). `tag`,
     when given, names the program instead of `fn`'s module and name."""
@@ -297,8 +310,8 @@ def program_key(fn: Callable, args: tuple, static: dict, tag=None) -> str:
     import numpy as np
 
     leaves, treedef = jax.tree.flatten(args)
-    signature = [f"{np.shape(a)}:{_dtype(a)}:{'weak' if getattr(a, 'weak_type', False) else ''}:"
-                 f"{a.sharding if isinstance(a, jax.Array) and a.committed else ''}" for a in leaves]
+    signature = [f"{np.shape(a)}:{_dtype(a)}:{'weak' if getattr(a, 'weak_type', False) else ''}:{_placement(a)}"
+                 for a in leaves]
     name = repr(tag) if tag is not None else f"{fn.__module__}.{_name(fn)}"
     parts = [name, repr(sorted(static.items())), str(treedef), ";".join(signature), _trace_options(), _fingerprint()]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
@@ -462,6 +475,9 @@ def call(fn: Callable, *args, tag=None, **static):
     import jax
 
     folder = _state["folder"]
+    if _state.get("prefetching"):
+        prefetch(fn, *args, tag=tag, **static)
+        return jax.eval_shape(lambda *a: fn(*a, **static), *args)
     leaves = jax.tree.leaves(args)
     if folder is None or jax.config.jax_disable_jit or not _cacheable(fn, tag) or not all(map(_concrete, leaves)):
         return fn(*args, **static)
@@ -508,8 +524,27 @@ def prefetch(fn: Callable, *specs, tag=None, **static) -> None:
     if folder is None or not _cacheable(fn, tag):
         return
     key = program_key(fn, specs, static, tag)
-    if key not in _loaded and key not in _plain:
-        _load_or_compile(fn, specs, static, folder, key)
+    program = _loaded.get(key)
+    if program is None and key not in _plain:
+        program = _load_or_compile(fn, specs, static, folder, key)
+    if hasattr(program, "compile"):       # exported: its executable lives in JAX's cache
+        import jax
+
+        program.compile(*jax.tree.leaves(specs))
+
+
+@contextlib.contextmanager
+def prefetching():
+    """Within this context `call` runs nothing: it loads (or compiles and stores) the program
+    and returns the shapes and dtypes of its result (`jax.ShapeDtypeStruct`s), so a driver
+    called with `jax.ShapeDtypeStruct` inputs prepares every program a real call of those
+    shapes would run (`gfjax warmup`). Nothing is stored when the cache is off."""
+    before = _state.get("prefetching", False)
+    _state["prefetching"] = True
+    try:
+        yield
+    finally:
+        _state["prefetching"] = before
 
 
 def on_compile(callback: Callable[[str], None] | None) -> None:
@@ -593,9 +628,18 @@ def _export(fn, args, static):
 
 
 def _exported_program(exported, tree):
+    """A function of the leaves that runs `exported`, and, as its `compile(*specs)`, compiles
+    it without running: one jitted wrapper, so `prefetch` leaves in JAX's persistent cache
+    exactly the executable a later call looks up."""
     import jax
 
-    return lambda *leaves: jax.tree.unflatten(tree, exported.call(*leaves))
+    run = jax.jit(exported.call)
+
+    def program(*leaves):
+        return jax.tree.unflatten(tree, run(*leaves))
+
+    program.compile = lambda *specs: run.lower(*specs).compile()
+    return program
 
 
 def _load_exported(dir_fd: int, name: str, key: str):

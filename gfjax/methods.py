@@ -8,6 +8,8 @@ Every method package (`gfjax.smrf`, `gfjax.dmf`, ...) exposes, at its top level:
   `eqx.Module`, or a frozen dataclass registered with `jax.tree_util.register_dataclass`
   (DMF, which keeps equinox off its import path); or None.
 - `PRESETS`: dict of preset name -> dict of overrides (may be empty).
+- optionally `warm(config=None, params=None, *, progress=False) -> int`: load or compile the
+  programs `filter` runs for every canonical input shape (`gfjax warmup`).
 
 The registry imports a method lazily, so `gfjax info` does not pay for every method. Bad
 names, keys and values raise `InputError` naming the option (the CLI exits with code 2).

@@ -316,7 +316,7 @@ def test_program_that_cannot_be_stored_runs_through_plain_jit(folder, monkeypatc
     np.testing.assert_allclose(_call(solve, a, b), [1.0, 2.0], rtol=1e-6)
 
 
-@pytest.mark.parametrize("method, stored", [("smrf", (2, 1)), ("pmf", (1, 0)), ("csf", (1, 0))])
+@pytest.mark.parametrize("method, stored", [("smrf", (2, 1)), ("pmf", (3, 0)), ("csf", (1, 0))])
 def test_method_through_the_cache_equals_the_plain_call(folder, method, stored):
     """A method's programs (SMRF's harmonic fill holds LAPACK calls: exported; the others
     stored as executables), reloaded as in a new process: the same labels."""
@@ -381,3 +381,23 @@ def test_failed_write_leaves_no_temporary_file(folder, monkeypatch):
     monkeypatch.setattr(aot.os, "replace", full)
     _same(_call(scale_and_sum, *_args(3), factor=2), scale_and_sum(*_args(3), factor=2))
     assert [p.name for p in folder.iterdir() if p.name.endswith(".tmp")] == []
+
+
+def test_prefetching_prepares_the_program_a_call_of_those_shapes_runs(folder, monkeypatch):
+    spec = jax.ShapeDtypeStruct
+    with aot.prefetching():
+        out = _call(scale_and_sum, spec((4,), np.float32), spec((4,), np.bool_), factor=3)
+    assert jax.tree.map(lambda a: (a.shape, a.dtype), out) == \
+        jax.tree.map(lambda a: (a.shape, a.dtype), jax.eval_shape(lambda *a: scale_and_sum(*a, factor=3), *_args(4)))
+    assert len(_files(folder)) == 1
+    monkeypatch.setattr(jax.stages.Lowered, "compile", lambda *_, **__: pytest.fail("prefetched program compiled again"))
+    _same(_call(scale_and_sum, *_args(4), factor=3), scale_and_sum(*_args(4), factor=3))
+
+
+def test_prefetching_an_exported_program_compiles_it_too(folder):
+    a = jax.ShapeDtypeStruct((2, 2), np.float32)
+    with aot.prefetching():
+        out = _call(solve, a, jax.ShapeDtypeStruct((2,), np.float32))
+    assert out.shape == (2,) and len(_files(folder, "export")) == 1
+    (program,) = aot._loaded.values()
+    assert hasattr(program, "compile")            # its executable went to JAX's cache as well

@@ -34,7 +34,7 @@ BACKEND_COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
 CACHE_HIT_EVENT = "/jax/compilation_cache/cache_hits"   # a program loaded from the persistent cache
 TRACE_LOWER_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
                       "/jax/core/compile/jaxpr_to_mlir_module_duration")
-# Environment variables that switch JAX's persistent compilation cache on (gfjax.cli.main):
+# Environment variables that switch JAX's persistent compilation cache on (gfjax.cache):
 # removed in isolated runs so that compile times are those of a cold start.
 _CACHE_ENV = ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
               "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "JAX_COMPILATION_CACHE_MAX_SIZE")
@@ -197,7 +197,9 @@ def run_isolated(target: str, kwargs: Mapping[str, Any], *, timeout_s: float | N
     Raises:
       IsolatedError: the child exited non-zero, timed out, or returned no result.
     """
-    child_env = dict(os.environ)
+    # no gfjax caches from `import gfjax` in the child: JAX's cache only through the
+    # environment variables below, when kept
+    child_env = dict(os.environ) | {"GFJAX_CACHE": "0"}
     if not keep_compile_cache:
         for key in _CACHE_ENV:
             child_env.pop(key, None)

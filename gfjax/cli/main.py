@@ -48,6 +48,7 @@ SUBCOMMANDS: dict[str, str] = {
     "train": "train the SparseGF model",
     "bench": "compare the speed and accuracy of methods and peers",
     "demo": "filter the embedded sample (no arguments, no network)",
+    "warmup": "compile the methods' programs ahead, so first runs start at once",
 }
 ALWAYS_LISTED = ("demo",)
 

@@ -25,7 +25,7 @@ from gfjax.errors import InputError
 from gfjax.io import tiles as tiling
 from gfjax.io.cloud import Cloud
 
-__all__ = ["domain_mask", "checked_options", "ClassifyBatch", "run_batches", "mosaic", "Mosaic",
+__all__ = ["domain_mask", "checked_options", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
            "classify_cloud", "TiledRun"]
 
 ConfigT = TypeVar("ConfigT")
@@ -114,7 +114,8 @@ def run_batches(tiles: Sequence[tiling.Tile], classify_batch: ClassifyBatch, par
     position = {id(tile): i for i, tile in enumerate(tiles)}
     labels: list[np.ndarray | None] = [None] * len(tiles)
     diagnostics: list[NamedTuple | None] = [None] * len(tiles)
-    groups = list(tiling.batches(tiles, max_batch=max_batch))
+    sides = tiling.canonical_sides(config.tile_size_m, config.buffer_m, config.cell_m)
+    groups = list(tiling.batches(tiles, max_batch=max_batch, sides=sides))
     if progress:
         from tqdm.auto import tqdm
         groups = tqdm(groups, desc=desc, unit="batch")
@@ -144,6 +145,29 @@ class Mosaic(NamedTuple):
 
     rasters: dict[str, np.ndarray]
     origin_m: np.ndarray
+
+
+def warm(classify_batch: ClassifyBatch, params: Any, config: Any, *, progress: bool = False, desc: str = "programs") -> int:
+    """Load, or compile and store (`gfjax.aot`), every program `run_batches` runs for a
+    one-tile batch of this tiling: each canonical raster side (`tiles.canonical_sides`) with
+    each canonical point capacity (`tiles.canonical_capacities`). Nothing runs; batches of
+    `max_batch` tiles (surveys of many tiles) still compile on first use. Nothing is kept
+    when the program cache is off. Returns the number of shape pairs prepared."""
+    import jax
+
+    from gfjax import aot
+
+    spec = jax.ShapeDtypeStruct
+    pairs = [(side, cap) for side in tiling.canonical_sides(config.tile_size_m, config.buffer_m, config.cell_m)
+             for cap in tiling.canonical_capacities()]
+    if progress:
+        from tqdm.auto import tqdm
+        pairs = tqdm(pairs, desc=desc, unit="shape")
+    with aot.prefetching():
+        for side, cap in pairs:
+            classify_batch(spec((1, cap, 3), np.float32), spec((1, cap), np.bool_), spec((1, 2), np.int32), params,
+                           config=config, shape=(side, side))
+    return len(pairs)
 
 
 def mosaic(tiles: Sequence[tiling.Tile], diagnostics: Sequence[NamedTuple], *, names: Sequence[str],

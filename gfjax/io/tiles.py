@@ -13,7 +13,11 @@ point falls in the same raster cell whichever tile holds it (the float32 local c
 are clamped into their float64 cell), and they are clipped to the cloud's extent. For
 `vmap`, tiles are padded to a few *capacity buckets* (points) and *shape buckets* (raster
 rows/columns) and carry `valid` masks; the tile's own extent sits in the south-west corner
-of the padded raster (row 0 = north, docs/ARCHITECTURE.md).
+of the padded raster (row 0 = north, docs/ARCHITECTURE.md). A filter pads to *canonical*
+shapes (`canonical_sides`: a handful of square sides fixed by the tiling, point capacities in
+powers of 4, batches of one tile or of `max_batch`), so a machine compiles each method's
+programs a few times in its life, not once per input size, and `gfjax warmup` can compile
+them all ahead.
 
 Host-side numpy (float64); JAX receives `TileBatch.xyz` (float32 local metres).
 """
@@ -26,10 +30,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Frame", "Tile", "TileBatch", "split", "capacity_bucket", "shape_bucket", "batches", "merge"]
+__all__ = ["Frame", "Tile", "TileBatch", "split", "capacity_bucket", "shape_bucket", "canonical_sides",
+           "canonical_capacities", "canonical_capacity", "batches", "merge"]
 
 MIN_CAPACITY = 256
 SHAPE_QUANTUM_PX = 64
+SMALLEST_SIDE_PX = 128        # the smallest canonical raster side; the others double up to a whole window
+CANONICAL_MIN_CAPACITY = 1 << 14
+CANONICAL_MAX_CAPACITY = 1 << 22   # the largest capacity `gfjax warmup` compiles ahead
 
 
 class Frame(NamedTuple):
@@ -210,6 +218,56 @@ def shape_bucket(shape: tuple[int, int], *, quantum_px: int = SHAPE_QUANTUM_PX) 
     return tuple(int(-(-s // quantum_px) * quantum_px) for s in shape)
 
 
+def max_window_px(tile_size_m: float, buffer_m: float, cell_m: float) -> int:
+    """The largest side [cells] a buffered window of `split` can have (a core snapped
+    outwards to the lattice, plus a buffer each side)."""
+    return math.ceil(tile_size_m / cell_m - 1e-9) + 1 + 2 * math.ceil(buffer_m / cell_m - 1e-9)
+
+
+def canonical_sides(tile_size_m: float, buffer_m: float, cell_m: float) -> tuple[int, ...]:
+    """The square raster sides [cells] every window of this tiling is padded to: 128, 192,
+    256, 384, 512, ... (2^k and 1.5 * 2^k) below the largest window, and the largest window
+    rounded up to `SHAPE_QUANTUM_PX` (128, 192, 256, 384, 512, 640 for 500 m tiles, 50 m
+    buffers and 1 m cells). Padding a window to the next side costs at most 2.25 times its
+    cells (more for a thin strip), far less than compiling a raster program for each new
+    window size (`experiments/results/canonical_shapes.md`)."""
+    _check(tile_size_m, buffer_m, cell_m)
+    largest = shape_bucket((max_window_px(tile_size_m, buffer_m, cell_m),) * 2)[0]
+    sides, side = [], SMALLEST_SIDE_PX
+    while side < largest:
+        sides.append(side)
+        if side * 3 // 2 < largest:
+            sides.append(side * 3 // 2)
+        side *= 2
+    return (*sides, largest)
+
+
+def canonical_capacities() -> tuple[int, ...]:
+    """Point capacities `warmup` compiles: `CANONICAL_MIN_CAPACITY` times powers of 4 up to
+    `CANONICAL_MAX_CAPACITY` (larger windows still run, at capacities compiled on demand)."""
+    caps, cap = [], CANONICAL_MIN_CAPACITY
+    while cap <= CANONICAL_MAX_CAPACITY:
+        caps.append(cap)
+        cap *= 4
+    return tuple(caps)
+
+
+def canonical_capacity(n: int) -> int:
+    """Smallest `CANONICAL_MIN_CAPACITY * 4^k` holding `n` points."""
+    cap = CANONICAL_MIN_CAPACITY
+    while cap < n:
+        cap *= 4
+    return cap
+
+
+def _canonical_shape(shape: tuple[int, int], sides: Sequence[int]) -> tuple[int, int]:
+    need = max(shape)
+    side = next((s for s in sides if s >= need), None)
+    if side is None:
+        raise ValueError(f"a window of {shape} cells is larger than the canonical sides {tuple(sides)}")
+    return side, side
+
+
 def _pad(tiles: Sequence[Tile], capacity: int, shape: tuple[int, int]) -> TileBatch:
     b = len(tiles)
     xyz = np.zeros((b, capacity, 3), np.float32)
@@ -226,16 +284,21 @@ def _pad(tiles: Sequence[Tile], capacity: int, shape: tuple[int, int]) -> TileBa
 
 
 def batches(tiles: Sequence[Tile], *, max_batch: int = 8, capacity: int | None = None,
-            shape: tuple[int, int] | None = None, quantum_px: int = SHAPE_QUANTUM_PX) -> Iterator[TileBatch]:
-    """Group tiles by shape bucket, and pad each group into batches of similar point counts
-    (capacity = the bucket of the largest tile in the batch).
+            shape: tuple[int, int] | None = None, quantum_px: int = SHAPE_QUANTUM_PX,
+            sides: Sequence[int] | None = None) -> Iterator[TileBatch]:
+    """Group tiles by raster shape, and pad each group into batches of similar point counts.
 
     Args:
       tiles: from `split`.
       max_batch: most tiles per batch (bounds memory).
-      capacity: force one point capacity (default: the bucket of each tile).
+      capacity: force one point capacity (default: the bucket of the largest tile of a batch).
       shape: force one raster shape (default: each tile's shape bucket).
       quantum_px: shape bucket step in cells.
+      sides: canonical square sides (`canonical_sides`): each tile is padded to the smallest
+        that holds it, capacities are `canonical_capacity`, and a group runs in batches of
+        exactly `max_batch` tiles, then one tile at a time, so only canonical shapes compile.
+        None: shapes rounded to `quantum_px`, capacities `capacity_bucket`, batches of up to
+        `max_batch` (fewest calls, for a fixed set of samples such as tuning's).
 
     Yields:
       `TileBatch`es; every tile appears in exactly one.
@@ -244,13 +307,23 @@ def batches(tiles: Sequence[Tile], *, max_batch: int = 8, capacity: int | None =
         raise ValueError(f"max_batch must be >= 1, got {max_batch}")
     groups: dict[tuple[int, int], list[Tile]] = {}
     for tile in tiles:
-        key = tuple(shape) if shape is not None else shape_bucket(tile.shape, quantum_px=quantum_px)
+        if shape is not None:
+            key = tuple(shape)
+        elif sides is not None:
+            key = _canonical_shape(tile.shape, sides)
+        else:
+            key = shape_bucket(tile.shape, quantum_px=quantum_px)
         groups.setdefault(key, []).append(tile)
+    bucket = capacity_bucket if sides is None else canonical_capacity
     for group_shape, members in sorted(groups.items()):
         members = sorted(members, key=lambda t: t.n_points)
-        for start in range(0, len(members), max_batch):
-            chunk = members[start:start + max_batch]
-            cap = capacity if capacity is not None else capacity_bucket(chunk[-1].n_points)
+        if sides is None:
+            chunks = [members[i:i + max_batch] for i in range(0, len(members), max_batch)]
+        else:
+            full = len(members) - len(members) % max_batch
+            chunks = [members[i:i + max_batch] for i in range(0, full, max_batch)] + [[t] for t in members[full:]]
+        for chunk in chunks:
+            cap = capacity if capacity is not None else bucket(max(t.n_points for t in chunk))
             yield _pad(chunk, cap, group_shape)
 
 

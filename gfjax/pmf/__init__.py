@@ -8,7 +8,7 @@ result = gfjax.pmf.filter(cloud, config=gfjax.pmf.Config(max_window_m=17.0),
 ```
 """
 from gfjax.pmf.config import PRESETS, Config, Params
-from gfjax.pmf.filter import PMFDiagnostics, filter
+from gfjax.pmf.filter import PMFDiagnostics, filter, warm
 from gfjax.pmf.stages import Diagnostics
 
-__all__ = ["filter", "Config", "Params", "PRESETS", "Diagnostics", "PMFDiagnostics"]
+__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "Diagnostics", "PMFDiagnostics"]

@@ -23,7 +23,7 @@ from gfjax.pmf import stages
 from gfjax.pmf.config import MAX_BATCH, Config, Params
 from gfjax.result import Result
 
-__all__ = ["filter", "PMFDiagnostics", "MAX_BATCH"]
+__all__ = ["filter", "warm", "PMFDiagnostics", "MAX_BATCH"]
 
 
 
@@ -74,3 +74,10 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     return Result(ground=run.ground, diagnostics=PMFDiagnostics(
         **cores.rasters, origin_m=cores.origin_m, cell_m=config.cell_m, windows_px=config.windows_px,
         n_tiles=len(run.tiles)))
+
+
+def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False) -> int:
+    """Prepare the programs `filter` runs on a file of one tile of any size (`tiled.warm`):
+    later first runs load them instead of compiling. Returns the number of shapes prepared."""
+    config, params = config or Config(), params or Params()
+    return tiled.warm(stages.classify_batch, params, config, progress=progress, desc="pmf shapes")

@@ -32,6 +32,7 @@ from gfjax.raster.morphology import opening
 from gfjax.raster.rasterize import rasterize
 
 __all__ = ["Diagnostics", "domain_mask", "thresholds_m", "is_ground_point", "minimum_surface",
+           "rasterize_min", "fill_minimum",
            "progressive_openings", "classify_points", "classify_tile", "classify_batch"]
 
 
@@ -70,9 +71,19 @@ def minimum_surface(xyz: Points, valid: PointMask, domain: Mask, *, cell_m: floa
                     shape: tuple[int, int]) -> tuple[Raster, Mask]:
     """Lowest z per cell, empty cells of the domain filled from the nearest non-empty cell
     (PDAL fills them from the nearest points). Returns `(zimin, filled)`, `(h, w)` each."""
+    return fill_minimum(*rasterize_min(xyz, valid, cell_m=cell_m, shape=shape), domain)
+
+
+def rasterize_min(xyz: Points, valid: PointMask, *, cell_m: float, shape: tuple[int, int]) -> tuple[Raster, Mask]:
+    """Lowest z per cell and the cells holding a point, `(h, w)` each."""
     cells = rasterize(xyz[:, :2], xyz[:, 2], valid, cell_m=cell_m, shape=shape)
-    filled = cells.valid & domain
-    return inpaint_nearest(cells.z_min, filled), filled
+    return cells.z_min, cells.valid
+
+
+def fill_minimum(z_min: Raster, filled: Mask, domain: Mask) -> tuple[Raster, Mask]:
+    """`minimum_surface` from the rasterized minimum: `(zimin, filled)`, `(h, w)` each."""
+    filled = filled & domain
+    return inpaint_nearest(z_min, filled), filled
 
 
 def progressive_openings(zimin: Raster, domain: Mask, *, windows_px: tuple[int, ...]) -> Float[Array, "k h w"]:
@@ -101,13 +112,13 @@ def classify_points(xyz: Points, valid: PointMask, opened: Float[Array, "k h w"]
     return ground
 
 
-def _tile(xyz: Points, valid: PointMask, hw: Int[Array, " 2"], params: Params, *, config: Config,
-          shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
-    domain = domain_mask(hw, shape)
-    zimin, filled = minimum_surface(xyz, valid, domain, cell_m=config.cell_m, shape=shape)
+def _surfaces(z_min: Raster, filled: Mask, hw: Int[Array, " 2"], *, config: Config) -> tuple[Raster, Diagnostics]:
+    """The raster part of a tile: ZImin filled, then the progressive openings. Returns the
+    opened stack `(k, h, w)` and the tile's `Diagnostics`."""
+    domain = domain_mask(hw, z_min.shape)
+    zimin, filled = fill_minimum(z_min, filled, domain)
     opened = progressive_openings(zimin, domain, windows_px=config.windows_px)
-    ground = classify_points(xyz, valid, opened, params, config=config)
-    return ground, Diagnostics(zimin=zimin, empty=domain & ~filled, surface=opened[-1], domain=domain)
+    return opened, Diagnostics(zimin=zimin, empty=domain & ~filled, surface=opened[-1], domain=domain)
 
 
 def _raster_config(config: Config) -> Config:
@@ -116,19 +127,28 @@ def _raster_config(config: Config) -> Config:
 
 
 def _run(xyz, valid, hw, params, config: Config, shape: tuple[int, int], *, batched: bool):
-    """The jitted program of `(config, shape, batched)` through `gfjax.aot` (kept across
-    processes when it is on; the plain jitted call otherwise, and under tracing)."""
+    """The three programs of `_compiled` through `gfjax.aot` (kept across processes when it
+    is on; the plain jitted calls otherwise, and under tracing)."""
     config = _raster_config(config)
-    return aot.call(_compiled_raster(config, shape, batched), xyz, valid, hw, params,
-                    tag=("gfjax.pmf.tile", config, shape, batched))
+    raster, middle, points = _compiled(config, shape, batched)
+    tag = (config, shape, batched)
+    z_min, filled = aot.call(raster, xyz, valid, tag=("gfjax.pmf.rasterize_min", *tag))
+    opened, diag = aot.call(middle, z_min, filled, hw, tag=("gfjax.pmf.surfaces", *tag))
+    ground = aot.call(points, xyz, valid, opened, params, tag=("gfjax.pmf.classify_points", *tag))
+    return ground, diag
 
 
 @functools.cache
-def _compiled_raster(config: Config, shape: tuple[int, int], batched: bool):
-    fn = functools.partial(_tile, config=config, shape=shape)
+def _compiled(config: Config, shape: tuple[int, int], batched: bool):
+    """Separate programs, as SMRF's: the costly raster one compiles once per raster shape, and
+    only the cheap point ones again for another point capacity."""
+    raster = functools.partial(rasterize_min, cell_m=config.cell_m, shape=shape)
+    middle = functools.partial(_surfaces, config=config)
+    points = functools.partial(classify_points, config=config)
     if batched:
-        fn = jax.vmap(fn, in_axes=(0, 0, 0, None))
-    return jax.jit(fn)
+        raster, middle = jax.vmap(raster), jax.vmap(middle)
+        points = jax.vmap(points, in_axes=(0, 0, 0, None))
+    return jax.jit(raster), jax.jit(middle), jax.jit(points)
 
 
 def classify_tile(xyz: Points, valid: PointMask, hw: Int[Array, " 2"], params: Params, *,

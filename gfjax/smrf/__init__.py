@@ -8,7 +8,7 @@ result = gfjax.smrf.filter(cloud, config=gfjax.smrf.Config(window_m=12.0),
 ```
 """
 from gfjax.smrf.config import PRESETS, Config, Params
-from gfjax.smrf.filter import SMRFDiagnostics, filter
+from gfjax.smrf.filter import SMRFDiagnostics, filter, warm
 from gfjax.smrf.stages import Diagnostics
 
-__all__ = ["filter", "Config", "Params", "PRESETS", "Diagnostics", "SMRFDiagnostics"]
+__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "Diagnostics", "SMRFDiagnostics"]

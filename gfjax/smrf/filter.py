@@ -21,13 +21,12 @@ from typing import NamedTuple
 import numpy as np
 
 from gfjax.io import tiled
-from gfjax.io import tiles as tiling
 from gfjax.io.cloud import Cloud
 from gfjax.result import Result
 from gfjax.smrf import stages
 from gfjax.smrf.config import MAX_BATCH, Config, Params
 
-__all__ = ["filter", "SMRFDiagnostics", "run_tiles"]
+__all__ = ["filter", "warm", "SMRFDiagnostics"]
 
 _RASTERS = ("zimin", "zipro", "slope", "empty", "low_outliers", "object_cells")
 
@@ -53,18 +52,6 @@ class SMRFDiagnostics(NamedTuple):
     origin_m: np.ndarray
     cell_m: float
     n_tiles: int
-
-
-def run_tiles(tiles: list[tiling.Tile], params: Params, config: Config, *, progress: bool = False,
-              max_batch: int = MAX_BATCH, keep_diagnostics: bool = True):
-    """Classify tiles batch by batch (`stages.classify_batch`, one compile per batch shape).
-
-    Returns:
-      `(labels, diagnostics)`: per tile a bool `(tile.n_points,)` ground array, and per tile a
-      `stages.Diagnostics` cropped to the tile's own extent (or None when not kept).
-    """
-    return tiled.run_batches(tiles, stages.classify_batch, params, config, max_batch=max_batch,
-                             progress=progress, desc="smrf tiles", keep_diagnostics=keep_diagnostics)
 
 
 def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None = None,
@@ -94,3 +81,10 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
                          cell_m=config.cell_m)
     return Result(ground=run.ground, diagnostics=SMRFDiagnostics(
         **cores.rasters, origin_m=cores.origin_m, cell_m=config.cell_m, n_tiles=len(run.tiles)))
+
+
+def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False) -> int:
+    """Prepare the programs `filter` runs on a file of one tile of any size (`tiled.warm`):
+    later first runs load them instead of compiling. Returns the number of shapes prepared."""
+    config, params = config or Config(), params or Params()
+    return tiled.warm(stages.classify_batch, params, config, progress=progress, desc="smrf shapes")

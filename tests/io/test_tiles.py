@@ -9,7 +9,7 @@ from gfjax.io.cloud import Cloud
 from gfjax.smrf import Config, Params
 from gfjax.smrf import filter as smrf_filter
 from gfjax.smrf import stages
-from gfjax.smrf.filter import run_tiles
+from gfjax.io import tiled
 
 ORIGIN = np.array([512_345.0, 5_403_210.0, 250.0])        # UTM-sized: float32 would lose cm
 
@@ -64,6 +64,32 @@ def test_every_point_in_exactly_one_core_and_in_its_window():
 def test_buckets():
     assert [tiling.capacity_bucket(n) for n in (1, 256, 257, 385, 1000)] == [256, 256, 384, 512, 1024]
     assert tiling.shape_bucket((1, 600)) == (64, 640)
+
+
+def test_canonical_sides_and_capacities():
+    assert tiling.canonical_sides(500.0, 50.0, 1.0) == (128, 192, 256, 384, 512, 640)
+    assert tiling.max_window_px(500.0, 50.0, 1.0) == 601
+    assert tiling.canonical_sides(100.0, 10.0, 1.0) == (128,)
+    assert tiling.canonical_sides(500.0, 50.0, 0.5) == (128, 192, 256, 384, 512, 768, 1024, 1216)
+    assert [tiling.canonical_capacity(n) for n in (1, 16384, 16385, 70_000, 300_000)] == \
+        [16384, 16384, 65536, 262144, 1048576]
+    assert tiling.canonical_capacities() == (16384, 65536, 262144, 1048576, 4194304)
+
+
+@pytest.mark.parametrize("size_m, tile_m", [(64, 500.0), (150, 60.0), (333, 100.0)])
+def test_canonical_batches_use_only_canonical_shapes(size_m, tile_m):
+    rng = np.random.default_rng(size_m)
+    xyz = np.column_stack([rng.uniform(0, size_m, (3000, 2)), rng.normal(0, 1, 3000)]) + ORIGIN
+    tiles = tiling.split(xyz, tile_size_m=tile_m, buffer_m=10.0, cell_m=1.0)
+    sides = tiling.canonical_sides(tile_m, 10.0, 1.0)
+    found = list(tiling.batches(tiles, max_batch=3, sides=sides))
+    assert sorted(t.key for b in found for t in b.tiles) == sorted(t.key for t in tiles)
+    for batch in found:
+        assert batch.shape[0] == batch.shape[1] and batch.shape[0] in sides
+        assert len(batch.tiles) in (1, 3)                       # a full batch, or one tile
+        assert batch.xyz.shape[1] in tiling.canonical_capacities()
+        side = min(s for s in sides if s >= max(max(t.shape) for t in batch.tiles))
+        assert batch.shape[0] == side                           # the smallest side that holds it
 
 
 def test_batches_cover_every_tile_once(scene):
@@ -131,7 +157,7 @@ def test_padding_invariance(scene, whole_labels):
     """More point capacity and a larger shape bucket (padding cells outside the tile's domain)
     change no label when every domain cell holds a point."""
     tiles = tiling.split(scene, tile_size_m=500.0, buffer_m=16.0, cell_m=1.0)
-    labels, _ = run_tiles(tiles, Params(), WHOLE, keep_diagnostics=False)
+    labels, _ = tiled.run_batches(tiles, stages.classify_batch, Params(), WHOLE, max_batch=8, keep_diagnostics=False)
     np.testing.assert_array_equal(tiling.merge(len(scene), tiles, labels), whole_labels)
     batch = next(tiling.batches(tiles, shape=(96, 80), capacity=2 * tiling.capacity_bucket(tiles[0].n_points)))
     ground = np.asarray(stages.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=WHOLE,

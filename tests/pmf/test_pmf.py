@@ -111,7 +111,7 @@ def test_jit_matches_eager():
     args = (*padded(scene("plane_box", 2)), FULL_HW, pmf.Params())
     jitted = stages.classify_tile(*args, config=SMALL, shape=SHAPE)
     with jax.disable_jit():
-        eager = stages._tile(*args, config=SMALL, shape=SHAPE)
+        eager = stages.classify_tile(*args, config=SMALL, shape=SHAPE)
     for a, b in zip(jax.tree_util.tree_leaves(jitted), jax.tree_util.tree_leaves(eager)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
@@ -123,8 +123,7 @@ def test_vmap_matches_loop():
     ground_b, diag_b = stages.classify_batch(jnp.stack(bufs), jnp.stack(valids), hws, pmf.Params(),
                                              config=SMALL, shape=SHAPE)
     for k in range(2):
-        ground, diag = jax.jit(stages._tile, static_argnames=("config", "shape"))(
-            bufs[k], valids[k], hws[k], pmf.Params(), config=SMALL, shape=SHAPE)
+        ground, diag = stages.classify_tile(bufs[k], valids[k], hws[k], pmf.Params(), config=SMALL, shape=SHAPE)
         np.testing.assert_array_equal(np.asarray(ground_b[k]), np.asarray(ground))
         np.testing.assert_array_equal(np.asarray(diag_b.surface[k]), np.asarray(diag.surface))
 

@@ -1,0 +1,112 @@
+"""Time to first result: what canonical shapes cost while running, and what `gfjax warmup` saves.
+
+    nice .venv/bin/python experiments/first_run.py gfjax/data/samp12-utm.laz \\
+        ../shared/data/lidR_topography/Topography.laz ../shared/data/lasR_bcts/bcts_1.laz \\
+        ../shared/data/isprs_filtertest/reference/samp41-utm.laz --runs 5 \\
+        -o experiments/results/canonical_shapes.md
+
+1. Padding cost, in one process with warm programs: `<method>.filter` on each file with the
+   canonical shapes (`gfjax.io.tiles.canonical_sides`, the default) against the windows
+   rounded up to 64 cells and point capacities of `capacity_bucket` (the former rule, which
+   compiles once per new size). Runs alternate A B A B; the median of the per-pair ratios.
+2. First runs: a fresh `XDG_CACHE_HOME`, `gfjax warmup` (timed), then per method and file
+   two whole `gfjax filter` processes; the first against the second (same run).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _padding_cost(files: list[str], methods: list[str], runs: int) -> list[str]:
+    import gfjax
+    from gfjax import methods as registry
+    from gfjax.io import tiles
+
+    canonical = tiles.canonical_sides
+    rows = ["| method | file | canonical s (median) | former s (median) | ratio canonical / former (median, min-max) |",
+            "|---|---|---|---|---|"]
+    for path in files:
+        cloud = gfjax.read(path)
+        for name in methods:
+            module = registry.get(name)
+
+            def once(sides) -> float:
+                tiles.canonical_sides = sides
+                try:
+                    start = time.perf_counter()
+                    module.filter(cloud)
+                    return time.perf_counter() - start
+                finally:
+                    tiles.canonical_sides = canonical
+
+            former = lambda *a: None                    # noqa: E731 (batches(sides=None): the former rule)
+            for sides in (canonical, former):          # compile both first
+                once(sides)
+            a, b = [], []
+            for _ in range(runs):
+                a.append(once(canonical))
+                b.append(once(former))
+            ratios = [x / y for x, y in zip(a, b)]
+            rows.append(f"| {name} | {Path(path).name} | {statistics.median(a):.3f} | {statistics.median(b):.3f} | "
+                        f"{statistics.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f}) |")
+            print(rows[-1], flush=True)
+    return rows
+
+
+def _wall(command: list[str], env: dict) -> float:
+    start = time.perf_counter()
+    subprocess.run(command, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return time.perf_counter() - start
+
+
+def _first_runs(files: list[str], methods: list[str]) -> list[str]:
+    gfjax_bin = str(Path(sys.executable).parent / "gfjax")
+    with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
+        env = {k: v for k, v in os.environ.items() if k not in ("GFJAX_CACHE", "GFJAX_EXPORT_CACHE",
+                                                               "JAX_COMPILATION_CACHE_DIR")}
+        env |= {"XDG_CACHE_HOME": cache}
+        warm = _wall([gfjax_bin, "-q", "warmup"], env)
+        rows = [f"`gfjax warmup` on empty caches: {warm:.0f} s.", "",
+                "| method | file | first run s | second run s | first / second |", "|---|---|---|---|---|"]
+        print(rows[0], flush=True)
+        for name in methods:
+            for path in files:
+                command = [gfjax_bin, "-q", "filter", path, "-o", str(Path(out) / "out.laz"), "--method", name,
+                           "--force"]
+                first, second = _wall(command, env), _wall(command, env)
+                rows.append(f"| {name} | {Path(path).name} | {first:.2f} | {second:.2f} | {first / second:.2f} |")
+                print(rows[-1], flush=True)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("files", nargs="+")
+    parser.add_argument("--methods", default="smrf,pmf", help="methods of the padding comparison (default smrf,pmf)")
+    parser.add_argument("--first-run-methods", default="smrf,pmf,dmf,csf")
+    parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("-o", "--output", required=True)
+    args = parser.parse_args()
+    os.environ["GFJAX_CACHE"] = "0"           # this process: plain jit, compiled once per shape in memory
+    padding = _padding_cost(args.files, args.methods.split(","), args.runs)
+    first = _first_runs(args.files, args.first_run_methods.split(","))
+    text = ["# Canonical shapes and `gfjax warmup`", "",
+            f"Command: `{' '.join([Path(sys.executable).name, *sys.argv])}` "
+            f"({os.cpu_count()} cores, {time.strftime('%Y-%m-%d')}).", "",
+            "## Padding cost (warm programs, one process)", "", *padding, "",
+            "## First run after `make demo`'s warmup (whole processes)", "", *first, ""]
+    Path(args.output).write_text("\n".join(text))
+    print(f"wrote {args.output}")
+
+
+if __name__ == "__main__":
+    main()

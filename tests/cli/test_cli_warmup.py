@@ -1,0 +1,34 @@
+"""`gfjax warmup`: needs the program cache, names the methods it can prepare, bad options."""
+from __future__ import annotations
+
+import cli_helpers
+import pytest
+from cli_helpers import no_compilation_cache  # noqa: F401 (autouse fixture)
+
+from gfjax import aot, smrf
+
+
+def test_warmup_needs_the_program_cache(capsys):
+    code, _, err = cli_helpers.run_cli(capsys, "warmup")
+    assert code == 2 and "the program cache is off" in err
+
+
+def test_warmup_names_a_method_without_canonical_shapes(capsys, tmp_path, monkeypatch):
+    aot.enable(tmp_path / "export")
+    code, _, err = cli_helpers.run_cli(capsys, "warmup", "--methods", "dmf")
+    assert code == 2 and "dmf has no canonical shapes" in err and "smrf" in err
+
+
+def test_warmup_prepares_each_method_once(capsys, tmp_path, monkeypatch):
+    aot.enable(tmp_path / "export")
+    calls = []
+    monkeypatch.setattr(smrf, "warm", lambda progress=False: calls.append(progress) or 30)
+    code, out, _ = cli_helpers.run_cli(capsys, "-q", "warmup", "--methods", "smrf")
+    assert code == 0 and calls == [True]
+    assert "smrf: 30 input shapes ready" in out and str(tmp_path / "export") in out
+
+
+@pytest.mark.parametrize("argv", [["warmup", "--methods", "nope"], ["warmup", "--methods"]])
+def test_warmup_bad_options_exit_2(capsys, argv):
+    code, _, err = cli_helpers.run_cli(capsys, *argv)
+    assert code == 2 and err.startswith("gfjax: error:")

@@ -1,0 +1,43 @@
+"""The methods' `warm` (`gfjax warmup`): after it, a file of a size never seen before runs
+without compiling anything, in a new process."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+
+REPO = Path(__file__).resolve().parents[1]
+
+# 100 m tiles with 10 m buffers: one canonical side (128 cells), so warming is one raster program
+_SMALL = "smrf.Config(tile_size_m=100.0, buffer_m=10.0)"
+_WARM = f"from gfjax import smrf; print(smrf.warm({_SMALL}))"
+_FILTER = f"""
+import numpy as np, jax, gfjax
+from gfjax import aot, smrf
+compiled = []
+aot.on_compile(compiled.append)
+jax.monitoring.register_event_listener(
+    lambda event, **_: compiled.append(event) if event == "/jax/compilation_cache/cache_misses" else None)
+rng = np.random.default_rng(1)
+xy = rng.uniform(0, [77, 53], (5000, 2))               # a window of 98 x 74 cells: never warmed as such
+cloud = gfjax.Cloud.from_xyz(np.column_stack([xy + 5e5, 100 + 0.1 * xy[:, 0]]))
+ground = smrf.filter(cloud, config={_SMALL}).ground
+print(len(compiled), int(ground.sum()))
+"""
+
+
+def _python(script: str, cache: Path) -> str:
+    env = {k: v for k, v in os.environ.items() if k not in ("GFJAX_CACHE", "GFJAX_EXPORT_CACHE",
+                                                           "JAX_COMPILATION_CACHE_DIR")}
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=REPO, timeout=600,
+                          env={**env, "XDG_CACHE_HOME": str(cache)})
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip()
+
+
+def test_after_warm_a_new_size_compiles_nothing(tmp_path):
+    assert _python(_WARM, tmp_path) == "5"                            # 1 side x 5 capacities
+    compiled, ground = _python(_FILTER, tmp_path).split()
+    assert compiled == "0" and int(ground) > 0
