@@ -333,7 +333,7 @@ def report(args, stats, stages, messages, findings, elapsed, rounds, slowest, se
         "",
         f"- {total:,} executions in {elapsed / 60:.1f} min ({total / max(elapsed, 1e-9):.0f}/s), "
         f"{rounds} hypothesis runs, {len(seeds)} seed files.",
-        f"- outcomes: " + ", ".join(f"{k} {v:,}" for k, v in sorted(stats.items())),
+        "- outcomes: " + ", ".join(f"{k} {v:,}" for k, v in sorted(stats.items())),
         "  (`input_error` = exit 2, `ok` = read, written and read back with every point, "
         "`ok_trusted` = refused, then read with --trust-data, written and read back).",
         "- stage reached (0 layout check failed, 1 laspy header failed, 2 read failed, 3 write/read-back "

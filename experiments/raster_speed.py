@@ -139,7 +139,8 @@ def main() -> None:
         rows.append((name, wall, cpu, comp, ref_name, ref_wall, ref_cpu, check(np.asarray(out) if not isinstance(out, tuple) else out, ref_out)))
         print(rows[-1], flush=True)
 
-    same = lambda a, b: "bit-identical" if np.array_equal(a, b) else f"DIFFERENT (max {np.abs(a - b).max():.3g})"
+    def same(a, b):
+        return "bit-identical" if np.array_equal(a, b) else f"DIFFERENT (max {np.abs(a - b).max():.3g})"
 
     # 1. Disk opening r = 18 (SMRF's largest window at 1 m cells).
     fp18 = skimage.morphology.disk(18, decomposition="sequence")

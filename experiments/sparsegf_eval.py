@@ -74,7 +74,7 @@ def main():
                              clouds))
 
     lines = ["# SparseGF on the test split (never trained on)", "",
-             f"Command: `nice .venv/bin/python experiments/sparsegf_eval.py"
+             "Command: `nice .venv/bin/python experiments/sparsegf_eval.py"
              + (f" --model {args.model}" if args.model else "")
              + (" --ablation " + " ".join(args.ablation) if args.ablation else "") + "`  ",
              f"Load average at the end: {' '.join(f'{x:.1f}' for x in os.getloadavg())}; 2-core CPU.", "",

@@ -66,7 +66,8 @@ def run_file(path: Path, *, repeat: int = 3) -> dict:
         arrays = ([jnp.asarray(b.local_xyz(xyz)) for b in part.batches], [jnp.asarray(b.valid) for b in part.batches])
         return jax.block_until_ready(arrays)
 
-    t_gather, (local, valid) = _best_of(repeat, gather)
+    t_gather, arrays = _best_of(repeat, gather)
+    local, valid = arrays
 
     t_compile = 0.0
     for x, v in zip(local, valid):
@@ -74,7 +75,7 @@ def run_file(path: Path, *, repeat: int = 3) -> dict:
         COMPRESS_BATCH.lower(x, v).compile()
         t_compile += time.perf_counter() - t0
         jax.block_until_ready(COMPRESS_BATCH(x, v))                # warm-up
-    t_compress, outs = _best_of(repeat, lambda: jax.block_until_ready(
+    t_compress, outs = _best_of(repeat, lambda local=local, valid=valid: jax.block_until_ready(
         [COMPRESS_BATCH(x, v) for x, v in zip(local, valid)]))
 
     count = np.zeros(n, np.int64)

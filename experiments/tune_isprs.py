@@ -309,11 +309,14 @@ def report(res: dict) -> str:
              "Total error in percent (hard labels, plain-filter pipeline), unweighted mean over samples.", ""]
     cols, header = [], ["sample"]
     if "a_defaults" in res:
-        cols.append(res["a_defaults"]); header.append("(a) defaults")
+        cols.append(res["a_defaults"])
+        header.append("(a) defaults")
     if "b_tuned" in res:
-        cols.append(res["b_tuned"]); header.append("(b) tuned, own labels")
+        cols.append(res["b_tuned"])
+        header.append("(b) tuned, own labels")
     if "e_grid" in res:
-        cols.append(res["e_grid"]["best"]); header.append("(e) grid best, own labels")
+        cols.append(res["e_grid"]["best"])
+        header.append("(e) grid best, own labels")
     for side in ("west", "east"):
         if side in res.get("c", {}):
             r = res["c"][side]
@@ -322,9 +325,11 @@ def report(res: dict) -> str:
             header += [f"(c) {test} half: defaults", f"(c) {test}: tuned on {side}, guarded",
                        f"(c) {test}: unguarded"]
     if "d" in res and len(res["d"]["tuned"]) == len(names):
-        cols.append(res["d"]["tuned"]); header.append("(d) leave-one-out, guarded")
+        cols.append(res["d"]["tuned"])
+        header.append("(d) leave-one-out, guarded")
         if len(res["d"].get("unguarded", [])) == len(names):
-            cols.append(res["d"]["unguarded"]); header.append("(d) unguarded")
+            cols.append(res["d"]["unguarded"])
+            header.append("(d) unguarded")
     lines.append("| " + " | ".join(header) + " |")
     lines.append("|" + "---|" * len(header))
     for i, n in enumerate(names):

@@ -24,7 +24,7 @@ from typing import Any, NamedTuple
 from gfjax import limits
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
-from gfjax.io.atomic import existing_output_message
+from gfjax.io.atomic import check_output, existing_output_message
 
 _GIB = float(1 << 30)
 _LAZ_OF_LAS = 0.25          # a LAZ written from LAS points: at most about a quarter of the LAS size
@@ -76,7 +76,7 @@ def check_outputs(outputs: Sequence[tuple[str, str | os.PathLike, tuple[str, ...
     """
     existing = []
     for option, path, suffixes in outputs:
-        out = las_io.check_output(path, force=force, input_paths=inputs, suffixes=suffixes, option=option)
+        out = check_output(path, force=force, input_paths=inputs, suffixes=suffixes, option=option)
         if not force and os.path.lexists(out):
             existing.append(f"{option} {out}")
     if existing:

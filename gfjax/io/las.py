@@ -20,7 +20,7 @@ import numpy as np
 from gfjax.errors import InputError
 from gfjax.io import crs as crs_lib
 from gfjax.io import units as units_lib
-from gfjax.io.atomic import atomic_output, check_output, is_temporary
+from gfjax.io.atomic import atomic_output, is_temporary
 from gfjax.io.cloud import Cloud
 from gfjax.io.las_layout import INT32_MAX, INT32_MIN, Layout, check_layout
 

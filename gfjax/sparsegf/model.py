@@ -161,7 +161,7 @@ class SparseGFNet(eqx.Module):
         self.down, self.down_norm, self.enc = tuple(down), tuple(down_norm), tuple(enc)
         self.up, self.up_norm, self.dec = tuple(up), tuple(up_norm), tuple(dec)
         if c.refine:
-            self.refine = tuple(_LBR(widths[1 + l], c.refine, key=next(keys)) for l in range(4)) + (
+            self.refine = tuple(_LBR(widths[1 + k], c.refine, key=next(keys)) for k in range(4)) + (
                 _LBR(4 * c.refine, c.refine, key=next(keys)),)
             head_in = width + c.refine
         else:

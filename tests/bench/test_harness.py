@@ -62,7 +62,7 @@ def test_peak_rss_is_at_least_current_rss():
 
 @pytest.fixture
 def child_module(tmp_path):
-    (tmp_path / "bench_child_targets.py").write_text(textwrap.dedent(f"""
+    (tmp_path / "bench_child_targets.py").write_text(textwrap.dedent("""
         import time
         import numpy as np
         from gfjax.bench import harness
@@ -72,14 +72,14 @@ def child_module(tmp_path):
             block = np.ones(mib * 2**20 // 8, dtype=np.float64)   # touched: resident
             total = float(block.sum())
             del block
-            return {{"before": before, "total": total}}
+            return {"before": before, "total": total}
 
         def fail():
             raise RuntimeError("target failed on purpose")
 
         def sleep(seconds):
             time.sleep(seconds)
-            return {{}}
+            return {}
     """))
     return tmp_path
 

@@ -10,6 +10,7 @@ from cli_helpers import error_line, fake_methods, no_compilation_cache, run_cli 
 from reliability_files import run_gfjax, write_las
 
 from gfjax.errors import InputError
+from gfjax.io import atomic
 from gfjax.io import las as las_io
 from gfjax.io import las_layout
 
@@ -131,7 +132,7 @@ def test_empty_params_argument_exits_2(capsys, fake_methods, tmp_path):
 
 def test_empty_name_given_to_check_output_raises_input_error():
     with pytest.raises(InputError, match="empty output name"):
-        las_io.check_output("")
+        atomic.check_output("")
 
 
 def test_info_of_an_empty_argument_exits_2(capsys, tmp_path):

@@ -93,7 +93,7 @@ def _dead_pid() -> int:
 
 
 def test_stale_temporary_of_a_dead_process_is_removed_by_the_next_write(tmp_path, capsys, fake_methods):
-    source = write_scene(tmp_path / "in.las")
+    write_scene(tmp_path / "in.las")
     stale = tmp_path / f".out.laz{atomic.TMP_MARK}{atomic._host()}-{_dead_pid()}-0123abcd"
     stale.write_bytes(b"half a file")
     code, _, err = run_cli(capsys, "filter", tmp_path, "-o", tmp_path / "out.laz", "--method", "fake")

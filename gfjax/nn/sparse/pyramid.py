@@ -103,8 +103,8 @@ def _counts(coords, valid, *, depth):
         levels.append((c, v))
     sizes = [jnp.sum(v, dtype=jnp.int32) for _, v in levels]
     sub = [pairs_per_offset(neighbour_table(c, v, c, v, kernel_size=3), n) for c, v in levels]
-    down = [pairs_per_offset(neighbour_table(*levels[l], *levels[l + 1], kernel_size=2, centred=False, stride=2), n)
-            for l in range(depth)]
+    down = [pairs_per_offset(neighbour_table(*levels[k], *levels[k + 1], kernel_size=2, centred=False, stride=2), n)
+            for k in range(depth)]
     return sizes, sub, down
 
 
@@ -189,10 +189,10 @@ def build_pyramid(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], plan: Pyr
 
     stem = NeighbourTable(neighbour_table(coords, valid, coords, valid, kernel_size=plan.stem_kernel),
                           coords, valid, coords, valid)
-    submanifold = tuple(sub_map(l, 3, *plan.submanifold[l]) for l in range(plan.depth + 1))
+    submanifold = tuple(sub_map(k, 3, *plan.submanifold[k]) for k in range(plan.depth + 1))
     down = []
-    for l, (block, n_blocks) in enumerate(plan.down):
-        (fc, fv), (cc, cv) = levels[l], levels[l + 1]
+    for k, (block, n_blocks) in enumerate(plan.down):
+        (fc, fv), (cc, cv) = levels[k], levels[k + 1]
         table = neighbour_table(fc, fv, cc, cv, kernel_size=2, centred=False, stride=2)
         down.append(pairs_from_table(table, n_in=fc.shape[0], block=block, n_blocks=n_blocks,
                                      in_coords=fc, in_valid=fv, out_coords=cc, out_valid=cv))
