@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 import tempfile
 import time
@@ -178,24 +179,34 @@ def _write(labelled, target: Path, dtm_target: Path | None, cloud, ground: np.nd
 
     The DTM is built before anything is written (no ground points, a grid over the memory
     budget: nothing written), then written while the cloud's temporary file waits to be
-    renamed; if the cloud then fails, a DTM this call created is removed again.
+    renamed; if the cloud then fails, the DTM this call wrote is removed again, and a DTM that
+    was there before (`--force`) is put back, so the old pair stays a pair.
     """
     if dtm_target is None:
         las_io.write(labelled, target, force=args.force, input_paths=inputs)
         return
     from gfjax import dtm as dtm_lib
+    from gfjax.io import atomic
 
     dtm = dtm_lib.build(cloud, ground, cell_m=args.cell)
-    existed = dtm_target.exists()
+    kept: list[Path] = []          # the earlier DTM, moved aside until the cloud is in place
     written = []
 
     def write_dtm() -> None:
+        if dtm_target.exists():
+            backup = atomic.temporary_name(dtm_target)
+            os.replace(dtm_target, backup)
+            kept.append(backup)
         dtm.to_geotiff(dtm_target)
         written.append(dtm_target)
 
     try:
         las_io.write(labelled, target, force=args.force, input_paths=inputs, before_commit=write_dtm)
     except BaseException:
-        if written and not existed:
+        if written:
             dtm_target.unlink(missing_ok=True)
+        if kept:
+            os.replace(kept[0], dtm_target)
         raise
+    if kept:
+        kept[0].unlink(missing_ok=True)

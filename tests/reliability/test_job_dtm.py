@@ -77,6 +77,27 @@ def test_point_cloud_rename_failure_removes_the_new_dtm(scene, tmp_path, capsys,
     assert _names(tmp_path) == ["in.las"]
 
 
+def test_point_cloud_rename_failure_with_force_puts_the_earlier_dtm_back(scene, tmp_path, capsys, fake_methods,
+                                                                         monkeypatch):
+    out, dtm = tmp_path / "out.laz", tmp_path / "dtm.tif"
+    code, _, _ = run_cli(capsys, "filter", scene, "-o", out, "--dtm", dtm, "--method", "fake")
+    assert code == 0
+    before = {path: path.read_bytes() for path in (out, dtm)}
+    real_replace = os.replace
+
+    def replace(src, dst, **kwargs):
+        if str(dst).endswith("out.laz"):
+            raise OSError(28, "No space left on device")
+        return real_replace(src, dst, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace)
+    code, _, err = run_cli(capsys, "filter", scene, "-o", out, "--dtm", dtm, "--method", "fake", "--cell", "2",
+                           "--force")
+    assert code == 2 and "out.laz: cannot write" in error_line(err)
+    assert _names(tmp_path) == ["dtm.tif", "in.las", "out.laz"]         # no temporary left
+    assert {path: path.read_bytes() for path in (out, dtm)} == before     # the old pair, unchanged
+
+
 def test_cloud_and_dtm_are_both_written_on_success(scene, tmp_path, capsys, fake_methods):
     code, _, err = run_cli(capsys, "filter", scene, "-o", tmp_path / "out.laz", "--dtm", tmp_path / "dtm.tif",
                            "--method", "fake")
