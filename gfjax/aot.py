@@ -291,6 +291,24 @@ def _trace_options() -> str:
     return repr([(name, getattr(jax.config, name, None)) for name in names])
 
 
+_REPRS: dict[int, tuple[Any, str]] = {}   # id -> (value kept alive, its repr)
+_MAX_REPRS = 64
+
+
+def _static_repr(static: dict) -> str:
+    """`repr` of the sorted static arguments; the repr of each value is remembered by identity
+    (a network's skeleton takes 80 ms to print, and a caller passes the same one per call)."""
+    parts = []
+    for name, value in sorted(static.items()):
+        known = _REPRS.get(id(value))
+        if known is None or known[0] is not value:
+            if len(_REPRS) >= _MAX_REPRS:
+                _REPRS.clear()
+            known = _REPRS[id(value)] = (value, repr(value))
+        parts.append(f"({name!r}, {known[1]})")
+    return "[" + ", ".join(parts) + "]"
+
+
 def _placement(a) -> str:
     """The sharding of an argument committed elsewhere than the default device; "" for one on
     it, committed or not (the same program runs both: an output of an exported program is
@@ -313,7 +331,7 @@ def program_key(fn: Callable, args: tuple, static: dict, tag=None) -> str:
     signature = [f"{np.shape(a)}:{_dtype(a)}:{'weak' if getattr(a, 'weak_type', False) else ''}:{_placement(a)}"
                  for a in leaves]
     name = repr(tag) if tag is not None else f"{fn.__module__}.{_name(fn)}"
-    parts = [name, repr(sorted(static.items())), str(treedef), ";".join(signature), _trace_options(), _fingerprint()]
+    parts = [name, _static_repr(static), str(treedef), ";".join(signature), _trace_options(), _fingerprint()]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 

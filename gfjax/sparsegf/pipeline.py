@@ -304,9 +304,22 @@ def predict(model: Model, packed: Pack):
     Returns JAX arrays without waiting for them (asynchronous dispatch). The program is kept
     across processes when `gfjax.aot` is on (the command line turns it on): its arguments are
     arrays, and the rest of the network (layer settings, the inference flags) is static."""
-    arrays, skeleton = eqx.partition(eqx.nn.inference_mode(model.net), eqx.is_array)
+    arrays, skeleton = _inference_split(model)
     return aot.call(predict_points, arrays, model.state, inputs(packed), skeleton=skeleton, plan=packed.plan,
                     slots=packed.slots)
+
+
+_SPLIT: dict[int, tuple] = {}
+
+
+def _inference_split(model: Model):
+    """`(arrays, skeleton)` of the model's network in inference mode, made once per model: the
+    same skeleton object every call, so the program cache prints it once."""
+    known = _SPLIT.get(id(model))
+    if known is None or known[0] is not model:
+        _SPLIT.clear()
+        known = _SPLIT[id(model)] = (model, *eqx.partition(eqx.nn.inference_mode(model.net), eqx.is_array))
+    return known[1], known[2]
 
 
 def unpack(packed: Pack, point_values: np.ndarray) -> list[np.ndarray]:
