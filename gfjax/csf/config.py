@@ -10,11 +10,11 @@ from __future__ import annotations
 import dataclasses
 
 import equinox as eqx
-import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from gfjax import limits
 from gfjax.limits import Range
+from gfjax.params import param
 
 __all__ = ["Config", "Params", "PRESETS", "GRAVITY", "DAMPING", "CLOTH_START_M", "BUFFER_PX",
            "STOP_DISPLACEMENT_M", "SMOOTH_THRESHOLD_M", "MIN_SMOOTH_COMPONENT", "single_move",
@@ -59,9 +59,6 @@ def double_move(rigidness: int) -> float:
     """Fraction of the gap each of two movable particles moves toward the other."""
     return 0.5 if rigidness > 14 else _DOUBLE_MOVE[rigidness]
 
-
-def _f32(value) -> Float[Array, ""]:
-    return jnp.asarray(value, dtype=jnp.float32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,8 +106,8 @@ class Params(eqx.Module):
         `addForce`, once in the Verlet update).
     """
 
-    class_threshold_m: Float[Array, ""] = eqx.field(default=0.5, converter=_f32)
-    time_step: Float[Array, ""] = eqx.field(default=0.65, converter=_f32)
+    class_threshold_m: Float[Array, ""] = param(0.5)
+    time_step: Float[Array, ""] = param(0.65)
 
     def check(self) -> None:
         """Range checks on concrete values (call outside jit): raises ValueError naming the key."""

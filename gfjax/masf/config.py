@@ -11,12 +11,12 @@ import dataclasses
 import math
 
 import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from gfjax import limits
 from gfjax.limits import Range
+from gfjax.params import param
 
 __all__ = ["Config", "Params", "PRESETS", "PAPER_TABLE3", "DISTANCES", "RANGES"]
 
@@ -42,9 +42,6 @@ RANGES: dict[str, Range] = {
 MAX_LAYERS = 1000             # (alpha_max_m - alpha_min) / alpha_step_m + 1: the layer loop
 _GRID_BYTES_PER_CELL = 8 * 8  # the preprocessing grid: a few float64 / int64 arrays per cell
 
-
-def _f32(value) -> Float[Array, ""]:
-    return jnp.asarray(value, dtype=jnp.float32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,8 +156,8 @@ class Params(eqx.Module):
       ft_m: final threshold FT [m]: the offset of Eq. 2 and the last whole-cloud test.
     """
 
-    st: Float[Array, ""] = eqx.field(default=0.05, converter=_f32)
-    ft_m: Float[Array, ""] = eqx.field(default=0.5, converter=_f32)
+    st: Float[Array, ""] = param(0.05)
+    ft_m: Float[Array, ""] = param(0.5)
 
     def check(self) -> None:
         """Range checks on concrete values (outside jit): raises ValueError naming the key."""

@@ -8,11 +8,11 @@ from __future__ import annotations
 import dataclasses
 
 import equinox as eqx
-import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from gfjax import limits
 from gfjax.limits import Range
+from gfjax.params import param
 
 __all__ = ["Config", "Params", "PRESETS", "RANGES"]
 
@@ -34,9 +34,6 @@ MAX_BATCH = 8                 # tiles per vmap call of `gfjax.pmf.filter`
 _TILE_BYTES_PER_CELL = 16 * 4
 _MOSAIC_BYTES_PER_CELL = 3 * 8          # three whole-cloud float64 diagnostics rasters
 
-
-def _f32(value) -> Float[Array, ""]:
-    return jnp.asarray(value, dtype=jnp.float32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,9 +96,9 @@ class Params(eqx.Module):
       max_distance_m: cap on the elevation threshold [m] ("dh_max").
     """
 
-    slope: Float[Array, ""] = eqx.field(default=1.0, converter=_f32)
-    initial_distance_m: Float[Array, ""] = eqx.field(default=0.15, converter=_f32)
-    max_distance_m: Float[Array, ""] = eqx.field(default=2.5, converter=_f32)
+    slope: Float[Array, ""] = param(1.0)
+    initial_distance_m: Float[Array, ""] = param(0.15)
+    max_distance_m: Float[Array, ""] = param(2.5)
 
     def check(self) -> None:
         """Range checks on concrete values (call outside jit): raises ValueError naming the key."""

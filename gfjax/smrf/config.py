@@ -11,11 +11,11 @@ import dataclasses
 import math
 
 import equinox as eqx
-import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from gfjax import limits
 from gfjax.limits import Range
+from gfjax.params import param
 
 __all__ = ["Config", "Params", "PRESETS", "INPAINT_METHODS", "RANGES"]
 
@@ -43,9 +43,6 @@ MAX_BATCH = 8                 # tiles per vmap call of `gfjax.smrf.filter`
 _TILE_BYTES_PER_CELL = 32 * 4
 _MOSAIC_BYTES_PER_CELL = 6 * 8          # six whole-cloud float64 diagnostics rasters
 
-
-def _f32(value) -> Float[Array, ""]:
-    return jnp.asarray(value, dtype=jnp.float32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,9 +110,9 @@ class Params(eqx.Module):
         ("elevation scalar"): ground iff `|z - ZIpro| <= threshold_m + scalar * slope_local`.
     """
 
-    slope: Float[Array, ""] = eqx.field(default=0.15, converter=_f32)
-    threshold_m: Float[Array, ""] = eqx.field(default=0.5, converter=_f32)
-    scalar: Float[Array, ""] = eqx.field(default=1.25, converter=_f32)
+    slope: Float[Array, ""] = param(0.15)
+    threshold_m: Float[Array, ""] = param(0.5)
+    scalar: Float[Array, ""] = param(1.25)
 
     def check(self) -> None:
         """Range checks on concrete values (call outside jit): raises ValueError naming the key."""
