@@ -145,13 +145,14 @@ def _method_of(args: argparse.Namespace) -> str | None:
 
 
 @contextlib.contextmanager
-def _talk(*, quiet: bool, method: str | None):
+def _talk(*, quiet: bool, method: str | None, notice: bool = True):
     """While a command runs: say once on stderr when it must compile (a first run of a new
     input shape sits silent for seconds otherwise), or, `quiet`, no such line and no progress
-    bars (tqdm reads `TQDM_DISABLE` when first imported; the commands import it late)."""
+    bars (tqdm reads `TQDM_DISABLE` when first imported; the commands import it late).
+    `notice=False`: no such line (a command whose work is compiling)."""
     said = []
 
-    def notice(module: str) -> None:
+    def say(module: str) -> None:
         if said:
             return
         said.append(module)
@@ -169,8 +170,8 @@ def _talk(*, quiet: bool, method: str | None):
     before = os.environ.get("TQDM_DISABLE")
     if quiet:
         os.environ["TQDM_DISABLE"] = "1"
-    else:
-        aot.on_compile(notice)
+    elif notice:
+        aot.on_compile(say)
     try:
         yield
     finally:
@@ -290,7 +291,7 @@ def _run(argv: Sequence[str]) -> int:
             if module is None:
                 raise InputError(f"{args.command}: not available in this build")
             cache.setup()
-            with _talk(quiet=args.quiet, method=_method_of(args)):
+            with _talk(quiet=args.quiet, method=_method_of(args), notice=args.command != "warmup"):
                 code = int(module.run(args) or 0)
             sys.stdout.flush()              # a closed pipe is found here, not at exit
             return code

@@ -32,3 +32,17 @@ def test_warmup_prepares_each_method_once(capsys, tmp_path, monkeypatch):
 def test_warmup_bad_options_exit_2(capsys, argv):
     code, _, err = cli_helpers.run_cli(capsys, *argv)
     assert code == 2 and err.startswith("gfjax: error:")
+
+
+def test_warmup_does_not_announce_each_compile(capsys, tmp_path, monkeypatch):
+    aot.enable(tmp_path / "export")
+
+    def warm(progress=False):
+        hook = aot._state.get("on_compile")
+        if hook is not None:
+            hook("gfjax.smrf.stages")              # what a compile inside warm would call
+        return 30
+
+    monkeypatch.setattr(smrf, "warm", warm)
+    code, _, err = cli_helpers.run_cli(capsys, "warmup", "--methods", "smrf")
+    assert code == 0 and "compiling" not in err
