@@ -183,13 +183,16 @@ def mosaic(tiles: Sequence[tiling.Tile], diagnostics: Sequence[NamedTuple], *, n
       cell_m: the tiles' raster cell [m].
 
     Returns:
-      `Mosaic`: rasters `(H, W)` over the bounding box of the cores, and its south-west corner.
+      `Mosaic`: rasters `(H, W)` over the bounding box of the cores, and its south-west corner;
+      cells of no tile's core hold 0 and are never written, so a box that is mostly empty (a
+      stray point kilometres away) costs memory only for its tiles' pages.
     """
     col0 = min(t.core_px[0] for t in tiles)
     row0 = min(t.core_px[1] for t in tiles)
     width = max(t.core_px[2] for t in tiles) - col0
     height = max(t.core_px[3] for t in tiles) - row0
     first = diagnostics[0]
+    z0 = float(tiles[0].origin_m[2])
     out = {}
     for name in names:
         dtype = np.asarray(getattr(first, name)).dtype
@@ -201,10 +204,8 @@ def mosaic(tiles: Sequence[tiling.Tile], diagnostics: Sequence[NamedTuple], *, n
         src_rows = slice(h - (r1 - wr), h - (r0 - wr))             # rows from the south -> north-up
         dst_rows = slice(height - (r1 - row0), height - (r0 - row0))
         for name in names:
-            out[name][dst_rows, c0 - col0:c1 - col0] = getattr(diag, name)[src_rows, c0 - wc:c1 - wc]
-    z0 = float(tiles[0].origin_m[2])
-    for name in heights:
-        out[name] += z0
+            cells = getattr(diag, name)[src_rows, c0 - wc:c1 - wc]
+            out[name][dst_rows, c0 - col0:c1 - col0] = cells + z0 if name in heights else cells
     origin = tiles[0].origin_m[:2] + (np.asarray([col0, row0]) - np.asarray(tiles[0].window_px)) * cell_m
     return Mosaic(rasters=out, origin_m=origin)
 
