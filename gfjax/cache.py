@@ -59,8 +59,8 @@ def enable() -> Path | None:
     JAX's cache holds executables, so its folder obeys `gfjax.aot`'s rule
     (`aot.private_folder`): private to this user (0700), every folder above it writable by no
     one else. A folder named in `JAX_COMPILATION_CACHE_DIR` is checked too (a remote URL is
-    left to JAX; an empty one means no cache). A refused folder means no persistent cache for this process (one warning
-    line on stderr). Returns the local folder in use, or None.
+    left to JAX; an empty one means no cache). A refused folder means no persistent cache for
+    this process (one warning line on stderr). Returns the local folder in use, or None.
     """
     programs = export_folder()
     if programs is not None:

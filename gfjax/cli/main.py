@@ -3,7 +3,8 @@
 Each subcommand lives in `gfjax.cli.<name>` and provides
 
 - `add_parser(subparsers) -> argparse.ArgumentParser`: registers `<name>` and its options;
-- `run(args) -> int`: does the work; raises `InputError` for bad input.
+- `run(args) -> int`: does the work; raises `InputError` for bad input;
+- optionally `ANNOUNCE_COMPILES = False`: no "compiling" line on stderr (compiling is its work).
 
 Only the module of the command being run is imported (subcommand modules keep heavy imports
 such as JAX inside `run`). Modules of `SUBCOMMANDS` that are not installed are left out,
@@ -291,7 +292,7 @@ def _run(argv: Sequence[str]) -> int:
             if module is None:
                 raise InputError(f"{args.command}: not available in this build")
             cache.setup()
-            with _talk(quiet=args.quiet, method=_method_of(args), notice=args.command != "warmup"):
+            with _talk(quiet=args.quiet, method=_method_of(args), notice=getattr(module, "ANNOUNCE_COMPILES", True)):
                 code = int(module.run(args) or 0)
             sys.stdout.flush()              # a closed pipe is found here, not at exit
             return code

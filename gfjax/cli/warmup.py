@@ -14,6 +14,8 @@ import time
 
 from gfjax.errors import InputError
 
+ANNOUNCE_COMPILES = False      # every program it meets is compiled: no line per new shape
+
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     from gfjax.methods import METHODS
@@ -43,14 +45,14 @@ def run(args: argparse.Namespace) -> int:
     if folder is None:
         raise InputError("warmup: the program cache is off (GFJAX_CACHE=0, GFJAX_EXPORT_CACHE=0 or a refused "
                          "folder), so nothing compiled now would be kept")
-    for name in names:
-        module = methods.get(name)
+    modules = {name: methods.get(name) for name in names}
+    for name, module in modules.items():
         if not callable(getattr(module, "warm", None)):
             raise InputError(f"--methods: {name} has no canonical shapes to prepare; it compiles on first use "
                              f"(choose from {', '.join(warmable())})")
-    for name in names:
+    for name, module in modules.items():
         start = time.perf_counter()
-        shapes = methods.get(name).warm(progress=True)
+        shapes = module.warm(progress=True)
         print(f"{name}: {shapes} input shapes ready ({time.perf_counter() - start:.0f} s)", flush=True)
     print(f"programs kept in {folder}")
     return 0

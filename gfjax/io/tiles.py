@@ -35,7 +35,7 @@ __all__ = ["Frame", "Tile", "TileBatch", "split", "capacity_bucket", "shape_buck
 
 MIN_CAPACITY = 256
 SHAPE_QUANTUM_PX = 64
-SMALLEST_SIDE_PX = 128        # the smallest canonical raster side; the others double up to a whole window
+SMALLEST_SIDE_PX = 128        # the smallest canonical raster side (`canonical_sides`)
 CANONICAL_MIN_CAPACITY = 1 << 14
 CANONICAL_MAX_CAPACITY = 1 << 22   # the largest capacity `gfjax warmup` compiles ahead
 

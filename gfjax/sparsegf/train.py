@@ -204,8 +204,8 @@ def fit(model: Model, data: list[Labelled], *, config: Config, epochs: int, batc
     """Train `model` for `epochs` epochs; deterministic given `seed`.
 
     The learning rate follows a cosine from `lr` to `lr * LR_END_RATIO` over the run (per
-    step); `min_patches` is `training_batches`'. Epoch `e` draws its grid shifts, rotations, thinning and order from
-    `numpy.random.default_rng([seed, e])`, so a run resumed from the checkpoint at
+    step); `min_patches` is `training_batches`'. Epoch `e` draws its grid shifts, rotations,
+    thinning and order from `numpy.random.default_rng([seed, e])`, so a run resumed from the checkpoint at
     `resume_path` (written after every epoch: model, optimizer state, epoch) continues exactly
     as the uninterrupted run would. `on_step(epoch, step, steps in the epoch, [loss, cls,
     hag])` and `on_epoch(EpochLog)` report progress. Returns `(model, [EpochLog])`.

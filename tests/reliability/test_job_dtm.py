@@ -62,15 +62,20 @@ def test_dtm_write_failure_leaves_no_point_cloud(scene, tmp_path, capsys, fake_m
     assert _names(tmp_path) == ["in.las"]
 
 
-def test_point_cloud_rename_failure_removes_the_new_dtm(scene, tmp_path, capsys, fake_methods, monkeypatch):
+def _fail_renames_to(monkeypatch, name: str) -> None:
+    """`os.replace` onto a path ending in `name` fails as on a full disk."""
     real_replace = os.replace
 
     def replace(src, dst, **kwargs):
-        if str(dst).endswith("out.laz"):
+        if str(dst).endswith(name):
             raise OSError(28, "No space left on device")
         return real_replace(src, dst, **kwargs)
 
     monkeypatch.setattr(os, "replace", replace)
+
+
+def test_point_cloud_rename_failure_removes_the_new_dtm(scene, tmp_path, capsys, fake_methods, monkeypatch):
+    _fail_renames_to(monkeypatch, "out.laz")
     code, _, err = run_cli(capsys, "filter", scene, "-o", tmp_path / "out.laz", "--dtm", tmp_path / "dtm.tif",
                            "--method", "fake")
     assert code == 2 and "out.laz: cannot write" in error_line(err)
@@ -83,14 +88,7 @@ def test_point_cloud_rename_failure_with_force_puts_the_earlier_dtm_back(scene, 
     code, _, _ = run_cli(capsys, "filter", scene, "-o", out, "--dtm", dtm, "--method", "fake")
     assert code == 0
     before = {path: path.read_bytes() for path in (out, dtm)}
-    real_replace = os.replace
-
-    def replace(src, dst, **kwargs):
-        if str(dst).endswith("out.laz"):
-            raise OSError(28, "No space left on device")
-        return real_replace(src, dst, **kwargs)
-
-    monkeypatch.setattr(os, "replace", replace)
+    _fail_renames_to(monkeypatch, "out.laz")
     code, _, err = run_cli(capsys, "filter", scene, "-o", out, "--dtm", dtm, "--method", "fake", "--cell", "2",
                            "--force")
     assert code == 2 and "out.laz: cannot write" in error_line(err)
