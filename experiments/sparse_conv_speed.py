@@ -83,8 +83,8 @@ def run(name, path, args):
     map_s = median_time(map_fn, coords_j, valid, repeats=args.repeats)
     pairs = int(kmap.n_pairs)
 
-    fwd = jax.jit(lambda f, w: sparse.sparse_conv(f, w, kmap))
-    grad = jax.jit(jax.grad(lambda f, w: jnp.sum(sparse.sparse_conv(f, w, kmap)), argnums=(0, 1)))
+    fwd = jax.jit(lambda f, w: sparse.sparse_conv(f, w, kmap, chunk_blocks=0))
+    grad = jax.jit(jax.grad(lambda f, w: jnp.sum(sparse.sparse_conv(f, w, kmap, chunk_blocks=0)), argnums=(0, 1)))
     fwd_compile = compile_time(fwd, feats, weight)
     fwd_s = median_time(fwd, feats, weight, repeats=args.repeats)
     both_s = median_time(lambda f, w: (fwd(f, w), grad(f, w)), feats, weight, repeats=args.repeats)

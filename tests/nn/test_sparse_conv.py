@@ -132,14 +132,26 @@ def test_negative_coordinates_and_odd_strides():
     assert got == {(0, -1, 0, 0), (0, 0, 0, 0), (0, -2, -3, 3)}
 
 
-def test_scan_and_all_at_once_are_exact():
+@pytest.mark.parametrize("spare", [1, 4], ids=["tight", "mostly_padding"])
+def test_scan_and_all_at_once_are_exact(spare):
+    """Every schedule gives the same bits, also where most blocks are padding (skipped steps)."""
     coords, feats = sparse_sites(0.5, seed=6, shape=(9, 8, 7))
-    kmap = sparse.submanifold_map(coords, np.ones(len(coords), bool), block=16)
+    valid = np.ones(len(coords), bool)
+    block, n_blocks = sparse.plan_blocks(np.asarray(sparse.pairs_per_offset(
+        neighbour_table(coords, valid, coords, valid, kernel_size=3), len(coords))), block=16)
+    kmap = sparse.submanifold_map(coords, valid, block=block, n_blocks=spare * n_blocks)
     w = weights(3)
-    whole = jax.jit(sparse.sparse_conv)(jnp.asarray(feats), w, kmap)
-    for chunk in (1, 3, kmap.n_blocks - 1):
+    whole = jax.jit(lambda f, w, m: sparse.sparse_conv(f, w, m, chunk_blocks=0))(jnp.asarray(feats), w, kmap)
+    for chunk in (None, 1, 3, n_blocks - 1, spare * n_blocks + 5):
         chunked = jax.jit(lambda f, w, m, c=chunk: sparse.sparse_conv(f, w, m, chunk_blocks=c))(jnp.asarray(feats), w, kmap)
         np.testing.assert_array_equal(np.asarray(whole), np.asarray(chunked))
+
+
+def test_negative_chunk_is_refused():
+    coords, feats = sparse_sites(0.5, seed=6)
+    kmap = sparse.submanifold_map(coords, np.ones(len(coords), bool))
+    with pytest.raises(ValueError, match="chunk_blocks must be >= 0"):
+        sparse.sparse_conv(jnp.asarray(feats), weights(3), kmap, chunk_blocks=-1)
 
 
 def test_gradients_match_finite_differences():
@@ -151,6 +163,8 @@ def test_gradients_match_finite_differences():
         f64, w64 = jnp.asarray(feats, jnp.float64), jnp.asarray(w, jnp.float64)
         check_grads(lambda f, w: sparse.sparse_conv(f, w, kmap), (f64, w64), order=2, modes=("rev",))
         check_grads(lambda f, w: sparse.sparse_conv(f, w, kmap, chunk_blocks=1), (f64, w64), order=1, modes=("rev",))
+        roomy = sparse.submanifold_map(coords, np.ones(len(coords), bool), block=kmap.block, n_blocks=4 * kmap.n_blocks)
+        check_grads(lambda f, w: sparse.sparse_conv(f, w, roomy, chunk_blocks=1), (f64, w64), order=1, modes=("rev",))
     finally:
         jax.config.update("jax_enable_x64", False)
 
@@ -256,9 +270,10 @@ def test_overflow_is_reported():
     assert bool(overflowed)
 
 
+@pytest.mark.parametrize("step_rows", [4096, 64], ids=["one_step", "steps"])
 @pytest.mark.parametrize("kernel_size, centred, stride", [(1, True, 1), (3, True, 1), (5, True, 1), (2, False, 2),
                                                           (3, False, 2)])
-def test_neighbour_table_equals_one_lookup_per_offset(kernel_size, centred, stride):
+def test_neighbour_table_equals_one_lookup_per_offset(kernel_size, centred, stride, step_rows):
     rng = np.random.default_rng(kernel_size * 10 + stride)
     # columns of a few voxels, stacked tightly, at the edges of the packable range too
     coords = np.concatenate([rng.integers(-3, 4, (300, 4)), rng.integers(K.COORD_MAX - 3, K.COORD_MAX + 1, (40, 4)),
@@ -269,8 +284,12 @@ def test_neighbour_table_equals_one_lookup_per_offset(kernel_size, centred, stri
     out_coords = np.concatenate([in_coords, np.floor_divide(in_coords, np.asarray([1, stride, stride, stride]))])
     out_coords[:, 0] = np.concatenate([in_coords[:, 0]] * 2)
     out_valid = rng.random(len(out_coords)) < 0.9
+    # a run of padding rows: whole steps with no valid row are skipped
+    out_coords = np.concatenate([out_coords[:300], in_coords[:200], out_coords[300:]])
+    out_valid = np.concatenate([out_valid[:300], np.zeros(200, bool), out_valid[300:]])
     got = np.asarray(neighbour_table(jnp.asarray(in_coords), jnp.asarray(in_valid), jnp.asarray(out_coords),
-                                     jnp.asarray(out_valid), kernel_size=kernel_size, centred=centred, stride=stride))
+                                     jnp.asarray(out_valid), kernel_size=kernel_size, centred=centred, stride=stride,
+                                     step_rows=step_rows))
     where = {tuple(c): i for i, c in enumerate(in_coords) if in_valid[i]}
     offsets = kernel_offsets(kernel_size, centred=centred)
     want = np.full((len(out_coords), len(offsets)), len(in_coords), np.int32)
@@ -282,12 +301,25 @@ def test_neighbour_table_equals_one_lookup_per_offset(kernel_size, centred, stri
     np.testing.assert_array_equal(got, want)
 
 
+def test_inner_table_is_the_smaller_kernels_table():
+    coords, _ = sparse_sites(0.4, seed=12, shape=(9, 8, 7))
+    valid = np.random.default_rng(0).random(len(coords)) < 0.9
+    big = neighbour_table(coords, valid, coords, valid, kernel_size=5)
+    for k in (1, 3, 5):
+        np.testing.assert_array_equal(np.asarray(sparse.inner_table(big, k)),
+                                      np.asarray(neighbour_table(coords, valid, coords, valid, kernel_size=k)))
+    for bad in (2, 7):
+        with pytest.raises(ValueError, match="inner_table"):
+            sparse.inner_table(big, bad)
+
+
 @pytest.mark.parametrize("chunk_rows", [64, 4096])
 def test_table_conv_equals_the_pair_list_conv(chunk_rows):
     coords, feats = sparse_sites(0.3, seed=11, shape=(9, 8, 7))
-    coords = np.concatenate([coords, np.zeros((5, 4), np.int32)])      # padding rows
+    pad = 200                                                          # padding rows: whole chunks of them
+    coords = np.concatenate([coords, np.zeros((pad, 4), np.int32)])
     valid = np.arange(len(coords)) < len(feats)
-    feats = jnp.asarray(np.concatenate([feats, np.zeros((5, C_IN), np.float32)]))
+    feats = jnp.asarray(np.concatenate([feats, np.zeros((pad, C_IN), np.float32)]))
     weight = weights(5)
     kmap = sparse.submanifold_map(coords, valid, kernel_size=5)
     table = sparse.NeighbourTable(sparse.neighbour_table(coords, valid, coords, valid, kernel_size=5),

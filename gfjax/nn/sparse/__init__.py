@@ -8,7 +8,8 @@ GPU alike.
   static capacity with a `valid` mask; points to voxels (mean features) and back.
 - `submanifold_map`, `downsample`, `strided_map`, `KernelMap.transpose`: the (input row,
   output row, offset) pairs of a convolution, found by sorting packed coordinate keys and a
-  binary search (`keys`), grouped by offset in blocks.
+  binary search (`keys`), grouped by offset in blocks; `inner_table` reads a smaller
+  kernel's table off a larger one's.
 - `sparse_conv`: gather -> matmul -> scatter-add over a map; only neighbours that exist cost
   multiply-adds. `table_conv`: the same over a `NeighbourTable` (no compaction, no scatter).
 - `plan_pyramid`, `build_pyramid`: every map of a U-Net, built once per forward pass.
@@ -37,8 +38,8 @@ from gfjax.nn.sparse.conv import sparse_conv, table_conv
 from gfjax.nn.sparse.keys import BATCH_MAX, COORD_MAX, COORD_MIN
 from gfjax.nn.sparse.layers import (SparseBatchNorm, SparseConv3d, SparseGroupNorm, SparseLinear, SparseResBlock,
                                     relu)
-from gfjax.nn.sparse.maps import (KernelMap, NeighbourTable, downsample, kernel_offsets, neighbour_table, pairs_from_table,
-                                  pairs_per_offset, plan_blocks, strided_map, submanifold_map)
+from gfjax.nn.sparse.maps import (KernelMap, NeighbourTable, downsample, inner_table, kernel_offsets, neighbour_table,
+                                  pairs_from_table, pairs_per_offset, plan_blocks, strided_map, submanifold_map)
 from gfjax.nn.sparse.pyramid import Pyramid, PyramidPlan, build_pyramid, plan_pyramid, standard_plan
 from gfjax.nn.sparse.tensor import SparseTensor, Voxelized, devoxelize, voxelize
 
@@ -46,7 +47,7 @@ __all__ = [
     "BATCH_MAX", "COORD_MAX", "COORD_MIN",
     "KernelMap", "NeighbourTable", "Pyramid", "PyramidPlan", "SparseBatchNorm", "SparseConv3d", "SparseGroupNorm", "SparseLinear", "SparseResBlock",
     "SparseTensor", "Voxelized",
-    "build_pyramid", "devoxelize", "downsample", "kernel_offsets", "neighbour_table", "pairs_from_table",
+    "build_pyramid", "devoxelize", "downsample", "inner_table", "kernel_offsets", "neighbour_table", "pairs_from_table",
     "pairs_per_offset", "plan_blocks", "plan_pyramid", "relu", "standard_plan", "sparse_conv", "strided_map", "submanifold_map",
     "table_conv", "voxelize",
 ]

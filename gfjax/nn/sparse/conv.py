@@ -7,16 +7,21 @@ them grouped by kernel offset in blocks of `block` rows, so one block is a dense
 `(block, c_in) @ (c_in, c_out)` product with a single weight. Padding pairs point at a zero
 row appended to the input and at a discarded row appended to the output.
 
-Two schedules, exact to each other (the same products added in the same order):
+A map's pair capacity is static and sized for the densest data it must hold, so most of
+its blocks are often padding (a pack of SparseGF patches fills a fifth to a third of its
+level-0 map, and a fiftieth of its coarsest). Two schedules, exact to each other (the same
+products added in the same order):
 
-- `chunk_blocks=None`: every block at once (one gather, one batched matmul, one scatter-add;
-  the fastest where `n_pairs * (c_in + c_out)` floats fit in memory);
-- `chunk_blocks=m`: a `lax.scan` over groups of `m` blocks, adding into the output as it
-  goes, so the working memory is `m * block` pairs whatever the map's size.
+- `chunk_blocks=m` (default: about `STEP_PAIRS` pairs a step): a `lax.scan` over groups of
+  `m` blocks, adding into the output as it goes; a step whose blocks hold no pair is skipped
+  (`lax.cond`, in the gradient too), so the cost follows the pairs found, not the capacity,
+  and the working memory is `m * block` pairs whatever the map's size;
+- `chunk_blocks=0`: every block at once (one gather, one batched matmul, one scatter-add),
+  padding included.
 
 `table_conv` is the same sum read off a `NeighbourTable`: each output row gathers its `k`
 neighbours (a zero row where one is missing) into one `(rows, k * c) @ (k * c, d)` product, in
-chunks of rows. No compaction and no scatter: the cheaper form for few input channels and
+chunks of rows (a chunk with no neighbour at all, padding, is skipped). No compaction and no scatter: the cheaper form for few input channels and
 many offsets (a U-Net's stem), although missing neighbours cost multiply-adds too.
 
 The gradient is JAX's own: the gather transposes to a scatter-add into the input, the matmul
@@ -33,6 +38,9 @@ from jaxtyping import Array, Float
 from gfjax.nn.sparse.maps import KernelMap, NeighbourTable
 
 
+STEP_PAIRS = 8192          # pairs per step of `sparse_conv`'s default schedule
+
+
 def sparse_conv(feats: Float[Array, "n_in c"], weight: Float[Array, "k c d"], kmap: KernelMap, *,
                 chunk_blocks: int | None = None) -> Float[Array, "n_out d"]:
     """Apply a sparse convolution.
@@ -41,8 +49,8 @@ def sparse_conv(feats: Float[Array, "n_in c"], weight: Float[Array, "k c d"], km
       feats: `(n_in, c)` input features; rows absent from the map (padding) are never read.
       weight: `(k, c, d)`, one matrix per kernel offset, `k = kmap.kernel_volume`.
       kmap: the pairs (`submanifold_map`, `strided_map`, or one `.transpose()`d).
-      chunk_blocks: `None` for all blocks at once, or the number of blocks per scan step
-        (static).
+      chunk_blocks: blocks per scan step (static); `None`: `STEP_PAIRS // kmap.block` (at
+        least 1); 0: all blocks at once.
 
     Returns:
       `(n_out, d)` features; rows with no pair (padding, isolated outputs of a strided map)
@@ -57,12 +65,15 @@ def sparse_conv(feats: Float[Array, "n_in c"], weight: Float[Array, "k c d"], km
     c_out = weight.shape[2]
     x = jnp.concatenate([feats, jnp.zeros((1, feats.shape[1]), feats.dtype)])      # row n_in = 0
     block, n_blocks = kmap.block, kmap.n_blocks
-    if chunk_blocks is None or chunk_blocks >= n_blocks:
+    if chunk_blocks is None:
+        chunk_blocks = max(1, STEP_PAIRS // block)
+    if chunk_blocks < 0:
+        raise ValueError(f"sparse_conv: chunk_blocks must be >= 0, got {chunk_blocks}")
+    if chunk_blocks == 0:
         y = _blocks(x, weight, kmap.in_idx, kmap.block_offset, block)
         out = jnp.zeros((kmap.n_out + 1, c_out), y.dtype).at[kmap.out_idx].add(y)
         return out[:-1]
-    if chunk_blocks < 1:
-        raise ValueError(f"sparse_conv: chunk_blocks must be >= 1, got {chunk_blocks}")
+    chunk_blocks = min(chunk_blocks, n_blocks)
     n_steps = -(-n_blocks // chunk_blocks)
     extra = n_steps * chunk_blocks - n_blocks                   # sentinel blocks to even the chunks
     in_idx = jnp.concatenate([kmap.in_idx, jnp.full((extra * block,), kmap.n_in, jnp.int32)])
@@ -71,7 +82,8 @@ def sparse_conv(feats: Float[Array, "n_in c"], weight: Float[Array, "k c d"], km
 
     def step(out, chunk):
         i, o, b = chunk
-        return out.at[o].add(_blocks(x, weight, i, b, block)), None
+        return lax.cond(jnp.any(i < kmap.n_in), lambda out: out.at[o].add(_blocks(x, weight, i, b, block)),
+                        lambda out: out, out), None
 
     chunks = (in_idx.reshape(n_steps, -1), out_idx.reshape(n_steps, -1), block_offset.reshape(n_steps, -1))
     dtype = jnp.result_type(feats.dtype, weight.dtype)
@@ -121,7 +133,12 @@ def table_conv(feats: Float[Array, "n_in c"], weight: Float[Array, "k c d"], tab
 
     if n_out <= chunk_rows:
         return rows(t)
+
+    def step(block):                                     # rows with no neighbour (padding) cost nothing
+        return lax.cond(jnp.any(block < table.n_in), rows,
+                        lambda b: jnp.zeros((b.shape[0], w.shape[1]), jnp.result_type(x, w)), block)
+
     steps = -(-n_out // chunk_rows)
     padded = jnp.concatenate([t, jnp.full((steps * chunk_rows - n_out, k), table.n_in, t.dtype)])
-    out = lax.map(rows, padded.reshape(steps, chunk_rows, k))
+    out = lax.map(step, padded.reshape(steps, chunk_rows, k))
     return out.reshape(steps * chunk_rows, -1)[:n_out]

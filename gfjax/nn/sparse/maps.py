@@ -41,6 +41,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 from jaxtyping import Array, Bool, Int
 
 from gfjax.nn.sparse import keys as K
@@ -144,13 +145,19 @@ class NeighbourTable(eqx.Module):
         return self.out_coords.shape[0]
 
 
-@functools.partial(jax.jit, static_argnames=("kernel_size", "centred", "stride"))
+TABLE_STEP_ROWS = 4096      # output rows per step of `neighbour_table`
+
+
+@functools.partial(jax.jit, static_argnames=("kernel_size", "centred", "stride", "step_rows"))
 def neighbour_table(in_coords: Int[Array, "n_in 4"], in_valid: Bool[Array, " n_in"],
                     out_coords: Int[Array, "n_out 4"], out_valid: Bool[Array, " n_out"], *,
-                    kernel_size: int, centred: bool = True, stride: int = 1) -> Int[Array, "n_out k"]:
+                    kernel_size: int, centred: bool = True, stride: int = 1,
+                    step_rows: int = TABLE_STEP_ROWS) -> Int[Array, "n_out k"]:
     """For every output row and offset, the input row at `stride * out + offset`.
 
-    Offsets are `kernel_offsets(kernel_size, centred=centred)`.
+    Offsets are `kernel_offsets(kernel_size, centred=centred)`. Output rows are searched
+    `step_rows` at a time (static), and a step with no valid row is skipped, so padding rows
+    (most of a coarse level's capacity) cost no search.
 
     Returns:
       `(n_out, k)` int32, an input row or `n_in` (none there); invalid output rows and
@@ -166,26 +173,53 @@ def neighbour_table(in_coords: Int[Array, "n_in 4"], in_valid: Bool[Array, " n_i
     dx, dy = (jnp.asarray(a.reshape(-1)) for a in np.meshgrid(axis, axis, indexing="ij"))
     columns = kernel_size * kernel_size
 
-    def column_keys(z):                                     # (n_out * columns,) keys at height z
-        coords = jnp.stack([jnp.broadcast_to(out_coords[:, :1], (n_out, columns)),
-                            stride * out_coords[:, 1:2] + dx[None, :], stride * out_coords[:, 2:3] + dy[None, :],
-                            jnp.broadcast_to(z[:, None], (n_out, columns))], axis=-1)
-        return K.pack(coords.reshape(-1, 4), jnp.repeat(out_valid, columns))
+    def search(rows):                                       # (r, 4) coords + (r,) valid -> (r, volume)
+        coords, valid = rows
+        r = coords.shape[0]
 
-    z0 = stride * out_coords[:, 3] + start
-    first = K.lower_bound(table, column_keys(jnp.clip(z0, K.COORD_MIN, K.COORD_MAX)))
-    targets = [column_keys(z0 + dz) for dz in range(kernel_size)]
-    found = [jnp.full(first.shape, n_in, jnp.int32) for _ in range(kernel_size)]
-    for j in range(kernel_size):
-        # the voxels of a column are consecutive in key order, so the one at height z0 + dz
-        # is among the kernel_size keys from the first one at or above z0
-        at = jnp.minimum(first + j, n_in - 1)
-        hi, lo, row = table.hi[at], table.lo[at], table.perm[at]
-        inside = first + j < n_in
-        for dz, t in enumerate(targets):
-            hit = inside & (hi == t.hi) & (lo == t.lo) & ~K.is_pad(t)
-            found[dz] = jnp.where(hit, row, found[dz])
-    return jnp.stack(found, axis=-1).reshape(n_out, volume)
+        def column_keys(z):                                 # (r * columns,) keys at height z
+            c = jnp.stack([jnp.broadcast_to(coords[:, :1], (r, columns)),
+                           stride * coords[:, 1:2] + dx[None, :], stride * coords[:, 2:3] + dy[None, :],
+                           jnp.broadcast_to(z[:, None], (r, columns))], axis=-1)
+            return K.pack(c.reshape(-1, 4), jnp.repeat(valid, columns))
+
+        z0 = stride * coords[:, 3] + start
+        first = K.lower_bound(table, column_keys(jnp.clip(z0, K.COORD_MIN, K.COORD_MAX)))
+        targets = [column_keys(z0 + dz) for dz in range(kernel_size)]
+        found = [jnp.full(first.shape, n_in, jnp.int32) for _ in range(kernel_size)]
+        for j in range(kernel_size):
+            # the voxels of a column are consecutive in key order, so the one at height z0 + dz
+            # is among the kernel_size keys from the first one at or above z0
+            at = jnp.minimum(first + j, n_in - 1)
+            hi, lo, row = table.hi[at], table.lo[at], table.perm[at]
+            inside = first + j < n_in
+            for dz, t in enumerate(targets):
+                hit = inside & (hi == t.hi) & (lo == t.lo) & ~K.is_pad(t)
+                found[dz] = jnp.where(hit, row, found[dz])
+        return jnp.stack(found, axis=-1).reshape(r, volume)
+
+    if n_out <= step_rows:
+        return search((out_coords, out_valid))
+    steps = -(-n_out // step_rows)
+    extra = steps * step_rows - n_out
+    coords = jnp.concatenate([out_coords, jnp.zeros((extra, 4), out_coords.dtype)]).reshape(steps, -1, 4)
+    valid = jnp.concatenate([out_valid, jnp.zeros((extra,), bool)]).reshape(steps, -1)
+
+    def step(rows):
+        return lax.cond(jnp.any(rows[1]), search, lambda _: jnp.full((step_rows, volume), n_in, jnp.int32), rows)
+
+    return lax.map(step, (coords, valid)).reshape(-1, volume)[:n_out]
+
+
+def inner_table(table: Int[Array, "n_out k"], kernel_size: int) -> Int[Array, "n_out k2"]:
+    """The neighbour table of a smaller centred kernel (`kernel_size`), read off the table of
+    a larger centred one (its offsets are a subset): no search."""
+    big = round(table.shape[1] ** (1 / 3))
+    if big ** 3 != table.shape[1] or big % 2 == 0 or kernel_size % 2 == 0 or kernel_size > big:
+        raise ValueError(f"inner_table: a centred kernel {kernel_size} is not inside a table of {table.shape[1]} offsets")
+    offsets = kernel_offsets(big)
+    inside = np.flatnonzero(np.all(np.abs(offsets) <= kernel_size // 2, axis=1))
+    return table[:, inside]
 
 
 def pairs_per_offset(table: Int[Array, "n_out k"], n_in: int) -> Int[Array, " k"]:

@@ -24,7 +24,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Int
 
 from gfjax.nn.sparse import keys as K
-from gfjax.nn.sparse.maps import (KernelMap, NeighbourTable, bucket, downsample, neighbour_table, pairs_from_table,
+from gfjax.nn.sparse.maps import (KernelMap, NeighbourTable, bucket, downsample, inner_table, neighbour_table, pairs_from_table,
                                   pairs_per_offset, plan_blocks)
 
 
@@ -181,15 +181,19 @@ def build_pyramid(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], plan: Pyr
         levels.append((c, v))
         overflow.append(o)
 
-    def sub_map(level, kernel, block, n_blocks):
+    stem = NeighbourTable(neighbour_table(coords, valid, coords, valid, kernel_size=plan.stem_kernel),
+                          coords, valid, coords, valid)
+
+    def sub_map(level, block, n_blocks):
         c, v = levels[level]
-        table = neighbour_table(c, v, c, v, kernel_size=kernel)
+        if level == 0 and plan.stem_kernel >= 3:          # level 0's kernel-3 offsets are the stem's inner ones
+            table = inner_table(stem.table, 3)
+        else:
+            table = neighbour_table(c, v, c, v, kernel_size=3)
         return pairs_from_table(table, n_in=c.shape[0], block=block, n_blocks=n_blocks,
                                 in_coords=c, in_valid=v, out_coords=c, out_valid=v)
 
-    stem = NeighbourTable(neighbour_table(coords, valid, coords, valid, kernel_size=plan.stem_kernel),
-                          coords, valid, coords, valid)
-    submanifold = tuple(sub_map(k, 3, *plan.submanifold[k]) for k in range(plan.depth + 1))
+    submanifold = tuple(sub_map(k, *plan.submanifold[k]) for k in range(plan.depth + 1))
     down = []
     for k, (block, n_blocks) in enumerate(plan.down):
         (fc, fv), (cc, cv) = levels[k], levels[k + 1]
