@@ -22,6 +22,8 @@ import os
 from collections.abc import Iterable, Mapping
 from typing import Any, NamedTuple
 
+from gfjax.errors import SettingError
+
 __all__ = ["Range", "check_fields", "check_value", "Estimate", "memory_budget_bytes", "check_memory",
            "raster_side", "tiles_per_batch", "markdown_table", "BUDGET_ENV"]
 
@@ -97,8 +99,9 @@ def _number(x: float) -> str:
     return f"{x:g}"
 
 
-def check_value(name: str, value: Any, allowed: Range) -> None:
-    """Raise `ValueError("<name> must be <range>, got <value>")` unless `value` is in range.
+def check_value(name: str, value: Any, allowed: Range, *, key: str | None = None) -> None:
+    """Raise `SettingError("<name> must be <range>, got <value>", key)` unless `value` is in
+    range (`key`: the field, default `name`).
 
     A NaN or infinite value reads `"<name> must be finite and <range>, got nan"`.
     """
@@ -110,12 +113,12 @@ def check_value(name: str, value: Any, allowed: Range) -> None:
     finite = (isinstance(shown, numbers.Real) and not isinstance(shown, bool)
               and not math.isfinite(float(shown)))
     prefix = "finite and " if finite else ""
-    raise ValueError(f"{name} must be {prefix}{allowed.text()}, got {shown!r}")
+    raise SettingError(f"{name} must be {prefix}{allowed.text()}, got {shown!r}", key or name)
 
 
 def check_fields(obj: Any, ranges: Mapping[str, Range]) -> None:
     """Check every field of `obj` (a Config or Params) named in `ranges`; the first bad one
-    raises `ValueError` naming it. 0-d arrays (traced Params leaves) are read as numbers."""
+    raises `SettingError` naming it. 0-d arrays (traced Params leaves) are read as numbers."""
     for name, allowed in ranges.items():
         if not hasattr(obj, name):
             continue
@@ -128,10 +131,11 @@ def check_fields(obj: Any, ranges: Mapping[str, Range]) -> None:
 class Estimate(NamedTuple):
     """A memory estimate of one allocation: what it is (naming the options whose product sets
     it, e.g. "a tile raster of 6,001 x 6,001 cells (tile_size_m + 2 buffer_m) / cell_m, 8 tiles
-    per batch") and its size in bytes."""
+    per batch"), its size in bytes and the settings that set it (`SettingError.keys`)."""
 
     what: str
     n_bytes: float
+    keys: tuple[str, ...] = ()
 
 
 def memory_budget_bytes() -> float:
@@ -155,14 +159,16 @@ def memory_budget_bytes() -> float:
 
 
 def check_memory(estimates: Iterable[Estimate], *, name: str = "") -> None:
-    """Raise `ValueError` for the first estimate above `memory_budget_bytes()`, with the
-    estimate, the budget and how to change it. `name` (a file) prefixes the message."""
+    """Raise `SettingError` (with the estimate's keys) for the first estimate above
+    `memory_budget_bytes()`, with the estimate, the budget and how to change it. `name` (a
+    file) prefixes the message."""
     budget = memory_budget_bytes()
     for estimate in estimates:
         if estimate.n_bytes > budget:
             where = f"{name}: " if name else ""
-            raise ValueError(f"{where}{estimate.what} needs about {estimate.n_bytes / _GIB:,.1f} GiB, more than "
-                             f"the memory budget of {budget / _GIB:,.1f} GiB (set {BUDGET_ENV} to change it)")
+            raise SettingError(f"{where}{estimate.what} needs about {estimate.n_bytes / _GIB:,.1f} GiB, more than "
+                               f"the memory budget of {budget / _GIB:,.1f} GiB (set {BUDGET_ENV} to change it)",
+                               *estimate.keys)
 
 
 def raster_side(length_m: float, cell_m: float) -> int:
@@ -202,11 +208,12 @@ def tiled_estimates(config: Any, extent_m: tuple[float, float] | None, *, max_ba
     side = raster_side(config.tile_size_m + 2 * config.buffer_m, config.cell_m)
     tiles = tiles_per_batch(extent_m, config.tile_size_m, max_batch=max_batch)
     out = [Estimate(f"a batch of {tiles} tile raster(s) of {side:,} x {side:,} cells "
-                    "((tile_size_m + 2 buffer_m) / cell_m)", float(side) ** 2 * tiles * tile_bytes_per_cell)]
+                    "((tile_size_m + 2 buffer_m) / cell_m)", float(side) ** 2 * tiles * tile_bytes_per_cell,
+                    ("cell_m", "tile_size_m", "buffer_m"))]
     if extent_m is not None:
         w, h = (raster_side(e, config.cell_m) for e in extent_m)
         out.append(Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / cell_m)",
-                            float(h) * float(w) * mosaic_bytes_per_cell))
+                            float(h) * float(w) * mosaic_bytes_per_cell, ("cell_m",)))
     return out
 
 

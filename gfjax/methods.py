@@ -19,13 +19,12 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-import re
 from collections.abc import Mapping, Sequence
 from types import ModuleType
 from typing import Any
 
 from gfjax import limits
-from gfjax.errors import InputError
+from gfjax.errors import InputError, SettingError
 
 # The method `gfjax filter` runs without `--method`. SPEC section 2: the method with the lowest
 # mean total error on the 11 shared ISPRS samples with its defaults; SMRF until that is measured.
@@ -54,18 +53,18 @@ def available() -> list[str]:
     return names
 
 
-def get(name: str) -> ModuleType:
-    """The method package for `name` (raises InputError naming the choices)."""
+def get(name: str, *, option: str = "--method") -> ModuleType:
+    """The method package for `name` (raises InputError naming `option` and the choices)."""
     if name not in METHODS:
-        raise InputError(f"--method: unknown method {name!r}; choose from {', '.join(METHODS)}")
+        raise InputError(f"{option}: unknown method {name!r}; choose from {', '.join(METHODS)}")
     try:
         module = importlib.import_module(METHODS[name])
     except ModuleNotFoundError as err:
         if err.name is None or not METHODS[name].startswith(err.name):
             raise  # a dependency of an existing method is missing: an internal error
-        raise InputError(f"--method: method {name!r} is not available in this build") from None
+        raise InputError(f"{option}: method {name!r} is not available in this build") from None
     if not callable(getattr(module, "filter", None)):
-        raise InputError(f"--method: method {name!r} is not implemented yet")
+        raise InputError(f"{option}: method {name!r} is not implemented yet")
     return module
 
 
@@ -170,17 +169,12 @@ def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | No
         if estimates is not None:               # the rasters and loops the values set fit the budget
             limits.check_memory(estimates())
     except (ValueError, TypeError) as err:
-        return _raise_range_error(err, source_of)
+        # the options that gave the keys concerned, the key to change first first; a key left
+        # at its default (or a check that names no key) points at every option given, or at
+        # --set when none was
+        keys = err.keys if isinstance(err, SettingError) else ()
+        sources = list(dict.fromkeys(source_of[k] for k in keys if k in source_of))
+        if not sources:
+            sources = ["--set"] if not source_of else sorted(set(source_of.values()))
+        raise InputError(f"{', '.join(sources)}: {err}") from None
     return config, params
-
-
-def _raise_range_error(err: Exception, source_of: Mapping[str, str]):
-    """Re-raise a method's own range check as InputError, naming the options of the keys the
-    message names (the first word first: the key out of range)."""
-    message = str(err)
-    key = message.split()[0] if message else ""
-    named = [k for k in source_of if k != key and re.search(rf"\b{re.escape(k)}\b", message)]
-    sources = list(dict.fromkeys(source_of[k] for k in ([key] if key in source_of else []) + named))
-    if not sources:
-        sources = ["--set"] if not source_of else sorted(set(source_of.values()))
-    raise InputError(f"{', '.join(sources)}: {message}") from None

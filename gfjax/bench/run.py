@@ -65,10 +65,7 @@ def plan(methods_text: str | None, peers_text: str | None, *, model: str | None 
             if name not in methods.METHODS:
                 raise InputError(f"--methods: unknown method {name!r}; choose from "
                                  f"{', '.join(methods.METHODS)} (or none)")
-            try:
-                methods.get(name)
-            except InputError as err:
-                raise InputError(str(err).replace("--method:", "--methods:", 1)) from None
+            methods.get(name, option="--methods")
     if model is not None:
         if "sparsegf" not in method_names:
             raise InputError(f"--model {model}: only the sparsegf method takes a model; add it to --methods")

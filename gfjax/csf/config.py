@@ -13,6 +13,7 @@ import equinox as eqx
 from jaxtyping import Array, Float
 
 from gfjax import limits
+from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.params import param
 
@@ -82,7 +83,7 @@ class Config:
     def __post_init__(self) -> None:
         limits.check_fields(self, RANGES)
         if not isinstance(self.slope_smooth, bool):
-            raise ValueError(f"slope_smooth must be a bool, got {self.slope_smooth!r}")
+            raise SettingError(f"slope_smooth must be a bool, got {self.slope_smooth!r}", "slope_smooth")
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
         """The largest allocation these settings imply, checked by `gfjax.limits.check_memory` where a
@@ -92,7 +93,7 @@ class Config:
             return []
         w, h = (limits.raster_side(e, self.cell_m) + 2 * BUFFER_PX for e in extent_m)
         return [limits.Estimate(f"a cloth of {h:,} x {w:,} particles (extent / cell_m)",
-                                float(h) * float(w) * _BYTES_PER_PARTICLE)]
+                                float(h) * float(w) * _BYTES_PER_PARTICLE, ("cell_m",))]
 
 
 class Params(eqx.Module):

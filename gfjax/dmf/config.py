@@ -22,6 +22,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from gfjax import limits
+from gfjax.errors import SettingError
 from gfjax.limits import Range
 
 __all__ = ["Config", "Params", "PRESETS", "BASAL_STOPS", "FINAL_RULES", "HOLE_TESTS", "SUPPORT_Z", "SUPPORT_ELEVATIONS",
@@ -138,19 +139,19 @@ class Config:
         limits.check_fields(self, RANGES)
         width = self.basal_table_width
         if width & (width - 1):
-            raise ValueError(f"basal_table_width must be a power of two >= 8, got {width!r}")
+            raise SettingError(f"basal_table_width must be a power of two >= 8, got {width!r}", "basal_table_width")
         if self.basal_stop not in BASAL_STOPS:
-            raise ValueError(f"basal_stop must be one of {BASAL_STOPS}, got {self.basal_stop!r}")
+            raise SettingError(f"basal_stop must be one of {BASAL_STOPS}, got {self.basal_stop!r}", "basal_stop")
         if self.hole_test not in HOLE_TESTS:
-            raise ValueError(f"hole_test must be one of {HOLE_TESTS}, got {self.hole_test!r}")
+            raise SettingError(f"hole_test must be one of {HOLE_TESTS}, got {self.hole_test!r}", "hole_test")
         if self.support_z not in SUPPORT_Z:
-            raise ValueError(f"support_z must be one of {SUPPORT_Z}, got {self.support_z!r}")
+            raise SettingError(f"support_z must be one of {SUPPORT_Z}, got {self.support_z!r}", "support_z")
         if self.support_elevation not in SUPPORT_ELEVATIONS:
-            raise ValueError(f"support_elevation must be one of {SUPPORT_ELEVATIONS}, got {self.support_elevation!r}")
+            raise SettingError(f"support_elevation must be one of {SUPPORT_ELEVATIONS}, got {self.support_elevation!r}", "support_elevation")
         if self.final_rule not in FINAL_RULES:
-            raise ValueError(f"final_rule must be one of {FINAL_RULES}, got {self.final_rule!r}")
+            raise SettingError(f"final_rule must be one of {FINAL_RULES}, got {self.final_rule!r}", "final_rule")
         if self.close_max_px % 2 == 0:
-            raise ValueError(f"close_max_px must be an odd int >= 3, got {self.close_max_px!r}")
+            raise SettingError(f"close_max_px must be an odd int >= 3, got {self.close_max_px!r}", "close_max_px")
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
         """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a
@@ -162,11 +163,12 @@ class Config:
         side = limits.raster_side(self.raster_tile_m + 2 * self.raster_buffer_m, cell)
         tiles = MAX_BATCH                       # every batch is padded to MAX_BATCH tiles (one compile)
         out = [limits.Estimate(f"a batch of {tiles} NGNEM tiles of {side:,} x {side:,} cells ((raster_tile_m + "
-                               "2 raster_buffer_m) / W)", float(side) ** 2 * tiles * _TILE_BYTES_PER_CELL)]
+                               "2 raster_buffer_m) / W)", float(side) ** 2 * tiles * _TILE_BYTES_PER_CELL,
+                               ("voxel_m", "raster_tile_m", "raster_buffer_m"))]
         if extent_m is not None:
             w, h = (limits.raster_side(e, cell) for e in extent_m)
             out.append(limits.Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / W)",
-                                       float(h) * float(w) * _CLOUD_BYTES_PER_CELL))
+                                       float(h) * float(w) * _CLOUD_BYTES_PER_CELL, ("voxel_m",)))
         return out
 
     @property

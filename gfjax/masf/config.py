@@ -15,6 +15,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from gfjax import limits
+from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.params import param
 
@@ -106,15 +107,18 @@ class Config:
     def __post_init__(self) -> None:
         limits.check_fields(self, RANGES)
         if self.distance not in DISTANCES:
-            raise ValueError(f"distance must be one of {DISTANCES}, got {self.distance!r}")
+            raise SettingError(f"distance must be one of {DISTANCES}, got {self.distance!r}", "distance")
         if self.alpha_max_m < self.min_alpha_m:
-            raise ValueError(f"alpha_max_m must be >= alpha_min_m ({self.min_alpha_m}), got {self.alpha_max_m!r}")
+            raise SettingError(f"alpha_max_m must be >= alpha_min_m ({self.min_alpha_m}), got {self.alpha_max_m!r}",
+                               "alpha_max_m")
         if self.alpha_top_m is not None and not (math.isfinite(self.alpha_top_m) and self.alpha_top_m > self.alpha_max_m):
-            raise ValueError(f"alpha_top_m must be finite and > alpha_max_m ({self.alpha_max_m}), got {self.alpha_top_m!r}")
+            raise SettingError(f"alpha_top_m must be finite and > alpha_max_m ({self.alpha_max_m}), "
+                               f"got {self.alpha_top_m!r}", "alpha_top_m", "alpha_max_m")
         layers = (self.alpha_max_m - self.min_alpha_m) / self.alpha_step_m + 1
         if layers > MAX_LAYERS:
-            raise ValueError(f"alpha_step_m must give at most {MAX_LAYERS} layers ((alpha_max_m - alpha_min) / "
-                             f"alpha_step_m + 1 = {layers:,.0f}), got {self.alpha_step_m!r}")
+            raise SettingError(f"alpha_step_m must give at most {MAX_LAYERS} layers ((alpha_max_m - alpha_min) / "
+                               f"alpha_step_m + 1 = {layers:,.0f}), got {self.alpha_step_m!r}",
+                               "alpha_step_m", "alpha_max_m")
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
         """The largest allocation these settings imply, checked by `gfjax.limits.check_memory` where a
@@ -124,7 +128,7 @@ class Config:
             return []
         w, h = (limits.raster_side(e, self.grid_m) for e in extent_m)
         return [limits.Estimate(f"a grid of {h:,} x {w:,} cells (extent / grid_m)",
-                                float(h) * float(w) * _GRID_BYTES_PER_CELL)]
+                                float(h) * float(w) * _GRID_BYTES_PER_CELL, ("grid_m",))]
 
     @property
     def min_alpha_m(self) -> float:

@@ -11,6 +11,7 @@ import equinox as eqx
 from jaxtyping import Array, Float
 
 from gfjax import limits
+from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.params import param
 
@@ -60,12 +61,12 @@ class Config:
     def __post_init__(self) -> None:
         limits.check_fields(self, RANGES)
         if not isinstance(self.exponential, bool):
-            raise ValueError(f"exponential must be a bool, got {self.exponential!r}")
+            raise SettingError(f"exponential must be a bool, got {self.exponential!r}", "exponential")
         if self.tile_size_m < self.cell_m:
-            raise ValueError(f"tile_size_m must be >= cell_m, got {self.tile_size_m!r}")
+            raise SettingError(f"tile_size_m must be >= cell_m, got {self.tile_size_m!r}", "tile_size_m", "cell_m")
         if self.max_window_m > MAX_WINDOW_PX * self.cell_m:
-            raise ValueError(f"max_window_m must be <= {MAX_WINDOW_PX} cell_m (max_window_m / cell_m sets the "
-                             f"largest window), got {self.max_window_m!r}")
+            raise SettingError(f"max_window_m must be <= {MAX_WINDOW_PX} cell_m (max_window_m / cell_m sets the "
+                               f"largest window), got {self.max_window_m!r}", "max_window_m", "cell_m")
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
         """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a

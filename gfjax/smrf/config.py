@@ -14,6 +14,7 @@ import equinox as eqx
 from jaxtyping import Array, Float
 
 from gfjax import limits
+from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.params import param
 
@@ -76,16 +77,16 @@ class Config:
     def __post_init__(self) -> None:
         limits.check_fields(self, RANGES)
         checks = [
-            (self.window_m >= self.cell_m, "window_m must be >= cell_m"),
+            (self.window_m >= self.cell_m, "window_m must be >= cell_m", ("window_m", "cell_m")),
             (self.window_m <= MAX_WINDOW_PX * self.cell_m,
-             f"window_m must be <= {MAX_WINDOW_PX} cell_m (window_m / cell_m sets the opening loop)"),
-            (self.inpaint in INPAINT_METHODS, f"inpaint must be one of {INPAINT_METHODS}"),
-            (self.tile_size_m >= self.cell_m, "tile_size_m must be >= cell_m"),
+             f"window_m must be <= {MAX_WINDOW_PX} cell_m (window_m / cell_m sets the opening loop)",
+             ("window_m", "cell_m")),
+            (self.inpaint in INPAINT_METHODS, f"inpaint must be one of {INPAINT_METHODS}", ("inpaint",)),
+            (self.tile_size_m >= self.cell_m, "tile_size_m must be >= cell_m", ("tile_size_m", "cell_m")),
         ]
-        for ok, message in checks:
+        for ok, message, keys in checks:
             if not ok:
-                name = message.split()[0]
-                raise ValueError(f"{message}, got {getattr(self, name)!r}")
+                raise SettingError(f"{message}, got {getattr(self, keys[0])!r}", *keys)
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
         """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a

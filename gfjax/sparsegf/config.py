@@ -4,6 +4,7 @@ from __future__ import annotations
 import dataclasses
 
 from gfjax import limits
+from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.sparsegf.compress import R_IN_M, R_OC_M, R_OO_M
 from gfjax.sparsegf.features import FEATURE_SETS
@@ -58,9 +59,10 @@ class Config:
     def __post_init__(self):
         limits.check_fields(self, RANGES)
         if self.features not in FEATURE_SETS:
-            raise ValueError(f"features must be one of {FEATURE_SETS}, got {self.features!r}")
+            raise SettingError(f"features must be one of {FEATURE_SETS}, got {self.features!r}", "features")
         if not self.r_in_m < self.r_oc_m <= self.r_oo_m:
-            raise ValueError(f"r_in_m < r_oc_m <= r_oo_m needed, got {self.r_in_m}, {self.r_oc_m}, {self.r_oo_m}")
+            raise SettingError(f"r_in_m < r_oc_m <= r_oo_m needed, got {self.r_in_m}, {self.r_oc_m}, {self.r_oo_m}",
+                               "r_in_m", "r_oc_m", "r_oo_m")
 
 
 PRESETS: dict[str, dict] = {

@@ -15,6 +15,7 @@ import pytest
 from cli_helpers import error_line, fake_methods, no_compilation_cache, run_cli, write_scene  # noqa: F401
 
 from gfjax import limits, methods
+from gfjax.errors import InputError, SettingError
 from gfjax.io import las as las_io
 
 REPO = Path(__file__).resolve().parents[2]
@@ -129,6 +130,38 @@ def test_tile_raster_over_the_memory_budget_exits_2_with_the_estimate(scene, tmp
     assert line.startswith("gfjax: error: --set, --tile-size: a batch of 1 tile raster(s) of 21,001 x 21,001 cells "
                            "((tile_size_m + 2 buffer_m) / cell_m) needs about ")
     assert line.endswith("GiB, more than the memory budget of 1.0 GiB (set GFJAX_MEMORY_BUDGET_GB to change it)")
+
+
+# (method, fields set, the error's keys): checks of one field and of fields that must agree
+SETTING_ERRORS = [
+    ("smrf", {"cell_m": 5.0, "window_m": 1.0}, ("window_m", "cell_m")),
+    ("smrf", {"inpaint": "nearest-ish"}, ("inpaint",)),
+    ("pmf", {"cell_m": 10.0, "tile_size_m": 5.0}, ("tile_size_m", "cell_m")),
+    ("masf", {"alpha_max_m": 0.01}, ("alpha_max_m",)),
+    ("dmf", {"final_rule": "nope"}, ("final_rule",)),
+    ("csf", {"slope_smooth": 1}, ("slope_smooth",)),
+    ("sparsegf", {"r_in_m": 50.0}, ("r_in_m", "r_oc_m", "r_oo_m")),
+    ("smrf", {"cell_m": -1.0}, ("cell_m",)),
+]
+
+
+@pytest.mark.parametrize("name, fields, keys", SETTING_ERRORS, ids=[f"{n} {' '.join(f)}" for n, f, _ in SETTING_ERRORS])
+def test_setting_errors_carry_the_keys_concerned(name, fields, keys):
+    with pytest.raises(SettingError) as caught:
+        methods.get(name).Config(**fields)
+    assert caught.value.keys == keys
+    assert str(caught.value).startswith(keys[0])
+
+
+def test_an_error_names_the_options_that_gave_its_keys_not_those_that_did_not():
+    smrf = methods.get("smrf")
+    with pytest.raises(InputError, match=r"^--set, params\.json: window_m must be >= cell_m, got 1\.0$"):
+        methods.make_config_and_params(smrf, {"window_m": "1"}, values={"cell_m": 5.0}, values_source="params.json")
+    with pytest.raises(InputError, match=r"^--tile-size, --set: tile_size_m must be >= cell_m, got 0\.5$"):
+        methods.make_config_and_params(smrf, {"cell_m": "1", "threshold_m": "1"},
+                                       after=[("--tile-size", {"tile_size_m": 0.5})])
+    with pytest.raises(InputError, match=r"^--set: inpaint must be one of"):       # a key left at its default
+        methods.make_config_and_params(smrf, {"inpaint": "bogus"})
 
 
 def test_smaller_tiles_bring_the_same_cell_within_the_budget(tmp_path, monkeypatch):
