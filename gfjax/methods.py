@@ -4,10 +4,8 @@ Every method package (`gfjax.smrf`, `gfjax.dmf`, ...) exposes, at its top level:
 
 - `filter(cloud, *, config=None, params=None, returns="all", progress=False) -> Result`
 - `Config`: a frozen dataclass of static values (shapes, loop counts, cell sizes) [metres].
-- `Params`: a pytree dataclass of traced scalars (thresholds optax may tune) [metres]: an
-  `eqx.Module` whose fields are `gfjax.params.param(default)`, or a frozen dataclass
-  registered with `jax.tree_util.register_dataclass` (DMF, which keeps equinox off its
-  import path); or None.
+- `Params`: traced scalars (thresholds optax may tune) [metres]: a subclass of
+  `gfjax.params.Params` whose fields are `gfjax.params.param(default)`; or None.
 - `PRESETS`: dict of preset name -> dict of overrides (may be empty).
 - optionally `warm(config=None, params=None, *, progress=False) -> int`: load or compile the
   programs `filter` runs for every canonical input shape (`gfjax warmup`).

@@ -1,19 +1,26 @@
-"""The one way a method's `Params` field is declared: a traced float32 scalar with a default.
+"""The one shape of a method's `Params`: traced float32 scalars with defaults, one range check.
 
 ```python
-class Params(eqx.Module):
+class Params(gfjax.params.Params):
+    ranges = RANGES                      # the method's `gfjax.limits.Range` per field
     slope: Float[Array, ""] = param(0.15)
 ```
-Python numbers, numpy and JAX values given for it become float32 0-d JAX arrays, so `Params`
-is a pytree optax can update and `jax.jit` traces (never a static value that recompiles).
+Python numbers, numpy and JAX values given for a field become float32 0-d JAX arrays, so
+`Params` is a pytree optax can update and `jax.jit` traces (never a static value that
+recompiles); `check()` tests concrete values against `ranges` outside `jit`.
 """
 from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-__all__ = ["f32", "param"]
+from gfjax import limits
+
+__all__ = ["Params", "f32", "param"]
 
 
 def f32(value) -> Float[Array, ""]:
@@ -24,3 +31,13 @@ def f32(value) -> Float[Array, ""]:
 def param(default: float):
     """An `eqx.Module` field holding a float32 scalar, `default` when not given."""
     return eqx.field(default=default, converter=f32)
+
+
+class Params(eqx.Module):
+    """Base of every method's traced thresholds; a subclass sets `ranges` and its fields."""
+
+    ranges: ClassVar[Mapping[str, limits.Range]] = {}
+
+    def check(self) -> None:
+        """Range checks on concrete values (call outside jit): raises `SettingError` naming the key."""
+        limits.check_fields(self, self.ranges)

@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import dataclasses
 
-import equinox as eqx
 from jaxtyping import Array, Float
 
-from gfjax import limits
+from gfjax import limits, params
 from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.params import param
@@ -96,7 +95,7 @@ class Config:
                                 float(h) * float(w) * _BYTES_PER_PARTICLE, ("cell_m",))]
 
 
-class Params(eqx.Module):
+class Params(params.Params):
     """Traced CSF scalars (float32; optax may tune them).
 
     Attributes:
@@ -107,12 +106,11 @@ class Params(eqx.Module):
         `addForce`, once in the Verlet update).
     """
 
+    ranges = RANGES
+
     class_threshold_m: Float[Array, ""] = param(0.5)
     time_step: Float[Array, ""] = param(0.65)
 
-    def check(self) -> None:
-        """Range checks on concrete values (call outside jit): raises ValueError naming the key."""
-        limits.check_fields(self, RANGES)
 
 
 # Scene presets of the CSF paper / CloudCompare plugin (Zhang et al. 2016, Sec. 3): steep

@@ -14,16 +14,15 @@ support surface (a fixed 0.5 m there scores 9.91 % but 0.343 m on bcts_2).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 
-import jax
 import numpy as np
 from jaxtyping import Array, Float
 
-from gfjax import limits
+from gfjax import limits, params
 from gfjax.errors import SettingError
 from gfjax.limits import Range
+from gfjax.params import param
 
 __all__ = ["Config", "Params", "PRESETS", "BASAL_STOPS", "FINAL_RULES", "HOLE_TESTS", "SUPPORT_Z", "SUPPORT_ELEVATIONS",
            "RANGES"]
@@ -178,18 +177,7 @@ class Config:
         return (2 * math.ceil(self.basal_radius_w) + 1) ** 2
 
 
-def _f32(value):
-    """Python and numpy numbers -> float32 0-d numpy arrays; anything else (JAX arrays,
-    tracers, the placeholders pytree utilities unflatten with) unchanged."""
-    if isinstance(value, (int, float, np.number, np.ndarray)) and not isinstance(value, bool):
-        return np.asarray(value, np.float32)
-    return value
-
-
-@functools.partial(jax.tree_util.register_dataclass, data_fields=["height_threshold_m", "height_threshold_w"],
-                   meta_fields=[])
-@dataclasses.dataclass(frozen=True)
-class Params:
+class Params(params.Params):
     """Traced DMF thresholds (optax may tune them; none changes a shape).
 
     The height rule's threshold is affine in the voxel size W (`threshold_m`):
@@ -205,23 +193,12 @@ class Params:
       height_threshold_w: the part in multiples of W [-] (default 0.15, chosen by
         leave-one-out among the readings that meet the forest criterion).
     Both are unused by the paper's rule (`final_rule="m_nearest"`).
-
-    A frozen dataclass registered as a JAX pytree (both fields are leaves: `jax.grad`,
-    `jax.jit`, `jax.vmap` and `dataclasses.replace` see them as with an `eqx.Module`, without
-    importing equinox on the filter path). Python and numpy numbers become float32 0-d numpy
-    arrays (so building the default compiles no JAX program); JAX arrays and tracers are kept.
     """
 
-    height_threshold_m: Float[Array, ""] = 0.0
-    height_threshold_w: Float[Array, ""] = 0.15
+    ranges = RANGES
 
-    def __post_init__(self):
-        for field in dataclasses.fields(self):
-            object.__setattr__(self, field.name, _f32(getattr(self, field.name)))
-
-    def check(self) -> None:
-        """Range checks on concrete values (call outside jit): raises ValueError naming the key."""
-        limits.check_fields(self, RANGES)
+    height_threshold_m: Float[Array, ""] = param(0.0)
+    height_threshold_w: Float[Array, ""] = param(0.15)
 
     def threshold_m(self, cell_m: float) -> Float[Array, ""]:
         """The largest height of a ground point above the support surface for voxel size

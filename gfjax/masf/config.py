@@ -10,11 +10,10 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import equinox as eqx
 import numpy as np
 from jaxtyping import Array, Float
 
-from gfjax import limits
+from gfjax import limits, params
 from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.params import param
@@ -152,7 +151,7 @@ class Config:
         return alphas
 
 
-class Params(eqx.Module):
+class Params(params.Params):
     """Traced MASF thresholds (float32 scalars).
 
     Attributes:
@@ -160,12 +159,11 @@ class Params(eqx.Module):
       ft_m: final threshold FT [m]: the offset of Eq. 2 and the last whole-cloud test.
     """
 
+    ranges = RANGES
+
     st: Float[Array, ""] = param(0.05)
     ft_m: Float[Array, ""] = param(0.5)
 
-    def check(self) -> None:
-        """Range checks on concrete values (outside jit): raises ValueError naming the key."""
-        limits.check_fields(self, RANGES)
 
 
 # Cao et al. (2024), Table 3 (alpha_max [m], alpha_step [m], ST) for the 11 ISPRS samples we

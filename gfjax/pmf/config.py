@@ -7,10 +7,9 @@ from __future__ import annotations
 
 import dataclasses
 
-import equinox as eqx
 from jaxtyping import Array, Float
 
-from gfjax import limits
+from gfjax import limits, params
 from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.params import param
@@ -88,7 +87,7 @@ class Config:
         return tuple(sizes)
 
 
-class Params(eqx.Module):
+class Params(params.Params):
     """Traced PMF thresholds (float32; optax may tune them).
 
     Attributes:
@@ -97,13 +96,12 @@ class Params(eqx.Module):
       max_distance_m: cap on the elevation threshold [m] ("dh_max").
     """
 
+    ranges = RANGES
+
     slope: Float[Array, ""] = param(1.0)
     initial_distance_m: Float[Array, ""] = param(0.15)
     max_distance_m: Float[Array, ""] = param(2.5)
 
-    def check(self) -> None:
-        """Range checks on concrete values (call outside jit): raises ValueError naming the key."""
-        limits.check_fields(self, RANGES)
 
 
 # Coarse scene types (not per-sample values).

@@ -10,10 +10,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import equinox as eqx
 from jaxtyping import Array, Float
 
-from gfjax import limits
+from gfjax import limits, params
 from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.params import param
@@ -101,7 +100,7 @@ class Config:
         return max(1, math.ceil(self.window_m / self.cell_m - 1e-9))
 
 
-class Params(eqx.Module):
+class Params(params.Params):
     """Traced SMRF thresholds (float32 scalars; optax may tune them).
 
     Attributes:
@@ -111,13 +110,12 @@ class Params(eqx.Module):
         ("elevation scalar"): ground iff `|z - ZIpro| <= threshold_m + scalar * slope_local`.
     """
 
+    ranges = RANGES
+
     slope: Float[Array, ""] = param(0.15)
     threshold_m: Float[Array, ""] = param(0.5)
     scalar: Float[Array, ""] = param(1.25)
 
-    def check(self) -> None:
-        """Range checks on concrete values (call outside jit): raises ValueError naming the key."""
-        limits.check_fields(self, RANGES)
 
 
 # Named overrides for `--preset` (`gfjax filter --method smrf --preset NAME`). "nearest-fill"

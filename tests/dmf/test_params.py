@@ -1,5 +1,5 @@
-"""`dmf.Params`: a frozen dataclass pytree (no equinox): construction, `--set`-style
-replacement, and `jax.grad` / `jax.jit` / `jax.vmap` through it."""
+"""`dmf.Params` (and every method's `Params`, one base): construction, `--set`-style
+replacement, range checks, and `jax.grad` / `jax.jit` / `jax.vmap` through it."""
 from __future__ import annotations
 
 import dataclasses
@@ -9,13 +9,29 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gfjax import dmf, methods
+from gfjax import dmf, methods, params as params_lib
+from gfjax.errors import SettingError
 
 
-def test_defaults_are_float32_numpy_scalars():
+@pytest.mark.parametrize("name", [n for n in methods.METHODS if methods.get(n).Params is not None])
+def test_every_methods_params_share_one_base_and_check(name):
+    method = methods.get(name)
+    params = method.Params()
+    assert isinstance(params, params_lib.Params)
+    for field in dataclasses.fields(params):
+        value = getattr(params, field.name)
+        assert isinstance(value, jax.Array) and value.dtype == jnp.float32 and value.shape == (), field.name
+    params.check()
+    first = dataclasses.fields(params)[0].name
+    with pytest.raises(SettingError, match=f"^{first} must be") as caught:
+        dataclasses.replace(params, **{first: np.nan}).check()
+    assert caught.value.keys == (first,)
+
+
+def test_defaults_are_float32_scalars():
     params = dmf.Params()
     for value, expected in ((params.height_threshold_m, 0.0), (params.height_threshold_w, 0.15)):
-        assert isinstance(value, np.ndarray) and value.dtype == np.float32 and value.shape == ()
+        assert value.dtype == np.float32 and value.shape == ()
         assert float(value) == pytest.approx(expected)
     assert float(dmf.Params(height_threshold_m=1, height_threshold_w=np.float64(0.5)).threshold_m(2.0)) == 2.0
 
