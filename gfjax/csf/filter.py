@@ -11,7 +11,7 @@ implementation, the `cloth-simulation-filter` package (CSF.cpp `do_cloth`, `do_f
 4. slope smoothing of movable particles next to fixed ones (`bSloopSmooth`);
 5. a point is ground when `|cloth(x, y) - u| < class_threshold` (bilinear cloth).
 
-`classify_points` is the whole pipeline for one padded point buffer, jitted; it is correct
+`filter_points` is the whole pipeline for one padded point buffer, jitted; it is correct
 under `jax.vmap` (a batch of tiles padded to one capacity and one grid shape).
 """
 from __future__ import annotations
@@ -33,7 +33,7 @@ from gfjax.io.cloud import Cloud
 from gfjax.io.tiled import checked_options
 from gfjax.result import Result
 
-__all__ = ["filter", "classify_points", "grid_shape", "Diagnostics", "CSFDiagnostics"]
+__all__ = ["filter", "filter_points", "grid_shape", "Diagnostics", "CSFDiagnostics"]
 
 
 class Diagnostics(NamedTuple):
@@ -83,7 +83,7 @@ def grid_shape(xyz: np.ndarray, valid: np.ndarray, *, cell_m: float) -> tuple[in
 
 
 @functools.partial(jax.jit, static_argnames=("config", "shape"))
-def classify_points(xyz: Points, valid: PointMask, params: Params, *, config: Config,
+def filter_points(xyz: Points, valid: PointMask, params: Params, *, config: Config,
                     shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
     """CSF on one padded buffer of points.
 
@@ -143,7 +143,7 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     origin = xyz_m[use].min(axis=0)
     local = (xyz_m - origin).astype(np.float32)
     shape = grid_shape(local, use, cell_m=config.cell_m)
-    ground, diag = aot.call(classify_points, local, use, params, config=config, shape=shape)
+    ground, diag = aot.call(filter_points, local, use, params, config=config, shape=shape)
     ground = np.asarray(ground) & use
     xy0 = origin[:2] - BUFFER_PX * config.cell_m
     return Result(ground=ground, diagnostics=CSFDiagnostics(

@@ -43,7 +43,7 @@ from gfjax.masf import alpha_shape, densify as densify_mod, preprocess, tin
 from gfjax.masf.config import Config, Params
 from gfjax.result import Result
 
-__all__ = ["filter", "MASFDiagnostics", "classify_points"]
+__all__ = ["filter", "MASFDiagnostics", "filter_points"]
 
 
 class MASFDiagnostics(NamedTuple):
@@ -76,7 +76,7 @@ class MASFDiagnostics(NamedTuple):
     seconds: dict
 
 
-def classify_points(xyz_m: np.ndarray, config: Config, params: Params) -> tuple[np.ndarray, MASFDiagnostics]:
+def filter_points(xyz_m: np.ndarray, config: Config, params: Params) -> tuple[np.ndarray, MASFDiagnostics]:
     """MASF on an array of points.
 
     Args:
@@ -170,7 +170,7 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
             limits.check_memory(config.memory_estimates((float(extent[0]), float(extent[1]))))
         except ValueError as err:
             raise InputError(f"{cloud.name}: {err}") from None
-    ground_used, diagnostics = classify_points(cloud.xyz_m[used_index], config, params)
+    ground_used, diagnostics = filter_points(cloud.xyz_m[used_index], config, params)
     ground = np.zeros(cloud.n_points, dtype=bool)
     ground[used_index] = ground_used
     diagnostics = diagnostics._replace(potential_ground=used_index[diagnostics.potential_ground])

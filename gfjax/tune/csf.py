@@ -13,7 +13,7 @@ whose stopping rule (largest displacement under 5 mm, CSF.cpp `do_cloth`) is a
 `lax.while_loop`: reverse-mode gradients do not exist through it, and the rigidness is a
 static loop count. Both are therefore searched on a small grid (SPEC section 7): each grid
 cloth is simulated once per sample with the plain filter's own pipeline
-(`gfjax.csf.classify_points`), and only the point-to-cloth distances `d` are kept. They are
+(`gfjax.csf.filter_points`), and only the point-to-cloth distances `d` are kept. They are
 never reported as gradient-fitted.
 
 A grid value ("cloth") is the float code `10 * rigidness + time_step` (rigidness 3, time step
@@ -117,11 +117,11 @@ def cloth_distances(xyz: Points, valid: PointMask, time_step: Float[Array, ""], 
     """The plain filter's point-to-cloth distance `d` `(n,)` [m] and its labels at the default
     threshold, bool `(n,)` (a check that `d` is the filter's).
 
-    Runs `gfjax.csf.classify_points` (arguments as there) and evaluates the final cloth at the
+    Runs `gfjax.csf.filter_points` (arguments as there) and evaluates the final cloth at the
     points with the filter's own origin and bilinear interpolation.
     """
     params = csf.Params(time_step=time_step)
-    ground, diag = csf.classify_points(xyz, valid, params, config=config, shape=shape)
+    ground, diag = csf.filter_points(xyz, valid, params, config=config, shape=shape)
     xy, u = xyz[:, :2], -xyz[:, 2]
     big = jnp.asarray(jnp.inf, xyz.dtype)
     lo = jnp.min(jnp.where(valid[:, None], xy, big), axis=0)

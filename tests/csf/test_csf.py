@@ -67,7 +67,7 @@ SHAPE = csf.grid_shape(padded(scene("plane_box"))[0], padded(scene("plane_box"))
 
 @pytest.fixture(scope="session")
 def classify():
-    return jax.jit(lambda xyz, valid, params: csf.classify_points(xyz, valid, params, config=FAST, shape=SHAPE))
+    return jax.jit(lambda xyz, valid, params: csf.filter_points(xyz, valid, params, config=FAST, shape=SHAPE))
 
 
 # --- the cloth solver against the sequential reference ------------------------------------
@@ -222,7 +222,7 @@ def test_vmap_matches_loop(classify):
     scenes = [scene("plane_box", 1), scene("terrace", 2)]
     bufs, valids = zip(*(padded(s) for s in scenes))
     params = csf.Params()
-    batched = jax.jit(jax.vmap(lambda a, b: csf.classify_points(a, b, params, config=FAST, shape=SHAPE)))
+    batched = jax.jit(jax.vmap(lambda a, b: csf.filter_points(a, b, params, config=FAST, shape=SHAPE)))
     ground_b, diag_b = batched(jnp.stack(bufs), jnp.stack(valids))
     for k in range(len(scenes)):
         ground, diag = classify(bufs[k], valids[k], params)

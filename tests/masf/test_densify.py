@@ -49,7 +49,7 @@ def reference_densify(points_m, seeds, layers, alphas_m, *, shape, cell_m, st, f
 def inputs(request):
     """Densification inputs of a hilly synthetic town (the filter's own stages up to the layers)."""
     xyz, _, _ = hilly_town(seed=request.param)
-    _, diag = masf.classify_points(xyz, masf.Config(), masf.Params())
+    _, diag = masf.filter_points(xyz, masf.Config(), masf.Params())
     return xyz - diag.origin_m, diag
 
 
