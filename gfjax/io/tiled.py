@@ -5,27 +5,26 @@ The whole-cloud driver shared by the raster filters that work tile by tile (`gfj
 batches of one raster shape (`tiles.batches`), run each batch through one jitted, vmapped
 `classify_batch` (one compile per batch shape), keep the core points' labels (`tiles.merge`),
 and paste each tile's core out of its per-tile rasters into whole-cloud rasters (row 0 =
-north, docs/ARCHITECTURE.md). Also the padded tile layout as a JAX mask (`domain_mask`) and the
-option checks at the top of every method's `filter`.
+north, docs/ARCHITECTURE.md) (the padded tile layout is `gfjax.raster.domain_mask`). Also the
+option checks at the top of every method's `filter`, and `without_tiling`.
 
-Host-side numpy around the jitted batch function; `domain_mask` is pure JAX (traced `hw`).
+Host-side numpy around the jitted batch function.
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple, TypeVar
 
-import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Float
 
 from gfjax import limits
-from gfjax._types import Mask
 from gfjax.errors import InputError
 from gfjax.io import tiles as tiling
 from gfjax.io.cloud import Cloud
 
-__all__ = ["domain_mask", "checked_options", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
+__all__ = ["checked_options", "without_tiling", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
            "classify_cloud", "TiledRun"]
 
 ConfigT = TypeVar("ConfigT")
@@ -37,19 +36,14 @@ ParamsT = TypeVar("ParamsT")
 ClassifyBatch = Callable[..., tuple[Bool[Array, "b n"], NamedTuple]]
 """`classify_batch(xyz (b, n, 3) float32, valid (b, n) bool, hw (b, 2) int32, params, *, config,
 shape=(h, w)) -> (ground (b, n) bool, diagnostics)`, every diagnostics field a `(b, h, w)`
-raster whose tile data sit in the south-west corner (`domain_mask`)."""
+raster whose tile data sit in the south-west corner (`gfjax.raster.domain_mask`)."""
 
 
-def domain_mask(hw: Int[Array, " 2"], shape: tuple[int, int]) -> Mask:
-    """Cells of a `shape` raster inside a data extent `hw = (rows, cols)` anchored at the
-    south-west corner (rows `h - hw[0] ..`, columns `.. hw[1] - 1`). bool `(h, w)`.
-
-    The layout of a tile padded by `tiles.batches` (row 0 = north); `hw` may be traced, so
-    tiles of different extents share one compiled shape."""
-    h, w = shape
-    rows = jnp.arange(h, dtype=jnp.int32) >= h - hw[0]
-    cols = jnp.arange(w, dtype=jnp.int32) < hw[1]
-    return rows[:, None] & cols[None, :]
+def without_tiling(config: ConfigT) -> ConfigT:
+    """`config` with its tiling fields (`tile_size_m`, `buffer_m`, which never reach a stage)
+    at their defaults, so configs that differ only there share one compiled program."""
+    cls = type(config)
+    return dataclasses.replace(config, tile_size_m=cls.tile_size_m, buffer_m=cls.buffer_m)
 
 
 def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None, returns: str, *,

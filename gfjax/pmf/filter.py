@@ -8,7 +8,7 @@
 3. the points that passed every window are ground.
 
 The cloud is cut into buffered tiles (`gfjax.io.tiles`); each batch of equal-shape tiles runs
-through one jitted, vmapped call of `stages.classify_batch` (`gfjax.io.tiled` drives the tiles
+through one jitted, vmapped call of `programs.classify_batch` (`gfjax.io.tiled` drives the tiles
 and mosaics the tile cores).
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 
 from gfjax.io import tiled
 from gfjax.io.cloud import Cloud
-from gfjax.pmf import stages
+from gfjax.pmf import programs
 from gfjax.pmf.config import MAX_BATCH, Config, Params
 from gfjax.result import Result
 
@@ -64,7 +64,7 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     """
     config, params, use = tiled.checked_options(cloud, config, params, returns, config_type=Config,
                                                 params_type=Params, package="gfjax.pmf")
-    run = tiled.classify_cloud(cloud.xyz_m, use, stages.classify_batch, params, config, max_batch=MAX_BATCH,
+    run = tiled.classify_cloud(cloud.xyz_m, use, programs.classify_batch, params, config, max_batch=MAX_BATCH,
                                frame=cloud.frame,
                                progress=progress, desc="pmf tiles")
     if not run.tiles:
@@ -80,4 +80,4 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
     """Prepare the programs `filter` runs on a file of one tile of any size (`tiled.warm`):
     later first runs load them instead of compiling. Returns the number of shapes prepared."""
     config, params = config or Config(), params or Params()
-    return tiled.warm(stages.classify_batch, params, config, progress=progress, desc="pmf shapes")
+    return tiled.warm(programs.classify_batch, params, config, progress=progress, desc="pmf shapes")

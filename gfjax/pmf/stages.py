@@ -14,26 +14,20 @@ test is isolated in `is_ground_point` so that `gfjax.tune` can relax it.
 """
 from __future__ import annotations
 
-import dataclasses
-import functools
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Float, Int
 
-from gfjax import aot
 from gfjax._types import Heights, Mask, PointMask, Points, Raster
-from gfjax.io.tiled import domain_mask
 from gfjax.pmf.config import Config, Params
 from gfjax.raster.fill import inpaint_nearest
-from gfjax.raster.grid import cell_index
+from gfjax.raster.grid import cell_index, domain_mask
 from gfjax.raster.morphology import opening
 from gfjax.raster.rasterize import rasterize
 
-__all__ = ["Diagnostics", "domain_mask", "thresholds_m", "is_ground_point", "minimum_surface",
-           "rasterize_min", "fill_minimum",
-           "progressive_openings", "classify_points", "classify_tile", "classify_batch"]
+__all__ = ["Diagnostics", "thresholds_m", "is_ground_point", "minimum_surface", "rasterize_min", "fill_minimum",
+           "progressive_openings", "surfaces", "classify_points"]
 
 
 class Diagnostics(NamedTuple):
@@ -112,66 +106,10 @@ def classify_points(xyz: Points, valid: PointMask, opened: Float[Array, "k h w"]
     return ground
 
 
-def _surfaces(z_min: Raster, filled: Mask, hw: Int[Array, " 2"], *, config: Config) -> tuple[Raster, Diagnostics]:
+def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, " 2"], *, config: Config) -> tuple[Raster, Diagnostics]:
     """The raster part of a tile: ZImin filled, then the progressive openings. Returns the
     opened stack `(k, h, w)` and the tile's `Diagnostics`."""
     domain = domain_mask(hw, z_min.shape)
     zimin, filled = fill_minimum(z_min, filled, domain)
     opened = progressive_openings(zimin, domain, windows_px=config.windows_px)
     return opened, Diagnostics(zimin=zimin, empty=domain & ~filled, surface=opened[-1], domain=domain)
-
-
-def _raster_config(config: Config) -> Config:
-    """`config` with the tiling fields (which do not reach the stages) at their defaults."""
-    return dataclasses.replace(config, tile_size_m=Config.tile_size_m, buffer_m=Config.buffer_m)
-
-
-def _run(xyz, valid, hw, params, config: Config, shape: tuple[int, int], *, batched: bool):
-    """The three programs of `_compiled` through `gfjax.aot` (kept across processes when it
-    is on; the plain jitted calls otherwise, and under tracing)."""
-    config = _raster_config(config)
-    raster, middle, points = _compiled(config, shape, batched)
-    tag = (config, shape, batched)
-    z_min, filled = aot.call(raster, xyz, valid, tag=("gfjax.pmf.rasterize_min", *tag))
-    opened, diag = aot.call(middle, z_min, filled, hw, tag=("gfjax.pmf.surfaces", *tag))
-    ground = aot.call(points, xyz, valid, opened, params, tag=("gfjax.pmf.classify_points", *tag))
-    return ground, diag
-
-
-@functools.cache
-def _compiled(config: Config, shape: tuple[int, int], batched: bool):
-    """Separate programs, as SMRF's: the costly raster one compiles once per raster shape, and
-    only the cheap point ones again for another point capacity."""
-    raster = functools.partial(rasterize_min, cell_m=config.cell_m, shape=shape)
-    middle = functools.partial(_surfaces, config=config)
-    points = functools.partial(classify_points, config=config)
-    if batched:
-        raster, middle = jax.vmap(raster), jax.vmap(middle)
-        points = jax.vmap(points, in_axes=(0, 0, 0, None))
-    return jax.jit(raster), jax.jit(middle), jax.jit(points)
-
-
-def classify_tile(xyz: Points, valid: PointMask, hw: Int[Array, " 2"], params: Params, *,
-                  config: Config, shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
-    """PMF on one tile, jitted once per `(config, shape)`.
-
-    Args:
-      xyz: tile-local coordinates, float32 `(n, 3)` [m], x/y relative to the raster's south-west
-        corner; rows with `~valid` are ignored.
-      valid: points to classify, bool `(n,)`.
-      hw: int32 `(2,)` rows and columns of the tile's own extent inside `shape`.
-      params: traced thresholds; config: static settings; shape: static raster `(h, w)`.
-
-    Returns:
-      `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and `Diagnostics`.
-    """
-    return _run(xyz, valid, hw, params, config, tuple(shape), batched=False)
-
-
-def classify_batch(xyz: Float[Array, "b n 3"], valid: Bool[Array, "b n"], hw: Int[Array, "b 2"],
-                   params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Array, "b n"], Diagnostics]:
-    """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared)."""
-    return _run(xyz, valid, hw, params, config, tuple(shape), batched=True)
-
-
-

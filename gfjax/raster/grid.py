@@ -14,9 +14,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from gfjax._types import XY, Raster
+from gfjax._types import XY, Mask, Raster
 
-__all__ = ["cell_index", "sample_bilinear"]
+__all__ = ["cell_index", "domain_mask", "sample_bilinear"]
 
 
 def _check_cell_shape(cell_m: float, shape: tuple[int, int]) -> None:
@@ -81,3 +81,15 @@ def sample_bilinear(z: Raster, xy: XY, *, cell_m: float) -> Float[Array, " n"]:
     top = z[r0, c0] * (1 - fu) + z[r0, c1] * fu
     bottom = z[r1, c0] * (1 - fu) + z[r1, c1] * fu
     return top * (1 - fv) + bottom * fv
+
+
+def domain_mask(hw: Int[Array, " 2"], shape: tuple[int, int]) -> Mask:
+    """Cells of a `shape` raster inside a data extent `hw = (rows, cols)` anchored at the
+    south-west corner (rows `h - hw[0] ..`, columns `.. hw[1] - 1`). bool `(h, w)`.
+
+    The layout of a tile padded by `tiles.batches` (row 0 = north); `hw` may be traced, so
+    tiles of different extents share one compiled shape."""
+    h, w = shape
+    rows = jnp.arange(h, dtype=jnp.int32) >= h - hw[0]
+    cols = jnp.arange(w, dtype=jnp.int32) < hw[1]
+    return rows[:, None] & cols[None, :]

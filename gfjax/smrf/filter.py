@@ -11,7 +11,7 @@ classification of airborne LIDAR data", ISPRS J. 77:21-30. Reads like PDAL's `fi
 5. ground points: |z - ZIpro(x, y)| <= threshold + scalar * slope(ZIpro) (bilinear).
 
 The cloud is cut into buffered tiles (`gfjax.io.tiles`); each batch of equal-shape tiles runs
-through the jitted, vmapped stages of `stages.classify_batch` (`gfjax.io.tiled` drives the
+through the jitted, vmapped stages of `programs.classify_batch` (`gfjax.io.tiled` drives the
 tiles and mosaics the tile cores).
 """
 from __future__ import annotations
@@ -23,7 +23,7 @@ import numpy as np
 from gfjax.io import tiled
 from gfjax.io.cloud import Cloud
 from gfjax.result import Result
-from gfjax.smrf import stages
+from gfjax.smrf import programs
 from gfjax.smrf.config import MAX_BATCH, Config, Params
 
 __all__ = ["filter", "warm", "SMRFDiagnostics"]
@@ -72,7 +72,7 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     """
     config, params, use = tiled.checked_options(cloud, config, params, returns, config_type=Config,
                                                 params_type=Params, package="gfjax.smrf")
-    run = tiled.classify_cloud(cloud.xyz_m, use, stages.classify_batch, params, config, max_batch=MAX_BATCH,
+    run = tiled.classify_cloud(cloud.xyz_m, use, programs.classify_batch, params, config, max_batch=MAX_BATCH,
                                frame=cloud.frame,
                                progress=progress, desc="smrf tiles")
     if not run.tiles:
@@ -87,4 +87,4 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
     """Prepare the programs `filter` runs on a file of one tile of any size (`tiled.warm`):
     later first runs load them instead of compiling. Returns the number of shapes prepared."""
     config, params = config or Config(), params or Params()
-    return tiled.warm(stages.classify_batch, params, config, progress=progress, desc="smrf shapes")
+    return tiled.warm(programs.classify_batch, params, config, progress=progress, desc="smrf shapes")

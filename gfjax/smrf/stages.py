@@ -15,27 +15,22 @@ them for relaxed (sigmoid) versions.
 """
 from __future__ import annotations
 
-import dataclasses
-import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Float, Int
 
-from gfjax import aot
 from gfjax._types import Heights, Mask, PointMask, Points, Raster
-from gfjax.io.tiled import domain_mask
 from gfjax.raster.fill import inpaint_harmonic, inpaint_nearest
-from gfjax.raster.grid import sample_bilinear
+from gfjax.raster.grid import domain_mask, sample_bilinear
 from gfjax.raster.morphology import opening
 from gfjax.raster.rasterize import rasterize
 from gfjax.smrf.config import Config, Params
 
 __all__ = [
-    "Diagnostics", "domain_mask", "is_object", "is_ground_point", "progressive_filter",
-    "low_outliers", "inpaint", "gradient_magnitude", "replicate_edges", "classify_tile",
-    "classify_batch", "rasterize_min", "surfaces", "classify_points", "raster_config",
+    "Diagnostics", "is_object", "is_ground_point", "progressive_filter", "low_outliers", "inpaint",
+    "gradient_magnitude", "replicate_edges", "rasterize_min", "surfaces", "classify_points",
 ]
 
 
@@ -202,61 +197,3 @@ def classify_points(xyz: Points, valid: PointMask, zipro: Raster, slope: Raster,
     surface_at = sample_bilinear(replicate_edges(zipro, hw), xyz[:, :2], cell_m=cell_m)
     slope_at = sample_bilinear(replicate_edges(slope, hw), xyz[:, :2], cell_m=cell_m)
     return valid & is_ground_point(xyz[:, 2] - surface_at, slope_at, params)
-
-
-def raster_config(config: Config) -> Config:
-    """`config` with the settings the raster stages do not read (tiling) at their defaults, so
-    configs that differ only there share one compiled program."""
-    return dataclasses.replace(config, tile_size_m=Config.tile_size_m, buffer_m=Config.buffer_m)
-
-
-@functools.cache
-def _compiled(config: Config, shape: tuple[int, int], batched: bool):
-    """The three jitted stages of a tile (or of a batch, under `vmap`) for one static setting.
-
-    Separate programs: the costly raster stage compiles once per raster shape, and only the
-    cheap point stages compile again for another point capacity."""
-    raster = functools.partial(rasterize_min, cell_m=config.cell_m, shape=shape)
-    middle = functools.partial(surfaces, config=config)
-    points = functools.partial(classify_points, cell_m=config.cell_m)
-    if batched:
-        raster = jax.vmap(raster)
-        middle = jax.vmap(middle, in_axes=(0, 0, 0, None))
-        points = jax.vmap(points, in_axes=(0, 0, 0, 0, 0, None))
-    return jax.jit(raster), jax.jit(middle), jax.jit(points)
-
-
-def classify_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], params: Params, *,
-                  config: Config, shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
-    """SMRF on one tile (Pingel et al. 2013, Sec. 2.1-2.4): three jitted stages.
-
-    Args:
-      xyz: tile-local coordinates, float32 `(n, 3)` [m], x/y relative to the raster's
-        south-west corner. Padding rows are ignored through `valid`.
-      valid: points to classify, bool `(n,)`.
-      hw: int32 `(2,)` rows and columns of the tile's own extent inside `shape`.
-      params: traced thresholds.
-      config: static settings; shape: static raster `(h, w)` (a padding bucket).
-
-    Returns:
-      `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and the tile's `Diagnostics`.
-    """
-    return _run(xyz, valid, hw, params, raster_config(config), tuple(shape), batched=False)
-
-
-def classify_batch(xyz: Float[Array, "b n 3"], valid: Bool[Array, "b n"], hw: Int[Array, "b 2"],
-                   params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Array, "b n"], Diagnostics]:
-    """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared); the
-    diagnostics gain a leading batch axis."""
-    return _run(xyz, valid, hw, params, raster_config(config), tuple(shape), batched=True)
-
-
-def _run(xyz, valid, hw, params, config: Config, shape: tuple[int, int], *, batched: bool):
-    """The three stages of `_compiled`, through `gfjax.aot` (programs kept across processes
-    when it is on; the plain jitted calls otherwise, and under tracing)."""
-    raster, middle, points = _compiled(config, shape, batched)
-    tag = (config, shape, batched)
-    z_min, filled = aot.call(raster, xyz, valid, tag=("gfjax.smrf.rasterize_min", *tag))
-    diag = aot.call(middle, z_min, filled, hw, params, tag=("gfjax.smrf.surfaces", *tag))
-    ground = aot.call(points, xyz, valid, diag.zipro, diag.slope, hw, params, tag=("gfjax.smrf.classify_points", *tag))
-    return ground, diag

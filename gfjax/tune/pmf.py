@@ -28,7 +28,7 @@ from jaxtyping import Array, Float, Int
 from gfjax._types import Mask, PointMask, Points
 from gfjax.pmf import stages
 from gfjax.pmf.config import Config, Params
-from gfjax.raster.grid import cell_index
+from gfjax.raster.grid import cell_index, domain_mask
 from gfjax.tune import relax
 from gfjax.tune.params import Bound
 
@@ -65,8 +65,8 @@ def make_params(values: Float[Array, " 3"]) -> Params:
 @functools.partial(jax.jit, static_argnames=("config", "shape"))
 def prepare_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], *, config: Config,
                  shape: tuple[int, int]) -> Prepared:
-    """The minimum surface and its openings, exactly as `stages.classify_tile` computes them."""
-    domain = stages.domain_mask(hw, shape)
+    """The minimum surface and its openings, exactly as `gfjax.pmf.programs.classify_tile` computes them."""
+    domain = domain_mask(hw, shape)
     zimin, _ = stages.minimum_surface(xyz, valid, domain, cell_m=config.cell_m, shape=shape)
     opened = stages.progressive_openings(zimin, domain, windows_px=config.windows_px)
     return Prepared(opened, domain, xyz, valid)

@@ -24,7 +24,7 @@ one, local to `sweeps` cells. The local slope raster is taken on the stopped-gra
 
 With `temperature=None` every test is the plain filter's own (`stages.is_object`,
 `stages.is_ground_point`) and ZIpro is `stages.inpaint`: the labels equal
-`stages.classify_tile` bit for bit (tested).
+`gfjax.smrf.programs.classify_tile` bit for bit (tested).
 
 `window_m` sets the number of openings: it is not differentiable (no gradient reaches it) and
 is chosen from a small grid; `prepare_tile` computes the openings up to the largest window
@@ -42,7 +42,7 @@ from jax import lax
 from jaxtyping import Array, Float, Int
 
 from gfjax._types import Mask, PointMask, Points, Raster
-from gfjax.raster.grid import sample_bilinear
+from gfjax.raster.grid import domain_mask, sample_bilinear
 from gfjax.raster.morphology import opening
 from gfjax.raster.rasterize import rasterize
 from gfjax.smrf import stages
@@ -93,9 +93,9 @@ def make_params(values: Float[Array, " 3"]) -> Params:
 @functools.partial(jax.jit, static_argnames=("config", "shape"))
 def prepare_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], *, config: Config,
                  shape: tuple[int, int]) -> Prepared:
-    """ZImin, low outliers and the opening sequence of one tile, as `stages.classify_tile`
+    """ZImin, low outliers and the opening sequence of one tile, as `gfjax.smrf.programs.classify_tile`
     computes them (steps 1-3 without the object test), up to `config.max_radius_px`."""
-    domain = stages.domain_mask(hw, shape)
+    domain = domain_mask(hw, shape)
     cells = rasterize(xyz[:, :2], xyz[:, 2], valid, cell_m=config.cell_m, shape=shape)
     filled = cells.valid & domain
     zimin = stages.inpaint(cells.z_min, filled, config=config, domain=domain)
@@ -183,7 +183,7 @@ def ground_weight(prep: Prepared, params: Params, *, config: Config,
       temperature: None for the plain filter's hard tests, else the softness [m].
 
     Returns:
-      bool `(n,)` (hard; equals `stages.classify_tile`) or float `(n,)` in [0, 1] (relaxed);
+      bool `(n,)` (hard; equals `gfjax.smrf.programs.classify_tile`) or float `(n,)` in [0, 1] (relaxed);
       False / 0 where `~prep.valid`.
     """
     if radius_px is None:

@@ -8,7 +8,7 @@ from gfjax.io import tiles as tiling
 from gfjax.io.cloud import Cloud
 from gfjax.smrf import Config, Params
 from gfjax.smrf import filter as smrf_filter
-from gfjax.smrf import stages
+from gfjax.smrf import programs
 from gfjax.io import tiled
 
 ORIGIN = np.array([512_345.0, 5_403_210.0, 250.0])        # UTM-sized: float32 would lose cm
@@ -139,9 +139,9 @@ def test_vmap_batch_equals_tile_by_tile(scene):
     tiles = tiling.split(scene, tile_size_m=32.0, buffer_m=16.0, cell_m=1.0)
     batch = next(tiling.batches(tiles))
     assert len(batch.tiles) == 4
-    ground, diag = stages.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=TILED, shape=batch.shape)
+    ground, diag = programs.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=TILED, shape=batch.shape)
     for i in range(4):
-        one, one_diag = stages.classify_tile(batch.xyz[i], batch.valid[i], batch.hw[i], Params(),
+        one, one_diag = programs.classify_tile(batch.xyz[i], batch.valid[i], batch.hw[i], Params(),
                                              config=TILED, shape=batch.shape)
         np.testing.assert_array_equal(np.asarray(ground[i]), np.asarray(one))
         np.testing.assert_array_equal(np.asarray(diag.object_cells[i]), np.asarray(one_diag.object_cells))
@@ -157,9 +157,9 @@ def test_padding_invariance(scene, whole_labels):
     """More point capacity and a larger shape bucket (padding cells outside the tile's domain)
     change no label when every domain cell holds a point."""
     tiles = tiling.split(scene, tile_size_m=500.0, buffer_m=16.0, cell_m=1.0)
-    labels, _ = tiled.run_batches(tiles, stages.classify_batch, Params(), WHOLE, max_batch=8, keep_diagnostics=False)
+    labels, _ = tiled.run_batches(tiles, programs.classify_batch, Params(), WHOLE, max_batch=8, keep_diagnostics=False)
     np.testing.assert_array_equal(tiling.merge(len(scene), tiles, labels), whole_labels)
     batch = next(tiling.batches(tiles, shape=(96, 80), capacity=2 * tiling.capacity_bucket(tiles[0].n_points)))
-    ground = np.asarray(stages.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=WHOLE,
+    ground = np.asarray(programs.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=WHOLE,
                                               shape=batch.shape)[0])[0]
     np.testing.assert_array_equal(tiling.merge(len(scene), tiles, [ground]), whole_labels)

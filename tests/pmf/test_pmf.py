@@ -13,7 +13,8 @@ import pmf_reference as reference
 from gfjax import pmf
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
-from gfjax.pmf import stages
+from gfjax.pmf import programs, stages
+from gfjax.raster import domain_mask
 
 SHAPE = (24, 24)
 CAPACITY = 2400
@@ -79,7 +80,7 @@ def test_stages_match_brute_force(name, hw):
     xyz = scene("random", 1)
     xyz = xyz[(xyz[:, 0] < hw[1]) & (xyz[:, 1] < hw[0])]
     buf, valid = padded(xyz)
-    domain = np.asarray(stages.domain_mask(jnp.asarray(hw, jnp.int32), SHAPE))
+    domain = np.asarray(domain_mask(jnp.asarray(hw, jnp.int32), SHAPE))
     zimin, filled = jax.jit(stages.minimum_surface, static_argnames=("cell_m", "shape"))(
         buf, valid, jnp.asarray(domain), cell_m=1.0, shape=SHAPE)
     ref_z, ref_filled = reference.zmin(xyz[:, :2], xyz[:, 2], SHAPE, 1.0)
@@ -101,7 +102,7 @@ def test_stages_match_brute_force(name, hw):
 @pytest.mark.parametrize("kind", ["plane_box", "ramp", "terrace"])
 def test_scenes(kind):
     xyz = scene(kind)
-    ground, diag = stages.classify_tile(*padded(xyz), FULL_HW, pmf.Params(), config=SMALL, shape=SHAPE)
+    ground, diag = programs.classify_tile(*padded(xyz), FULL_HW, pmf.Params(), config=SMALL, shape=SHAPE)
     ok = np.mean(np.asarray(ground)[:len(xyz)] == truth(kind, xyz))
     assert ok > 0.95, (kind, ok)
     assert diag.zimin.shape == SHAPE
@@ -109,9 +110,9 @@ def test_scenes(kind):
 
 def test_jit_matches_eager():
     args = (*padded(scene("plane_box", 2)), FULL_HW, pmf.Params())
-    jitted = stages.classify_tile(*args, config=SMALL, shape=SHAPE)
+    jitted = programs.classify_tile(*args, config=SMALL, shape=SHAPE)
     with jax.disable_jit():
-        eager = stages.classify_tile(*args, config=SMALL, shape=SHAPE)
+        eager = programs.classify_tile(*args, config=SMALL, shape=SHAPE)
     for a, b in zip(jax.tree_util.tree_leaves(jitted), jax.tree_util.tree_leaves(eager)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
@@ -120,10 +121,10 @@ def test_vmap_matches_loop():
     scenes = [scene("plane_box", 3), scene("random", 4)]
     bufs, valids = zip(*(padded(s) for s in scenes))
     hws = jnp.stack([FULL_HW, jnp.asarray((20, 17), jnp.int32)])
-    ground_b, diag_b = stages.classify_batch(jnp.stack(bufs), jnp.stack(valids), hws, pmf.Params(),
+    ground_b, diag_b = programs.classify_batch(jnp.stack(bufs), jnp.stack(valids), hws, pmf.Params(),
                                              config=SMALL, shape=SHAPE)
     for k in range(2):
-        ground, diag = stages.classify_tile(bufs[k], valids[k], hws[k], pmf.Params(), config=SMALL, shape=SHAPE)
+        ground, diag = programs.classify_tile(bufs[k], valids[k], hws[k], pmf.Params(), config=SMALL, shape=SHAPE)
         np.testing.assert_array_equal(np.asarray(ground_b[k]), np.asarray(ground))
         np.testing.assert_array_equal(np.asarray(diag_b.surface[k]), np.asarray(diag.surface))
 
@@ -131,8 +132,8 @@ def test_vmap_matches_loop():
 def test_point_order_does_not_matter():
     xyz = scene("random", 5)
     perm = np.random.default_rng(0).permutation(len(xyz))
-    a, _ = stages.classify_tile(*padded(xyz), FULL_HW, pmf.Params(), config=SMALL, shape=SHAPE)
-    b, _ = stages.classify_tile(*padded(xyz[perm]), FULL_HW, pmf.Params(), config=SMALL, shape=SHAPE)
+    a, _ = programs.classify_tile(*padded(xyz), FULL_HW, pmf.Params(), config=SMALL, shape=SHAPE)
+    b, _ = programs.classify_tile(*padded(xyz[perm]), FULL_HW, pmf.Params(), config=SMALL, shape=SHAPE)
     np.testing.assert_array_equal(np.asarray(a)[:len(xyz)][perm], np.asarray(b)[:len(xyz)])
 
 

@@ -279,16 +279,13 @@ def test_python_api_filter_checks_the_budget_for_the_cloud_it_is_given(monkeypat
 
 
 def test_configs_rebuilt_inside_the_stages_are_not_refused(monkeypatch):
-    from gfjax.pmf import stages as pmf_stages
-    from gfjax.smrf import stages as smrf_stages
+    from gfjax.io.tiled import without_tiling
 
     monkeypatch.setenv(limits.BUDGET_ENV, "1")
-    smrf = methods.get("smrf")
-    config, _ = methods.make_config_and_params(smrf, {"cell_m": "0.1", "tile_size_m": "50", "buffer_m": "10"})
-    assert smrf_stages.raster_config(config).tile_size_m == 500.0     # the default tiling, never checked alone
-    pmf = methods.get("pmf")
-    config, _ = methods.make_config_and_params(pmf, {"cell_m": "0.1", "tile_size_m": "50", "buffer_m": "10"})
-    assert pmf_stages._raster_config(config).tile_size_m == 500.0
+    for name in ("smrf", "pmf"):
+        method = methods.get(name)
+        config, _ = methods.make_config_and_params(method, {"cell_m": "0.1", "tile_size_m": "50", "buffer_m": "10"})
+        assert without_tiling(config).tile_size_m == 500.0     # the default tiling, never checked alone
 
 
 def test_batch_estimate_counts_the_tiles_the_extent_holds():

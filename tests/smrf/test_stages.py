@@ -11,7 +11,8 @@ from scipy import ndimage as ndi
 
 from gfjax.raster.morphology import disk
 from gfjax.smrf import Config, Params
-from gfjax.smrf import stages
+from gfjax.raster import domain_mask
+from gfjax.smrf import programs, stages
 
 CELL_M = 1.0
 SHAPE = (32, 40)
@@ -87,7 +88,7 @@ def test_progressive_filter_ignores_padding():
     z = random_surface(3)
     padded = np.full((40, 48), 1e3, np.float32)                                # junk on padding
     padded[8:, :40] = z
-    domain = stages.domain_mask(jnp.array(SHAPE, jnp.int32), (40, 48))
+    domain = domain_mask(jnp.array(SHAPE, jnp.int32), (40, 48))
     got = np.asarray(jitted_progressive(4)(jnp.asarray(padded), domain, jnp.float32(0.15)))
     assert not got[:8].any() and not got[:, 40:].any()
     np.testing.assert_array_equal(got[8:, :40], reference_progressive(z, 0.15, cell_m=CELL_M, max_radius_px=4))
@@ -126,7 +127,7 @@ def test_gradient_magnitude_on_domain_equals_cropped():
     z = random_surface(8)
     padded = np.full((40, 48), -7.0, np.float32)
     padded[8:, :40] = z
-    domain = stages.domain_mask(jnp.array(SHAPE, jnp.int32), (40, 48))
+    domain = domain_mask(jnp.array(SHAPE, jnp.int32), (40, 48))
     got = np.asarray(jax.jit(functools.partial(stages.gradient_magnitude, cell_m=1.0))(jnp.asarray(padded), domain))
     np.testing.assert_allclose(got[8:, :40], np.hypot(*np.gradient(z.astype(np.float64))), rtol=1e-5, atol=1e-5)
 
@@ -167,7 +168,7 @@ def test_labels_do_not_depend_on_the_shape_bucket():
     valid = np.ones(len(xyz), bool)
     config = Config(window_m=3.0)
     params = Params(threshold_m=0.2, scalar=0.5)               # tight: small surface shifts show
-    results = [stages.classify_tile(jnp.asarray(xyz), jnp.asarray(valid), jnp.asarray(hw), params,
+    results = [programs.classify_tile(jnp.asarray(xyz), jnp.asarray(valid), jnp.asarray(hw), params,
                                     config=config, shape=shape) for shape in ((20, 24), (40, 48))]
     (ground_a, diag_a), (ground_b, diag_b) = results
     np.testing.assert_array_equal(np.asarray(ground_a), np.asarray(ground_b))

@@ -19,7 +19,7 @@ from gfjax.cli import main as cli_main
 from gfjax.cli._common import method_setup
 from gfjax.io import tiles as tiling
 from gfjax.pmf import Config, Params
-from gfjax.pmf import stages
+from gfjax.pmf import programs
 from gfjax.tune import fit as tfit
 from gfjax.tune import methods
 from gfjax.tune import pmf as tpmf
@@ -41,7 +41,7 @@ def prepared():
 @pytest.mark.parametrize("params", PARAMS, ids=["defaults", "low", "high"])
 def test_hard_mode_equals_classify_tile(params):
     b = crop_batch()
-    plain, _ = stages.classify_tile(b.xyz[0], b.valid[0], b.hw[0], params, config=CONFIG, shape=b.shape)
+    plain, _ = programs.classify_tile(b.xyz[0], b.valid[0], b.hw[0], params, config=CONFIG, shape=b.shape)
     got = jax.jit(functools.partial(tpmf.ground_weight, config=CONFIG))(prepared(), params)
     np.testing.assert_array_equal(np.asarray(got), np.asarray(plain))
     assert 0 < int(np.sum(np.asarray(got))) < int(np.sum(b.valid[0]))

@@ -11,7 +11,7 @@ import pytest
 from jax.test_util import check_grads
 
 import gfjax
-from gfjax.smrf import Params, stages
+from gfjax.smrf import Params, programs, stages
 from gfjax.tune import fit as tfit
 from gfjax.tune import params as tparams
 from gfjax.tune import smrf as tsmrf
@@ -31,7 +31,7 @@ def hard_weight():
 def test_hard_mode_equals_classify_tile(params, window_m):
     b = crop_batch()
     config = CONFIG.__class__(**{**CONFIG.__dict__, "window_m": window_m})
-    plain, diag = stages.classify_tile(b.xyz[0], b.valid[0], b.hw[0], params, config=config, shape=b.shape)
+    plain, diag = programs.classify_tile(b.xyz[0], b.valid[0], b.hw[0], params, config=config, shape=b.shape)
     got = hard_weight()(crop_prepared(), params, radius_px=tsmrf.radius_for(CONFIG, window_m))
     assert got.dtype == jnp.bool_
     np.testing.assert_array_equal(np.asarray(got), np.asarray(plain))
