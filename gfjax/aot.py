@@ -54,7 +54,8 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 __all__ = ["enable", "disable", "enabled_folder", "private_folder", "call", "prefetch", "prefetching", "program_key",
            "on_compile",

@@ -26,6 +26,13 @@ if "GFJAX_TEST_KEEP_CACHE" not in os.environ:
 # keeps them off, so each test sees plain jit unless it enables a cache itself. Subprocesses
 # get the default (caches on, in the folder above).
 os.environ["GFJAX_CACHE"] = "0"
+if os.environ.get("GFJAX_TYPECHECK", "0") == "1":
+    # every annotated function of gfjax is checked at each call, jaxtyping's shapes and dtypes
+    # included (tests/typecheck.py); not yet the default: annotations that numpy arguments,
+    # duck-typed clouds and the bad inputs tests give on purpose do not satisfy remain
+    import jaxtyping
+
+    jaxtyping.install_import_hook("gfjax", "typecheck.checker")
 import gfjax  # noqa: E402,F401
 del os.environ["GFJAX_CACHE"]
 
@@ -58,3 +65,15 @@ def _program_cache_off_after_each_test():
     from gfjax import aot
 
     aot.disable()
+
+
+@pytest.fixture
+def unchecked():
+    """Type checking off for one test: what a user meets is our own check of a bad argument,
+    not the test run's type checker."""
+    import jaxtyping
+
+    before = jaxtyping.config.jaxtyping_disable
+    jaxtyping.config.update("jaxtyping_disable", True)
+    yield
+    jaxtyping.config.update("jaxtyping_disable", before)

@@ -219,7 +219,7 @@ def _signals_interrupt():
                 signal.signal(sig, handler)
 
 
-def _one_line(message: str) -> str:
+def _one_line(message: object) -> str:
     return " ".join(str(message).split())
 
 

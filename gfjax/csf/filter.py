@@ -74,7 +74,7 @@ class CSFDiagnostics(NamedTuple):
     cell_m: float
 
 
-def grid_shape(xyz: np.ndarray, valid: np.ndarray, *, cell_m: float) -> tuple[int, int]:
+def grid_shape(xyz: np.ndarray | jax.Array, valid: np.ndarray | jax.Array, *, cell_m: float) -> tuple[int, int]:
     """Static particle grid `(h, w)` of a float32 point buffer (the same formula as traced)."""
     xy = np.asarray(xyz, np.float32)[np.asarray(valid, bool), :2]
     extent = (xy.max(axis=0) - xy.min(axis=0)).astype(np.float32)

@@ -33,7 +33,7 @@ CLOUD_VIEWS = ("xyz_m", "filter_mask", "n_points", "name")
 """What a filter reads from a cloud (`Cloud`, `gfjax.survey.Points`)."""
 ParamsT = TypeVar("ParamsT")
 
-ClassifyBatch = Callable[..., tuple[Bool[Array, "b n"], NamedTuple]]
+ClassifyBatch = Callable[..., tuple[Bool[Array, "b n"], tuple]]
 """`classify_batch(xyz (b, n, 3) float32, valid (b, n) bool, hw (b, 2) int32, params, *, config,
 shape=(h, w)) -> (ground (b, n) bool, diagnostics)`, every diagnostics field a `(b, h, w)`
 raster whose tile data sit in the south-west corner (`gfjax.raster.domain_mask`)."""
@@ -89,7 +89,7 @@ def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None
 
 def run_batches(tiles: Sequence[tiling.Tile], classify_batch: ClassifyBatch, params: Any, config: Any, *,
                 max_batch: int, progress: bool = False, desc: str = "tiles",
-                keep_diagnostics: bool = True) -> tuple[list[np.ndarray], list[NamedTuple | None]]:
+                keep_diagnostics: bool = True) -> tuple[list[np.ndarray], list[tuple | None]]:
     """Classify tiles batch by batch (`tiles.batches`, one `classify_batch` call per batch).
 
     Args:
@@ -107,7 +107,7 @@ def run_batches(tiles: Sequence[tiling.Tile], classify_batch: ClassifyBatch, par
     """
     position = {id(tile): i for i, tile in enumerate(tiles)}
     labels: list[np.ndarray | None] = [None] * len(tiles)
-    diagnostics: list[NamedTuple | None] = [None] * len(tiles)
+    diagnostics: list[tuple | None] = [None] * len(tiles)
     sides = tiling.canonical_sides(config.tile_size_m, config.buffer_m, config.cell_m)
     groups = list(tiling.batches(tiles, max_batch=max_batch, sides=sides))
     if progress:
@@ -164,7 +164,7 @@ def warm(classify_batch: ClassifyBatch, params: Any, config: Any, *, progress: b
     return len(pairs)
 
 
-def mosaic(tiles: Sequence[tiling.Tile], diagnostics: Sequence[NamedTuple], *, names: Sequence[str],
+def mosaic(tiles: Sequence[tiling.Tile], diagnostics: Sequence[tuple], *, names: Sequence[str],
            heights: Sequence[str] = (), cell_m: float) -> Mosaic:
     """Paste each tile's core cells of its cropped rasters into whole-cloud rasters.
 
@@ -215,7 +215,7 @@ class TiledRun(NamedTuple):
 
     ground: np.ndarray
     tiles: list[tiling.Tile]
-    diagnostics: list[NamedTuple | None]
+    diagnostics: list[tuple | None]
 
 
 def classify_cloud(xyz_m: Float[np.ndarray, "n 3"], use: Bool[np.ndarray, " n"], classify_batch: ClassifyBatch,

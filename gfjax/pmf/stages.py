@@ -106,7 +106,7 @@ def classify_points(xyz: Points, valid: PointMask, opened: Float[Array, "k h w"]
     return ground
 
 
-def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, " 2"], *, config: Config) -> tuple[Raster, Diagnostics]:
+def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, " 2"], *, config: Config) -> tuple[Float[Array, "k h w"], Diagnostics]:
     """The raster part of a tile: ZImin filled, then the progressive openings. Returns the
     opened stack `(k, h, w)` and the tile's `Diagnostics`."""
     domain = domain_mask(hw, z_min.shape)

@@ -18,7 +18,7 @@ All functions take the reduction `op` (`jnp.maximum` or `jnp.minimum`) and its i
 """
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax.numpy as jnp
 from jax import lax

@@ -34,11 +34,12 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 from jax import lax
-
-from jaxtyping import Array, Bool, Int
+from jaxtyping import Array, Bool, Float, Int, Shaped
 
 from gfjax._types import Mask, Raster
 from gfjax.raster.label import label_components
+
+Coarse = Float[Array, "hc wc"]       # a raster of 2x2 blocks (half the sides, rounded up)
 
 __all__ = ["inpaint_harmonic", "solve_harmonic"]
 
@@ -58,7 +59,7 @@ class _Level(NamedTuple):
     unit: bool = False    # static: all edges between active cells weigh 1 (the finest level)
 
 
-def _shift(x: Raster, drow: int, dcol: int) -> Raster:
+def _shift(x: Shaped[Array, "h w"], drow: int, dcol: int) -> Shaped[Array, "h w"]:
     """`out[i, j] = x[i + drow, j + dcol]`, 0 outside."""
     h, w = x.shape
     p = jnp.pad(x, 1)
@@ -103,12 +104,12 @@ def _finest(free: Mask, n_inside: Raster, dtype) -> _Level:
     return _Level(jnp.where(free, n_inside, 0).astype(dtype), east.astype(dtype), south.astype(dtype), unit=True)
 
 
-def _pad_even(x: Raster) -> Raster:
+def _pad_even(x: Raster) -> Float[Array, "he we"]:
     h, w = x.shape
     return jnp.pad(x, ((0, h % 2), (0, w % 2)))
 
 
-def _quads(x: Raster) -> tuple[Raster, Raster, Raster, Raster]:
+def _quads(x: Raster) -> tuple[Coarse, Coarse, Coarse, Coarse]:
     """The four cells of each 2x2 block, `(x[2I, 2J], x[2I, 2J+1], x[2I+1, 2J], x[2I+1, 2J+1])`,
     after padding to even sides with zeros (strided slices: they fuse, unlike a reshape-sum)."""
     x = _pad_even(x)
@@ -124,12 +125,12 @@ def _coarsen(level: _Level) -> _Level:
     return _Level(diag=d00 + d01 + d10 + d11 - 2 * internal, w_east=e01 + e11, w_south=s10 + s11)
 
 
-def _restrict(r: Raster) -> Raster:
+def _restrict(r: Raster) -> Coarse:
     a, b, c, d = _quads(r)
     return a + b + c + d
 
 
-def _prolong(ec: Raster, shape) -> Raster:
+def _prolong(ec: Coarse, shape) -> Float[Array, "hf wf"]:
     h, w = shape
     hc, wc = ec.shape
     up = jnp.broadcast_to(ec[:, None, :, None], (hc, 2, wc, 2)).reshape(2 * hc, 2 * wc)

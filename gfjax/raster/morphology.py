@@ -30,10 +30,12 @@ import math
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
-from jaxtyping import Array
+from jaxtyping import Array, Shaped
 
-from gfjax._types import Mask, Raster
+from gfjax._types import Mask
 from gfjax.raster._window import SparseTable, pad_axis, running_direct, running_vhgw
+
+Grey = Shaped[Array, "h w"]         # any dtype: heights, labels, flags (min/max need only an order)
 
 __all__ = [
     "disk", "chord_half_widths", "min_filter", "max_filter", "erode", "dilate", "opening", "closing",
@@ -110,7 +112,7 @@ def _disk(x: Array, r: int, op, fill, algorithm: str) -> Array:
     return out
 
 
-def _reduce(z: Raster, valid: Mask | None, radius_px: int, footprint: str, op, algorithm: str) -> Raster:
+def _reduce(z: Grey, valid: Mask | None, radius_px: int, footprint: str, op, algorithm: str) -> Grey:
     r = _check_radius(radius_px)
     if footprint not in FOOTPRINTS:
         raise ValueError(f"footprint must be one of {FOOTPRINTS}, got {footprint!r}")
@@ -132,8 +134,8 @@ def _reduce(z: Raster, valid: Mask | None, radius_px: int, footprint: str, op, a
 
 
 def min_filter(
-    z: Raster, valid: Mask | None = None, *, radius_px: int, footprint: str = "disk", algorithm: str = "table"
-) -> Raster:
+    z: Grey, valid: Mask | None = None, *, radius_px: int, footprint: str = "disk", algorithm: str = "table"
+) -> Grey:
     """Grey erosion: the minimum of the valid cells under the footprint centred on each cell.
 
     Args:
@@ -153,8 +155,8 @@ def min_filter(
 
 
 def max_filter(
-    z: Raster, valid: Mask | None = None, *, radius_px: int, footprint: str = "disk", algorithm: str = "table"
-) -> Raster:
+    z: Grey, valid: Mask | None = None, *, radius_px: int, footprint: str = "disk", algorithm: str = "table"
+) -> Grey:
     """Grey dilation: the maximum of the valid cells under the footprint (see `min_filter`).
 
     Returns `-inf` (dtype min) where the window holds no valid cell. Equals
@@ -168,8 +170,8 @@ dilate = max_filter
 
 
 def opening(
-    z: Raster, valid: Mask | None = None, *, radius_px: int, footprint: str = "disk", algorithm: str = "table"
-) -> Raster:
+    z: Grey, valid: Mask | None = None, *, radius_px: int, footprint: str = "disk", algorithm: str = "table"
+) -> Grey:
     """Grey opening: erosion then dilation, both over valid cells only.
 
     Args/units as `min_filter`. Returns `(h, w)`: `<= z` on valid cells (anti-extensive),
@@ -181,8 +183,8 @@ def opening(
 
 
 def closing(
-    z: Raster, valid: Mask | None = None, *, radius_px: int, footprint: str = "disk", algorithm: str = "table"
-) -> Raster:
+    z: Grey, valid: Mask | None = None, *, radius_px: int, footprint: str = "disk", algorithm: str = "table"
+) -> Grey:
     """Grey closing: dilation then erosion over valid cells; `>= z` on valid cells (extensive)
     and idempotent. Args/units as `min_filter`."""
     dilated = max_filter(z, valid, radius_px=radius_px, footprint=footprint, algorithm=algorithm)

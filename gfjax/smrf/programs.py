@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 
 import jax
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from gfjax import aot
@@ -20,6 +21,8 @@ from gfjax.smrf.config import Config, Params
 from gfjax.smrf.stages import Diagnostics, classify_points, rasterize_min, surfaces
 
 __all__ = ["classify_tile", "classify_batch"]
+
+Host = Array | np.ndarray        # a batch arrives from the tiler as host numpy
 
 
 @functools.cache
@@ -53,7 +56,7 @@ def classify_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], params: Pa
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=False)
 
 
-def classify_batch(xyz: Float[Array, "b n 3"], valid: Bool[Array, "b n"], hw: Int[Array, "b 2"],
+def classify_batch(xyz: Float[Host, "b n 3"], valid: Bool[Host, "b n"], hw: Int[Host, "b 2"],
                    params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Array, "b n"], Diagnostics]:
     """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared); the
     diagnostics gain a leading batch axis."""

@@ -61,7 +61,7 @@ class Method:
     config_type: type
     static: str | None
     grid: tuple[float, ...]
-    prepare_tile: Callable
+    prepare_tile: Callable | None
     ground_weight: Callable
     static_px: Callable
     default_static: Callable

@@ -261,7 +261,7 @@ def test_fill_holes_matches_scipy(name, connectivity):
     np.testing.assert_array_equal(np.asarray(batched[1]), np.asarray(fn(~mask)))
 
 
-def test_bad_shapes():
+def test_bad_shapes(unchecked):
     with pytest.raises(ValueError, match="shape"):
         raster.inpaint_nearest(jnp.zeros((3, 3)), jnp.zeros((3, 4), bool))
     with pytest.raises(ValueError, match="shape"):

@@ -147,7 +147,7 @@ def test_bool_raster_grey_ops_with_mask():
     assert got.dtype == jnp.bool_
 
 
-def test_bad_arguments():
+def test_bad_arguments(unchecked):
     z = jnp.zeros((4, 4), jnp.float32)
     with pytest.raises(ValueError, match="radius_px"):
         raster.min_filter(z, radius_px=-1)
