@@ -22,8 +22,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.interpolate import LinearNDInterpolator
-from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from gfjax.errors import InputError
 
@@ -62,6 +60,10 @@ def ground_surface(ground_xyz_m: np.ndarray, xy_m: np.ndarray) -> np.ndarray:
     relative to their minimum corner); the nearest ground point's z outside the convex hull,
     and everywhere when the ground points span no triangle (fewer than 3, or collinear).
     """
+    # training only: filtering imports this module for its bin count and never pays for scipy
+    from scipy.interpolate import LinearNDInterpolator
+    from scipy.spatial import Delaunay, QhullError, cKDTree
+
     g_xy = ground_xyz_m[:, :2] - ground_xyz_m[:, :2].min(axis=0)
     xy = xy_m - ground_xyz_m[:, :2].min(axis=0)
     z = ground_xyz_m[:, 2]
