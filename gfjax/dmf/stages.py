@@ -72,7 +72,7 @@ def fill_ngnem(z: Raster, layer: Labels, valid: Mask) -> tuple[Raster, Labels]:
     return zf, kf
 
 
-def rhc(ngnem: Raster, inside: Mask, cell_m: Float[Array, ""], *, radius_px: int = 2) -> Mask:
+def rhc(ngnem: Raster, inside: Mask, cell_m: Float[Array, ""], *, radius_px: int) -> Mask:
     """Eq. 2: `R_HC = maxfilter(NGNEM) - NGNEM > W` with a square of side `2 radius_px + 1`."""
     top = max_filter(ngnem, inside, radius_px=radius_px, footprint="square")
     return inside & (top - ngnem > cell_m)
@@ -148,8 +148,8 @@ def _walls(sides_padded: tuple[Mask, ...]) -> tuple[Mask, ...]:
     return shift(n, 1, 0, False), shift(s, -1, 0, False), shift(w, 0, 1, False), shift(e, 0, -1, False)
 
 
-def coverage(ngnem: Raster, patches: Mask, inside: Mask, *, max_close_px: int = 15,
-             border_patches: bool = True, hole_test: str = "patch", close_all: bool = False) -> tuple[Mask, Bool[Array, ""]]:
+def coverage(ngnem: Raster, patches: Mask, inside: Mask, *, max_close_px: int,
+             border_patches: bool, hole_test: str, close_all: bool) -> tuple[Mask, Bool[Array, ""]]:
     """Ground coverage regions (Sec. 2.4): NGNEM_BI from the R_HC patches.
 
     1. Patches (8-connected R_HC) are sorted by the borders they touch: none or 3-4 -> plain
