@@ -36,7 +36,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from gfjax.errors import InputError
 
@@ -229,8 +229,8 @@ class SoftConfusion(NamedTuple):
     tn: Float[Array, ""]
 
 
-def soft_confusion(prob_ground: Float[Array, " n"], ref_ground: Bool[Array, " n"],
-                   valid: Bool[Array, " n"]) -> SoftConfusion:
+def soft_confusion(prob_ground: Float[ArrayLike, " n"], ref_ground: Bool[ArrayLike, " n"],
+                   valid: Bool[ArrayLike, " n"]) -> SoftConfusion:
     """Expected confusion counts, differentiable in `prob_ground` (for `gfjax.tune`).
 
     Args:

@@ -13,7 +13,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from gfjax import aot
-from gfjax._types import PointMask, Points
+from gfjax._types import PointMask
 from gfjax.io.tiled import without_tiling
 from gfjax.pmf.config import Config, Params
 from gfjax.pmf.stages import Diagnostics, classify_points, rasterize_min, surfaces
@@ -34,7 +34,7 @@ def _compiled(config: Config, shape: tuple[int, int], batched: bool):
     return jax.jit(raster), jax.jit(middle), jax.jit(points)
 
 
-def classify_tile(xyz: Points, valid: PointMask, hw: Int[Array, " 2"], params: Params, *,
+def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host, " 2"], params: Params, *,
                   config: Config, shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
     """PMF on one tile (Zhang et al. 2003).
 

@@ -15,7 +15,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from gfjax import aot
-from gfjax._types import PointMask, Points
+from gfjax._types import PointMask
 from gfjax.io.tiled import without_tiling
 from gfjax.smrf.config import Config, Params
 from gfjax.smrf.stages import Diagnostics, classify_points, rasterize_min, surfaces
@@ -38,7 +38,7 @@ def _compiled(config: Config, shape: tuple[int, int], batched: bool):
     return jax.jit(raster), jax.jit(middle), jax.jit(points)
 
 
-def classify_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], params: Params, *,
+def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host, "2"], params: Params, *,
                   config: Config, shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
     """SMRF on one tile (Pingel et al. 2013, Sec. 2.1-2.4).
 

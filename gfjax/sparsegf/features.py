@@ -26,7 +26,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from gfjax import raster
 
@@ -48,7 +48,7 @@ def signed_log(h: Array) -> Array:
     return jnp.sign(h) * jnp.log1p(jnp.abs(h))
 
 
-def xyz_features(xyz: Float[Array, "n 3"], valid: Bool[Array, " n"], *, r_oc_m: float) -> Float[Array, "n 4"]:
+def xyz_features(xyz: Float[ArrayLike, "n 3"], valid: Bool[ArrayLike, " n"], *, r_oc_m: float) -> Float[Array, "n 4"]:
     """The paper's features `(n, 4)` of compressed points whose x, y are relative to the patch
     axis and z to the patch's mean height [m]; 0 on invalid rows."""
     f = jnp.stack([xyz[:, 0] / r_oc_m, xyz[:, 1] / r_oc_m, xyz[:, 2] / Z_SCALE_M, jnp.ones_like(xyz[:, 0])], axis=1)

@@ -100,7 +100,7 @@ def _point_inputs(local_xyz, valid, keep, keep_valid, angle, *, features, r_in, 
     return pts, out.central, f
 
 
-def thin_context(central: np.ndarray, max_points: int, seed: int) -> np.ndarray:
+def thin_context(central: np.ndarray, max_points: int | np.integer, seed: int | np.integer) -> np.ndarray:
     """Rows to keep: every central one, and at most `max_points` peripheral ones drawn at random."""
     rest = np.flatnonzero(~central)
     if len(rest) <= max_points:

@@ -19,7 +19,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from gfjax.io.atomic import atomic_output
 from gfjax.io.params_file import read_params
@@ -43,7 +43,7 @@ def _check(bounds: Sequence[Bound]) -> None:
             raise ValueError(f"{b.name}: default {b.default} must lie strictly inside ({b.lo}, {b.hi})")
 
 
-def to_raw(values: Mapping[str, float], bounds: Sequence[Bound]) -> Float[Array, " p"]:
+def to_raw(values: Mapping[str, float | np.floating], bounds: Sequence[Bound]) -> Float[Array, " p"]:
     """Unconstrained `raw` (float32 `(p,)`) of `values` (clipped just inside the bounds)."""
     _check(bounds)
     out = []
@@ -54,18 +54,18 @@ def to_raw(values: Mapping[str, float], bounds: Sequence[Bound]) -> Float[Array,
     return jnp.asarray(out, jnp.float32)
 
 
-def from_raw(raw: Float[Array, "... p"], bounds: Sequence[Bound]) -> Float[Array, "... p"]:
+def from_raw(raw: Float[ArrayLike, "... p"], bounds: Sequence[Bound]) -> Float[Array, "... p"]:
     """Bounded values `lo + (hi - lo) * sigmoid(raw)`, same shape as `raw` (jit/vmap-able)."""
     lo, span = _row([b.lo for b in bounds], raw), _row([b.hi - b.lo for b in bounds], raw)
     return lo + span * jax.nn.sigmoid(raw)
 
 
-def _row(values: list[float], like: Array) -> Array:
+def _row(values: list[float], like: ArrayLike) -> Array:
     """`values` as an array broadcastable against `like` `(..., p)` (explicit rank)."""
     return jnp.asarray(values, like.dtype).reshape((1,) * (like.ndim - 1) + (len(values),))
 
 
-def prior_penalty(raw: Float[Array, "... p"], bounds: Sequence[Bound]) -> Float[Array, "..."]:
+def prior_penalty(raw: Float[ArrayLike, "... p"], bounds: Sequence[Bound]) -> Float[Array, "..."]:
     """`sum_k ((value_k - default_k) / (hi_k - lo_k))^2`: distance to the defaults on the
     bounded scale (0 at the defaults), summed over the last axis."""
     values = from_raw(raw, bounds)
@@ -73,7 +73,7 @@ def prior_penalty(raw: Float[Array, "... p"], bounds: Sequence[Bound]) -> Float[
     return jnp.sum(jnp.square((values - default) / span), axis=-1)
 
 
-def write_params(path: str | os.PathLike, *, method: str, values: Mapping[str, float],
+def write_params(path: str | os.PathLike, *, method: str, values: Mapping[str, float | np.floating],
                  units: Mapping[str, str], extra: Mapping[str, Any] | None = None) -> Path:
     """Write a params.json atomically (temporary file + rename). Returns the path.
 

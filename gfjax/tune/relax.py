@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 __all__ = ["greater", "less_equal", "soft_or_max", "geometric_schedule"]
 
@@ -24,8 +24,8 @@ def _check_temperature(temperature) -> None:
         raise ValueError(f"temperature must be > 0 (or None for the hard test), got {temperature}")
 
 
-def greater(h: Float[Array, "..."], t: Float[Array, "..."],
-            temperature: float | Float[Array, ""] | None = None) -> Bool[Array, "..."] | Float[Array, "..."]:
+def greater(h: Float[ArrayLike, "..."], t: Float[ArrayLike, "..."],
+            temperature: float | Float[ArrayLike, ""] | None = None) -> Bool[Array, "..."] | Float[Array, "..."]:
     """`h > t`: hard bool with `temperature=None`, else `sigmoid((h - t) / temperature)`.
 
     Args:
@@ -42,8 +42,8 @@ def greater(h: Float[Array, "..."], t: Float[Array, "..."],
     return jax.nn.sigmoid((h - t) / temperature)
 
 
-def less_equal(h: Float[Array, "..."], t: Float[Array, "..."],
-               temperature: float | Float[Array, ""] | None = None) -> Bool[Array, "..."] | Float[Array, "..."]:
+def less_equal(h: Float[ArrayLike, "..."], t: Float[ArrayLike, "..."],
+               temperature: float | Float[ArrayLike, ""] | None = None) -> Bool[Array, "..."] | Float[Array, "..."]:
     """`h <= t`: hard bool with `temperature=None`, else `sigmoid((t - h) / temperature)`."""
     if temperature is None:
         return h <= t
@@ -51,7 +51,7 @@ def less_equal(h: Float[Array, "..."], t: Float[Array, "..."],
     return jax.nn.sigmoid((t - h) / temperature)
 
 
-def soft_or_max(margins: Float[Array, "k ..."], temperature: float | Float[Array, ""] | None = None,
+def soft_or_max(margins: Float[ArrayLike, "k ..."], temperature: float | Float[ArrayLike, ""] | None = None,
                 *, axis: int = 0) -> Bool[Array, "..."] | Float[Array, "..."]:
     """`any(margins > 0)` along `axis`: hard bool, or `sigmoid(max(margins) / temperature)`.
 

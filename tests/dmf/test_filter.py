@@ -104,7 +104,7 @@ def test_empty_and_tiny_clouds():
     assert dmf.filter(empty).ground.shape == (0,)
 
 
-def test_bad_input():
+def test_bad_input(unchecked):
     cloud, _, _ = scenes.box_scene()
     with pytest.raises(InputError, match="config"):
         dmf.filter(cloud, config={"v0": 2})

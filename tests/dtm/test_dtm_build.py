@@ -207,7 +207,7 @@ def test_no_ground_names_the_file():
 @pytest.mark.parametrize("kwargs,match", [(dict(cell_m=0.0), "cell_m"), (dict(cell_m=float("nan")), "cell_m"),
                                           (dict(cell_m=float("inf")), "cell_m"), (dict(cell_m="1"), "cell_m"),
                                           (dict(max_edge_m=-1.0), "max_edge_m")])
-def test_bad_options(kwargs, match):
+def test_bad_options(kwargs, match, unchecked):
     cloud = _plane_cloud(n=50, path="t.laz")
     with pytest.raises(InputError, match=f"t.laz.*{match}"):
         gfjax.dtm.build(cloud, np.ones(cloud.n_points, bool), **kwargs)

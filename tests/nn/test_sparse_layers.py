@@ -47,7 +47,7 @@ def test_voxelize_means_and_point_voxel_match_numpy():
     assert np.all(back[~valid] == 0)
 
 
-def test_voxelize_overflow_and_bad_input():
+def test_voxelize_overflow_and_bad_input(unchecked):
     xyz = cloud(100)
     vox = sparse.voxelize(xyz, xyz, 0, 0.5, capacity=4)
     assert bool(vox.overflowed) and np.sum(np.asarray(vox.point_voxel) >= 0) < 100

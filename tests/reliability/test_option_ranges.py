@@ -146,7 +146,7 @@ SETTING_ERRORS = [
 
 
 @pytest.mark.parametrize("name, fields, keys", SETTING_ERRORS, ids=[f"{n} {' '.join(f)}" for n, f, _ in SETTING_ERRORS])
-def test_setting_errors_carry_the_keys_concerned(name, fields, keys):
+def test_setting_errors_carry_the_keys_concerned(name, fields, keys, unchecked):
     with pytest.raises(SettingError) as caught:
         methods.get(name).Config(**fields)
     assert caught.value.keys == keys

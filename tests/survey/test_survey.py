@@ -172,7 +172,7 @@ def test_the_same_tile_twice_is_refused(tmp_path):
         survey.index([a, b], tmp_path)
 
 
-def test_a_filter_refuses_what_is_not_a_cloud():
+def test_a_filter_refuses_what_is_not_a_cloud(unchecked):
     from gfjax import dmf
 
     with pytest.raises(InputError, match="gfjax.dmf.filter: expected a gfjax Cloud"):

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
-from jaxtyping import Array, Bool, Int, UInt32
+from jaxtyping import Array, ArrayLike, Bool, Int, UInt32
 
 COORD_MIN = -(2 ** 15)           # smallest packable grid index i, j, k
 COORD_MAX = 2 ** 15 - 1          # largest packable grid index i, j, k
@@ -38,7 +38,7 @@ def range_message(what: str) -> str:
             f"[0, {BATCH_MAX}]; rescale, re-origin or tile the points first")
 
 
-def check_range(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], what: str) -> Int[Array, "n 4"]:
+def check_range(coords: Int[ArrayLike, "n 4"], valid: Bool[ArrayLike, " n"], what: str) -> Int[ArrayLike, "n 4"]:
     """`coords`, after checking that every valid row is packable.
 
     Concrete arrays raise `ValueError` naming the range; traced arrays (inside `jit`) carry

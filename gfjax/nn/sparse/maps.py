@@ -42,7 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
-from jaxtyping import Array, Bool, Int
+from jaxtyping import Array, ArrayLike, Bool, Int
 
 from gfjax.nn.sparse import keys as K
 
@@ -287,7 +287,7 @@ def _resolve_blocks(table, n_in, block, n_blocks):
     return plan_blocks(np.asarray(pairs_per_offset(table, n_in)), block=block)
 
 
-def submanifold_map(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], *, kernel_size: int = 3,
+def submanifold_map(coords: Int[ArrayLike, "n 4"], valid: Bool[ArrayLike, " n"], *, kernel_size: int = 3,
                     block: int | None = None, n_blocks: int | None = None) -> KernelMap:
     """Map of a submanifold convolution: outputs exactly at the input's voxels.
 

@@ -73,8 +73,8 @@ class Pyramid(eqx.Module):
       overflowed: bool scalar, some level or map did not fit its plan (plan again).
     """
 
-    coords: tuple[Int[Array, "n 4"], ...]
-    valid: tuple[Bool[Array, " n"], ...]
+    coords: tuple[Int[Array, "_ 4"], ...]       # each level its own row count
+    valid: tuple[Bool[Array, " _"], ...]
     stem: NeighbourTable
     submanifold: tuple[KernelMap, ...]
     down: tuple[KernelMap, ...]

@@ -66,7 +66,7 @@ class Voxelized(NamedTuple):
     overflowed: Bool[Array, ""]
 
 
-def voxelize(points: Float[ArrayLike, "n 3"], features: Float[ArrayLike, "n c"], batch_index: Int[ArrayLike, " n"],
+def voxelize(points: Float[ArrayLike, "n 3"], features: Float[ArrayLike, "n c"], batch_index: Int[ArrayLike, " n"] | int,
              voxel_m: float, *, valid: Bool[ArrayLike, " n"] | None = None, capacity: int | None = None,
              batch_size: int = 1) -> Voxelized:
     """Bin points into voxels of edge `voxel_m` and average their features per voxel.
