@@ -30,7 +30,8 @@ from gfjax.csf import stages
 from gfjax.csf.cloth import simulate
 from gfjax.csf.config import BUFFER_PX, CLOTH_START_M, Config, Params
 from gfjax.io.cloud import Cloud
-from gfjax.io.tiled import checked_options
+from gfjax.io import groups
+from gfjax.io.tiled import check_memory, checked_options
 from gfjax.result import Result
 
 __all__ = ["filter", "filter_points", "grid_shape", "Diagnostics", "CSFDiagnostics"]
@@ -132,19 +133,24 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
 
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points;
-      `diagnostics` a `CSFDiagnostics` (None for a cloud with no usable point).
+      `diagnostics` a `CSFDiagnostics` (None for a cloud with no usable point, and for one
+      whose groups of points far apart were moved together: `gfjax.io.groups`).
     """
     del progress
     config, params, use = checked_options(cloud, config, params, returns, config_type=Config,
-                                          params_type=Params, package="gfjax.csf")
+                                          params_type=Params, package="gfjax.csf", check_extent=False)
     if not use.any():
         return Result(ground=np.zeros(cloud.n_points, bool), diagnostics=None)
-    xyz_m = cloud.xyz_m
-    origin = xyz_m[use].min(axis=0)
-    local = (xyz_m - origin).astype(np.float32)
+    xyz_m, layout = groups.compacted(cloud.xyz_m[use])
+    check_memory(cloud.name, config, xyz_m[:, :2])
+    origin = xyz_m.min(axis=0)
+    local = np.zeros((cloud.n_points, 3), np.float32)
+    local[use] = xyz_m - origin
     shape = grid_shape(local, use, cell_m=config.cell_m)
     ground, diag = aot.call(filter_points, local, use, params, config=config, shape=shape)
     ground = np.asarray(ground) & use
+    if layout is not None:                  # the cloth lies under the moved groups: no map of the cloud
+        return Result(ground=ground, diagnostics=None)
     xy0 = origin[:2] - BUFFER_PX * config.cell_m
     return Result(ground=ground, diagnostics=CSFDiagnostics(
         cloth_z=origin[2] - np.asarray(diag.cloth_u, np.float64)[::-1],

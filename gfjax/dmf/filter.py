@@ -25,7 +25,8 @@ from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import extract, neighbours, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params
 from gfjax.io.cloud import Cloud
-from gfjax.io.tiled import checked_options
+from gfjax.io import groups
+from gfjax.io.tiled import check_memory, checked_options
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
 
@@ -85,7 +86,7 @@ class Diagnostics(NamedTuple):
 
 def _check(cloud, config, params, returns) -> tuple[Config, Params, np.ndarray]:
     return checked_options(cloud, config, params, returns, config_type=Config, params_type=Params,
-                           package="gfjax.dmf")
+                           package="gfjax.dmf", check_extent=False)
 
 
 def _round_up(n: int, q: int) -> int:
@@ -272,7 +273,8 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
       progress: show a progress bar over NGNEM tile batches.
 
     Returns:
-      `Result(ground, diagnostics, instance_id)`: ground bool `(n,)`; `Diagnostics`;
+      `Result(ground, diagnostics, instance_id)`: ground bool `(n,)`; `Diagnostics` (None
+      when groups of points far apart were moved together: `gfjax.io.groups`);
       instance_id uint32 `(n,)`: the object region (NGNEM_RC instance) of each non-ground
       point's cell, 0 for ground points and points outside every object region.
     """
@@ -283,6 +285,8 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     instance_all = np.zeros(n_all, np.uint32)
     if len(xyz) == 0:
         return Result(ground=ground_all, diagnostics=None, instance_id=instance_all)
+    xyz, layout = groups.compacted(xyz, max(groups.GAP_M, config.raster_buffer_m))
+    check_memory(cloud.name, config, xyz[:, :2])
     clock = [time.perf_counter()]
     seconds = {}
 
@@ -306,6 +310,8 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     lap("extract")
     ground_all[use] = ground
     instance_all[use] = instance
+    if layout is not None:                  # the rasters lie under the moved groups: no map of the cloud
+        return Result(ground=ground_all, diagnostics=None, instance_id=instance_all)
     diagnostics = Diagnostics(
         cell_m=cell_m, mean_nn_m=mean_nn, origin_m=origin, nd_ce=vox.centroid, basal_z=basal.z,
         in_ndng=in_ndng, ngnem=np.asarray(rs.ngnem), ngnem_valid=ngnem_valid, layer=np.asarray(rs.layer),

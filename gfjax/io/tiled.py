@@ -24,7 +24,7 @@ from gfjax.errors import InputError
 from gfjax.io import tiles as tiling
 from gfjax.io.cloud import Cloud
 
-__all__ = ["checked_options", "without_tiling", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
+__all__ = ["checked_options", "check_memory", "without_tiling", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
            "classify_cloud", "TiledRun"]
 
 ConfigT = TypeVar("ConfigT")
@@ -47,8 +47,8 @@ def without_tiling(config: ConfigT) -> ConfigT:
 
 
 def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None, returns: str, *,
-                    config_type: type[ConfigT], params_type: type[ParamsT],
-                    package: str) -> tuple[ConfigT, ParamsT, np.ndarray]:
+                    config_type: type[ConfigT], params_type: type[ParamsT], package: str,
+                    check_extent: bool = True) -> tuple[ConfigT, ParamsT, np.ndarray]:
     """The checks at the top of a method's `filter`: defaults, types, `params.check()`, returns.
 
     Args:
@@ -57,6 +57,8 @@ def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None
       returns: "all" or "last" (`Cloud.filter_mask`).
       config_type, params_type: the method's `Config` and `Params` classes.
       package: the method's package for messages, e.g. "gfjax.smrf".
+      check_extent: check the rasters over the used points' extent (`check_memory`); False for
+        a method that moves far groups together first (`gfjax.io.groups`) and checks after.
 
     Returns:
       `(config, params, use)`: `use` bool `(n,)`, the points to filter.
@@ -77,14 +79,24 @@ def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None
     try:
         params.check()
         use = cloud.filter_mask(returns)
-        estimates = getattr(config, "memory_estimates", None)
-        if estimates is not None and np.any(use):
-            xy = cloud.xyz_m[use, :2]
-            extent = xy.max(axis=0) - xy.min(axis=0)
-            limits.check_memory(estimates((float(extent[0]), float(extent[1]))))
     except ValueError as err:
         raise InputError(f"{cloud.name}: {err}") from None
+    if check_extent:
+        check_memory(cloud.name, config, cloud.xyz_m[use, :2])
     return config, params, use
+
+
+def check_memory(name: str, config: Any, xy_m: np.ndarray) -> None:
+    """Raise `InputError` naming `name` when `config.memory_estimates` (if it has one) puts the
+    rasters over points `xy_m` `(n, 2)` [m] over the memory budget (`gfjax.limits`)."""
+    estimates = getattr(config, "memory_estimates", None)
+    if estimates is None or len(xy_m) == 0:
+        return
+    extent = xy_m.max(axis=0) - xy_m.min(axis=0)
+    try:
+        limits.check_memory(estimates((float(extent[0]), float(extent[1]))))
+    except ValueError as err:
+        raise InputError(f"{name}: {err}") from None
 
 
 def run_batches(tiles: Sequence[tiling.Tile], classify_batch: ClassifyBatch, params: Any, config: Any, *,

@@ -36,9 +36,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gfjax import limits
 from gfjax.errors import InputError
+from gfjax.io import groups
 from gfjax.io.cloud import Cloud
+from gfjax.io.tiled import check_memory
 from gfjax.masf import alpha_shape, densify as densify_mod, preprocess, tin
 from gfjax.masf.config import Config, Params
 from gfjax.result import Result
@@ -145,7 +146,8 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
 
     Returns:
       `Result(ground, diagnostics)`: bool `(n,)` over the whole cloud (unused points False) and
-      a `MASFDiagnostics` whose `potential_ground` indexes the whole cloud.
+      a `MASFDiagnostics` whose `potential_ground` indexes the whole cloud (None when groups of
+      points far apart were moved together: `gfjax.io.groups`).
 
     Raises:
       InputError: a bad `returns`, `params` out of range, naming the option, or a grid over
@@ -163,15 +165,12 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     except ValueError as err:
         raise InputError(f"{cloud.name}: masf params: {err}") from None
     used_index = np.flatnonzero(used)
-    if used_index.size:
-        xy = cloud.xyz_m[used_index, :2]
-        extent = xy.max(axis=0) - xy.min(axis=0)
-        try:                                    # the grid over the cloud fits the memory budget
-            limits.check_memory(config.memory_estimates((float(extent[0]), float(extent[1]))))
-        except ValueError as err:
-            raise InputError(f"{cloud.name}: {err}") from None
-    ground_used, diagnostics = filter_points(cloud.xyz_m[used_index], config, params)
+    xyz, layout = groups.compacted(cloud.xyz_m[used_index], max(groups.GAP_M, 2 * config.alpha_max_m))
+    check_memory(cloud.name, config, xyz[:, :2])
+    ground_used, diagnostics = filter_points(xyz, config, params)
     ground = np.zeros(cloud.n_points, dtype=bool)
     ground[used_index] = ground_used
+    if layout is not None:                  # the grids lie under the moved groups: no map of the cloud
+        return Result(ground=ground, diagnostics=None)
     diagnostics = diagnostics._replace(potential_ground=used_index[diagnostics.potential_ground])
     return Result(ground=ground, diagnostics=diagnostics)
