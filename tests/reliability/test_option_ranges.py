@@ -190,13 +190,29 @@ def test_whole_cloud_raster_over_the_budget_is_found_from_the_header(tmp_path, c
     assert sorted(os.listdir(tmp_path)) == ["far.las"]
 
 
-def test_csf_cloth_over_the_budget_is_found_from_the_header(tmp_path, capsys, monkeypatch):
+def test_csf_cloth_over_two_points_far_apart_is_laid_out_small(tmp_path, capsys, monkeypatch):
+    """Two points 50 km apart are two groups moved together (`gfjax.io.groups`): the header's
+    box says nothing of the cloth, so it is not refused before reading."""
     las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
     las.x, las.y, las.z = np.array([0.0, 50_000.0]), np.array([0.0, 50_000.0]), np.array([0.0, 1.0])
     las.write(tmp_path / "far.las")
     monkeypatch.setenv(limits.BUDGET_ENV, "1")
-    code, _, err = run_cli(capsys, "filter", tmp_path / "far.las", "-o", tmp_path / "out.laz", "--method", "csf")
-    assert code == 2 and "a cloth of 50,005 x 50,005 particles (extent / cell_m)" in error_line(err)
+    code, _, err = run_cli(capsys, "filter", tmp_path / "far.las", "-o", tmp_path / "out.las", "--method", "csf")
+    assert code == 0, err
+    assert np.array_equal(laspy.read(tmp_path / "out.las").classification, [2, 2])
+
+
+@pytest.mark.parametrize("method, what", [("csf", "a cloth of 49,9"), ("masf", "a grid of 49,9"),
+                                          ("dmf", "the whole-cloud rasters of 49,9")])
+def test_one_group_over_the_budget_is_refused_after_reading(method, what, tmp_path, capsys, monkeypatch):
+    las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
+    steps = np.arange(0.0, 50_000.0, 50.0)                           # a chain of points 50 m apart
+    las.x, las.y, las.z = steps, steps, np.zeros_like(steps)
+    las.write(tmp_path / "line.las")
+    monkeypatch.setenv(limits.BUDGET_ENV, "1")
+    code, _, err = run_cli(capsys, "filter", tmp_path / "line.las", "-o", tmp_path / "out.laz", "--method", method)
+    assert code == 2 and what in error_line(err) and "memory budget of 1.0 GiB" in error_line(err)
+    assert sorted(os.listdir(tmp_path)) == ["line.las"]
 
 
 def test_dtm_command_grid_over_the_budget_exits_2_before_reading(scene, tmp_path, capsys, monkeypatch):
