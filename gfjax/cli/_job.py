@@ -93,10 +93,11 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
         were checked by `check_outputs` already.
       units: the `--units` override, or None (the CRS decides).
       trust_data: `--trust-data` (a header whose point count disagrees with the data passes).
-      config: the method's Config; its `memory_estimates(extent_m)` (when it has one) is
-        checked against the memory budget for each file, over the header's box unless the
-        method moves far groups of points together (`moves_far_groups`: the box says nothing
-        of its rasters then; the method checks them after reading).
+      config: the method's Config; its `memory_estimates()` (when it has one: the rasters its
+        settings fix, such as a batch of tiles) are checked against the memory budget. Those
+        over a cloud's extent are not: every method first moves groups of points far apart
+        side by side (`gfjax.io.tiled.laid_out`), so the header's box says little of them;
+        the method checks them once it has read the points, before anything is written.
       dtm_cell_m: the DTM cell [m] when a DTM is written, else None.
       extra_bytes_per_point: bytes each output point gains (`--instances`: 4).
 
@@ -118,7 +119,7 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
         extent = _extent_m(header, found.units.horizontal_m)
         try:
             if estimates is not None:
-                limits.check_memory(estimates(None if getattr(config, "moves_far_groups", False) else extent))
+                limits.check_memory(estimates())
             if dtm_cell_m is not None:
                 limits.check_memory([dtm_lib.memory_estimate(extent, dtm_cell_m)])
         except ValueError as err:

@@ -8,7 +8,6 @@ here, with the source line they come from.
 from __future__ import annotations
 
 import dataclasses
-from typing import ClassVar
 
 from jaxtyping import Array, Float
 
@@ -74,8 +73,6 @@ class Config:
         largest movable-particle displacement of a step is in (0, 0.005) m, as the package does.
       slope_smooth: post-process movable particles next to fixed ones (`bSloopSmooth`).
     """
-
-    moves_far_groups: ClassVar[bool] = True     # gfjax.io.groups: the extent of the whole box is no measure
 
     cell_m: float = 1.0
     rigidness: int = 3

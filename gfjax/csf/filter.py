@@ -31,7 +31,7 @@ from gfjax.csf.cloth import simulate
 from gfjax.csf.config import BUFFER_PX, CLOTH_START_M, Config, Params
 from gfjax.io.cloud import Cloud
 from gfjax.io import groups
-from gfjax.io.tiled import check_memory, checked_options
+from gfjax.io.tiled import checked_options, laid_out
 from gfjax.result import Result
 
 __all__ = ["filter", "filter_points", "grid_shape", "Diagnostics", "CSFDiagnostics"]
@@ -138,14 +138,12 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     """
     del progress
     config, params, use = checked_options(cloud, config, params, returns, config_type=Config,
-                                          params_type=Params, package="gfjax.csf", check_extent=False)
+                                          params_type=Params, package="gfjax.csf")
     if not use.any():
         return Result(ground=np.zeros(cloud.n_points, bool), diagnostics=None)
-    xyz_m, layout = groups.compacted(cloud.xyz_m[use])
-    check_memory(cloud.name, config, xyz_m[:, :2])
-    origin = xyz_m.min(axis=0)
-    local = np.zeros((cloud.n_points, 3), np.float32)
-    local[use] = xyz_m - origin
+    xyz_m, layout = laid_out(cloud, use, config, gap_m=groups.GAP_M)
+    origin = xyz_m[use].min(axis=0)
+    local = (xyz_m - origin).astype(np.float32)
     shape = grid_shape(local, use, cell_m=config.cell_m)
     ground, diag = aot.call(filter_points, local, use, params, config=config, shape=shape)
     ground = np.asarray(ground) & use

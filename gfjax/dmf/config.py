@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import ClassVar
 
 import numpy as np
 from jaxtyping import Array, Float
@@ -114,8 +113,6 @@ class Config:
 
     v0: float = 2.0
     v1: float = 2.0
-    moves_far_groups: ClassVar[bool] = True     # gfjax.io.groups: the extent of the whole box is no measure
-
     voxel_m: float | None = None
     sample_fraction: float = 0.01
     sample_min: int = 1000

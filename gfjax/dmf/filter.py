@@ -26,7 +26,7 @@ from gfjax.dmf import extract, neighbours, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params
 from gfjax.io.cloud import Cloud
 from gfjax.io import groups
-from gfjax.io.tiled import check_memory, checked_options
+from gfjax.io.tiled import checked_options, laid_out
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
 
@@ -86,7 +86,7 @@ class Diagnostics(NamedTuple):
 
 def _check(cloud, config, params, returns) -> tuple[Config, Params, np.ndarray]:
     return checked_options(cloud, config, params, returns, config_type=Config, params_type=Params,
-                           package="gfjax.dmf", check_extent=False)
+                           package="gfjax.dmf")
 
 
 def _round_up(n: int, q: int) -> int:
@@ -280,13 +280,12 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     """
     config, params, use = _check(cloud, config, params, returns)
     n_all = cloud.n_points
-    xyz = cloud.xyz_m if use.all() else cloud.xyz_m[use]          # no 20 MB copy when every point is used
     ground_all = np.zeros(n_all, bool)
     instance_all = np.zeros(n_all, np.uint32)
-    if len(xyz) == 0:
+    if not use.any():
         return Result(ground=ground_all, diagnostics=None, instance_id=instance_all)
-    xyz, layout = groups.compacted(xyz, max(groups.GAP_M, config.raster_buffer_m))
-    check_memory(cloud.name, config, xyz[:, :2])
+    xyz, layout = laid_out(cloud, use, config, gap_m=max(groups.GAP_M, config.raster_buffer_m))
+    xyz = xyz if use.all() else xyz[use]          # no 20 MB copy when every point is used
     clock = [time.perf_counter()]
     seconds = {}
 

@@ -53,19 +53,67 @@ class Layout(NamedTuple):
         return out
 
 
-def _occupied_cells(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """`(keys of the occupied cells (m,) sorted, cell row of each point (n,), rows of the key
-    grid)` for cell indices `(n, 2)` >= 0. Keys are `(i + 1) * rows + j + 1`, so every
-    neighbour of an occupied cell has a key of its own."""
-    rows = int(cells[:, 1].max()) + 3
-    key = (cells[:, 0] + 1) * rows + (cells[:, 1] + 1)
-    n_keys = (int(cells[:, 0].max()) + 3) * rows
-    if n_keys <= max(_DENSE_CELLS, 4 * len(cells)):
+class _Cells(NamedTuple):
+    """The occupied `gap_m` cells of some points: `span` `(2,)` cells of the points' box,
+    `keys` `(m,)` the occupied cells' sorted keys, `point_key` `(n,)` each point's, `rank`
+    (a dense box only) the row of each key in `keys`, and `rows` the key grid's rows
+    (`key = (i + 1) * rows + j + 1`, so each neighbour has a key of its own)."""
+
+    span: np.ndarray
+    keys: np.ndarray
+    point_key: np.ndarray
+    rank: np.ndarray | None
+    rows: int
+
+    @property
+    def ij(self) -> np.ndarray:
+        """`(m, 2)` int64 indices of the occupied cells."""
+        return np.stack([self.keys // self.rows - 1, self.keys % self.rows - 1], axis=1)
+
+    def point_cell(self) -> np.ndarray:
+        """`(n,)` each point's row of `keys`."""
+        if self.rank is not None:
+            return self.rank[self.point_key]
+        return np.searchsorted(self.keys, self.point_key)
+
+
+def _cells(xy_m: np.ndarray, gap_m: float) -> _Cells:
+    cells = np.floor((xy_m - xy_m.min(axis=0)) * (1.0 / gap_m)).astype(np.int64)
+    span = cells.max(axis=0) + 1
+    rows = int(span[1]) + 2
+    key = cells[:, 0]
+    key += 1
+    key *= rows
+    key += cells[:, 1] + 1
+    n_keys = (int(span[0]) + 2) * rows
+    if n_keys <= max(_DENSE_CELLS, 4 * len(key)):            # O(n): a count per cell of the box
         hit = np.bincount(key, minlength=n_keys) > 0
+        keys = np.flatnonzero(hit)
         rank = np.cumsum(hit) - 1
-        return np.flatnonzero(hit), rank[key].astype(np.int64), rows
-    occupied, inverse = np.unique(key, return_inverse=True)
-    return occupied, inverse.reshape(-1), rows
+        return _Cells(span, keys, key, rank, rows)
+    return _Cells(span, np.unique(key), key, None, rows)     # a sparse box: sort the keys
+
+
+def _components(cells: _Cells) -> tuple[np.ndarray, int]:
+    """`(group of each occupied cell (m,), number of groups)`, groups by decreasing point count."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    keys, m = cells.keys, len(cells.keys)
+    edges_from, edges_to = [], []
+    for step in (1, cells.rows - 1, cells.rows, cells.rows + 1):      # north, and the three cells to the east
+        at = np.searchsorted(keys, keys + step)
+        found = at < m
+        found[found] = keys[at[found]] == keys[found] + step
+        edges_from.append(np.flatnonzero(found))
+        edges_to.append(at[found])
+    a, b = np.concatenate(edges_from), np.concatenate(edges_to)
+    graph = coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(m, m))
+    n_groups, cell_group = connected_components(graph, directed=False)
+    points = np.bincount(cell_group[cells.point_cell()], minlength=n_groups)
+    rename = np.empty(n_groups, np.int32)
+    rename[np.argsort(-points, kind="stable")] = np.arange(n_groups, dtype=np.int32)
+    return rename[cell_group], int(n_groups)
 
 
 def separate(xy_m: Float[np.ndarray, "n 2"], gap_m: float) -> tuple[Int[np.ndarray, " n"], int]:
@@ -75,29 +123,12 @@ def separate(xy_m: Float[np.ndarray, "n 2"], gap_m: float) -> tuple[Int[np.ndarr
     them; points of different groups are at least `gap_m` apart. Groups are numbered by
     decreasing point count.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     xy_m = np.asarray(xy_m, np.float64)
     if len(xy_m) == 0:
         return np.zeros(0, np.int32), 0
-    cells = np.floor((xy_m - xy_m.min(axis=0)) / gap_m).astype(np.int64)
-    occupied, point_cell, rows = _occupied_cells(cells)
-    edges_from, edges_to = [], []
-    for step in (1, rows - 1, rows, rows + 1):      # north, and the three cells to the east
-        at = np.searchsorted(occupied, occupied + step)
-        found = at < len(occupied)
-        found[found] = occupied[at[found]] == occupied[found] + step
-        edges_from.append(np.flatnonzero(found))
-        edges_to.append(at[found])
-    a, b = np.concatenate(edges_from), np.concatenate(edges_to)
-    graph = coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(len(occupied), len(occupied)))
-    n_groups, cell_group = connected_components(graph, directed=False)
-    group = cell_group[point_cell]
-    by_size = np.argsort(-np.bincount(group, minlength=n_groups), kind="stable")
-    rename = np.empty(n_groups, np.int32)
-    rename[by_size] = np.arange(n_groups, dtype=np.int32)
-    return rename[group], int(n_groups)
+    cells = _cells(xy_m, gap_m)
+    cell_group, n_groups = _components(cells)
+    return cell_group[cells.point_cell()], n_groups
 
 
 def compact(xy_m: Float[np.ndarray, "n 2"], gap_m: float = GAP_M, *,
@@ -113,18 +144,18 @@ def compact(xy_m: Float[np.ndarray, "n 2"], gap_m: float = GAP_M, *,
     xy_m = np.asarray(xy_m, np.float64)
     if len(xy_m) == 0:
         return None
-    lo = xy_m.min(axis=0)
-    span_cells = np.floor((xy_m.max(axis=0) - lo) / gap_m) + 1
-    if span_cells[0] * span_cells[1] < min_saving:
-        return None                                  # the whole box is a few cells: nothing to win
-    group, n_groups = separate(xy_m, gap_m)
+    cells = _cells(xy_m, gap_m)
+    box = float(cells.span[0]) * float(cells.span[1])
+    if len(cells.keys) * min_saving > box:
+        return None                                  # the points fill their box: no layout is smaller
+    cell_group, n_groups = _components(cells)
     if n_groups == 1:
         return None
-    cells = np.floor((xy_m - lo) / gap_m).astype(np.int64)
     first = np.full((n_groups, 2), np.iinfo(np.int64).max)
     last = np.full((n_groups, 2), -1, np.int64)
-    np.minimum.at(first, group, cells)
-    np.maximum.at(last, group, cells)
+    ij = cells.ij
+    np.minimum.at(first, cell_group, ij)
+    np.maximum.at(last, cell_group, ij)
     size = last - first + 1                          # (g, 2) cells
 
     # shelves east of group 0: x from its last column + 2, y from its first row + 1
@@ -143,13 +174,25 @@ def compact(xy_m: Float[np.ndarray, "n 2"], gap_m: float = GAP_M, *,
         shelf = max(shelf, h)
     new_last = origin + size - 1
     packed = (new_last.max(axis=0) - np.minimum(origin.min(axis=0), first[0]) + 1).astype(np.float64)
-    if packed[0] * packed[1] * min_saving > span_cells[0] * span_cells[1]:
+    if packed[0] * packed[1] * min_saving > box:
         return None
+    group = cell_group[cells.point_cell()]
     return Layout(group=group, shift_m=(origin - first).astype(np.float64) * gap_m, gap_m=float(gap_m))
 
 
-def compacted(xyz_m: Float[np.ndarray, "n 3"], gap_m: float = GAP_M) -> tuple[Float[np.ndarray, "n 3"], Layout | None]:
-    """`(the points (n, 3) [m] with their far groups moved together, the layout)`, or
-    `(xyz_m, None)` when `compact` finds nothing to win."""
-    layout = compact(np.asarray(xyz_m)[:, :2], gap_m)
-    return (xyz_m, None) if layout is None else (layout.apply(xyz_m), layout)
+def compacted(xyz_m: Float[np.ndarray, "n 3"], gap_m: float = GAP_M, *,
+              use: np.ndarray | None = None) -> tuple[Float[np.ndarray, "n 3"], Layout | None]:
+    """`(the points (n, 3) [m] with the far groups of the used ones moved together, the
+    layout)` (`use` `(n,)` bool: the points that count, default all; the others stay), or
+    `(xyz_m, None)`, the same array, when `compact` finds nothing to win. The layout's
+    `group` indexes the used points."""
+    xyz_m = np.asarray(xyz_m)
+    used = xyz_m if use is None else xyz_m[use]
+    layout = compact(used[:, :2], gap_m)
+    if layout is None:
+        return xyz_m, None
+    if use is None:
+        return layout.apply(xyz_m), layout
+    out = np.array(xyz_m, np.float64)
+    out[use] = layout.apply(used)
+    return out, layout

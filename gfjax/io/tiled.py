@@ -21,10 +21,11 @@ from jaxtyping import Array, Bool, Float
 
 from gfjax import limits
 from gfjax.errors import InputError
+from gfjax.io import groups
 from gfjax.io import tiles as tiling
 from gfjax.io.cloud import Cloud
 
-__all__ = ["checked_options", "check_memory", "without_tiling", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
+__all__ = ["checked_options", "check_memory", "laid_out", "without_tiling", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
            "classify_cloud", "TiledRun"]
 
 ConfigT = TypeVar("ConfigT")
@@ -47,8 +48,8 @@ def without_tiling(config: ConfigT) -> ConfigT:
 
 
 def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None, returns: str, *,
-                    config_type: type[ConfigT], params_type: type[ParamsT], package: str,
-                    check_extent: bool = True) -> tuple[ConfigT, ParamsT, np.ndarray]:
+                    config_type: type[ConfigT], params_type: type[ParamsT],
+                    package: str) -> tuple[ConfigT, ParamsT, np.ndarray]:
     """The checks at the top of a method's `filter`: defaults, types, `params.check()`, returns.
 
     Args:
@@ -57,16 +58,14 @@ def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None
       returns: "all" or "last" (`Cloud.filter_mask`).
       config_type, params_type: the method's `Config` and `Params` classes.
       package: the method's package for messages, e.g. "gfjax.smrf".
-      check_extent: check the rasters over the used points' extent (`check_memory`); False for
-        a method that moves far groups together first (`gfjax.io.groups`) and checks after.
 
     Returns:
       `(config, params, use)`: `use` bool `(n,)`, the points to filter.
 
     Raises:
       InputError: not a cloud, a config or params of the wrong type, a params out of range (the message
-        names the cloud), a bad `returns`, or rasters that `config.memory_estimates` puts over
-        the memory budget (`gfjax.limits`) for this cloud's extent.
+        names the cloud), a bad `returns`. The rasters are checked against the memory budget
+        once the points are laid out (`laid_out`).
     """
     if not all(hasattr(cloud, view) for view in CLOUD_VIEWS):
         raise InputError(f"{package}.filter: expected a gfjax Cloud (or survey.Points), got {type(cloud).__name__}")
@@ -81,9 +80,18 @@ def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None
         use = cloud.filter_mask(returns)
     except ValueError as err:
         raise InputError(f"{cloud.name}: {err}") from None
-    if check_extent:
-        check_memory(cloud.name, config, cloud.xyz_m[use, :2])
     return config, params, use
+
+
+def laid_out(cloud: Cloud, use: np.ndarray, config: Any, *, gap_m: float,
+             keep_frame: bool = False) -> tuple[np.ndarray, groups.Layout | None]:
+    """`(coordinates (n, 3) [m], layout)`: `cloud.xyz_m` with the used points' groups that lie
+    `gap_m` or more apart moved side by side (`gfjax.io.groups`; layout None, the cloud's own
+    array, when that wins nothing or `keep_frame`: a tiled method on a survey's frame), then
+    the rasters over the used points checked against the memory budget (`check_memory`)."""
+    xyz_m, layout = (cloud.xyz_m, None) if keep_frame else groups.compacted(cloud.xyz_m, gap_m, use=use)
+    check_memory(cloud.name, config, xyz_m[use, :2])
+    return xyz_m, layout
 
 
 def check_memory(name: str, config: Any, xy_m: np.ndarray) -> None:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import ClassVar
 
 import numpy as np
 from jaxtyping import Array, Float
@@ -87,8 +86,6 @@ class Config:
         in general position, `experiments/masf_isprs.py` counts the differences on ties).
       empty_tol_m: tolerance of the empty-sphere test along the dual Voronoi edge [m].
     """
-
-    moves_far_groups: ClassVar[bool] = True     # gfjax.io.groups: the extent of the whole box is no measure
 
     grid_m: float = 1.0
     alpha_max_m: float = 20.0

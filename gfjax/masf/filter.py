@@ -39,7 +39,7 @@ import numpy as np
 from gfjax.errors import InputError
 from gfjax.io import groups
 from gfjax.io.cloud import Cloud
-from gfjax.io.tiled import check_memory
+from gfjax.io.tiled import laid_out
 from gfjax.masf import alpha_shape, densify as densify_mod, preprocess, tin
 from gfjax.masf.config import Config, Params
 from gfjax.result import Result
@@ -165,9 +165,8 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     except ValueError as err:
         raise InputError(f"{cloud.name}: masf params: {err}") from None
     used_index = np.flatnonzero(used)
-    xyz, layout = groups.compacted(cloud.xyz_m[used_index], max(groups.GAP_M, 2 * config.alpha_max_m))
-    check_memory(cloud.name, config, xyz[:, :2])
-    ground_used, diagnostics = filter_points(xyz, config, params)
+    xyz, layout = laid_out(cloud, used, config, gap_m=max(groups.GAP_M, 2 * config.alpha_max_m))
+    ground_used, diagnostics = filter_points(xyz[used_index], config, params)
     ground = np.zeros(cloud.n_points, dtype=bool)
     ground[used_index] = ground_used
     if layout is not None:                  # the grids lie under the moved groups: no map of the cloud

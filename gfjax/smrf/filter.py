@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gfjax.io import tiled
+from gfjax.io import groups, tiled
 from gfjax.io.cloud import Cloud
 from gfjax.result import Result
 from gfjax.smrf import programs
@@ -68,14 +68,16 @@ def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None 
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points (noise,
       withheld, and non-last returns with `returns="last"`); `diagnostics` an
-      `SMRFDiagnostics` (None for a cloud with no usable point).
+      `SMRFDiagnostics` (None for a cloud with no usable point, and for one whose groups of
+      points far apart were moved side by side: `gfjax.io.tiled.laid_out`).
     """
     config, params, use = tiled.checked_options(cloud, config, params, returns, config_type=Config,
                                                 params_type=Params, package="gfjax.smrf")
-    run = tiled.classify_cloud(cloud.xyz_m, use, programs.classify_batch, params, config, max_batch=MAX_BATCH,
-                               frame=cloud.frame,
-                               progress=progress, desc="smrf tiles")
-    if not run.tiles:
+    xyz_m, layout = tiled.laid_out(cloud, use, config, gap_m=max(groups.GAP_M, config.buffer_m),
+                                   keep_frame=cloud.frame is not None)
+    run = tiled.classify_cloud(xyz_m, use, programs.classify_batch, params, config, max_batch=MAX_BATCH,
+                               frame=cloud.frame, progress=progress, desc="smrf tiles")
+    if not run.tiles or layout is not None:     # moved groups: the rasters would map the layout, not the cloud
         return Result(ground=run.ground, diagnostics=None)
     cores = tiled.mosaic(run.tiles, run.diagnostics, names=_RASTERS, heights=("zimin", "zipro"),
                          cell_m=config.cell_m)

@@ -1,9 +1,10 @@
 """A stray point kilometres from the others must not cost memory for the empty box between
-them: SMRF's and PMF's tiles skip empty ground and their whole-cloud diagnostic rasters only
-touch the pages of the tiles' cores; CSF, DMF and MASF move far groups of points together
-(`gfjax.io.groups`)."""
+them: every method moves groups of points far apart side by side (`gfjax.io.groups`), and
+where it cannot (SMRF and PMF on a survey's frame) the tiles skip empty ground and the
+whole-cloud diagnostic rasters only touch the pages of the tiles' cores."""
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -14,12 +15,13 @@ import pytest
 from gfjax import csf, dmf, masf, pmf, smrf
 from gfjax.io import groups
 from gfjax.io.cloud import Cloud
+from gfjax.io.tiles import Frame
 
 REPO = Path(__file__).resolve().parents[2]
 
 _PROGRAM = r"""
 import resource, sys
-import importlib
+import dataclasses, importlib
 import numpy as np, gfjax
 method = importlib.import_module("gfjax." + sys.argv[2])
 rng = np.random.default_rng(0)
@@ -27,30 +29,33 @@ xy = rng.uniform(0, 140, (20000, 2))
 if sys.argv[1] == "outlier":
     xy = np.vstack([xy, [[10_000.0, 10_000.0]]])
 cloud = gfjax.Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], 100 + rng.normal(0, 0.1, len(xy))]))
+if sys.argv[3] == "frame":                    # a survey's frame: SMRF's lattice may not move
+    from gfjax.io.tiles import Frame
+    cloud = dataclasses.replace(cloud, frame=Frame.of(cloud.xyz_m))
 result = method.filter(cloud)
-rows = result.diagnostics.zimin.shape[0] if sys.argv[2] == "smrf" else 0
+rows = result.diagnostics.zimin.shape[0] if sys.argv[3] == "frame" else 0
 print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, rows, int(result.ground.sum()))
 """
 
 
-def _peak(kind: str, method: str) -> tuple[int, int, int]:
-    done = subprocess.run([sys.executable, "-c", _PROGRAM, kind, method], capture_output=True, text=True, cwd=REPO,
+def _peak(kind: str, method: str, frame: str) -> tuple[int, int, int]:
+    done = subprocess.run([sys.executable, "-c", _PROGRAM, kind, method, frame], capture_output=True, text=True, cwd=REPO,
                           timeout=600, env={"GFJAX_CACHE": "0", "PATH": "/usr/bin:/bin"})
     assert done.returncode == 0, done.stderr
     return tuple(map(int, done.stdout.split()))
 
 
-@pytest.mark.parametrize("method", ["smrf", "csf"])
-def test_a_point_10_km_away_adds_no_memory_for_the_empty_box(method):
-    alone_kib, _, alone_ground = _peak("none", method)
-    far_kib, rows, ground = _peak("outlier", method)
-    if method == "smrf":
+@pytest.mark.parametrize("method, frame", [("smrf", "frame"), ("csf", "own")])
+def test_a_point_10_km_away_adds_no_memory_for_the_empty_box(method, frame):
+    alone_kib, _, alone_ground = _peak("none", method, frame)
+    far_kib, rows, ground = _peak("outlier", method, frame)
+    if frame == "frame":
         assert rows >= 10_000                        # the rasters do span the 10 km box ...
     assert far_kib - alone_kib < 500 * 1024          # ... but one at float64 would be 0.8 GB, six 4.8 GB
     assert ground >= alone_ground > 19_000           # (CSF's cloth over the box asked for 1.2 TB)
 
 
-@pytest.mark.parametrize("method", [csf, dmf, masf], ids=["csf", "dmf", "masf"])
+@pytest.mark.parametrize("method", [csf, dmf, masf, smrf, pmf], ids=["csf", "dmf", "masf", "smrf", "pmf"])
 def test_far_points_leave_the_labels_of_the_others_as_they_are_alone(method):
     rng = np.random.default_rng(0)
     xy = rng.uniform(0, 90, (8000, 2))
@@ -73,8 +78,10 @@ def test_cells_of_no_core_are_zero_and_cores_keep_their_heights(method):
     rng = np.random.default_rng(3)
     xy = np.vstack([rng.uniform(0, 60, (3000, 2)), rng.uniform(0, 60, (3000, 2)) + 1500.0])
     z = 200 + 0.01 * xy[:, 0]
-    result = method.filter(Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], z])))
-    zimin = result.diagnostics.zimin
+    cloud = Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], z]))
+    assert method.filter(cloud).diagnostics is None                     # moved side by side: no map
+    on_frame = dataclasses.replace(cloud, frame=Frame.of(cloud.xyz_m))  # a survey's: the lattice stays
+    zimin = method.filter(on_frame).diagnostics.zimin
     assert zimin.shape[0] > 1500 and zimin.shape[1] > 1500
     middle = zimin[zimin.shape[0] // 2 - 100:zimin.shape[0] // 2 + 100, 700:800]
     assert np.all(middle == 0)                        # between the two groups: no tile, no data

@@ -173,37 +173,23 @@ def test_smaller_tiles_bring_the_same_cell_within_the_budget(tmp_path, monkeypat
     assert config.tile_size_m == 50.0
 
 
-def test_whole_cloud_raster_over_the_budget_is_found_from_the_header(tmp_path, capsys, monkeypatch):
-    las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
-    las.header.scales = np.array([0.01, 0.01, 0.01])
-    las.x = np.array([0.0, 100_000.0])                               # two points 100 km apart
-    las.y = np.array([0.0, 100_000.0])
-    las.z = np.array([0.0, 1.0])
-    las.write(tmp_path / "far.las")
-    monkeypatch.setenv(limits.BUDGET_ENV, "4")
-    monkeypatch.setattr(las_io, "read", lambda *a, **k: pytest.fail("points read before the extent check"))
-    code, _, err = run_cli(capsys, "filter", tmp_path / "far.las", "-o", tmp_path / "out.laz", "--method", "smrf")
-    assert code == 2
-    line = error_line(err)
-    assert f"{tmp_path / 'far.las'}: the whole-cloud rasters of 100,001 x 100,001 cells (extent / cell_m)" in line
-    assert "memory budget of 4.0 GiB" in line
-    assert sorted(os.listdir(tmp_path)) == ["far.las"]
-
-
-def test_csf_cloth_over_two_points_far_apart_is_laid_out_small(tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("method", ["csf", "smrf"])
+def test_two_points_far_apart_are_laid_out_small(method, tmp_path, capsys, monkeypatch):
     """Two points 50 km apart are two groups moved together (`gfjax.io.groups`): the header's
-    box says nothing of the cloth, so it is not refused before reading."""
+    box says nothing of the rasters, so it is not refused before reading."""
     las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
     las.x, las.y, las.z = np.array([0.0, 50_000.0]), np.array([0.0, 50_000.0]), np.array([0.0, 1.0])
     las.write(tmp_path / "far.las")
     monkeypatch.setenv(limits.BUDGET_ENV, "1")
-    code, _, err = run_cli(capsys, "filter", tmp_path / "far.las", "-o", tmp_path / "out.las", "--method", "csf")
+    code, _, err = run_cli(capsys, "filter", tmp_path / "far.las", "-o", tmp_path / "out.las", "--method", method)
     assert code == 0, err
     assert np.array_equal(laspy.read(tmp_path / "out.las").classification, [2, 2])
 
 
 @pytest.mark.parametrize("method, what", [("csf", "a cloth of 49,9"), ("masf", "a grid of 49,9"),
-                                          ("dmf", "the whole-cloud rasters of 49,9")])
+                                          ("dmf", "the whole-cloud rasters of 49,9"),
+                                          ("smrf", "the whole-cloud rasters of 49,9"),
+                                          ("pmf", "the whole-cloud rasters of 49,9")])
 def test_one_group_over_the_budget_is_refused_after_reading(method, what, tmp_path, capsys, monkeypatch):
     las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
     steps = np.arange(0.0, 50_000.0, 50.0)                           # a chain of points 50 m apart
@@ -289,8 +275,9 @@ def test_python_api_filter_checks_the_budget_for_the_cloud_it_is_given(monkeypat
     from gfjax.io.cloud import Cloud
 
     monkeypatch.setenv(limits.BUDGET_ENV, "1")
-    cloud = Cloud.from_xyz(np.array([[0.0, 0.0, 0.0], [200_000.0, 200_000.0, 1.0]]))
-    with pytest.raises(InputError, match=r"the whole-cloud rasters of 200,001 x 200,001 cells .* memory budget"):
+    steps = np.arange(0.0, 200_000.0, 50.0)                          # one group: a chain 50 m apart
+    cloud = Cloud.from_xyz(np.column_stack([steps, steps, np.zeros_like(steps)]))
+    with pytest.raises(InputError, match=r"the whole-cloud rasters of 199,9\d\d x 199,9\d\d cells .* memory budget"):
         smrf.filter(cloud)
 
 
