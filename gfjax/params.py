@@ -23,8 +23,8 @@ from gfjax import limits
 __all__ = ["Params", "f32", "param"]
 
 
-def f32(value) -> Float[Array, ""]:
-    """`value` as a float32 JAX array."""
+def f32(value) -> Float[Array, "*batch"]:
+    """`value` as a float32 JAX array: a scalar, or a batch of them to `vmap` over."""
     return jnp.asarray(value, dtype=jnp.float32)
 
 

@@ -29,7 +29,7 @@ from gfjax._types import Mask, PointMask, Points, Raster
 from gfjax.csf import stages
 from gfjax.csf.cloth import simulate
 from gfjax.csf.config import BUFFER_PX, CLOTH_START_M, Config, Params
-from gfjax.io.cloud import Cloud
+from gfjax.io.cloud import CloudView
 from gfjax.io import groups
 from gfjax.io.tiled import checked_options, laid_out
 from gfjax.result import Result
@@ -119,7 +119,7 @@ def filter_points(xyz: Points, valid: PointMask, params: Params, *, config: Conf
     return ground, Diagnostics(cloth_u, surface, movable, exists, state.steps)
 
 
-def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None = None,
+def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False) -> Result:  # noqa: A001 (the package API name)
     """Classify a cloud's ground points with CSF (Zhang et al. 2016).
 

@@ -17,7 +17,7 @@ import dataclasses
 import math
 
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from gfjax import limits, params
 from gfjax.errors import SettingError
@@ -200,7 +200,7 @@ class Params(params.Params):
     height_threshold_m: Float[Array, ""] = param(0.0)
     height_threshold_w: Float[Array, ""] = param(0.15)
 
-    def threshold_m(self, cell_m: float) -> Float[Array, ""]:
+    def threshold_m(self, cell_m: float) -> Float[ArrayLike, ""]:
         """The largest height of a ground point above the support surface for voxel size
         `cell_m` = W [m]: `height_threshold_m + height_threshold_w * W`, float32 [m]."""
         return self.height_threshold_m + self.height_threshold_w * np.float32(cell_m)

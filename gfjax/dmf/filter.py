@@ -24,7 +24,7 @@ from gfjax import aot
 from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import extract, neighbours, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params
-from gfjax.io.cloud import Cloud
+from gfjax.io.cloud import CloudView
 from gfjax.io import groups
 from gfjax.io.tiled import checked_options, laid_out
 from gfjax.raster import label_components, relabel_consecutive
@@ -262,7 +262,7 @@ def _layers(vox: voxels.Voxels, cell_m: float, config: Config, worker, lap, prog
     return in_ndng, basal._replace(z=basal_z), rs, v_r.reshape(h, w), table.overflowed
 
 
-def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None = None,  # noqa: A001
+def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,  # noqa: A001
            returns: str = "all", progress: bool = False) -> Result:
     """Classify ground points with DMF (Wu et al. 2025; our readings: SPEC section 3).
 

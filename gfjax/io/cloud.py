@@ -10,7 +10,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import laspy
 import numpy as np
@@ -20,6 +20,23 @@ from gfjax.io.tiles import Frame
 
 if TYPE_CHECKING:
     import pyproj
+
+
+@runtime_checkable
+class CloudView(Protocol):
+    """What a filter reads from a cloud: a `Cloud`, or a survey's `Points` (a file and the
+    halo of its neighbours' points, `gfjax.survey`)."""
+
+    name: str
+    frame: Frame | None
+
+    @property
+    def xyz_m(self) -> np.ndarray: ...
+
+    @property
+    def n_points(self) -> int: ...
+
+    def filter_mask(self, returns: str = "all") -> np.ndarray: ...
 
 
 def use_mask(ignored: np.ndarray, return_number: np.ndarray, number_of_returns: np.ndarray,

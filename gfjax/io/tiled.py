@@ -23,15 +23,13 @@ from gfjax import limits
 from gfjax.errors import InputError
 from gfjax.io import groups
 from gfjax.io import tiles as tiling
-from gfjax.io.cloud import Cloud
+from gfjax.io.cloud import CloudView
 
 __all__ = ["checked_options", "check_memory", "laid_out", "without_tiling", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
            "classify_cloud", "TiledRun"]
 
 ConfigT = TypeVar("ConfigT")
 
-CLOUD_VIEWS = ("xyz_m", "filter_mask", "n_points", "name")
-"""What a filter reads from a cloud (`Cloud`, `gfjax.survey.Points`)."""
 ParamsT = TypeVar("ParamsT")
 
 ClassifyBatch = Callable[..., tuple[Bool[Array, "b n"], tuple]]
@@ -47,7 +45,7 @@ def without_tiling(config: ConfigT) -> ConfigT:
     return dataclasses.replace(config, tile_size_m=cls.tile_size_m, buffer_m=cls.buffer_m)
 
 
-def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None, returns: str, *,
+def checked_options(cloud: object, config: ConfigT | None, params: ParamsT | None, returns: str, *,
                     config_type: type[ConfigT], params_type: type[ParamsT],
                     package: str) -> tuple[ConfigT, ParamsT, np.ndarray]:
     """The checks at the top of a method's `filter`: defaults, types, `params.check()`, returns.
@@ -67,7 +65,7 @@ def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None
         names the cloud), a bad `returns`. The rasters are checked against the memory budget
         once the points are laid out (`laid_out`).
     """
-    if not all(hasattr(cloud, view) for view in CLOUD_VIEWS):
+    if not isinstance(cloud, CloudView):
         raise InputError(f"{package}.filter: expected a gfjax Cloud (or survey.Points), got {type(cloud).__name__}")
     config = config_type() if config is None else config
     params = params_type() if params is None else params
@@ -83,7 +81,7 @@ def checked_options(cloud: Cloud, config: ConfigT | None, params: ParamsT | None
     return config, params, use
 
 
-def laid_out(cloud: Cloud, use: np.ndarray, config: Any, *, gap_m: float,
+def laid_out(cloud: CloudView, use: np.ndarray, config: Any, *, gap_m: float,
              keep_frame: bool = False) -> tuple[np.ndarray, groups.Layout | None]:
     """`(coordinates (n, 3) [m], layout)`: `cloud.xyz_m` with the used points' groups that lie
     `gap_m` or more apart moved side by side (`gfjax.io.groups`; layout None, the cloud's own

@@ -38,7 +38,7 @@ import numpy as np
 
 from gfjax.errors import InputError
 from gfjax.io import groups
-from gfjax.io.cloud import Cloud
+from gfjax.io.cloud import CloudView
 from gfjax.io.tiled import laid_out
 from gfjax.masf import alpha_shape, densify as densify_mod, preprocess, tin
 from gfjax.masf.config import Config, Params
@@ -133,7 +133,7 @@ def filter_points(xyz_m: np.ndarray, config: Config, params: Params) -> tuple[np
                                           tin_rebuilds=result.tin_rebuilds, **empty_diag)
 
 
-def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None = None,
+def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False) -> Result:
     """Classify ground points with MASF (Cao et al. 2024).
 

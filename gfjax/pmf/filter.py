@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from gfjax.io import groups, tiled
-from gfjax.io.cloud import Cloud
+from gfjax.io.cloud import CloudView
 from gfjax.pmf import programs
 from gfjax.pmf.config import MAX_BATCH, Config, Params
 from gfjax.result import Result
@@ -47,7 +47,7 @@ class PMFDiagnostics(NamedTuple):
     n_tiles: int
 
 
-def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None = None,
+def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False) -> Result:  # noqa: A001 (the package API name)
     """Classify a cloud's ground points with PMF (Zhang et al. 2003).
 

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from gfjax.io import groups, tiled
-from gfjax.io.cloud import Cloud
+from gfjax.io.cloud import CloudView
 from gfjax.result import Result
 from gfjax.smrf import programs
 from gfjax.smrf.config import MAX_BATCH, Config, Params
@@ -54,7 +54,7 @@ class SMRFDiagnostics(NamedTuple):
     n_tiles: int
 
 
-def filter(cloud: Cloud, *, config: Config | None = None, params: Params | None = None,
+def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False) -> Result:  # noqa: A001 (the package API name)
     """Classify a cloud's ground points with SMRF (Pingel et al. 2013).
 

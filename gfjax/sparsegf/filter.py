@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io.cloud import Cloud
+from gfjax.io.cloud import CloudView
 from gfjax.result import Result
 from gfjax.sparsegf import checkpoint
 from gfjax.sparsegf.config import Config
@@ -104,7 +104,7 @@ def load_model(path=None) -> tuple[Model, Config]:
     return model, config
 
 
-def filter(cloud: Cloud, *, config: Config | None = None, params=None, returns: str = "all",
+def filter(cloud: CloudView, *, config: Config | None = None, params=None, returns: str = "all",
            progress: bool = False, model: Model | str | None = None) -> Result:
     """Classify ground points with SparseGF.
 

@@ -317,8 +317,8 @@ def test_inner_table_is_the_smaller_kernels_table():
 def test_table_conv_equals_the_pair_list_conv(chunk_rows):
     coords, feats = sparse_sites(0.3, seed=11, shape=(9, 8, 7))
     pad = 200                                                          # padding rows: whole chunks of them
-    coords = np.concatenate([coords, np.zeros((pad, 4), np.int32)])
-    valid = np.arange(len(coords)) < len(feats)
+    coords = jnp.asarray(np.concatenate([coords, np.zeros((pad, 4), np.int32)]))
+    valid = jnp.arange(len(coords)) < len(feats)
     feats = jnp.asarray(np.concatenate([feats, np.zeros((pad, C_IN), np.float32)]))
     weight = weights(5)
     kmap = sparse.submanifold_map(coords, valid, kernel_size=5)

@@ -33,7 +33,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 from jax import lax
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from gfjax.nn.sparse.maps import KernelMap, NeighbourTable
 
@@ -41,7 +41,7 @@ from gfjax.nn.sparse.maps import KernelMap, NeighbourTable
 STEP_PAIRS = 8192          # pairs per step of `sparse_conv`'s default schedule
 
 
-def sparse_conv(feats: Float[Array, "n_in c"], weight: Float[Array, "k c d"], kmap: KernelMap, *,
+def sparse_conv(feats: Float[ArrayLike, "n_in c"], weight: Float[ArrayLike, "k c d"], kmap: KernelMap, *,
                 chunk_blocks: int | None = None) -> Float[Array, "n_out d"]:
     """Apply a sparse convolution.
 
@@ -102,7 +102,7 @@ def _blocks(x, weight, in_idx, block_offset, block):
 TABLE_CHUNK_ROWS = 8192      # output rows per step of `table_conv`
 
 
-def table_conv(feats: Float[Array, "n_in c"], weight: Float[Array, "k c d"], table: NeighbourTable, *,
+def table_conv(feats: Float[ArrayLike, "n_in c"], weight: Float[ArrayLike, "k c d"], table: NeighbourTable, *,
                chunk_rows: int = TABLE_CHUNK_ROWS) -> Float[Array, "n_out d"]:
     """Apply a sparse convolution given as a neighbour table (equal to `sparse_conv` on the
     map of the same pairs, up to the order of the float sums).
