@@ -21,7 +21,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Int
+from jaxtyping import Array, ArrayLike, Bool, Int
 
 from gfjax.nn.sparse import keys as K
 from gfjax.nn.sparse.maps import (KernelMap, NeighbourTable, bucket, downsample, inner_table, neighbour_table, pairs_from_table,
@@ -108,7 +108,7 @@ def _counts(coords, valid, *, depth):
     return sizes, sub, down
 
 
-def plan_pyramid(coords: Int[Array, "n 4"], valid: Bool[Array, " n"], *, depth: int,
+def plan_pyramid(coords: Int[ArrayLike, "n 4"], valid: Bool[ArrayLike, " n"], *, depth: int,
                  stem_kernel: int = 5, like: PyramidPlan | None = None) -> PyramidPlan:
     """Static sizes for `build_pyramid` from concrete coordinates (outside `jit`).
 
