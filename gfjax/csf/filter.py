@@ -30,7 +30,6 @@ from gfjax.csf import stages
 from gfjax.csf.cloth import simulate
 from gfjax.csf.config import BUFFER_PX, CLOTH_START_M, Config, Params
 from gfjax.io.cloud import CloudView
-from gfjax.io import groups
 from gfjax.io.tiled import checked_options, laid_out
 from gfjax.result import Result
 
@@ -141,7 +140,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
                                           params_type=Params, package="gfjax.csf")
     if not use.any():
         return Result(ground=np.zeros(cloud.n_points, bool), diagnostics=None)
-    xyz_m, layout = laid_out(cloud, use, config, gap_m=groups.GAP_M)
+    xyz_m, layout = laid_out(cloud, use, config)
     origin = xyz_m[use].min(axis=0)
     local = (xyz_m - origin).astype(np.float32)
     shape = grid_shape(local, use, cell_m=config.cell_m)

@@ -25,7 +25,6 @@ from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import extract, neighbours, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params
 from gfjax.io.cloud import CloudView
-from gfjax.io import groups
 from gfjax.io.tiled import checked_options, laid_out
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
@@ -284,7 +283,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     instance_all = np.zeros(n_all, np.uint32)
     if not use.any():
         return Result(ground=ground_all, diagnostics=None, instance_id=instance_all)
-    xyz, layout = laid_out(cloud, use, config, gap_m=max(groups.GAP_M, config.raster_buffer_m))
+    xyz, layout = laid_out(cloud, use, config, reach_m=config.raster_buffer_m)
     xyz = xyz if use.all() else xyz[use]          # no 20 MB copy when every point is used
     clock = [time.perf_counter()]
     seconds = {}

@@ -81,12 +81,14 @@ def checked_options(cloud: object, config: ConfigT | None, params: ParamsT | Non
     return config, params, use
 
 
-def laid_out(cloud: CloudView, use: np.ndarray, config: Any, *, gap_m: float,
+def laid_out(cloud: CloudView, use: np.ndarray, config: Any, *, reach_m: float = 0.0,
              keep_frame: bool = False) -> tuple[np.ndarray, groups.Layout | None]:
     """`(coordinates (n, 3) [m], layout)`: `cloud.xyz_m` with the used points' groups that lie
-    `gap_m` or more apart moved side by side (`gfjax.io.groups`; layout None, the cloud's own
-    array, when that wins nothing or `keep_frame`: a tiled method on a survey's frame), then
-    the rasters over the used points checked against the memory budget (`check_memory`)."""
+    `max(groups.GAP_M, reach_m)` or more apart moved side by side (`gfjax.io.groups`;
+    `reach_m`: how far the method looks around a point; layout None, the cloud's own array,
+    when that wins nothing or `keep_frame`: a tiled method on a survey's frame), then the
+    rasters over the used points checked against the memory budget (`check_memory`)."""
+    gap_m = max(groups.GAP_M, reach_m)
     xyz_m, layout = (cloud.xyz_m, None) if keep_frame else groups.compacted(cloud.xyz_m, gap_m, use=use)
     check_memory(cloud.name, config, xyz_m[use, :2])
     return xyz_m, layout

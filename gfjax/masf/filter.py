@@ -37,7 +37,6 @@ from typing import NamedTuple
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import groups
 from gfjax.io.cloud import CloudView
 from gfjax.io.tiled import laid_out
 from gfjax.masf import alpha_shape, densify as densify_mod, preprocess, tin
@@ -165,7 +164,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     except ValueError as err:
         raise InputError(f"{cloud.name}: masf params: {err}") from None
     used_index = np.flatnonzero(used)
-    xyz, layout = laid_out(cloud, used, config, gap_m=max(groups.GAP_M, 2 * config.alpha_max_m))
+    xyz, layout = laid_out(cloud, used, config, reach_m=2 * config.alpha_max_m)
     ground_used, diagnostics = filter_points(xyz[used_index], config, params)
     ground = np.zeros(cloud.n_points, dtype=bool)
     ground[used_index] = ground_used

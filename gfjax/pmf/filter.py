@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gfjax.io import groups, tiled
+from gfjax.io import tiled
 from gfjax.io.cloud import CloudView
 from gfjax.pmf import programs
 from gfjax.pmf.config import MAX_BATCH, Config, Params
@@ -65,7 +65,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     """
     config, params, use = tiled.checked_options(cloud, config, params, returns, config_type=Config,
                                                 params_type=Params, package="gfjax.pmf")
-    xyz_m, layout = tiled.laid_out(cloud, use, config, gap_m=max(groups.GAP_M, config.buffer_m),
+    xyz_m, layout = tiled.laid_out(cloud, use, config, reach_m=config.buffer_m,
                                    keep_frame=cloud.frame is not None)
     run = tiled.classify_cloud(xyz_m, use, programs.classify_batch, params, config, max_batch=MAX_BATCH,
                                frame=cloud.frame, progress=progress, desc="pmf tiles")
