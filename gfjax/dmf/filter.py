@@ -11,6 +11,7 @@ W is computed once per cloud, so every NGNEM tile of a batch shares one cell siz
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
 import functools
 import math
 import time
@@ -294,9 +295,20 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
         clock[0] = now
 
     origin = xyz.min(axis=0)
+    window_nn = float("nan")
+    if cloud.frame is not None and layout is None:
+        # A survey's window: its voxels (and so its NGNEM cells and layers) lie on the lattice
+        # the whole survey in one file would have; W (estimated on the window) sets the lattice,
+        # so it is known before the points are moved to it.
+        if config.voxel_m is None:
+            cell_m, window_nn = voxels.voxel_size_m(xyz - origin, v0=config.v0, fraction=config.sample_fraction,
+                                                    minimum=config.sample_min)
+            config = dataclasses.replace(config, voxel_m=cell_m)
+        origin = cloud.frame.snap(origin, config.voxel_m)
     local = xyz - origin
     with concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="gfjax-dmf") as worker:
         tree, cell_m, mean_nn, vox = _voxels(local, config, worker)
+        mean_nn = window_nn if np.isnan(mean_nn) else mean_nn
         lap("voxels")
         in_ndng, basal, rs, ngnem_valid, overflowed = _layers(vox, cell_m, config, worker, lap, progress)
 

@@ -60,6 +60,13 @@ class Frame(NamedTuple):
     def union(self, other: Frame) -> Frame:
         return Frame(np.minimum(self.origin_m, other.origin_m), np.maximum(self.upper_m, other.upper_m))
 
+    def snap(self, corner_m: np.ndarray, cell_m: float) -> np.ndarray:
+        """The corner of the cell of this frame's lattice (cubes of `cell_m` from `origin_m`)
+        that holds `corner_m` (float64 `(3,)` [m]): a window of a survey anchored there grids
+        its points into the cells the whole survey in one file would use."""
+        origin = np.asarray(self.origin_m, np.float64)
+        return origin + np.floor((np.asarray(corner_m, np.float64) - origin) / cell_m) * cell_m
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Tile:

@@ -39,6 +39,7 @@ import numpy as np
 from gfjax.errors import InputError
 from gfjax.io.cloud import CloudView
 from gfjax.io.tiled import laid_out
+from gfjax.io.tiles import Frame
 from gfjax.masf import alpha_shape, densify as densify_mod, preprocess, tin
 from gfjax.masf.config import Config, Params
 from gfjax.result import Result
@@ -76,12 +77,16 @@ class MASFDiagnostics(NamedTuple):
     seconds: dict
 
 
-def filter_points(xyz_m: np.ndarray, config: Config, params: Params) -> tuple[np.ndarray, MASFDiagnostics]:
+def filter_points(xyz_m: np.ndarray, config: Config, params: Params,
+                  frame: Frame | None = None) -> tuple[np.ndarray, MASFDiagnostics]:
     """MASF on an array of points.
 
     Args:
       xyz_m: float64 `(n, 3)` metres (any origin; the minimum corner is subtracted here).
       config, params: as for `filter`.
+      frame: a survey's frame (`gfjax.io.tiles.Frame`): the grid's origin is then the corner of
+        the survey's lattice cell that holds the minimum corner, so a window of the survey
+        grids its points as the whole survey in one file does.
 
     Returns:
       `(ground, diagnostics)`: bool `(n,)` and a `MASFDiagnostics` (indices into `xyz_m`).
@@ -90,6 +95,8 @@ def filter_points(xyz_m: np.ndarray, config: Config, params: Params) -> tuple[np
     clock = time.perf_counter()
     xyz_m = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
     origin = xyz_m.min(axis=0) if len(xyz_m) else np.zeros(3)
+    if frame is not None and len(xyz_m):
+        origin = frame.snap(origin, config.grid_m)
     local = xyz_m - origin
     alphas = config.alphas_m()
     pre = preprocess.potential_ground(local, grid_m=config.grid_m, outlier_gap_m=config.outlier_gap_m,
@@ -165,7 +172,8 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
         raise InputError(f"{cloud.name}: masf params: {err}") from None
     used_index = np.flatnonzero(used)
     xyz, layout = laid_out(cloud, used, config, reach_m=2 * config.alpha_max_m)
-    ground_used, diagnostics = filter_points(xyz[used_index], config, params)
+    frame = cloud.frame if layout is None else None
+    ground_used, diagnostics = filter_points(xyz[used_index], config, params, frame)
     ground = np.zeros(cloud.n_points, dtype=bool)
     ground[used_index] = ground_used
     if layout is not None:                  # the grids lie under the moved groups: no map of the cloud

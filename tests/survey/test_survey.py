@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gfjax import pmf, smrf, survey
+from gfjax import methods, pmf, smrf, survey
 from gfjax.cli.main import main
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
@@ -177,6 +177,35 @@ def test_a_filter_refuses_what_is_not_a_cloud(unchecked):
 
     with pytest.raises(InputError, match="gfjax.dmf.filter: expected a gfjax Cloud"):
         dmf.filter(np.zeros((3, 3)))
+
+
+@pytest.mark.parametrize("name", ["dmf", "masf"])
+def test_methods_that_do_not_tile_grid_a_window_on_the_survey_lattice(grid, name, tmp_path):
+    """DMF's voxels and MASF's grid start at the survey's lattice, not at a window's corner, so
+    a file with its halo labels like the union, seams aside (before: 95.9 % and 98.6 % on the
+    bcts 3 x 3 grid of `experiments/survey_seams.py`)."""
+    method = methods.get(name)
+    paths, members, union = grid
+    whole = las_io.read(union)
+    want = method.filter(whole).ground
+    got = np.zeros(whole.n_points, bool)
+    catalog_frame = None
+    for (cloud, result), keep in zip(survey.filtered(paths, lambda p, returns: method.filter(p, returns=returns),
+                                                     method.Config(), tmp_path), members):
+        got[keep] = result.ground
+        origin, cell = ((result.diagnostics.origin_m, result.diagnostics.cell_m) if name == "dmf"
+                        else (result.diagnostics.origin_m, method.Config().grid_m))
+        catalog_frame = catalog_frame or Frame.of(whole.xyz_m[whole.filter_mask()])
+        steps = (origin - catalog_frame.origin_m) / cell
+        np.testing.assert_allclose(steps, np.round(steps), atol=1e-6)
+    assert np.mean(got == want) >= 0.999
+
+
+def test_snap_finds_the_lattice_cell_of_a_corner():
+    frame = Frame(np.array([10.0, 20.0, 100.0]), np.array([50.0, 60.0]))
+    np.testing.assert_array_equal(frame.snap(np.array([10.0, 20.0, 100.0]), 2.0), [10.0, 20.0, 100.0])
+    np.testing.assert_array_equal(frame.snap(np.array([13.9, 24.0, 100.5]), 2.0), [12.0, 24.0, 100.0])
+    np.testing.assert_array_equal(frame.snap(np.array([9.5, 20.0, 99.0]), 2.0), [8.0, 20.0, 98.0])
 
 
 def test_dmf_filters_a_file_with_its_halo(grid, tmp_path):
