@@ -22,7 +22,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Int
+from jaxtyping import Array, Float, Int
 
 from gfjax import aot
 from gfjax._types import Mask, PointMask, Points, Raster
@@ -33,7 +33,7 @@ from gfjax.io.cloud import CloudView
 from gfjax.io.tiled import checked_options, laid_out
 from gfjax.result import Result
 
-__all__ = ["filter", "filter_points", "grid_shape", "Diagnostics", "CSFDiagnostics"]
+__all__ = ["filter", "filter_points", "grid_shape", "Anchor", "Diagnostics", "CSFDiagnostics"]
 
 
 class Diagnostics(NamedTuple):
@@ -74,23 +74,42 @@ class CSFDiagnostics(NamedTuple):
     cell_m: float
 
 
-def grid_shape(xyz: np.ndarray | jax.Array, valid: np.ndarray | jax.Array, *, cell_m: float) -> tuple[int, int]:
+class Anchor(NamedTuple):
+    """Where a cloth starts, when not at its own points: a survey's window lays its cloth on
+    the survey's lattice and drops it from the survey's height, as one file of the whole survey
+    would.
+
+    Attributes:
+      corner_m: float32 `(2,)` local x, y of a particle lattice corner, at or below every point
+        (the cloth's south-west particle is `BUFFER_PX` cells beyond it) [m].
+      top_u: float32 `()` the inverted height the cloth starts `CLOTH_START_M` above [m].
+    """
+
+    corner_m: Float[Array, "2"]
+    top_u: Float[Array, ""]
+
+
+def grid_shape(xyz: np.ndarray | jax.Array, valid: np.ndarray | jax.Array, *, cell_m: float,
+               anchor: Anchor | None = None) -> tuple[int, int]:
     """Static particle grid `(h, w)` of a float32 point buffer (the same formula as traced)."""
     xy = np.asarray(xyz, np.float32)[np.asarray(valid, bool), :2]
-    extent = (xy.max(axis=0) - xy.min(axis=0)).astype(np.float32)
+    lo = xy.min(axis=0) if anchor is None else np.asarray(anchor.corner_m, np.float32)
+    extent = (xy.max(axis=0) - lo).astype(np.float32)
     w, h = (np.floor(extent / np.float32(cell_m)) + 2 * BUFFER_PX).astype(np.int64)
     return int(h), int(w)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "shape"))
-def filter_points(xyz: Points, valid: PointMask, params: Params, *, config: Config,
-                    shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
+def filter_points(xyz: Points, valid: PointMask, params: Params, anchor: Anchor | None = None, *, config: Config,
+                  shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
     """CSF on one padded buffer of points.
 
     Args:
       xyz: local coordinates `(n, 3)` float32 [m]; rows with `~valid` are ignored.
       valid: points that take part, bool `(n,)`; at least one must be True.
       params: traced class threshold and time step.
+      anchor: the cloth's lattice corner and starting height (`Anchor`); default: the valid
+        points' minimum x, y and highest inverted height.
       config: static settings.
       shape: static particle grid `(h, w)`, at least `grid_shape(xyz, valid)` (larger pads).
 
@@ -100,7 +119,7 @@ def filter_points(xyz: Points, valid: PointMask, params: Params, *, config: Conf
     cell = jnp.float32(config.cell_m)
     xy, u = xyz[:, :2], -xyz[:, 2]
     big = jnp.asarray(jnp.inf, xyz.dtype)
-    lo = jnp.min(jnp.where(valid[:, None], xy, big), axis=0)
+    lo = jnp.min(jnp.where(valid[:, None], xy, big), axis=0) if anchor is None else anchor.corner_m
     hi = jnp.max(jnp.where(valid[:, None], xy, -big), axis=0)
     w_h = stages.grid_size(hi - lo, cell_m=config.cell_m)
     j, i = jnp.indices(shape)
@@ -108,7 +127,8 @@ def filter_points(xyz: Points, valid: PointMask, params: Params, *, config: Conf
     rel = xy - (lo - BUFFER_PX * cell)[None, :]
     heights, has_point = stages.particle_heights(rel, u, valid, cell_m=config.cell_m, shape=shape)
     surface = stages.scanline_fill(heights, has_point)
-    start_u = jnp.max(jnp.where(valid, u, -big)) + jnp.float32(CLOTH_START_M)
+    top_u = jnp.max(jnp.where(valid, u, -big)) if anchor is None else anchor.top_u
+    start_u = top_u + jnp.float32(CLOTH_START_M)
     state = simulate(surface, exists, start_u, params.time_step, config=config)
     cloth_u, movable = state.u, state.movable
     if config.slope_smooth:
@@ -142,9 +162,16 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
         return Result(ground=np.zeros(cloud.n_points, bool), diagnostics=None)
     xyz_m, layout = laid_out(cloud, use, config)
     origin = xyz_m[use].min(axis=0)
+    anchor = None
+    if cloud.frame is not None and layout is None:
+        # A survey's window: the cloth lies on the survey's particle lattice and falls from the
+        # survey's highest inverted point (its lowest z), as in one file of the whole survey.
+        origin = cloud.frame.snap(origin, config.cell_m)
+        origin[2] = cloud.frame.origin_m[2]
+        anchor = Anchor(np.zeros(2, np.float32), np.float32(0.0))
     local = (xyz_m - origin).astype(np.float32)
-    shape = grid_shape(local, use, cell_m=config.cell_m)
-    ground, diag = aot.call(filter_points, local, use, params, config=config, shape=shape)
+    shape = grid_shape(local, use, cell_m=config.cell_m, anchor=anchor)
+    ground, diag = aot.call(filter_points, local, use, params, anchor, config=config, shape=shape)
     ground = np.asarray(ground) & use
     if layout is not None:                  # the cloth lies under the moved groups: no map of the cloud
         return Result(ground=ground, diagnostics=None)
