@@ -87,8 +87,7 @@ def main():
             start = time.perf_counter()
             store = folder / f"store_{name}"
             store.mkdir()
-            for (cloud, result), keep in zip(survey.filtered(files, lambda p, returns: module.filter(p, returns=returns),
-                                                             config, store), members):
+            for (cloud, result), keep in zip(survey.filtered(files, module, store, config=config), members):
                 catalog[keep] = result.ground
             catalog_s = time.perf_counter() - start
             start = time.perf_counter()

@@ -9,6 +9,10 @@ Every method package (`gfjax.smrf`, `gfjax.dmf`, ...) exposes, at its top level:
 - `PRESETS`: dict of preset name -> dict of overrides (may be empty).
 - optionally `warm(config=None, params=None, *, progress=False) -> int`: load or compile the
   programs `filter` runs for every canonical input shape (`gfjax warmup`).
+- optionally `survey_config(config, clouds) -> Config`: `config` with the estimates a method
+  makes per cloud fixed once for a whole survey (`clouds`: each file's points filtered,
+  float64 `(n_i, 3)` [m]), so every file and halo shares them (DMF's voxel size W;
+  `gfjax.survey.survey_config`).
 
 The registry imports a method lazily, so `gfjax info` does not pay for every method. Bad
 names, keys and values raise `InputError` naming the option (the CLI exits with code 2).

@@ -118,6 +118,8 @@ def run(args: argparse.Namespace) -> int:
 
             catalog = survey.index(inputs, folder, returns=args.returns, units=args.units,
                                    trust_data=args.trust_data)
+            setup = setup._replace(config=survey.survey_config(setup.module, setup.config, catalog,
+                                                               returns=args.returns))
         return _run(args, setup, inputs, planned, catalog)
 
 

@@ -15,6 +15,7 @@ import dataclasses
 import functools
 import math
 import time
+from collections.abc import Iterable
 from typing import NamedTuple
 
 import jax
@@ -262,6 +263,29 @@ def _layers(vox: voxels.Voxels, cell_m: float, config: Config, worker, lap, prog
     return in_ndng, basal._replace(z=basal_z), rs, v_r.reshape(h, w), table.overflowed
 
 
+def survey_config(config: Config, clouds: Iterable[np.ndarray]) -> Config:
+    """`config` with W fixed once for a whole survey, so every file and its halo share one voxel
+    lattice (a file's own estimate could round to another whole metre than its neighbour's).
+
+    Eq. 1 over the survey: the mean nearest-neighbour distance of every file's sample
+    (`voxels.nn_sample`, neighbours found within the file). A `config` with `voxel_m` set is
+    returned as it is.
+
+    Args:
+      config: the survey's settings.
+      clouds: each file's points filtered, float64 `(n_i, 3)` [m].
+    """
+    if config.voxel_m is not None:
+        return config
+    total, count = 0.0, 0
+    for xyz in clouds:
+        if len(xyz) >= 2:
+            dist = voxels.nn_distances(np.asarray(xyz, np.float64), fraction=config.sample_fraction,
+                                       minimum=config.sample_min)
+            total, count = total + float(dist.sum()), count + len(dist)
+    return dataclasses.replace(config, voxel_m=voxels.size_of(total / count, config.v0) if count else 1.0)
+
+
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,  # noqa: A001
            returns: str = "all", progress: bool = False) -> Result:
     """Classify ground points with DMF (Wu et al. 2025; our readings: SPEC section 3).
@@ -298,8 +322,8 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     window_nn = float("nan")
     if cloud.frame is not None and layout is None:
         # A survey's window: its voxels (and so its NGNEM cells and layers) lie on the lattice
-        # the whole survey in one file would have; W (estimated on the window) sets the lattice,
-        # so it is known before the points are moved to it.
+        # the whole survey in one file would have. W sets the lattice, so it is known first:
+        # the survey's (`survey_config`), else estimated on the window.
         if config.voxel_m is None:
             cell_m, window_nn = voxels.voxel_size_m(xyz - origin, v0=config.v0, fraction=config.sample_fraction,
                                                     minimum=config.sample_min)

@@ -64,14 +64,26 @@ def voxel_size_m(xyz: np.ndarray, *, v0: float, fraction: float, minimum: int,
       `(W, D_m)` in metres. W is a whole number of metres, at least 1 (a cloud of duplicate
       points has D_m = 0; one metre keeps the raster defined).
     """
-    n = len(xyz)
-    if n < 2:
+    if len(xyz) < 2:
         return 1.0, 0.0
-    sample = nn_sample(n, xyz, fraction=fraction, minimum=minimum) if sample is None else sample
+    mean_m = float(nn_distances(xyz, fraction=fraction, minimum=minimum, tree=tree, sample=sample).mean())
+    return size_of(mean_m, v0), mean_m
+
+
+def nn_distances(xyz: np.ndarray, *, fraction: float, minimum: int, tree: cKDTree | None = None,
+                 sample: np.ndarray | None = None) -> np.ndarray:
+    """3D nearest-neighbour distances [m] of the `nn_sample` of `xyz` (float64 `(n, 3)`, n >= 2),
+    float64 `(s,)`; `tree` and `sample` as for `voxel_size_m`."""
+    sample = nn_sample(len(xyz), xyz, fraction=fraction, minimum=minimum) if sample is None else sample
     tree = cKDTree(xyz) if tree is None else tree
     dist, _ = tree.query(xyz[sample], k=2, workers=-1)         # every core: the same distances
-    mean_m = float(dist[:, 1].mean())
-    return float(max(1, math.ceil(v0 * mean_m - 1e-9))), mean_m
+    return dist[:, 1]
+
+
+def size_of(mean_nn_m: float, v0: float) -> float:
+    """Eq. 1's W [m] for a mean nearest-neighbour distance `mean_nn_m` [m]: `ceil(v0 * D_m)`,
+    at least 1 m."""
+    return float(max(1, math.ceil(v0 * mean_nn_m - 1e-9)))
 
 
 class Voxels(NamedTuple):

@@ -13,9 +13,11 @@ import dataclasses
 import math
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
+from gfjax import methods
 from gfjax.io import las as las_io
 from gfjax.io.cloud import Cloud, use_mask
 from gfjax.io.tiles import Frame
@@ -93,24 +95,54 @@ def window(catalog: Catalog, i: int, cloud: Cloud, config) -> Points:
     return Points(**fields, name=cloud.name, frame=catalog.frame)
 
 
-def filtered(paths: Sequence[str | Path], filter_fn: Callable, config, folder: str | Path, *,
-             returns: str = "all", units: str | None = None) -> Iterator[tuple[Cloud, Result]]:
+def survey_config(method: ModuleType, config, catalog: Catalog, *, returns: str = "all"):
+    """`config` with the method's per-cloud estimates made once for the whole survey
+    (`method.survey_config`, where the method has one: DMF's voxel size W), so every file and
+    its halo share them; otherwise `config` as it is. Reads each file's store once."""
+    hook = getattr(method, "survey_config", None)
+    if hook is None:
+        return config
+
+    def clouds() -> Iterator[np.ndarray]:
+        for entry in catalog.entries:
+            records = entry.records()
+            used = use_mask(records["ignored"], records["return_number"], records["number_of_returns"], returns)
+            yield np.asarray(records["xyz_m"][used])
+
+    return hook(config, clouds())
+
+
+def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str | Path, *, config=None, params=None,
+             returns: str = "all", units: str | None = None, **options) -> Iterator[tuple[Cloud, Result]]:
     """Each file of a survey and its `Result`, filtered with its halo on the survey's frame.
+
+    ```python
+    for cloud, result in gfjax.survey.filtered(paths, "dmf", tmp_folder):
+        ...                                   # result.ground: the file's own points
+    ```
 
     Args:
       paths: the survey's files.
-      filter_fn: `filter_fn(points, returns=...) -> Result` (a method's `filter` with its
-        settings bound, e.g. `MethodSetup.filter`).
-      config: the method's `Config` (its tiling sets the halo).
+      method: a method name (`gfjax.methods.METHODS`) or package (`gfjax.dmf`).
       folder: a private temporary folder for the catalog's stores.
+      config, params: the method's settings (default: its defaults); `config`'s tiling sets
+        the halo, and its per-cloud estimates are made once for the survey (`survey_config`).
       returns: "all" or "last".
       units: `--units` override.
+      options: further keyword arguments of the method's `filter` (SparseGF's `model`).
 
     Yields:
       `(cloud, result)` per file in the order of `paths`; `result.ground` covers the file's
       own points only.
     """
+    module = methods.get(method) if isinstance(method, str) else method
+    config = module.Config() if config is None else config
     catalog = index(paths, folder, returns=returns, units=units)
+    config = survey_config(module, config, catalog, returns=returns)
+
+    def filter_fn(points: Points, returns: str) -> Result:
+        return module.filter(points, config=config, params=params, returns=returns, **options)
+
     for i, entry in enumerate(catalog.entries):
         cloud = las_io.read(entry.path, units=units)
         yield cloud, filter_file(catalog, i, cloud, filter_fn, config, returns=returns)

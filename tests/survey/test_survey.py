@@ -71,9 +71,7 @@ def test_a_catalog_labels_every_point_as_the_union_in_one_file(grid, method, tmp
     got = np.zeros(whole.n_points, bool)
     alone = np.zeros(whole.n_points, bool)
     halos = []
-    for (cloud, result), keep in zip(survey.filtered(paths, lambda p, returns: method.filter(p, config=config,
-                                                                                          returns=returns),
-                                                     config, tmp_path), members):
+    for (cloud, result), keep in zip(survey.filtered(paths, method, tmp_path, config=config), members):
         assert result.ground.shape == (cloud.n_points,) == keep.shape
         got[keep] = result.ground
         alone[keep] = method.filter(cloud, config=config).ground
@@ -192,8 +190,7 @@ def test_methods_that_do_not_tile_grid_a_window_on_the_survey_lattice(grid, name
     want = method.filter(whole).ground
     got = np.zeros(whole.n_points, bool)
     catalog_frame = None
-    for (cloud, result), keep in zip(survey.filtered(paths, lambda p, returns: method.filter(p, returns=returns),
-                                                     method.Config(), tmp_path), members):
+    for (cloud, result), keep in zip(survey.filtered(paths, name, tmp_path), members):
         got[keep] = result.ground
         diagnostics = result.diagnostics
         origin, cell = {"dmf": lambda: (diagnostics.origin_m, diagnostics.cell_m),
@@ -213,14 +210,27 @@ def test_snap_finds_the_lattice_cell_of_a_corner():
     np.testing.assert_array_equal(frame.snap(np.array([9.5, 20.0, 99.0]), 2.0), [8.0, 20.0, 98.0])
 
 
-def test_dmf_filters_a_file_with_its_halo(grid, tmp_path):
+def test_a_survey_of_uneven_density_shares_one_voxel_size(tmp_path):
+    """Eq. 1 per file would give a dense file W = 1 m and a sparse one W = 2 m; the survey
+    estimates W once, so both files and their halos share one voxel lattice."""
     from gfjax import dmf
 
-    paths, members, union = grid
-    whole = las_io.read(union)
-    want = dmf.filter(whole).ground
-    got = np.zeros(whole.n_points, bool)
-    for (cloud, result), keep in zip(survey.filtered(paths, lambda p, returns: dmf.filter(p, returns=returns),
-                                                     dmf.Config(), tmp_path), members):
-        got[keep] = result.ground
-    assert np.mean(got == want) >= 0.99
+    rng = np.random.default_rng(4)
+    dense = np.column_stack([rng.uniform(0, 60, (14_000, 2)), rng.normal(100, 0.02, 14_000)])
+    sparse = np.column_stack([rng.uniform([60, 0], [120, 60], (1_200, 2)), rng.normal(100, 0.02, 1_200)])
+    paths = []
+    for name, xyz in (("dense", dense), ("sparse", sparse)):
+        Cloud.from_xyz(xyz + [500_000.0, 5_400_000.0, 0.0]).las.write(tmp_path / f"{name}.laz")
+        paths.append(tmp_path / f"{name}.laz")
+    own = [dmf.filter(las_io.read(p)).diagnostics.cell_m for p in paths]
+    assert own == [1.0, 2.0]
+    (tmp_path / "store").mkdir()
+    catalog = survey.index(paths, tmp_path / "store")
+    shared = survey.survey_config(dmf, dmf.Config(), catalog).voxel_m
+    assert shared in own
+    (tmp_path / "run").mkdir()
+    sizes = [result.diagnostics.cell_m for _, result in survey.filtered(paths, "dmf", tmp_path / "run")]
+    assert sizes == [shared, shared]
+    pinned = dmf.Config(voxel_m=3.0)
+    assert survey.survey_config(dmf, pinned, catalog) is pinned
+    assert survey.survey_config(smrf, smrf.Config(), catalog) == smrf.Config()
