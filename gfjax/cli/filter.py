@@ -143,14 +143,16 @@ def _run(args, setup, inputs, planned, catalog) -> int:
             print(f"gfjax: warning: {job.source}: header says {job.header.point_count:,} points, the file holds "
                   f"{cloud.n_points:,}; filtering the {cloud.n_points:,} points present (--trust-data)",
                   file=sys.stderr)
+        halo_ground_m = None
         if catalog is None:
             result = setup.filter(cloud, returns=args.returns, progress=True)
         else:
             from gfjax import survey
 
-            result = survey.filter_file(catalog, position[job.source], cloud,
-                                        lambda points, returns: setup.filter(points, returns=returns, progress=True),
-                                        setup.config, returns=args.returns)
+            result, halo_ground_m = survey.filter_file(
+                catalog, position[job.source], cloud,
+                lambda points, returns: setup.filter(points, returns=returns, progress=True),
+                setup.config, returns=args.returns)
         ground = np.asarray(result.ground, dtype=bool)
         labelled = cloud.with_ground(ground, reset_nonground=args.reset_nonground,
                                      used=cloud.filter_mask(args.returns))
@@ -159,7 +161,7 @@ def _run(args, setup, inputs, planned, catalog) -> int:
                 raise InputError(f"--instances: method {setup.name} gives no instance ids")
             labelled = labelled.with_extra_dim("instance_id", np.asarray(result.instance_id, dtype=np.uint32),
                                                description="object instance, 0 = none")
-        _write(labelled, job.target, job.dtm_target, cloud, ground, args, inputs)
+        _write(labelled, job.target, job.dtm_target, cloud, ground, args, inputs, halo_ground_m)
         seconds = time.perf_counter() - start
         n_ground = int(np.count_nonzero(ground))
         say(f"{job.source} -> {job.target}: {setup.name}, {n_ground:,} ground of {cloud.n_points:,} points "
@@ -176,8 +178,11 @@ def _run(args, setup, inputs, planned, catalog) -> int:
 
 
 def _write(labelled, target: Path, dtm_target: Path | None, cloud, ground: np.ndarray,
-           args: argparse.Namespace, inputs) -> None:
+           args: argparse.Namespace, inputs, halo_ground_m: np.ndarray | None = None) -> None:
     """Write the classified cloud, and its DTM with `--dtm`: both or neither.
+
+    In a survey the DTM also takes the ground points of the file's halo (`halo_ground_m`,
+    metres), so adjacent files' DTMs give their shared border cells the same values.
 
     The DTM is built before anything is written (no ground points, a grid over the memory
     budget: nothing written), then written while the cloud's temporary file waits to be
@@ -190,7 +195,10 @@ def _write(labelled, target: Path, dtm_target: Path | None, cloud, ground: np.nd
     from gfjax import dtm as dtm_lib
     from gfjax.io import atomic
 
-    dtm = dtm_lib.build(cloud, ground, cell_m=args.cell)
+    context = None
+    if halo_ground_m is not None:
+        context = halo_ground_m / np.array([cloud.horizontal_unit_m, cloud.horizontal_unit_m, cloud.vertical_unit_m])
+    dtm = dtm_lib.build(cloud, ground, cell_m=args.cell, context_xyz=context)
     kept: list[Path] = []          # the earlier DTM, moved aside until the cloud is in place
     written = []
 

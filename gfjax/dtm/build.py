@@ -202,7 +202,8 @@ def _rasterize_tin(vertices_px: np.ndarray, shape: tuple[int, int], max_edge_px:
     return out
 
 
-def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.0) -> DTM:
+def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.0,
+          context_xyz: np.ndarray | None = None) -> DTM:
     """A DTM from the ground points of `cloud`.
 
     Args:
@@ -213,6 +214,10 @@ def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.
         file units (1 m -> 3.2808 ft for international feet).
       max_edge_m: longest triangle edge, metres, through which empty cells are interpolated;
         cells in longer triangles, or outside the hull of the cell centroids, stay nodata.
+      context_xyz: ground points around the cloud, float64 `(m, 3)` in its file units (a
+        survey file's halo, `gfjax.survey.filter_file`): they enter the cells and triangles
+        at the cloud's borders as they would in one DTM of the whole survey, so adjacent
+        files' DTMs agree on their shared cells. The grid covers the cloud's own points.
 
     Returns:
       `DTM` with `z` float64 `(h, w)` in the file's vertical unit, `nodata` = -9999 where no
@@ -234,14 +239,19 @@ def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.
     cell = cell_m / unit_m
     max_edge = max_edge_m / unit_m
     xyz = cloud.xyz                                        # file units, float64
-    col0, row_top, h, w = snapped_grid(xyz[~cloud.ignored | ground, :2], cell)
+    covered = xyz[~cloud.ignored | ground, :2]
+    own = snapped_grid(covered, cell)
+    xyz_g = xyz[ground]
+    if context_xyz is not None and len(context_xyz):       # computed over both, cut to the own grid
+        xyz_g = np.concatenate([xyz_g, np.asarray(context_xyz, np.float64).reshape(-1, 3)])
+        covered = np.concatenate([covered, xyz_g[:, :2]])
+    col0, row_top, h, w = snapped_grid(covered, cell)
     try:
         limits.check_memory([limits.Estimate(f"a DTM of {h:,} x {w:,} cells of {cell_m:g} m (extent / --cell)",
                                              float(h) * float(w) * _BYTES_PER_CELL)])
     except ValueError as err:
         raise InputError(f"{name}: {err}; use a larger --cell or split the file") from None
     origin = np.array([col0 * cell, row_top * cell, 0.0])  # north-west corner, file units
-    xyz_g = xyz[ground]
     col = np.floor(xyz_g[:, 0] / cell).astype(np.int64) - col0    # same floor as the grid
     row = (row_top - 1) - np.floor(xyz_g[:, 1] / cell).astype(np.int64)
     local = xyz_g - origin                                 # centroids in local coordinates
@@ -259,6 +269,11 @@ def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.
     fill = (count == 0) & ~np.isnan(tin)
     z[fill] = tin[fill]
     z.reshape(-1)[occupied] = centroids[:, 2]
+    own_col0, own_row_top, own_h, own_w = own
+    rows = slice(row_top - own_row_top, row_top - own_row_top + own_h)
+    cols = slice(own_col0 - col0, own_col0 - col0 + own_w)
+    z, count = z[rows, cols], count[rows, cols]
+    origin = np.array([own_col0 * cell, own_row_top * cell])
     return DTM(z=z, count=count.astype(np.int32),
                origin=(float(origin[0]), float(origin[1])), cell=float(cell),
                crs=cloud_rasterio_crs(cloud), horizontal_unit_m=unit_m,

@@ -145,18 +145,22 @@ def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str 
 
     for i, entry in enumerate(catalog.entries):
         cloud = las_io.read(entry.path, units=units)
-        yield cloud, filter_file(catalog, i, cloud, filter_fn, config, returns=returns)
+        yield cloud, filter_file(catalog, i, cloud, filter_fn, config, returns=returns)[0]
 
 
 def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, config, *,
-                returns: str = "all") -> Result:
+                returns: str = "all") -> tuple[Result, np.ndarray]:
     """File `i` of the catalog (read as `cloud`) filtered with its halo (`filtered`'s step).
 
     Returns:
-      The `Result` for the file's own points (`ground`, `instance_id` cut to them; the
-      diagnostics describe the whole window).
+      `(result, halo_ground_m)`: the `Result` for the file's own points (`ground`,
+      `instance_id` cut to them; the diagnostics describe the whole window), and the halo's
+      points labelled ground, float64 `(k, 3)` [m] (they give the file's DTM its border
+      cells: `gfjax.dtm.build(context_xyz=...)`).
     """
-    result = filter_fn(window(catalog, i, cloud, config), returns=returns)
+    points = window(catalog, i, cloud, config)
+    result = filter_fn(points, returns=returns)
     n = cloud.n_points
+    ground = np.asarray(result.ground)
     instance_id = None if result.instance_id is None else np.asarray(result.instance_id)[:n]
-    return result._replace(ground=np.asarray(result.ground)[:n], instance_id=instance_id)
+    return result._replace(ground=ground[:n], instance_id=instance_id), points.xyz_m[n:][ground[n:]]

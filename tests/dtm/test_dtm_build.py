@@ -219,3 +219,25 @@ def test_bad_ground_array():
         gfjax.dtm.build(cloud, np.ones(cloud.n_points - 1, bool))
     with pytest.raises(InputError, match="ground"):
         gfjax.dtm.build(cloud, np.full(cloud.n_points, 2, np.uint8))
+
+
+def test_context_points_give_the_border_cells_their_whole_survey_values():
+    """Two halves of one cloud: each half's DTM, built with the other half as context, equals
+    the whole cloud's DTM on its own grid, cell for cell (border cells and triangles included);
+    without context the cells along the cut differ."""
+    whole = _plane_cloud(n=4000, size_m=80.0, seed=5)
+    xyz = whole.xyz
+    ground = np.ones(whole.n_points, bool)
+    full = gfjax.dtm.build(whole, ground)
+    west = xyz[:, 0] < np.median(xyz[:, 0])
+    for half in (west, ~west):
+        part = Cloud.from_xyz(xyz[half], scale=1e-6)
+        alone = gfjax.dtm.build(part, np.ones(int(half.sum()), bool))
+        framed = gfjax.dtm.build(part, np.ones(int(half.sum()), bool), context_xyz=xyz[~half])
+        assert framed.shape == alone.shape and framed.origin == alone.origin
+        col = round((framed.origin[0] - full.origin[0]) / full.cell)
+        row = round((full.origin[1] - framed.origin[1]) / full.cell)
+        h, w = framed.shape
+        np.testing.assert_allclose(framed.z, full.z[row:row + h, col:col + w], rtol=0, atol=1e-9)  # sum order
+        np.testing.assert_array_equal(framed.count, full.count[row:row + h, col:col + w])
+        assert np.any(alone.z != framed.z)

@@ -131,19 +131,47 @@ def test_cli_filters_several_files_as_one_survey_or_independently(grid, tmp_path
     want = smrf.filter(whole, config=config).ground
     for flags, folder in (([], tmp_path / "survey"), (["--independent"], tmp_path / "alone")):
         folder.mkdir()
+        (folder / "dtm").mkdir()
         args = ["filter", *map(str, paths), "-o", str(folder), "--method", "smrf", "--tile-size", "40",
-                "--buffer", "8", *flags]
+                "--buffer", "8", "--dtm", str(folder / "dtm"), *flags]
         assert main(args) == 0
         got = np.zeros(whole.n_points, bool)
         for path, keep in zip(paths, members):
             out = las_io.read(folder / path.name)
             assert out.n_points == len(keep)
             got[keep] = out.classification == 2
+        shared, differ = shared_dtm_cells(sorted((folder / "dtm").glob("*.tif")))
+        assert shared > 50                           # the files' DTMs overlap along their borders
         if flags:
-            assert np.any(got != want)
+            assert np.any(got != want) and differ > 0
         else:
             np.testing.assert_array_equal(got, want)
+            assert differ == 0                       # the halo's ground enters the border cells
     assert not list(tmp_path.glob("**/gfjax-survey-*"))
+
+
+def shared_dtm_cells(paths) -> tuple[int, int]:
+    """Cells with a value in two DTMs on one lattice, and how many of them differ (> 0.1 mm)."""
+    import rasterio
+
+    rasters = []
+    for path in paths:
+        with rasterio.open(path) as src:
+            col0, row0 = round(src.transform.c / src.transform.a), round(-src.transform.f / src.transform.a)
+            rasters.append((col0, row0, src.read(1), src.nodata))
+    shared = differ = 0
+    for i, (c0, r0, a, nodata) in enumerate(rasters):
+        for c1, r1, b, _ in rasters[i + 1:]:
+            cols = range(max(c0, c1), min(c0 + a.shape[1], c1 + b.shape[1]))
+            rows = range(max(r0, r1), min(r0 + a.shape[0], r1 + b.shape[0]))
+            if not cols or not rows:
+                continue
+            pa = a[rows.start - r0:rows.stop - r0, cols.start - c0:cols.stop - c0]
+            pb = b[rows.start - r1:rows.stop - r1, cols.start - c1:cols.stop - c1]
+            both = (pa != nodata) & (pb != nodata)
+            shared += int(both.sum())
+            differ += int((np.abs(pa[both] - pb[both]) > 1e-4).sum())     # float32 cells [m]
+    return shared, differ
 
 
 def test_a_file_whose_header_bounds_miss_its_points_is_refused(tmp_path):
