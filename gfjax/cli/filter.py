@@ -18,7 +18,8 @@ bad option or path fails at once and leaves no file behind. An existing output f
 input given as output) is overwritten only with `--force`. A file that fails later leaves
 the outputs already written (each complete), and a summary line says which files were done,
 failed or not started (exit 2); `--keep-going` goes on with the other files. With `--dtm`,
-a file's DTM and point cloud are both written or neither.
+a file's DTM and point cloud are both written or neither; `--dtm-mosaic` is written only
+when every file was.
 """
 from __future__ import annotations
 
@@ -58,6 +59,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="add a uint32 extra-bytes dimension instance_id (methods that give one)")
     parser.add_argument("--dtm", default=None, metavar="DTM.tif",
                         help="also write a DTM GeoTIFF from the ground points (a folder for several inputs)")
+    parser.add_argument("--dtm-mosaic", default=None, metavar="MOSAIC.tif",
+                        help="with --dtm and several inputs: also join their DTMs into one GeoTIFF, "
+                             "written once every file is done")
     parser.add_argument("--cell", type=positive_float, default=1.0, metavar="M",
                         help="DTM cell size [m] (default 1)")
     parser.add_argument("--independent", action="store_true",
@@ -94,10 +98,15 @@ def run(args: argparse.Namespace) -> int:
     if args.dtm is not None:
         dtm_targets = output_targets(inputs, args.dtm, option="--dtm", suffixes=TIF_SUFFIXES,
                                      rename_suffix=".tif")
+    if args.dtm_mosaic is not None and args.dtm is None:
+        raise InputError(f"--dtm-mosaic {args.dtm_mosaic}: needs --dtm (the per-file DTMs it joins)")
     # Every output before any file is read: none may exist (or be an input) without --force.
     _job.check_outputs([*(("-o", t, las_io.LAS_SUFFIXES) for t in targets),
-                        *(("--dtm", t, TIF_SUFFIXES) for t in dtm_targets if t is not None)],
+                        *(("--dtm", t, TIF_SUFFIXES) for t in dtm_targets if t is not None),
+                        *((("--dtm-mosaic", args.dtm_mosaic, TIF_SUFFIXES),) if args.dtm_mosaic else ())],
                        inputs=inputs, force=args.force)
+    if args.dtm_mosaic is not None and Path(args.dtm_mosaic).resolve() in set(map(Path.resolve, dtm_targets)):
+        raise InputError(f"--dtm-mosaic {args.dtm_mosaic}: same path as a file's DTM")
     if args.dtm is not None:
         if set(map(Path.resolve, dtm_targets)) & set(map(Path.resolve, targets)):
             raise InputError(f"--dtm {args.dtm}: same path as an output point cloud")
@@ -171,10 +180,19 @@ def _run(args, setup, inputs, planned, catalog) -> int:
             progress.update(1)
 
     try:
-        return _job.run_files(planned, one, keep_going=args.keep_going, report=report)
+        code = _job.run_files(planned, one, keep_going=args.keep_going, report=report)
     finally:
         if progress is not None:
             progress.close()
+    if args.dtm_mosaic is not None:
+        if code != 0:
+            print(f"gfjax: --dtm-mosaic {args.dtm_mosaic}: not written, not every file was filtered", file=sys.stderr)
+        else:
+            from gfjax import dtm as dtm_lib
+
+            h, w = dtm_lib.mosaic([job.dtm_target for job in planned], args.dtm_mosaic)
+            print(f"DTM mosaic of {len(planned)} files -> {args.dtm_mosaic} ({h:,} x {w:,} cells)")
+    return code
 
 
 def _write(labelled, target: Path, dtm_target: Path | None, cloud, ground: np.ndarray,

@@ -3,9 +3,10 @@
 ```python
 dtm = gfjax.dtm.build(cloud, result.ground, cell_m=1.0, max_edge_m=100.0)
 dtm.to_geotiff("dtm.tif"); dtm.to_png("hillshade.png")
+gfjax.dtm.mosaic(["a.tif", "b.tif"], "survey.tif")      # DTMs of adjacent files, joined
 ```
 """
 from gfjax.dtm.build import DTM, build, check_options, memory_estimate
-from gfjax.dtm.geotiff import NODATA
+from gfjax.dtm.geotiff import NODATA, mosaic
 
-__all__ = ["DTM", "build", "check_options", "memory_estimate", "NODATA"]
+__all__ = ["DTM", "build", "check_options", "memory_estimate", "mosaic", "NODATA"]

@@ -6,6 +6,8 @@ renamed over the target only when complete, so a failed run never leaves a parti
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import rasterio
 import rasterio.crs
@@ -59,4 +61,50 @@ def write_geotiff(path, z: np.ndarray, *, transform: Affine, crs: rasterio.crs.C
             dst.write(z.astype(np.float32), 1)
 
 
-__all__ = ["NODATA", "cloud_rasterio_crs", "write_geotiff"]
+__all__ = ["NODATA", "cloud_rasterio_crs", "write_geotiff", "mosaic"]
+
+
+def mosaic(paths, target) -> tuple[int, int]:
+    """Join DTM GeoTIFFs that lie on one lattice (`gfjax.dtm.build` snaps every cell edge to
+    whole multiples of the cell) into one GeoTIFF, with `rasterio.merge.merge`; where two
+    overlap, the first file in `paths` that has a value wins (a survey's DTMs agree on their
+    shared border cells). Written atomically, like `write_geotiff`.
+
+    Args:
+      paths: the DTM files (one CRS and cell size).
+      target: the mosaic `.tif`.
+
+    Returns: the mosaic's `(h, w)`.
+
+    Raises:
+      InputError: files whose CRS or cell size differ, or a mosaic over the memory budget.
+    """
+    import rasterio.merge
+
+    from gfjax import limits
+
+    sources = [rasterio.open(p) for p in paths]
+    try:
+        first = sources[0]
+        for src in sources[1:]:
+            if src.crs != first.crs or src.res != first.res:
+                raise InputError(f"{src.name}: CRS or cell size differ from {first.name}; cannot join them "
+                                 "into one mosaic")
+        left = min(s.bounds.left for s in sources)
+        right = max(s.bounds.right for s in sources)
+        bottom = min(s.bounds.bottom for s in sources)
+        top = max(s.bounds.top for s in sources)
+        w, h = round((right - left) / first.res[0]), round((top - bottom) / first.res[1])
+        try:
+            limits.check_memory([limits.Estimate(f"a DTM mosaic of {h:,} x {w:,} cells", 8.0 * h * w)])
+        except ValueError as err:
+            raise InputError(f"{target}: {err}; use a larger --cell, or join the DTMs with GDAL "
+                             "(gdalbuildvrt)") from None
+        with warnings.catch_warnings():   # rasterio.merge still composes transforms with `*`
+            warnings.filterwarnings("ignore", "Use `@` matmul", PendingDeprecationWarning)
+            z, transform = rasterio.merge.merge(sources, nodata=NODATA)
+        write_geotiff(target, z[0], transform=transform, crs=first.crs)
+        return z.shape[1], z.shape[2]
+    finally:
+        for src in sources:
+            src.close()

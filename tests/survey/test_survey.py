@@ -132,8 +132,9 @@ def test_cli_filters_several_files_as_one_survey_or_independently(grid, tmp_path
     for flags, folder in (([], tmp_path / "survey"), (["--independent"], tmp_path / "alone")):
         folder.mkdir()
         (folder / "dtm").mkdir()
+        mosaic = [] if flags else ["--dtm-mosaic", str(folder / "mosaic.tif")]
         args = ["filter", *map(str, paths), "-o", str(folder), "--method", "smrf", "--tile-size", "40",
-                "--buffer", "8", "--dtm", str(folder / "dtm"), *flags]
+                "--buffer", "8", "--dtm", str(folder / "dtm"), *mosaic, *flags]
         assert main(args) == 0
         got = np.zeros(whole.n_points, bool)
         for path, keep in zip(paths, members):
@@ -147,7 +148,29 @@ def test_cli_filters_several_files_as_one_survey_or_independently(grid, tmp_path
         else:
             np.testing.assert_array_equal(got, want)
             assert differ == 0                       # the halo's ground enters the border cells
+            dtms = sorted((folder / "dtm").glob("*.tif"))
+            shared, differ = shared_dtm_cells([folder / "mosaic.tif", *dtms])   # pairs of DTMs too
+            assert differ == 0 and shared == sum(valid_cells(p) for p in dtms) + shared_dtm_cells(dtms)[0]
     assert not list(tmp_path.glob("**/gfjax-survey-*"))
+
+
+def valid_cells(path) -> int:
+    import rasterio
+
+    with rasterio.open(path) as src:
+        return int((src.read(1) != src.nodata).sum())
+
+
+def test_dtm_mosaic_needs_dtm_and_a_free_path(grid, tmp_path, capsys):
+    paths, _, _ = grid
+    args = ["filter", *map(str, paths), "-o", str(tmp_path)]
+    assert main([*args, "--dtm-mosaic", str(tmp_path / "m.tif")]) == 2
+    assert "--dtm-mosaic" in capsys.readouterr().err and not list(tmp_path.iterdir())
+    (tmp_path / "d").mkdir()
+    (tmp_path / "m.tif").write_bytes(b"old")
+    assert main([*args, "--dtm", str(tmp_path / "d"), "--dtm-mosaic", str(tmp_path / "m.tif")]) == 2
+    assert "m.tif" in capsys.readouterr().err
+    assert (tmp_path / "m.tif").read_bytes() == b"old" and not list((tmp_path / "d").iterdir())
 
 
 def shared_dtm_cells(paths) -> tuple[int, int]:
