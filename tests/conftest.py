@@ -26,10 +26,10 @@ if "GFJAX_TEST_KEEP_CACHE" not in os.environ:
 # keeps them off, so each test sees plain jit unless it enables a cache itself. Subprocesses
 # get the default (caches on, in the folder above).
 os.environ["GFJAX_CACHE"] = "0"
-if os.environ.get("GFJAX_TYPECHECK", "0") == "1":
+if os.environ.get("GFJAX_TYPECHECK", "1") == "1":
     # every annotated function of gfjax is checked at each call, jaxtyping's shapes and dtypes
-    # included (tests/typecheck.py); not yet the default: annotations that numpy arguments,
-    # duck-typed clouds and the bad inputs tests give on purpose do not satisfy remain
+    # included (tests/typecheck.py); GFJAX_TYPECHECK=0 turns it off. Tests that hand a bad
+    # argument on purpose, to see our own check of it, turn it off for themselves (`unchecked`).
     import jaxtyping
 
     jaxtyping.install_import_hook("gfjax", "typecheck.checker")
