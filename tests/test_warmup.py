@@ -41,3 +41,24 @@ def test_after_warm_a_new_size_compiles_nothing(tmp_path):
     assert _python(_WARM, tmp_path) == "5"                            # 1 side x 5 capacities
     compiled, ground = _python(_FILTER, tmp_path).split()
     assert compiled == "0" and int(ground) > 0
+
+
+_SPARSEGF_FILTER = """
+import numpy as np, gfjax
+from gfjax import aot, sparsegf
+compiled = []
+aot.on_compile(compiled.append)
+rng = np.random.default_rng(2)
+xy = rng.uniform(0, [90, 70], (9000, 2))                 # another size than the scene warm filters
+cloud = gfjax.Cloud.from_xyz(np.column_stack([xy + 6e5, 50 + 0.05 * xy[:, 1]]))
+ground = sparsegf.filter(cloud).ground
+print(len(compiled), int(ground.sum()))
+"""
+
+
+def test_after_sparsegf_warm_its_network_is_loaded_not_compiled(tmp_path):
+    """The network program is the costly one; the per-patch feature and vote programs of a new
+    size still compile (through JAX's own cache), so only `gfjax.aot`'s compiles are counted."""
+    assert _python("from gfjax import sparsegf; print(sparsegf.warm())", tmp_path) == "1"
+    compiled, ground = _python(_SPARSEGF_FILTER, tmp_path).split()
+    assert compiled == "0" and int(ground) > 0

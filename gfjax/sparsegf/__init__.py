@@ -22,7 +22,7 @@ and the filter itself, with the same shape as every other method:
   files; `train`: the training loop (`gfjax train`); `features`: the per-point inputs.
 """
 from gfjax.sparsegf.config import PRESETS, Config
-from gfjax.sparsegf.filter import Diagnostics, filter, load_model
+from gfjax.sparsegf.filter import Diagnostics, filter, load_model, warm
 from gfjax.sparsegf.model import NET_PRESETS, Model, NetConfig, SparseGFNet, count_parameters, init
 from gfjax.sparsegf.compress import CENTRAL_TOL_M, R_IN_M, R_OC_M, R_OO_M, Compressed, compress, compression_ratio
 from gfjax.sparsegf.hag import HAG_BIN_EDGES_M, N_HAG_BINS, HagTargets, ground_surface, hag_bins, hag_targets
@@ -35,7 +35,7 @@ Params = None      # no thresholds: the network's weights are SparseGF's paramet
 __all__ = [
     "Config", "Diagnostics", "Model", "NET_PRESETS", "NetConfig", "PRESETS", "Params", "SparseGFNet",
     "count_parameters", "init",
-    "filter", "load_model",
+    "filter", "load_model", "warm",
     "CENTRAL_TOL_M", "R_IN_M", "R_OC_M", "R_OO_M", "STEP_M", "HAG_BIN_EDGES_M", "N_HAG_BINS",
     "HAG_WEIGHTS", "LAMBDA", "UNCOVERED",
     "Compressed", "HagTargets", "HeightAwareLoss", "Partition", "PartitionConfig", "PatchBatch", "Vote",

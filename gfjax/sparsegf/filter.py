@@ -88,6 +88,25 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
     return np.asarray(vote.prob_ground)[:n], np.asarray(vote.count)[:n], len(index)
 
 
+WARM_SIDE_M = 120.0          # the generated scene `warm` filters: a flat square of this side [m]
+WARM_POINTS = 30_000
+
+
+def warm(config: Config | None = None, params=None, *, progress: bool = False) -> int:
+    """Load or compile ahead the program every cloud's packs share: the shipped network on a
+    pack of the smallest capacity (`pipeline.PACK_VOXELS` voxels) with its standard plan, the
+    costly one (`gfjax warmup`; the command line keeps it in the program cache). It filters a
+    small generated scene; the cheap per-patch feature and vote programs of other sizes still
+    compile on first use. Returns the number of network shapes prepared (1)."""
+    from gfjax.io.cloud import Cloud
+
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0.0, WARM_SIDE_M, (WARM_POINTS, 2))
+    z = 100.0 + 0.02 * xy[:, 0] + rng.normal(0.0, 0.05, WARM_POINTS)
+    filter(Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], z])), config=config, params=params, progress=progress)
+    return 1
+
+
 def load_model(path=None) -> tuple[Model, Config]:
     """The model at `path` (None: the model shipped in gfjax) and the settings it was trained with."""
     model, header = checkpoint.load(path)
