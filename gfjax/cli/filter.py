@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
                             extra_bytes_per_point=4 if args.instances else 0, trust_data=args.trust_data)
     say_crs_warning([(job.source, job.crs_units) for job in planned])
     with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder:
-        catalog = None
+        runner = None
         if len(inputs) > 1 and not args.independent:
             from gfjax import survey
 
@@ -129,11 +129,14 @@ def run(args: argparse.Namespace) -> int:
                                    trust_data=args.trust_data)
             setup = setup._replace(config=survey.survey_config(setup.module, setup.config, catalog,
                                                                returns=args.returns))
-        return _run(args, setup, inputs, planned, catalog)
+            runner = survey.Runner(catalog, lambda points, returns: setup.filter(points, returns=returns, progress=True),
+                                   setup.config, folder, returns=args.returns, context=args.dtm is not None)
+        return _run(args, setup, inputs, planned, runner)
 
 
-def _run(args, setup, inputs, planned, catalog) -> int:
-    """Filter and write every planned file (with its neighbours' halo when `catalog` is set)."""
+def _run(args, setup, inputs, planned, runner) -> int:
+    """Filter and write every planned file (as a part of the survey when `runner` is set:
+    `gfjax.survey.Runner`)."""
     say, report, progress = print, None, None
     if len(inputs) > 1:                     # a progress bar over files (tqdm: 40 ms to import)
         from tqdm.auto import tqdm
@@ -153,15 +156,10 @@ def _run(args, setup, inputs, planned, catalog) -> int:
                   f"{cloud.n_points:,}; filtering the {cloud.n_points:,} points present (--trust-data)",
                   file=sys.stderr)
         halo_ground_m = None
-        if catalog is None:
+        if runner is None:
             result = setup.filter(cloud, returns=args.returns, progress=True)
         else:
-            from gfjax import survey
-
-            result, halo_ground_m = survey.filter_file(
-                catalog, position[job.source], cloud,
-                lambda points, returns: setup.filter(points, returns=returns, progress=True),
-                setup.config, returns=args.returns)
+            result, halo_ground_m = runner(position[job.source], cloud)
         ground = np.asarray(result.ground, dtype=bool)
         labelled = cloud.with_ground(ground, reset_nonground=args.reset_nonground,
                                      used=cloud.filter_mask(args.returns))

@@ -215,7 +215,7 @@ def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.
       max_edge_m: longest triangle edge, metres, through which empty cells are interpolated;
         cells in longer triangles, or outside the hull of the cell centroids, stay nodata.
       context_xyz: ground points around the cloud, float64 `(m, 3)` in its file units (a
-        survey file's halo, `gfjax.survey.filter_file`): they enter the cells and triangles
+        survey file's surroundings, `gfjax.survey.Runner`): they enter the cells and triangles
         at the cloud's borders as they would in one DTM of the whole survey, so adjacent
         files' DTMs agree on their shared cells. The grid covers the cloud's own points.
 

@@ -46,10 +46,14 @@ class Frame(NamedTuple):
     Attributes:
       origin_m: float64 `(3,)` minimum x, y, z of the points filtered [m].
       upper_m: float64 `(2,)` maximum x, y [m].
+      cores: the keys `(col, row)` of the only tiles `split` makes (None: every tile holding a
+        point): a survey filters each tile of its lattice once, from a window of its points
+        that also holds parts of the neighbouring tiles (`gfjax.survey.lattice`).
     """
 
     origin_m: np.ndarray
     upper_m: np.ndarray
+    cores: frozenset[tuple[int, int]] | None = None
 
     @classmethod
     def of(cls, xyz_m: np.ndarray) -> Frame:
@@ -59,6 +63,10 @@ class Frame(NamedTuple):
 
     def union(self, other: Frame) -> Frame:
         return Frame(np.minimum(self.origin_m, other.origin_m), np.maximum(self.upper_m, other.upper_m))
+
+    def only(self, cores) -> Frame:
+        """This frame, with `split` making only the tiles of the keys `cores` `(col, row)`."""
+        return self._replace(cores=frozenset((int(c), int(r)) for c, r in cores))
 
     def snap(self, corner_m: np.ndarray, cell_m: float) -> np.ndarray:
         """The corner of the cell of this frame's lattice (cubes of `cell_m` from `origin_m`)
@@ -147,11 +155,12 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
       cell_m: raster cell the windows snap to [m].
       use: bool `(n,)` points to tile (default all); the others belong to no tile.
       frame: the lattice's box (default: the used points' own, `Frame.of`); every used point
-        must lie in it.
+        must lie in it. Its `cores`, when set, are the only tiles made.
 
     Returns:
       Non-empty tiles in row-major order of their keys. Every used point is in exactly one
-      core; a tile's window holds the used points within `buffer_m` of its core.
+      core (of a tile made, with `frame.cores`); a tile's window holds the used points within
+      `buffer_m` of its core.
     """
     _check(tile_size_m, buffer_m, cell_m)
     xyz_m = np.asarray(xyz_m, dtype=np.float64)
@@ -178,14 +187,19 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
 
     by_core: dict[tuple[int, int], np.ndarray] = {}
-    order = np.lexsort((core[:, 1], core[:, 0]))            # by col, then row: as np.unique
-    keys, starts = np.unique(core[order], axis=0, return_index=True)
+    rows = int(core[:, 1].max()) + 1
+    packed = core[:, 0] * rows + core[:, 1]                  # by col, then row; one int64 sorts fast
+    order = np.argsort(packed, kind="stable")
+    keys, starts = np.unique(packed[order], return_index=True)
     for key, chunk in zip(keys, np.split(order, starts[1:])):
-        by_core[(int(key[0]), int(key[1]))] = chunk
+        by_core[(int(key // rows), int(key % rows))] = chunk
     reach = max(1, math.ceil((buffer_px + 1) * cell_m / tile_size_m))   # neighbour cores a window reaches
 
     tiles = []
-    for (ti, tj) in sorted(by_core, key=lambda k: (k[1], k[0])):
+    wanted = sorted(by_core, key=lambda k: (k[1], k[0]))
+    if frame.cores is not None:
+        wanted = [key for key in wanted if key in frame.cores]
+    for (ti, tj) in wanted:
         k = np.array([ti, tj])
         candidates = np.concatenate([by_core.get((ti + di, tj + dj), np.empty(0, np.int64))
                                      for dj in range(-reach, reach + 1) for di in range(-reach, reach + 1)])

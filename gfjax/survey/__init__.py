@@ -1,13 +1,15 @@
 """Whole surveys: many adjacent files filtered as one, without seams at the file borders.
 
 `index` reads every file once into a catalog (bounds of the points filtered, CRS, units); each
-file is then filtered together with a halo of its neighbours' points, on the survey's own
-tiling frame, so a point gets the tile, cells and context it would get if the whole survey
-were one file (`filtered`); a method's per-cloud estimates are made once for the survey
-(`survey_config`).
+file is then filtered on the survey's own tiling frame, so a point gets the tile, cells and
+context it would get if the whole survey were one file (`filtered`, `Runner`): a tiled
+method runs each tile of the survey's lattice once from a window gathered across the files
+(`lattice`), any other method each file with a halo of its neighbours' points (`halo`); a
+method's per-cloud estimates are made once for the survey (`survey_config`).
 """
 from gfjax.survey.catalog import Catalog, Entry, index
-from gfjax.survey.halo import Points, filter_file, filtered, halo_region, survey_config, window
+from gfjax.survey.halo import Points, filter_file, halo_region, survey_config, window
+from gfjax.survey.run import Runner, filtered
 
-__all__ = ["Catalog", "Entry", "Points", "filter_file", "filtered", "halo_region", "index", "survey_config",
-           "window"]
+__all__ = ["Catalog", "Entry", "Points", "Runner", "filter_file", "filtered", "halo_region", "index",
+           "survey_config", "window"]

@@ -11,18 +11,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Iterator, Sequence
-from pathlib import Path
+from collections.abc import Callable, Iterator
 from types import ModuleType
 
 import numpy as np
 
-from gfjax import methods
-from gfjax.io import las as las_io
 from gfjax.io.cloud import Cloud, use_mask
 from gfjax.io.tiles import Frame
 from gfjax.result import Result
-from gfjax.survey.catalog import Catalog, index
+from gfjax.survey.catalog import Catalog
 
 HALO_M = 50.0           # context around a file for methods that do not tile [m]
 
@@ -55,6 +52,11 @@ class Points:
         return use_mask(self.ignored, self.return_number, self.number_of_returns, returns)
 
 
+def is_tiled(config) -> bool:
+    """Whether `config` lays a tile lattice (`tile_size_m`, `buffer_m`, `cell_m`)."""
+    return all(hasattr(config, name) for name in ("tile_size_m", "buffer_m", "cell_m"))
+
+
 def halo_region(box: Frame, frame: Frame, config) -> tuple[np.ndarray, np.ndarray]:
     """The x-y box `(lo (2,), hi (2,))` [m] whose points can share a window with a point of `box`.
 
@@ -62,17 +64,38 @@ def halo_region(box: Frame, frame: Frame, config) -> tuple[np.ndarray, np.ndarra
     `gfjax.io.tiles.split` lays them, grown by one cell; other methods: `box` grown by `HALO_M`.
     """
     lo, hi = np.asarray(box.origin_m[:2], np.float64), np.asarray(box.upper_m, np.float64)
-    if not all(hasattr(config, name) for name in ("tile_size_m", "buffer_m", "cell_m")):
+    if not is_tiled(config):
         return lo - HALO_M, hi + HALO_M
+    origin = np.asarray(frame.origin_m[:2], np.float64)
+    return tiles_region(np.floor((lo - origin) / config.tile_size_m), np.floor((hi - origin) / config.tile_size_m),
+                        frame, config)
+
+
+def tiles_region(first: np.ndarray, last: np.ndarray, frame: Frame, config) -> tuple[np.ndarray, np.ndarray]:
+    """The x-y box `(lo (2,), hi (2,))` [m] of the windows of the tiles with keys from `first`
+    to `last` `(col, row)` of `frame`'s lattice, grown by one cell."""
     tile, cell = config.tile_size_m, config.cell_m
     origin = np.asarray(frame.origin_m[:2], np.float64)
     core_px = tile / cell
     buffer_px = math.ceil(config.buffer_m / cell - 1e-9)
-    first = np.floor((lo - origin) / tile)
-    last = np.floor((hi - origin) / tile)
-    lo_px = np.floor(first * core_px) - buffer_px - 1
-    hi_px = np.ceil((last + 1) * core_px) + buffer_px + 1
+    lo_px = np.floor(np.asarray(first) * core_px) - buffer_px - 1
+    hi_px = np.ceil((np.asarray(last) + 1) * core_px) + buffer_px + 1
     return origin + lo_px * cell, origin + hi_px * cell
+
+
+def overlaps(frame: Frame | None, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """Whether a file's `frame` meets the x-y box from `lo` to `hi` [m]."""
+    return frame is not None and not (np.any(frame.origin_m[:2] > hi) or np.any(frame.upper_m < lo))
+
+
+def points_in(xyz_m: np.ndarray, lo: np.ndarray, hi: np.ndarray, frame: Frame | None = None) -> np.ndarray:
+    """Indices int64 `(k,)` of the points of `xyz_m` `(n, 3)` [m] inside the x-y box `lo`..`hi`;
+    every point, unread, when `frame` (a catalog entry's: the box of the points its filter
+    uses) lies inside it, so the few points a filter ignores may come from outside, unused."""
+    if frame is not None and np.all(frame.origin_m[:2] >= lo) and np.all(frame.upper_m <= hi):
+        return np.arange(len(xyz_m))
+    xy = xyz_m[:, :2]
+    return np.flatnonzero(np.all((xy >= lo[None, :]) & (xy <= hi[None, :]), axis=1))
 
 
 def window(catalog: Catalog, i: int, cloud: Cloud, config) -> Points:
@@ -83,11 +106,10 @@ def window(catalog: Catalog, i: int, cloud: Cloud, config) -> Points:
     if entry.frame is not None:
         lo, hi = halo_region(entry.frame, catalog.frame, config)
         for j, other in enumerate(catalog.entries):
-            if j == i or other.frame is None or np.any(other.frame.origin_m[:2] > hi) or np.any(other.frame.upper_m < lo):
+            if j == i or not overlaps(other.frame, lo, hi):
                 continue
             records = other.records()
-            xy = records["xyz_m"][:, :2]
-            take = np.flatnonzero(np.all((xy >= lo[None, :]) & (xy <= hi[None, :]), axis=1))
+            take = points_in(records["xyz_m"], lo, hi, other.frame)
             if take.size:
                 chosen = records[take]
                 parts.append({name: np.asarray(chosen[name]) for name in parts[0]})
@@ -110,42 +132,6 @@ def survey_config(method: ModuleType, config, catalog: Catalog, *, returns: str 
             yield np.asarray(records["xyz_m"][used])
 
     return hook(config, clouds())
-
-
-def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str | Path, *, config=None, params=None,
-             returns: str = "all", units: str | None = None, **options) -> Iterator[tuple[Cloud, Result]]:
-    """Each file of a survey and its `Result`, filtered with its halo on the survey's frame.
-
-    ```python
-    for cloud, result in gfjax.survey.filtered(paths, "dmf", tmp_folder):
-        ...                                   # result.ground: the file's own points
-    ```
-
-    Args:
-      paths: the survey's files.
-      method: a method name (`gfjax.methods.METHODS`) or package (`gfjax.dmf`).
-      folder: a private temporary folder for the catalog's stores.
-      config, params: the method's settings (default: its defaults); `config`'s tiling sets
-        the halo, and its per-cloud estimates are made once for the survey (`survey_config`).
-      returns: "all" or "last".
-      units: `--units` override.
-      options: further keyword arguments of the method's `filter` (SparseGF's `model`).
-
-    Yields:
-      `(cloud, result)` per file in the order of `paths`; `result.ground` covers the file's
-      own points only.
-    """
-    module = methods.get(method) if isinstance(method, str) else method
-    config = module.Config() if config is None else config
-    catalog = index(paths, folder, returns=returns, units=units)
-    config = survey_config(module, config, catalog, returns=returns)
-
-    def filter_fn(points: Points, returns: str) -> Result:
-        return module.filter(points, config=config, params=params, returns=returns, **options)
-
-    for i, entry in enumerate(catalog.entries):
-        cloud = las_io.read(entry.path, units=units)
-        yield cloud, filter_file(catalog, i, cloud, filter_fn, config, returns=returns)[0]
 
 
 def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, config, *,
