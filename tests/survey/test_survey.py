@@ -84,6 +84,48 @@ def test_a_catalog_labels_every_point_as_the_union_in_one_file(grid, method, tmp
     assert min(halos) > 0
 
 
+@pytest.mark.parametrize("method", [smrf, pmf], ids=["smrf", "pmf"])
+def test_a_tiled_method_runs_each_tile_of_the_survey_once(grid, method, tmp_path):
+    """Tiles of 40 m over four files of about 75 x 55 m: most tiles meet two or four files, and
+    each still runs once, from a window gathered across the files, for its own core only."""
+    paths, members, union = grid
+    config = method.Config(**SMALL_TILES)
+    whole = las_io.read(union)
+    use = whole.filter_mask()
+    occupied = {tile.key for tile in split(whole.xyz_m, tile_size_m=40.0, buffer_m=8.0, use=use)}
+    catalog = survey.index(paths, tmp_path)
+    runs = []
+
+    def filter_fn(points, returns):
+        made = split(points.xyz_m, tile_size_m=40.0, buffer_m=8.0, use=points.filter_mask(returns),
+                     frame=points.frame)
+        runs.append([tile.key for tile in made])
+        return method.filter(points, config=config, returns=returns)
+
+    run = survey.Runner(catalog, filter_fn, config, tmp_path, context=False)
+    got = np.zeros(whole.n_points, bool)
+    for i, (path, keep) in enumerate(zip(paths, members)):
+        result, near = run(i, las_io.read(path))
+        got[keep] = result.ground
+        assert near.shape == (0, 3)
+    assert sorted(key for made in runs for key in made) == sorted(occupied)
+    assert all(len(made) == 1 for made in runs)
+    np.testing.assert_array_equal(got, method.filter(whole, config=config).ground)
+
+
+def test_split_makes_only_the_tiles_its_frame_names():
+    rng = np.random.default_rng(1)
+    xyz = np.column_stack([rng.uniform(0, 100, (3000, 2)), rng.normal(0, 1, 3000)])
+    every = split(xyz, tile_size_m=30.0, buffer_m=5.0)
+    some = split(xyz, tile_size_m=30.0, buffer_m=5.0, frame=Frame.of(xyz).only([(1, 2), (3, 0), (9, 9)]))
+    assert [t.key for t in some] == [(3, 0), (1, 2)]                 # row-major; (9, 9) holds no point
+    for tile in some:
+        same = next(t for t in every if t.key == tile.key)
+        np.testing.assert_array_equal(tile.index, same.index)
+        np.testing.assert_array_equal(tile.core, same.core)
+        np.testing.assert_array_equal(tile.local_xyz, same.local_xyz)
+
+
 def test_the_survey_frame_is_the_union_of_the_files_points_filtered(grid, tmp_path):
     paths, _, union = grid
     catalog = survey.index(paths, tmp_path)
