@@ -269,14 +269,34 @@ def _end_process(code: int) -> NoReturn:
     os._exit(code)
 
 
+def _limit_heap_arenas() -> None:
+    """At most one glibc malloc arena per core, before JAX starts its threads.
+
+    glibc gives every thread that allocates its own arena (up to 8 per core) and returns
+    little of a freed arena to the system, so a process that filters one large window after
+    another keeps the high-water mark of each thread: DMF over a survey of 12 bcts_2 copies
+    peaked at 1.82 GB with the default and 1.01 GB with one arena per core, in about the same
+    time (`experiments/results/survey_scale.md`). `MALLOC_ARENA_MAX` set by the user wins;
+    other C libraries are left alone.
+    """
+    if "MALLOC_ARENA_MAX" in os.environ or not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6").mallopt(-8, max(1, os.cpu_count() or 1))      # -8: M_ARENA_MAX
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run `gfjax` with `argv` and return the exit code.
 
     Without `argv` (the `gfjax` program: `sys.argv[1:]`) the process ends here with that code,
-    skipping the interpreter's teardown (`_end_process`); with `argv` (tests, other Python
-    code) the code is returned.
+    skipping the interpreter's teardown (`_end_process`), and its heap keeps one malloc arena
+    per core (`_limit_heap_arenas`); with `argv` (tests, other Python code) the code is
+    returned and the process's allocator is left as it is.
     """
     if argv is None:
+        _limit_heap_arenas()
         _end_process(_run(sys.argv[1:]))
     return _run(argv)
 

@@ -274,10 +274,12 @@ def canonical_capacities() -> tuple[int, ...]:
 
 
 def canonical_capacity(n: int) -> int:
-    """Smallest `CANONICAL_MIN_CAPACITY * 4^k` holding `n` points."""
+    """Smallest `CANONICAL_MIN_CAPACITY * 4^k` holding `n` points, then powers of 2 beyond
+    `CANONICAL_MAX_CAPACITY` (compiled on demand anyway: there the padding's memory counts
+    more than a compile, a 5 M-point window padded to 8 M points, not 16 M)."""
     cap = CANONICAL_MIN_CAPACITY
     while cap < n:
-        cap *= 4
+        cap *= 4 if cap < CANONICAL_MAX_CAPACITY else 2
     return cap
 
 

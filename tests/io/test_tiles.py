@@ -71,8 +71,9 @@ def test_canonical_sides_and_capacities():
     assert tiling.max_window_px(500.0, 50.0, 1.0) == 601
     assert tiling.canonical_sides(100.0, 10.0, 1.0) == (128,)
     assert tiling.canonical_sides(500.0, 50.0, 0.5) == (128, 192, 256, 384, 512, 768, 1024, 1216)
-    assert [tiling.canonical_capacity(n) for n in (1, 16384, 16385, 70_000, 300_000)] == \
-        [16384, 16384, 65536, 262144, 1048576]
+    assert [tiling.canonical_capacity(n) for n in (1, 16384, 16385, 70_000, 300_000, 4194304, 5_100_000,
+                                                   9_000_000)] == \
+        [16384, 16384, 65536, 262144, 1048576, 4194304, 8388608, 16777216]     # x2 beyond the largest warmed
     assert tiling.canonical_capacities() == (16384, 65536, 262144, 1048576, 4194304)
 
 
