@@ -9,7 +9,8 @@ filters the files as a survey (`gfjax.survey.Runner`: a tiled method runs each t
 survey's lattice once, any other method each file with its neighbours' halo) and,
 for comparison, one process with `--independent` (today's in-memory path, each file alone).
 The table gives each process's peak resident memory (`ru_maxrss` of the child) and its
-throughput (points of the survey / wall time of the whole process). The seam test lives in
+throughput (points of the survey / wall time of the whole process), after untimed runs that
+compile every window shape met. The seam test lives in
 `experiments/survey_seams.py`. Writes `experiments/results/survey_scale.md` (and `.json`, and
 `survey_scale.png`: peak memory against survey size).
 """
@@ -103,6 +104,13 @@ def main():
         tmp = Path(tmp)
         all_paths = write_survey(tmp, max(sizes))
         for method in args.methods.split(","):
+            # untimed: compiles every window shape the timed runs meet (a partly and a fully
+            # covered tile: 4 and 12 files), so no row pays for compiling
+            for n, mode in ((4, "survey"), (12, "survey"), (4, "independent")):
+                out = tmp / f"warm_{method}_{n}_{mode}"
+                run(all_paths[:min(n, len(all_paths))], out, method, mode == "independent")
+                for f in out.iterdir():
+                    f.unlink()
             for n in sizes:
                 paths = all_paths[:n]
                 points = n * laspy.open(SOURCE).header.point_count

@@ -38,6 +38,7 @@ SHAPE_QUANTUM_PX = 64
 SMALLEST_SIDE_PX = 128        # the smallest canonical raster side (`canonical_sides`)
 CANONICAL_MIN_CAPACITY = 1 << 14
 CANONICAL_MAX_CAPACITY = 1 << 22   # the largest capacity `gfjax warmup` compiles ahead
+FEW_CORES = 4                 # `split` finds the points of at most this many named tiles by masks
 
 
 class Frame(NamedTuple):
@@ -138,10 +139,19 @@ def _check(tile_size_m: float, buffer_m: float, cell_m: float) -> None:
 
 def _clamp_into_cells(local: np.ndarray, cell: np.ndarray, cell_m: float) -> np.ndarray:
     """Float32 coordinates that stay inside the cell `cell` (int) their float64 value is in."""
-    lo = (cell * cell_m).astype(np.float32)
-    hi = np.nextafter(((cell + 1) * cell_m).astype(np.float32), np.float32(-np.inf))
-    lo = np.where(np.floor(lo / np.float32(cell_m)) < cell, np.nextafter(lo, np.float32(np.inf)), lo)
-    return np.clip(local.astype(np.float32), lo, np.maximum(lo, hi))
+    out = local.astype(np.float32)
+    # Only a value within a few float32 steps of its cell's edge can round out of it; the
+    # others are left as they are (the clip would keep them), so the clip runs on few rows.
+    margin = 4.0 * float(np.spacing(np.float32(np.abs(local).max(initial=0.0) + cell_m)))
+    offset = local - cell * cell_m
+    near = np.flatnonzero(np.any((offset < margin) | (offset > cell_m - margin), axis=1))
+    if near.size:
+        c = cell[near]
+        lo = (c * cell_m).astype(np.float32)
+        hi = np.nextafter(((c + 1) * cell_m).astype(np.float32), np.float32(-np.inf))
+        lo = np.where(np.floor(lo / np.float32(cell_m)) < c, np.nextafter(lo, np.float32(np.inf)), lo)
+        out[near] = np.clip(out[near], lo, np.maximum(lo, hi))
+    return out
 
 
 def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50.0,
@@ -186,24 +196,36 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     core_px = tile_size_m / cell_m
     buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
 
-    by_core: dict[tuple[int, int], np.ndarray] = {}
-    rows = int(core[:, 1].max()) + 1
-    packed = core[:, 0] * rows + core[:, 1]                  # by col, then row; one int64 sorts fast
-    order = np.argsort(packed, kind="stable")
-    keys, starts = np.unique(packed[order], return_index=True)
-    for key, chunk in zip(keys, np.split(order, starts[1:])):
-        by_core[(int(key // rows), int(key % rows))] = chunk
     reach = max(1, math.ceil((buffer_px + 1) * cell_m / tile_size_m))   # neighbour cores a window reaches
+    if frame.cores is not None and len(frame.cores) <= FEW_CORES:
+        # a survey's window made for one tile: a mask per tile, no sort of the window's points
+        wanted = [k for k in sorted(frame.cores, key=lambda k: (k[1], k[0]))
+                  if np.any((core[:, 0] == k[0]) & (core[:, 1] == k[1]))]
+
+        def candidates_of(ti: int, tj: int) -> np.ndarray:
+            return np.flatnonzero(np.all(np.abs(core - np.array([ti, tj])) <= reach, axis=1))
+    else:
+        by_core: dict[tuple[int, int], np.ndarray] = {}
+        rows = int(core[:, 1].max()) + 1
+        packed = core[:, 0] * rows + core[:, 1]              # by col, then row; one int64 sorts fast
+        order = np.argsort(packed, kind="stable")
+        keys, starts = np.unique(packed[order], return_index=True)
+        for key, chunk in zip(keys, np.split(order, starts[1:])):
+            by_core[(int(key // rows), int(key % rows))] = chunk
+        wanted = sorted(by_core, key=lambda k: (k[1], k[0]))
+        if frame.cores is not None:
+            wanted = [key for key in wanted if key in frame.cores]
+
+        def candidates_of(ti: int, tj: int) -> np.ndarray:
+            found = np.concatenate([by_core.get((ti + di, tj + dj), np.empty(0, np.int64))
+                                    for dj in range(-reach, reach + 1) for di in range(-reach, reach + 1)])
+            found.sort()
+            return found
 
     tiles = []
-    wanted = sorted(by_core, key=lambda k: (k[1], k[0]))
-    if frame.cores is not None:
-        wanted = [key for key in wanted if key in frame.cores]
     for (ti, tj) in wanted:
         k = np.array([ti, tj])
-        candidates = np.concatenate([by_core.get((ti + di, tj + dj), np.empty(0, np.int64))
-                                     for dj in range(-reach, reach + 1) for di in range(-reach, reach + 1)])
-        candidates.sort()
+        candidates = candidates_of(ti, tj)
         core_lo = np.floor(k * core_px).astype(np.int64)
         core_hi = np.minimum(np.ceil((k + 1) * core_px).astype(np.int64), extent_px)
         lo = np.maximum(core_lo - buffer_px, 0)

@@ -119,7 +119,10 @@ def test_split_makes_only_the_tiles_its_frame_names():
     every = split(xyz, tile_size_m=30.0, buffer_m=5.0)
     some = split(xyz, tile_size_m=30.0, buffer_m=5.0, frame=Frame.of(xyz).only([(1, 2), (3, 0), (9, 9)]))
     assert [t.key for t in some] == [(3, 0), (1, 2)]                 # row-major; (9, 9) holds no point
-    for tile in some:
+    many = [(0, 0), (1, 0), (2, 1), (3, 1), (0, 3), (2, 3)]           # more than FEW_CORES: the sorted path
+    more = split(xyz, tile_size_m=30.0, buffer_m=5.0, frame=Frame.of(xyz).only(many))
+    assert [t.key for t in more] == sorted(many, key=lambda k: (k[1], k[0]))
+    for tile in [*some, *more]:
         same = next(t for t in every if t.key == tile.key)
         np.testing.assert_array_equal(tile.index, same.index)
         np.testing.assert_array_equal(tile.core, same.core)
