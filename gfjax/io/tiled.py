@@ -262,3 +262,40 @@ def classify_cloud(xyz_m: Float[np.ndarray, "n 3"], use: Bool[np.ndarray, " n"],
                                       progress=progress, desc=desc)
     ground = tiling.merge(len(use), tiles, labels) & use
     return TiledRun(ground=ground, tiles=tiles, diagnostics=diagnostics)
+
+
+class Filtered(NamedTuple):
+    """What `filter_cloud` gives a tiled method's `filter`.
+
+    Attributes:
+      ground: bool `(n,)`, False for points not used.
+      config: the config the cloud was filtered with (defaults filled in).
+      cores: the tiles' diagnostics pasted into whole-cloud rasters (`mosaic`), or None when no
+        tile ran or the cloud's far groups were moved side by side (the rasters would map the
+        layout, not the cloud).
+      n_tiles: tiles run.
+    """
+
+    ground: np.ndarray
+    config: Any
+    cores: Mosaic | None
+    n_tiles: int
+
+
+def filter_cloud(cloud: Any, config: Any, params: Any, returns: str, *, config_type: type, params_type: type,
+                 package: str, classify_batch: ClassifyBatch, max_batch: int, rasters: Sequence[str],
+                 heights: Sequence[str], progress: bool = False) -> Filtered:
+    """A tiled method's `filter` up to its diagnostics: options checked (`checked_options`),
+    far groups laid out (`laid_out`; not on a survey's frame), tiles classified
+    (`classify_cloud`) and their diagnostics `rasters` mosaicked (`heights`: those shifted to
+    the cloud's vertical frame)."""
+    config, params, use = checked_options(cloud, config, params, returns, config_type=config_type,
+                                          params_type=params_type, package=package)
+    xyz_m, layout = laid_out(cloud, use, config, reach_m=config.buffer_m, keep_frame=cloud.frame is not None)
+    run = classify_cloud(xyz_m, use, classify_batch, params, config, max_batch=max_batch, frame=cloud.frame,
+                         progress=progress, desc=f"{package.rsplit('.', 1)[-1]} tiles")
+    cores = None
+    if run.tiles and layout is None:
+        cores = mosaic(run.tiles, run.diagnostics, names=rasters, heights=heights, cell_m=config.cell_m)
+    return Filtered(ground=run.ground, config=config, cores=cores, n_tiles=len(run.tiles))
+

@@ -63,19 +63,14 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       `diagnostics` a `PMFDiagnostics` (None for a cloud with no usable point, and for one whose
       groups of points far apart were moved side by side: `gfjax.io.tiled.laid_out`).
     """
-    config, params, use = tiled.checked_options(cloud, config, params, returns, config_type=Config,
-                                                params_type=Params, package="gfjax.pmf")
-    xyz_m, layout = tiled.laid_out(cloud, use, config, reach_m=config.buffer_m,
-                                   keep_frame=cloud.frame is not None)
-    run = tiled.classify_cloud(xyz_m, use, programs.classify_batch, params, config, max_batch=MAX_BATCH,
-                               frame=cloud.frame, progress=progress, desc="pmf tiles")
-    if not run.tiles or layout is not None:     # moved groups: the rasters would map the layout, not the cloud
-        return Result(ground=run.ground, diagnostics=None)
-    cores = tiled.mosaic(run.tiles, run.diagnostics, names=("zimin", "surface", "empty"),
-                         heights=("zimin", "surface"), cell_m=config.cell_m)
-    return Result(ground=run.ground, diagnostics=PMFDiagnostics(
-        **cores.rasters, origin_m=cores.origin_m, cell_m=config.cell_m, windows_px=config.windows_px,
-        n_tiles=len(run.tiles)))
+    done = tiled.filter_cloud(cloud, config, params, returns, config_type=Config, params_type=Params,
+                              package="gfjax.pmf", classify_batch=programs.classify_batch, max_batch=MAX_BATCH,
+                              rasters=("zimin", "surface", "empty"), heights=("zimin", "surface"), progress=progress)
+    if done.cores is None:
+        return Result(ground=done.ground, diagnostics=None)
+    return Result(ground=done.ground, diagnostics=PMFDiagnostics(
+        **done.cores.rasters, origin_m=done.cores.origin_m, cell_m=done.config.cell_m,
+        windows_px=done.config.windows_px, n_tiles=done.n_tiles))
 
 
 def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False) -> int:
