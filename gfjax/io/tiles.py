@@ -184,12 +184,12 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     used = np.flatnonzero(use)
     if used.size == 0:
         return []
-    pts = xyz_m[used]
-    frame = Frame.of(pts) if frame is None else frame
+    rel = xyz_m[used]                                             # a copy: made relative in place
+    frame = Frame.of(rel) if frame is None else frame
     origin = np.asarray(frame.origin_m, np.float64)
-    if np.any(pts < origin[None, :]) or np.any(pts[:, :2] > np.asarray(frame.upper_m)[None, :]):
+    if np.any(rel < origin[None, :]) or np.any(rel[:, :2] > np.asarray(frame.upper_m)[None, :]):
         raise ValueError("points lie outside the tiling frame")
-    rel = pts - origin                                            # float64, >= 0
+    rel -= origin                                                 # float64, >= 0
     cell = np.floor(rel[:, :2] / cell_m).astype(np.int64)        # global (col, row-from-south)
     extent_px = np.floor((np.asarray(frame.upper_m) - origin[:2]) / cell_m).astype(np.int64) + 1
     core = np.floor(rel[:, :2] / tile_size_m).astype(np.int64)
