@@ -85,3 +85,27 @@ def test_program_whose_reader_is_gone_keeps_the_file_it_wrote(tmp_path):
     assert (done.returncode, done.stderr) == (141, "")
     assert len(laspy.read(target).points) == len(SCENE_CLASSES)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.las", "out.laz"]
+
+
+def test_the_program_keeps_one_malloc_arena_per_core_unless_the_user_set_it(monkeypatch):
+    """`main()` as the program calls glibc's `mallopt(M_ARENA_MAX, cores)` once, before any
+    work; a `MALLOC_ARENA_MAX` of the user's is left to glibc."""
+    import ctypes
+
+    from gfjax.cli import main as cli_main
+
+    calls = []
+
+    class Libc:
+        def mallopt(self, option, value):
+            calls.append((option, value))
+            return 1
+
+    monkeypatch.setattr(ctypes, "CDLL", lambda name: Libc())
+    monkeypatch.delenv("MALLOC_ARENA_MAX", raising=False)
+    cli_main._limit_heap_arenas()
+    assert calls == ([(-8, os.cpu_count())] if sys.platform.startswith("linux") else [])
+    calls.clear()
+    monkeypatch.setenv("MALLOC_ARENA_MAX", "4")
+    cli_main._limit_heap_arenas()
+    assert calls == []
