@@ -13,8 +13,9 @@ HIGH_NOISE = 18
 NOISE_CLASSES = (LOW_NOISE, HIGH_NOISE)
 
 
-def ignored_mask(las: laspy.LasData) -> np.ndarray:
-    """Points that no filter uses and whose class never changes: noise (7, 18) or withheld.
+def ignored_mask(las: laspy.LasData | laspy.PackedPointRecord) -> np.ndarray:
+    """Points (of a file, or of a chunk of its points) that no filter uses and whose class never
+    changes: noise (7, 18) or withheld.
 
     Returns a bool array `(n,)`.
     """
@@ -24,6 +25,24 @@ def ignored_mask(las: laspy.LasData) -> np.ndarray:
     if "withheld" in names:
         ignored |= np.asarray(las.withheld, dtype=bool)
     return ignored
+
+
+def relabel(classification: np.ndarray, ground: np.ndarray, used: np.ndarray, *,
+            reset_nonground: bool = False) -> np.ndarray:
+    """New classes uint8 `(n,)` for a filter's labels (SPEC section 1): used ground points get
+    class 2; used non-ground points that were 2 become 1, and the other used non-ground points
+    keep their class unless `reset_nonground` (then all become 1); points not `used` keep
+    their class whatever `ground` says."""
+    cls = np.asarray(classification, np.uint8)
+    ground, used = np.asarray(ground, bool), np.asarray(used, bool)
+    new = cls.copy()
+    new[ground & used] = GROUND
+    nonground = ~ground & used
+    if reset_nonground:
+        new[nonground] = UNCLASSIFIED
+    else:
+        new[nonground & (cls == GROUND)] = UNCLASSIFIED
+    return new
 
 
 # ASPRS LAS 1.4 R15, table 17 (point formats 6-10); codes 0-12 as in LAS 1.2 table 5 except

@@ -145,14 +145,7 @@ class Cloud:
             raise ValueError(f"{self.name}: ground must have shape ({self.n_points},), got {ground.shape}")
         if used is None:
             used = ~self.ignored
-        cls = self.classification.copy()
-        new = cls.copy()
-        new[ground & used] = asprs.GROUND
-        nonground = ~ground & used
-        if reset_nonground:
-            new[nonground] = asprs.UNCLASSIFIED
-        else:
-            new[nonground & (cls == asprs.GROUND)] = asprs.UNCLASSIFIED
+        new = asprs.relabel(self.classification, ground, used, reset_nonground=reset_nonground)
         las = laspy.LasData(header=self.las.header, points=self.las.points.copy())
         if hasattr(self.las, "evlrs") and self.las.evlrs is not None:
             las.evlrs = self.las.evlrs

@@ -194,7 +194,7 @@ def read_points(path: str | os.PathLike, *, trust_data: bool = False, allow_empt
     if len(las.points) != layout.data_count:
         raise InputError(f"{path}: truncated {kind} file: header says {layout.header_count} points, "
                          f"the file holds {len(las.points)}")
-    _check_int32_limits(path, las)
+    check_int32_limits(path, las.points)
     return las
 
 
@@ -225,11 +225,12 @@ def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
                  vertical_unit_m=found.units.vertical_m, crs=found.crs, units_source=found.units.source)
 
 
-def _check_int32_limits(path: Path, las: laspy.LasData) -> None:
-    """Refuse points whose stored integer X/Y/Z sits at the int32 limits: the coordinates
-    overflowed (or were clamped) when the file was written, so they do not say where the point is."""
+def check_int32_limits(path: Path, points) -> None:
+    """Refuse points (a laspy point record) whose stored integer X/Y/Z sits at the int32
+    limits: the coordinates overflowed (or were clamped) when the file was written, so they
+    do not say where the point is."""
     for axis in ("X", "Y", "Z"):
-        values = np.asarray(las.points[axis])
+        values = np.asarray(points[axis])
         if len(values) == 0:
             continue
         low, high = int(values.min()), int(values.max())

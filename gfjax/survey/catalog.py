@@ -1,7 +1,7 @@
 """A survey's catalog: each file's points filtered, kept on disk for its neighbours' halos.
 
-One pass reads every file (`gfjax.io.las.read`, so the usual checks and unit conversion
-apply), refuses a survey whose files disagree on CRS or units (one line naming both files),
+One pass reads every file a chunk at a time (`gfjax.io.stream`, with the checks and unit
+conversion of `gfjax.io.las.read`; memory is one chunk, not one file), refuses a survey whose files disagree on CRS or units (one line naming both files),
 and stores the few per-point values a neighbour's halo needs (metres, class, returns,
 whether it is ignored: 28 bytes a point) as a memory-mapped `.npy` in a private temporary folder. The
 survey's `Frame` is the bounding box of every file's points filtered, exactly the frame one
@@ -17,7 +17,8 @@ from typing import NamedTuple
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import las as las_io
+from gfjax.io import asprs, stream
+from gfjax.io.cloud import use_mask
 from gfjax.io.tiles import Frame
 
 STORE = np.dtype([("xyz_m", "<f8", (3,)), ("classification", "u1"), ("return_number", "u1"),
@@ -79,30 +80,44 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
     """
     entries, first = [], None
     for i, path in enumerate(map(Path, paths)):
-        cloud = las_io.read(path, units=units, trust_data=trust_data)
-        if first is None:
-            first = cloud
-        elif _units(cloud) != _units(first) or (cloud.crs is None) != (first.crs is None) or (
-                cloud.crs is not None and not cloud.crs.equals(first.crs)):
-            raise InputError(f"{path}: CRS or units differ from {first.path} ({_describe(cloud)} vs {_describe(first)}), "
-                             "so they are not one survey; filter them independently (gfjax filter --independent)")
-        _check_bounds(cloud)
-        records = np.lib.format.open_memmap(Path(folder) / f"{i}.npy", mode="w+", dtype=STORE,
-                                            shape=(cloud.n_points,))
-        records["xyz_m"] = cloud.xyz_m
-        records["classification"] = cloud.classification
-        records["return_number"] = cloud.return_number
-        records["number_of_returns"] = cloud.number_of_returns
-        records["ignored"] = cloud.ignored
-        records.flush()
-        used = cloud.filter_mask(returns)
-        frame = Frame.of(records["xyz_m"][used]) if used.any() else None
+        with stream.open_points(path, units=units, trust_data=trust_data) as points:
+            if first is None:
+                first = points
+            elif _units(points) != _units(first) or (points.crs is None) != (first.crs is None) or (
+                    points.crs is not None and not points.crs.equals(first.crs)):
+                raise InputError(f"{path}: CRS or units differ from {first.path} ({_describe(points)} vs "
+                                 f"{_describe(first)}), so they are not one survey; filter them independently "
+                                 "(gfjax filter --independent)")
+            store = Path(folder) / f"{i}.npy"
+            records = np.lib.format.open_memmap(store, mode="w+", dtype=STORE, shape=(points.n_points,))
+            scale = np.array([points.horizontal_unit_m, points.horizontal_unit_m, points.vertical_unit_m])
+            low = np.full(3, np.inf)
+            high = np.full(3, -np.inf)
+            box_lo, box_hi = np.full(3, np.inf), np.full(2, -np.inf)
+            for start, chunk in points.chunks():
+                xyz = np.stack([np.asarray(chunk.x, np.float64), np.asarray(chunk.y, np.float64),
+                                np.asarray(chunk.z, np.float64)], axis=1)
+                low, high = np.minimum(low, xyz.min(axis=0)), np.maximum(high, xyz.max(axis=0))
+                xyz *= scale
+                part = records[start:start + len(chunk)]
+                part["xyz_m"] = xyz
+                part["classification"] = np.asarray(chunk.classification, np.uint8)
+                part["return_number"] = np.asarray(chunk.return_number, np.uint8)
+                part["number_of_returns"] = np.asarray(chunk.number_of_returns, np.uint8)
+                part["ignored"] = ignored = asprs.ignored_mask(chunk)
+                used = use_mask(ignored, part["return_number"], part["number_of_returns"], returns)
+                if used.any():
+                    box_lo = np.minimum(box_lo, xyz[used].min(axis=0))
+                    box_hi = np.maximum(box_hi, xyz[used, :2].max(axis=0))
+            records.flush()
+            del records
+            _check_bounds(points, low, high)
+        frame = Frame(box_lo, box_hi) if np.all(np.isfinite(box_lo)) else None
         for other in entries:
-            if other.n_points == cloud.n_points and _same_frame(other.frame, frame):
+            if other.n_points == points.n_points and _same_frame(other.frame, frame):
                 raise InputError(f"{path}: holds as many points in the same bounds as {other.path}: "
                                  "the same tile twice? Filter one of them, or the files independently")
-        entries.append(Entry(path, cloud.n_points, frame, Path(folder) / f"{i}.npy"))
-        del records, cloud
+        entries.append(Entry(path, points.n_points, frame, store))
     frames = [e.frame for e in entries if e.frame is not None]
     frame = None
     for f in frames:
@@ -116,16 +131,15 @@ def _same_frame(a: Frame | None, b: Frame | None) -> bool:
     return bool(np.array_equal(a.origin_m, b.origin_m) and np.array_equal(a.upper_m, b.upper_m))
 
 
-def _check_bounds(cloud) -> None:
-    """Every point within the header's bounds (half a scale step of slack, in file units)."""
-    if cloud.n_points == 0:
+def _check_bounds(points: stream.Stream, low: np.ndarray, high: np.ndarray) -> None:
+    """Every point (`low`, `high`: their minimum and maximum x, y, z in file units) within the
+    header's bounds (half a scale step of slack)."""
+    if points.n_points == 0:
         return
-    xyz = cloud.xyz
-    header = cloud.las.header
+    header = points.header
     slack = 0.5 * np.abs(np.asarray(header.scales, np.float64))
-    low, high = xyz.min(axis=0), xyz.max(axis=0)
     if np.any(low < np.asarray(header.mins) - slack) or np.any(high > np.asarray(header.maxs) + slack):
-        raise InputError(f"{cloud.name}: header bounds {np.round(header.mins, 3).tolist()} - "
+        raise InputError(f"{points.path}: header bounds {np.round(header.mins, 3).tolist()} - "
                          f"{np.round(header.maxs, 3).tolist()} do not hold its points "
                          f"({np.round(low, 3).tolist()} - {np.round(high, 3).tolist()}); rewrite the header "
                          "(e.g. `pdal translate`, `las2las`)")

@@ -1,0 +1,131 @@
+"""LAS/LAZ files a chunk of points at a time: reading and rewriting files larger than memory.
+
+`open_points` reads a file checked as `gfjax.io.las.read` checks it (its layout and point
+count before any point, the int32 limits of every chunk, a truncated file at the end; its CRS
+and unit factors) in chunks of `CHUNK_POINTS`; `rewrite` copies a file into a new one with
+only the classification changed, chunk by chunk, atomically (`gfjax.io.atomic`), keeping the
+header, every VLR/EVLR and every point dimension. Memory is one chunk, whatever the file's size.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from gfjax.errors import InputError
+from gfjax.io import las as las_io
+from gfjax.io.atomic import atomic_output
+
+CHUNK_POINTS = 1 << 20          # points a chunk holds (about 30-70 MB of point records)
+
+
+class Stream:
+    """An open LAS/LAZ file, read a chunk at a time (`open_points`).
+
+    Attributes:
+      path: the file.
+      header: its header (`point_count` the points it holds).
+      n_points: points it holds.
+      horizontal_unit_m, vertical_unit_m: its unit factors, and crs its CRS or None
+        (`gfjax.io.las.header_crs_units`).
+    """
+
+    def __init__(self, path: Path, reader: laspy.LasReader, n_points: int, found: las_io.CRSUnits):
+        self.path, self._reader, self.n_points = path, reader, n_points
+        self.header = reader.header
+        self.crs = found.crs
+        self.horizontal_unit_m, self.vertical_unit_m = found.units.horizontal_m, found.units.vertical_m
+
+    def chunks(self, size: int | None = None) -> Iterator[tuple[int, laspy.ScaleAwarePointRecord]]:
+        """`(start, points)` for each chunk, in file order: `points` are the file's points
+        `start` to `start + len(points)`.
+
+        Raises:
+          InputError: truncated or corrupt data, or stored coordinates at the int32 limits.
+        """
+        kind = "LAZ" if self.header.are_points_compressed else "LAS"
+        start = 0
+        try:
+            for points in self._reader.chunk_iterator(size or CHUNK_POINTS):
+                if len(points) == 0:
+                    break
+                las_io.check_int32_limits(self.path, points)
+                yield start, points
+                start += len(points)
+        except InputError:
+            raise
+        except MemoryError:
+            raise
+        except Exception as err:  # noqa: BLE001 (laspy/lazrs decoding the user's bytes: a bad file, not a bug)
+            detail = f"decompression failed: {err}" if kind == "LAZ" else str(err)
+            raise InputError(f"{self.path}: truncated or corrupt {kind} data ({detail})") from None
+        if start != self.n_points:
+            raise InputError(f"{self.path}: truncated {kind} file: header says {self.n_points} points, "
+                             f"the file holds {start}")
+
+
+@contextlib.contextmanager
+def open_points(path: str | os.PathLike, *, units: str | None = None, trust_data: bool = False) -> Iterator[Stream]:
+    """A `Stream` over a LAS 1.1-1.4 or LAZ file's points.
+
+    Raises:
+      InputError: as `gfjax.io.las.read`.
+    """
+    path = Path(path)
+    header, layout = las_io._read_header(path, trust_data=trust_data)
+    found = las_io.header_crs_units(header, name=str(path), units=units)
+    try:
+        reader = laspy.open(path, laz_backend=las_io.LAZ_BACKENDS)
+    except Exception as err:  # noqa: BLE001 (laspy parsing the user's bytes: a bad file, not a bug)
+        raise InputError(f"{path}: not a valid LAS/LAZ header ({type(err).__name__}: {err})") from None
+    with reader:
+        reader.header.point_count = layout.data_count
+        yield Stream(path, reader, layout.data_count, found)
+
+
+def rewrite(source: str | os.PathLike, target: str | os.PathLike,
+            classify: Callable[[int, laspy.ScaleAwarePointRecord], np.ndarray], *, force: bool = False,
+            input_paths: Iterable[str | os.PathLike] = (), trust_data: bool = False) -> Path:
+    """Copy `source` to `target` atomically with each chunk's classification replaced.
+
+    Args:
+      source: a LAS/LAZ file.
+      target: the output (LAZ when its suffix is `.laz`).
+      classify: `classify(start, points) -> (len(points),) uint8`: the new classes of the
+        points `start` to `start + len(points)` of `source`.
+      force, input_paths: as `gfjax.io.las.write`.
+      trust_data: as `gfjax.io.las.read`.
+
+    Returns:
+      The path written.
+    """
+    source, target = Path(source), Path(target)
+    compress = target.suffix.lower() == ".laz"
+    with open_points(source, trust_data=trust_data, units="m") as stream:
+        backends = las_io._compressors(stream.header.point_format.id, target) if compress else None
+        with atomic_output(target, force=force, input_paths=[*input_paths, source],
+                           suffixes=las_io.LAS_SUFFIXES) as tmp, open(tmp, "w+b") as raw:
+            f = las_io._KeepWriteError(raw)
+            try:
+                with laspy.LasWriter(f, stream.header, do_compress=compress, laz_backend=backends, closefd=False,
+                                     encoding_errors="surrogateescape") as writer:
+                    for start, points in stream.chunks():
+                        points.classification = classify(start, points)
+                        writer.write_points(points)
+                    evlrs = stream._reader.evlrs
+                    if stream.header.version.minor >= 4 and evlrs:
+                        writer.write_evlrs(evlrs)
+            except UnicodeError as err:
+                raise InputError(f"{target}: cannot write the text fields of {source} unchanged: LAS text "
+                                 f"is ASCII ({err})") from None
+            except InputError:
+                raise
+            except Exception:
+                if f.error is not None:
+                    raise f.error from None
+                raise
+    return target
