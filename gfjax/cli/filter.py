@@ -12,6 +12,12 @@ file border gets the label it would get if the survey were one file (exactly so 
 tiled methods, SMRF and PMF). The files must share their CRS and units. `--independent`
 filters each file on its own instead.
 
+A file too large for the memory budget (`GFJAX_MEMORY_BUDGET_GB`, default half the
+machine's memory) is filtered out of core by SMRF and PMF (`--out-of-core` forces it): read
+a chunk at a time into an index on disk (28 bytes a point, in a private temporary folder),
+filtered one tile window at a time, and written by copying the input a chunk at a time with
+the new classes; memory follows the largest tile window, not the file.
+
 Every option, input and output is checked before the first file is filtered (option ranges
 and the memory their rasters need, headers, CRS and units, output folders, free space), so a
 bad option or path fails at once and leaves no file behind. An existing output file (or an
@@ -66,6 +72,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="DTM cell size [m] (default 1)")
     parser.add_argument("--independent", action="store_true",
                         help="filter each input on its own, without its neighbours' points")
+    parser.add_argument("--out-of-core", action="store_true",
+                        help="filter tile by tile from disk, memory bounded by a tile's window (SMRF, PMF; "
+                             "chosen by itself for a file larger than the memory budget)")
     add_units_option(parser)
     parser.add_argument("--trust-data", action="store_true",
                         help="when a header's point count disagrees with the points the file holds, "
@@ -120,7 +129,10 @@ def run(args: argparse.Namespace) -> int:
                             dtm_cell_m=args.cell if args.dtm else None,
                             extra_bytes_per_point=4 if args.instances else 0, trust_data=args.trust_data)
     say_crs_warning([(job.source, job.crs_units) for job in planned])
+    out_of_core = _out_of_core(args, setup, planned)
     with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder:
+        if out_of_core:
+            return _run_out_of_core(args, setup, inputs, planned, folder)
         runner = None
         if len(inputs) > 1 and not args.independent:
             from gfjax import survey
@@ -191,6 +203,82 @@ def _run(args, setup, inputs, planned, runner) -> int:
             h, w = dtm_lib.mosaic([job.dtm_target for job in planned], args.dtm_mosaic)
             print(f"DTM mosaic of {len(planned)} files -> {args.dtm_mosaic} ({h:,} x {w:,} cells)")
     return code
+
+
+def _out_of_core(args, setup, planned) -> bool:
+    """Whether to filter tile by tile from disk: `--out-of-core`, or a file whose points, filtered
+    in memory, would take more than the memory budget (`limits.IN_MEMORY_BYTES_PER_POINT`)."""
+    from gfjax import limits
+    from gfjax.survey.halo import is_tiled
+
+    budget = limits.memory_budget_bytes()
+    large = [job for job in planned
+             if job.header.point_count * (job.header.point_format.size + limits.IN_MEMORY_BYTES_PER_POINT) > budget]
+    if not (args.out_of_core or large):
+        return False
+    why = "--out-of-core" if args.out_of_core else (
+        f"{large[0].source}: {large[0].header.point_count:,} points need about "
+        f"{large[0].header.point_count * (large[0].header.point_format.size + limits.IN_MEMORY_BYTES_PER_POINT) / 2**30:.1f}"
+        f" GiB filtered in memory, more than the budget of {budget / 2**30:.1f} GiB "
+        f"(set {limits.BUDGET_ENV} to change it)")
+    if not is_tiled(setup.config):
+        raise InputError(f"{why}: method {setup.name} filters a file in memory only; smrf and pmf filter it "
+                         "out of core, a tile at a time")
+    for option, given in (("--dtm", args.dtm is not None), ("--instances", args.instances)):
+        if given:
+            raise InputError(f"{why}: {option} needs the file in memory; filter without it out of core")
+    if not args.out_of_core:
+        print(f"gfjax: {why}: filtering out of core, a tile at a time", file=sys.stderr)
+    return True
+
+
+def _run_out_of_core(args, setup, inputs, planned, folder) -> int:
+    """Filter and write every planned file tile by tile from disk (`gfjax.survey.lattice`): the
+    files as one survey, or each alone with `--independent`."""
+    from gfjax import survey
+    from gfjax.io import asprs, stream
+    from gfjax.io.cloud import use_mask
+
+    def filter_fn(points, returns):
+        return setup.filter(points, returns=returns, progress=False)
+
+    shared = None
+    if len(inputs) > 1 and not args.independent:
+        catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data)
+        shared = (survey.Runner(catalog, filter_fn, setup.config, folder, returns=args.returns, context=False),
+                  {source: i for i, source in enumerate(inputs)})
+
+    def one(job: _job.Planned) -> None:
+        start_s = time.perf_counter()
+        if shared is None:
+            own = Path(tempfile.mkdtemp(prefix="file-", dir=folder))
+            catalog = survey.index([job.source], own, returns=args.returns, units=args.units,
+                                   trust_data=args.trust_data)
+            runner, i = survey.Runner(catalog, filter_fn, setup.config, own, returns=args.returns,
+                                      context=False), 0
+        else:
+            runner, i = shared[0], shared[1][job.source]
+        ground = runner.ground(i)
+        counts = [0, 0]
+
+        def classify(start: int, points) -> np.ndarray:
+            n = len(points)
+            used = use_mask(asprs.ignored_mask(points), np.asarray(points.return_number),
+                            np.asarray(points.number_of_returns), args.returns)
+            mine = np.asarray(ground[start:start + n], bool) & used
+            counts[0] += int(mine.sum())
+            counts[1] += n
+            return asprs.relabel(np.asarray(points.classification), mine, used,
+                                 reset_nonground=args.reset_nonground)
+
+        stream.rewrite(job.source, job.target, classify, force=args.force, input_paths=inputs,
+                       trust_data=args.trust_data)
+        seconds = time.perf_counter() - start_s
+        print(f"{job.source} -> {job.target}: {setup.name} (out of core), {counts[0]:,} ground of {counts[1]:,} "
+              f"points ({100.0 * counts[0] / max(counts[1], 1):.1f} %), {seconds:.1f} s "
+              f"({counts[1] / max(seconds, 1e-9):,.0f} points/s)")
+
+    return _job.run_files(planned, one, keep_going=args.keep_going, report=None)
 
 
 def _write(labelled, target: Path, dtm_target: Path | None, cloud, ground: np.ndarray,

@@ -54,10 +54,11 @@ class TileLabels:
         """Tile key `(col, row)` int64 `(n, 2)` of points `xy_m` `(n, 2)` [m], as `tiles.split` computes it."""
         return np.floor((np.asarray(xy_m, np.float64) - self.origin) / self.config.tile_size_m).astype(np.int64)
 
-    def ground(self, i: int, margin_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    def ground(self, i: int, margin_m: float = 0.0, *, labels_only: bool = False):
         """`(ground, near_ground_m)`: file `i`'s labels, bool `(n_i,)`, and the other files'
         ground points within `margin_m` of its bounding box, float64 `(k, 3)` [m]; runs the
-        tiles these need that have not run yet."""
+        tiles these need that have not run yet. `labels_only`: the labels alone, as their
+        memory-mapped store (nothing read into memory)."""
         entry = self.catalog.entries[i]
         needed = set(self.keys[i])
         if entry.frame is not None and margin_m > 0:
@@ -68,6 +69,9 @@ class TileLabels:
                        if first[0] <= k[0] <= last[0] and first[1] <= k[1] <= last[1]}
         for key in sorted(needed - self.done, key=lambda k: (k[1], k[0])):
             self._run(key)
+        if labels_only:
+            self.labels[i].flush()
+            return self.labels[i]
         near = np.empty((0, 3), np.float64)
         if entry.frame is not None and margin_m > 0:
             parts = []

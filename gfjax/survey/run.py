@@ -41,6 +41,13 @@ class Runner:
         if is_tiled(config) and catalog.frame is not None:
             self.tiles = TileLabels(catalog, filter_fn, config, folder, returns=returns)
 
+    def ground(self, i: int) -> np.ndarray:
+        """File `i`'s labels, bool `(n_i,)` memory-mapped (a tiled method only: the file is
+        never read whole; `gfjax filter --out-of-core`)."""
+        if self.tiles is None:
+            raise ValueError("Runner.ground: only a tiled method labels a file without reading it")
+        return self.tiles.ground(i, labels_only=True)
+
     def __call__(self, i: int, cloud: Cloud) -> tuple[Result, np.ndarray]:
         """File `i` of the catalog, read as `cloud`, filtered.
 

@@ -1,0 +1,87 @@
+"""Files filtered out of core: read a chunk at a time, filtered a tile window at a time,
+rewritten a chunk at a time; the output equals the in-memory one, every dimension kept."""
+from __future__ import annotations
+
+import laspy
+import numpy as np
+import pytest
+
+from gfjax import limits
+from gfjax.cli.main import main
+from gfjax.errors import InputError
+from gfjax.io import stream
+
+from test_survey import SMALL_TILES, town, write_grid
+
+TILING = ["--tile-size", str(SMALL_TILES["tile_size_m"]), "--buffer", str(SMALL_TILES["buffer_m"])]
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("ooc")
+    xyz, cls = town(seed=3)
+    return write_grid(folder, xyz, cls)
+
+
+def _same_but_classification(a, b) -> None:
+    a, b = laspy.read(a), laspy.read(b)
+    assert a.header.point_count == b.header.point_count
+    assert [v.record_id for v in a.header.vlrs] == [v.record_id for v in b.header.vlrs]
+    for name in a.point_format.dimension_names:
+        if name != "classification":
+            np.testing.assert_array_equal(np.asarray(a[name]), np.asarray(b[name]), err_msg=name)
+
+
+@pytest.mark.parametrize("method", ["smrf", "pmf"])
+def test_a_file_out_of_core_equals_the_file_in_memory(files, method, tmp_path, monkeypatch):
+    *_, union = files
+    monkeypatch.setattr(stream, "CHUNK_POINTS", 5_000)            # several chunks
+    args = ["filter", str(union), "--method", method, *TILING, "--reset-nonground"]
+    assert main([*args, "-o", str(tmp_path / "memory.laz")]) == 0
+    assert main([*args, "-o", str(tmp_path / "disk.laz"), "--out-of-core"]) == 0
+    memory, disk = laspy.read(tmp_path / "memory.laz"), laspy.read(tmp_path / "disk.laz")
+    np.testing.assert_array_equal(np.asarray(disk.classification), np.asarray(memory.classification))
+    assert np.any(np.asarray(disk.classification) == 2) and np.any(np.asarray(disk.classification) == 1)
+    _same_but_classification(union, tmp_path / "disk.laz")
+    assert not list(tmp_path.glob(".*"))                          # no temporary left
+
+
+def test_a_survey_out_of_core_labels_as_the_union(files, tmp_path, monkeypatch):
+    paths, members, union = files
+    monkeypatch.setattr(stream, "CHUNK_POINTS", 3_000)
+    assert main(["filter", str(union), "-o", str(tmp_path / "union.laz"), *TILING]) == 0
+    (tmp_path / "out").mkdir()
+    assert main(["filter", *map(str, paths), "-o", str(tmp_path / "out"), *TILING, "--out-of-core"]) == 0
+    want = np.asarray(laspy.read(tmp_path / "union.laz").classification)
+    got = np.zeros_like(want)
+    for path, keep in zip(paths, members):
+        got[keep] = np.asarray(laspy.read(tmp_path / "out" / path.name).classification)
+        _same_but_classification(path, tmp_path / "out" / path.name)
+    np.testing.assert_array_equal(got, want)
+
+
+def test_a_file_over_the_budget_goes_out_of_core_by_itself(files, tmp_path, monkeypatch, capsys):
+    *_, union = files
+    monkeypatch.setattr(limits, "IN_MEMORY_BYTES_PER_POINT", 1 << 40)
+    assert main(["filter", str(union), "-o", str(tmp_path / "a.laz"), *TILING]) == 0
+    err = capsys.readouterr().err
+    assert "union.laz" in err and "filtering out of core" in err
+    for extra, problem in ((["--method", "dmf"], "method dmf filters a file in memory only"),
+                           (["--dtm", str(tmp_path / "d.tif")], "--dtm needs the file in memory")):
+        assert main(["filter", str(union), "-o", str(tmp_path / "b.laz"), *extra]) == 2
+        assert problem in capsys.readouterr().err
+        assert not (tmp_path / "b.laz").exists() and not (tmp_path / "d.tif").exists()
+
+
+def test_a_truncated_file_read_in_chunks_is_refused_naming_it(files, tmp_path, monkeypatch):
+    *_, union = files
+    data = union.read_bytes()
+    cut = tmp_path / "cut.laz"
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    monkeypatch.setattr(stream, "CHUNK_POINTS", 2_000)
+    with pytest.raises(InputError, match="cut.laz: truncated"):
+        with stream.open_points(cut, trust_data=True) as points:
+            for _ in points.chunks():
+                pass
+    assert main(["filter", str(cut), "-o", str(tmp_path / "out.laz"), "--out-of-core", "--trust-data"]) == 2
+    assert not (tmp_path / "out.laz").exists()
