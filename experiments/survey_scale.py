@@ -53,10 +53,29 @@ def write_survey(folder: Path, n_files: int) -> list[Path]:
     return paths
 
 
-def run(paths: list[Path], out: Path, method: str, independent: bool) -> dict:
+def write_one_file(folder: Path, n_copies: int) -> Path:
+    """The same `n_copies` as `write_survey`, in one file."""
+    las = laspy.read(SOURCE)
+    columns = math.ceil(math.sqrt(n_copies))
+    step = np.round(np.asarray(CELL_M) / np.asarray(las.header.scales[:2])).astype(np.int64)
+    parts = []
+    for k in range(n_copies):
+        row, col = divmod(k, columns)
+        part = las.points.array.copy()
+        part["X"] += col * step[0]
+        part["Y"] += row * step[1]
+        parts.append(part)
+    las.points = laspy.ScaleAwarePointRecord(np.concatenate(parts), las.header.point_format, las.header.scales,
+                                             las.header.offsets)
+    path = folder / f"one_{n_copies}.laz"
+    las.write(path)
+    return path
+
+
+def run(paths: list[Path], out: Path, method: str, independent: bool, *, extra: tuple[str, ...] = ()) -> dict:
     """One whole `gfjax filter` process: wall time [s] and peak RSS [bytes]."""
     out.mkdir()
-    argv = [*GFJAX, "-q", "filter", *map(str, paths), "-o", str(out), "--method", method]
+    argv = [*GFJAX, "-q", "filter", *map(str, paths), "-o", str(out), "--method", method, *extra]
     if independent:
         argv.append("--independent")
     start = time.perf_counter()
@@ -95,6 +114,9 @@ def main():
     parser.add_argument("--tiles", default="4,12,42", help="survey sizes in files (copies of bcts_2)")
     parser.add_argument("--independent-tiles", default="4,42",
                         help="the sizes also filtered one file at a time (--independent)")
+    parser.add_argument("--one-file", default="12,42",
+                        help="copies merged into one file, filtered with SMRF out of core (and in memory "
+                             "while it fits the budget)")
     parser.add_argument("--out", type=Path, default=RESULTS / "survey_scale.md")
     args = parser.parse_args()
     sizes = [int(s) for s in args.tiles.split(",")]
@@ -126,9 +148,26 @@ def main():
                     for f in (tmp / f"out_{method}_{n}_{mode}").iterdir():
                         f.unlink()
 
+        for n in [int(v) for v in args.one_file.split(",") if v]:
+            path = write_one_file(tmp, n)
+            points = n * laspy.open(SOURCE).header.point_count
+            for mode, extra in (("one file, out of core", ("--out-of-core",)), ("one file, in memory", ())):
+                if not extra and points * 700 > 12 * 2**30:
+                    continue                  # over this machine's default budget: it would go out of core
+                out = tmp / f"out_one_{n}_{len(extra)}"
+                row = run([path], out, "smrf", False, extra=extra)
+                row |= {"method": "smrf", "files": 1, "points": points, "mode": mode,
+                        "points_per_s": points / row["wall_s"]}
+                rows.append(row)
+                print(f"smrf {mode} {points:,} points: {row['wall_s']:.1f} s, {row['peak_rss_b'] / 2**30:.2f} GiB",
+                      flush=True)
+                for f in out.iterdir():
+                    f.unlink()
+            path.unlink()
+
     lines = ["# Survey scale: peak memory and throughput against survey size", "",
              f"Command: `nice .venv/bin/python experiments/survey_scale.py --methods {args.methods} "
-             f"--tiles {args.tiles} --independent-tiles {args.independent_tiles}`  ",
+             f"--tiles {args.tiles} --independent-tiles {args.independent_tiles} --one-file {args.one_file}`  ",
              f"Load average at the end: {' '.join(f'{x:.1f}' for x in os.getloadavg())}; 2-core CPU.", "",
              "| method | files | points | run | wall s | points/s | peak RSS GiB |",
              "| --- | ---: | ---: | --- | ---: | ---: | ---: |"]
@@ -149,7 +188,7 @@ def main():
                              "files filtered one at a time.")
     args.out.write_text("\n".join(lines) + "\n")
     args.out.with_suffix(".json").write_text(json.dumps(rows, indent=1))
-    plot(rows, args.out.with_suffix(".png"))
+    plot([r for r in rows if r["files"] > 1 or r["mode"] == "survey"], args.out.with_suffix(".png"))
     print("\n".join(lines))
 
 
