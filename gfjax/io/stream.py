@@ -9,6 +9,7 @@ header, every VLR/EVLR and every point dimension. Memory is one chunk, whatever 
 from __future__ import annotations
 
 import contextlib
+import copy
 import os
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -111,7 +112,8 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
                            suffixes=las_io.LAS_SUFFIXES) as tmp, open(tmp, "w+b") as raw:
             f = las_io._KeepWriteError(raw)
             try:
-                with laspy.LasWriter(f, stream.header, do_compress=compress, laz_backend=backends, closefd=False,
+                # the writer counts and bounds what it writes in its header: not the reader's
+                with laspy.LasWriter(f, copy.deepcopy(stream.header), do_compress=compress, laz_backend=backends, closefd=False,
                                      encoding_errors="surrogateescape") as writer:
                     for start, points in stream.chunks():
                         points.classification = classify(start, points)
