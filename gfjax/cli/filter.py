@@ -249,15 +249,15 @@ def _run_out_of_core(args, setup, inputs, planned, folder) -> int:
                   {source: i for i, source in enumerate(inputs)})
 
     def one(job: _job.Planned) -> None:
-        start_s = time.perf_counter()
-        if shared is None:
-            own = Path(tempfile.mkdtemp(prefix="file-", dir=folder))
+        if shared is not None:
+            return write(job, shared[0], shared[1][job.source])
+        with tempfile.TemporaryDirectory(prefix="file-", dir=folder) as own:      # this file's index only
             catalog = survey.index([job.source], own, returns=args.returns, units=args.units,
                                    trust_data=args.trust_data)
-            runner, i = survey.Runner(catalog, filter_fn, setup.config, own, returns=args.returns,
-                                      context=False), 0
-        else:
-            runner, i = shared[0], shared[1][job.source]
+            write(job, survey.Runner(catalog, filter_fn, setup.config, own, returns=args.returns, context=False), 0)
+
+    def write(job: _job.Planned, runner, i: int) -> None:
+        start_s = time.perf_counter()
         ground = runner.ground(i)
         counts = [0, 0]
 

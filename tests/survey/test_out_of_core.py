@@ -58,6 +58,13 @@ def test_a_survey_out_of_core_labels_as_the_union(files, tmp_path, monkeypatch):
         got[keep] = np.asarray(laspy.read(tmp_path / "out" / path.name).classification)
         _same_but_classification(path, tmp_path / "out" / path.name)
     np.testing.assert_array_equal(got, want)
+    for folder, flags in (("alone_disk", ["--out-of-core"]), ("alone_memory", [])):     # --independent
+        (tmp_path / folder).mkdir()
+        assert main(["filter", *map(str, paths[:2]), "-o", str(tmp_path / folder), *TILING, "--independent",
+                     *flags]) == 0
+    for path in paths[:2]:
+        np.testing.assert_array_equal(np.asarray(laspy.read(tmp_path / "alone_disk" / path.name).classification),
+                                      np.asarray(laspy.read(tmp_path / "alone_memory" / path.name).classification))
 
 
 def test_a_file_over_the_budget_goes_out_of_core_by_itself(files, tmp_path, monkeypatch, capsys):
