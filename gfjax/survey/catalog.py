@@ -10,7 +10,7 @@ file holding the whole survey would get.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -21,6 +21,7 @@ from gfjax.io import asprs, stream
 from gfjax.io.cloud import use_mask
 from gfjax.io.tiles import Frame
 
+BLOCK_POINTS = 1 << 20          # rows of a store read at a time
 STORE = np.dtype([("xyz_m", "<f8", (3,)), ("classification", "u1"), ("return_number", "u1"),
                   ("number_of_returns", "u1"), ("ignored", "?")])
 
@@ -41,8 +42,17 @@ class Entry(NamedTuple):
     store: Path
 
     def records(self) -> np.ndarray:
-        """The file's `STORE` records `(n_points,)`, memory-mapped."""
+        """The file's `STORE` records `(n_points,)`, memory-mapped (index it with the few rows
+        wanted: every page read stays resident while the map lives)."""
         return np.load(self.store, mmap_mode="r")
+
+    def blocks(self, size: int = BLOCK_POINTS) -> Iterator[tuple[int, np.ndarray]]:
+        """`(start, records)` of `size` rows at a time, read into memory (not mapped, so a pass
+        over a file larger than memory holds one block)."""
+        offset = np.load(self.store, mmap_mode="r").offset          # the header's length; no page read
+        for start in range(0, self.n_points, size):
+            count = min(size, self.n_points - start)
+            yield start, np.fromfile(self.store, dtype=STORE, count=count, offset=offset + start * STORE.itemsize)
 
 
 class Catalog(NamedTuple):
@@ -89,28 +99,29 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
                                  f"{_describe(first)}), so they are not one survey; filter them independently "
                                  "(gfjax filter --independent)")
             store = Path(folder) / f"{i}.npy"
-            records = np.lib.format.open_memmap(store, mode="w+", dtype=STORE, shape=(points.n_points,))
-            scale = np.array([points.horizontal_unit_m, points.horizontal_unit_m, points.vertical_unit_m])
-            low = np.full(3, np.inf)
-            high = np.full(3, -np.inf)
-            box_lo, box_hi = np.full(3, np.inf), np.full(2, -np.inf)
-            for start, chunk in points.chunks():
-                xyz = np.stack([np.asarray(chunk.x, np.float64), np.asarray(chunk.y, np.float64),
-                                np.asarray(chunk.z, np.float64)], axis=1)
-                low, high = np.minimum(low, xyz.min(axis=0)), np.maximum(high, xyz.max(axis=0))
-                xyz *= scale
-                part = records[start:start + len(chunk)]
-                part["xyz_m"] = xyz
-                part["classification"] = np.asarray(chunk.classification, np.uint8)
-                part["return_number"] = np.asarray(chunk.return_number, np.uint8)
-                part["number_of_returns"] = np.asarray(chunk.number_of_returns, np.uint8)
-                part["ignored"] = ignored = asprs.ignored_mask(chunk)
-                used = use_mask(ignored, part["return_number"], part["number_of_returns"], returns)
-                if used.any():
-                    box_lo = np.minimum(box_lo, xyz[used].min(axis=0))
-                    box_hi = np.maximum(box_hi, xyz[used, :2].max(axis=0))
-            records.flush()
-            del records
+            offset = np.lib.format.open_memmap(store, mode="w+", dtype=STORE, shape=(points.n_points,)).offset
+            with open(store, "r+b") as out:     # a chunk at a time: mapped pages would stay resident
+                scale = np.array([points.horizontal_unit_m, points.horizontal_unit_m, points.vertical_unit_m])
+                low = np.full(3, np.inf)
+                high = np.full(3, -np.inf)
+                box_lo, box_hi = np.full(3, np.inf), np.full(2, -np.inf)
+                for start, chunk in points.chunks():
+                    xyz = np.stack([np.asarray(chunk.x, np.float64), np.asarray(chunk.y, np.float64),
+                                    np.asarray(chunk.z, np.float64)], axis=1)
+                    low, high = np.minimum(low, xyz.min(axis=0)), np.maximum(high, xyz.max(axis=0))
+                    xyz *= scale
+                    part = np.empty(len(chunk), STORE)
+                    part["xyz_m"] = xyz
+                    part["classification"] = np.asarray(chunk.classification, np.uint8)
+                    part["return_number"] = np.asarray(chunk.return_number, np.uint8)
+                    part["number_of_returns"] = np.asarray(chunk.number_of_returns, np.uint8)
+                    part["ignored"] = ignored = asprs.ignored_mask(chunk)
+                    used = use_mask(ignored, part["return_number"], part["number_of_returns"], returns)
+                    if used.any():
+                        box_lo = np.minimum(box_lo, xyz[used].min(axis=0))
+                        box_hi = np.maximum(box_hi, xyz[used, :2].max(axis=0))
+                    out.seek(offset + start * STORE.itemsize)
+                    out.write(part.tobytes())
             _check_bounds(points, low, high)
         frame = Frame(box_lo, box_hi) if np.all(np.isfinite(box_lo)) else None
         for other in entries:

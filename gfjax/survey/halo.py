@@ -19,7 +19,7 @@ import numpy as np
 from gfjax.io.cloud import Cloud, use_mask
 from gfjax.io.tiles import Frame
 from gfjax.result import Result
-from gfjax.survey.catalog import Catalog
+from gfjax.survey.catalog import Catalog, Entry
 
 HALO_M = 50.0           # context around a file for methods that do not tile [m]
 
@@ -88,14 +88,19 @@ def overlaps(frame: Frame | None, lo: np.ndarray, hi: np.ndarray) -> bool:
     return frame is not None and not (np.any(frame.origin_m[:2] > hi) or np.any(frame.upper_m < lo))
 
 
-def points_in(xyz_m: np.ndarray, lo: np.ndarray, hi: np.ndarray, frame: Frame | None = None) -> np.ndarray:
-    """Indices int64 `(k,)` of the points of `xyz_m` `(n, 3)` [m] inside the x-y box `lo`..`hi`;
-    every point, unread, when `frame` (a catalog entry's: the box of the points its filter
-    uses) lies inside it, so the few points a filter ignores may come from outside, unused."""
+def points_in(entry: Entry, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Indices int64 `(k,)` of the points of a catalog entry inside the x-y box `lo`..`hi`
+    [m], read a block at a time; every point, unread, when the entry's frame (the box of the
+    points its filter uses) lies inside it, so the few points a filter ignores may come from
+    outside, unused."""
+    frame = entry.frame
     if frame is not None and np.all(frame.origin_m[:2] >= lo) and np.all(frame.upper_m <= hi):
-        return np.arange(len(xyz_m))
-    xy = xyz_m[:, :2]
-    return np.flatnonzero(np.all((xy >= lo[None, :]) & (xy <= hi[None, :]), axis=1))
+        return np.arange(entry.n_points)
+    found = []
+    for start, block in entry.blocks():
+        xy = block["xyz_m"][:, :2]
+        found.append(start + np.flatnonzero(np.all((xy >= lo[None, :]) & (xy <= hi[None, :]), axis=1)))
+    return np.concatenate(found) if found else np.empty(0, np.int64)
 
 
 def window(catalog: Catalog, i: int, cloud: Cloud, config) -> Points:
@@ -108,10 +113,9 @@ def window(catalog: Catalog, i: int, cloud: Cloud, config) -> Points:
         for j, other in enumerate(catalog.entries):
             if j == i or not overlaps(other.frame, lo, hi):
                 continue
-            records = other.records()
-            take = points_in(records["xyz_m"], lo, hi, other.frame)
+            take = points_in(other, lo, hi)
             if take.size:
-                chosen = records[take]
+                chosen = other.records()[take]
                 parts.append({name: np.asarray(chosen[name]) for name in parts[0]})
     fields = {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
     return Points(**fields, name=cloud.name, frame=catalog.frame)
@@ -127,9 +131,9 @@ def survey_config(method: ModuleType, config, catalog: Catalog, *, returns: str 
 
     def clouds() -> Iterator[np.ndarray]:
         for entry in catalog.entries:
-            records = entry.records()
-            used = use_mask(records["ignored"], records["return_number"], records["number_of_returns"], returns)
-            yield np.asarray(records["xyz_m"][used])
+            parts = [block["xyz_m"][use_mask(block["ignored"], block["return_number"], block["number_of_returns"],
+                                              returns)] for _, block in entry.blocks()]
+            yield np.concatenate(parts) if parts else np.empty((0, 3))
 
     return hook(config, clouds())
 

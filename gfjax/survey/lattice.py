@@ -40,11 +40,11 @@ class TileLabels:
         for i, entry in enumerate(catalog.entries):
             self.labels.append(np.lib.format.open_memmap(Path(folder) / f"{i}.ground.npy", mode="w+",
                                                          dtype=np.bool_, shape=(entry.n_points,)))
-            records = entry.records()
-            used = self._used(records)
-            keys = self.key_of(records["xyz_m"][used, :2])
-            # one int64 per key: np.unique on rows sorts 20x slower
-            packed = np.unique((keys[:, 0] << 32) | keys[:, 1])
+            packed = set()
+            for _, block in entry.blocks():
+                keys = self.key_of(block["xyz_m"][self._used(block), :2])
+                # one int64 per key: np.unique on rows sorts 20x slower
+                packed.update(np.unique((keys[:, 0] << 32) | keys[:, 1]).tolist())
             self.keys.append({(int(k >> 32), int(k & 0xFFFFFFFF)) for k in packed})
 
     def _used(self, records) -> np.ndarray:
@@ -78,7 +78,7 @@ class TileLabels:
             for j, other in enumerate(self.catalog.entries):
                 if j == i or not overlaps(other.frame, lo, hi):
                     continue
-                take = points_in(other.records()["xyz_m"], lo, hi, other.frame)
+                take = points_in(other, lo, hi)
                 take = take[self.labels[j][take]]
                 parts.append(np.asarray(other.records()["xyz_m"][take]))
             near = np.concatenate([near, *parts])
@@ -91,10 +91,9 @@ class TileLabels:
         for j, entry in enumerate(self.catalog.entries):
             if not overlaps(entry.frame, lo, hi):
                 continue
-            records = entry.records()
-            take = points_in(records["xyz_m"], lo, hi, entry.frame)
+            take = points_in(entry, lo, hi)
             if take.size:
-                parts.append(records[take])
+                parts.append(entry.records()[take])
                 owners.append((j, take))
         if not parts:
             self.done.add(key)
