@@ -275,9 +275,9 @@ def _limit_heap_arenas() -> None:
     glibc gives every thread that allocates its own arena (up to 8 per core) and returns
     little of a freed arena to the system, so a process that filters one large window after
     another keeps the high-water mark of each thread: DMF over a survey of 12 bcts_2 copies
-    peaked at 1.82 GB with the default and 1.01 GB with one arena per core, in about the same
-    time (`experiments/results/survey_scale.md`). `MALLOC_ARENA_MAX` set by the user wins;
-    other C libraries are left alone.
+    (`experiments/survey_scale.py`'s files) peaked at 1.74 GiB with the default and 0.97 GiB
+    with one arena per core, in about the same time (`/usr/bin/time`). `MALLOC_ARENA_MAX` set
+    by the user wins; other C libraries are left alone.
     """
     if "MALLOC_ARENA_MAX" in os.environ or not sys.platform.startswith("linux"):
         return
