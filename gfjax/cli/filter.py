@@ -212,15 +212,15 @@ def _out_of_core(args, setup, planned) -> bool:
     from gfjax.survey.halo import is_tiled
 
     budget = limits.memory_budget_bytes()
-    large = [job for job in planned
-             if job.header.point_count * (job.header.point_format.size + limits.IN_MEMORY_BYTES_PER_POINT) > budget]
+    need = [(job, job.header.point_count * (job.header.point_format.size + limits.IN_MEMORY_BYTES_PER_POINT))
+            for job in planned]
+    large = [(job, size) for job, size in need if size > budget]
     if not (args.out_of_core or large):
         return False
     why = "--out-of-core" if args.out_of_core else (
-        f"{large[0].source}: {large[0].header.point_count:,} points need about "
-        f"{large[0].header.point_count * (large[0].header.point_format.size + limits.IN_MEMORY_BYTES_PER_POINT) / 2**30:.1f}"
-        f" GiB filtered in memory, more than the budget of {budget / 2**30:.1f} GiB "
-        f"(set {limits.BUDGET_ENV} to change it)")
+        f"{large[0][0].source}: {large[0][0].header.point_count:,} points need about {large[0][1] / 2**30:.1f} "
+        f"GiB filtered in memory, more than the budget of {budget / 2**30:.1f} GiB (set {limits.BUDGET_ENV} to "
+        "change it)")
     if not is_tiled(setup.config):
         raise InputError(f"{why}: method {setup.name} filters a file in memory only; smrf and pmf filter it "
                          "out of core, a tile at a time")

@@ -57,9 +57,7 @@ class Stream:
                 las_io.check_int32_limits(self.path, points)
                 yield start, points
                 start += len(points)
-        except InputError:
-            raise
-        except MemoryError:
+        except (InputError, MemoryError):         # ours, and a machine too small: not a bad file
             raise
         except Exception as err:  # noqa: BLE001 (laspy/lazrs decoding the user's bytes: a bad file, not a bug)
             detail = f"decompression failed: {err}" if kind == "LAZ" else str(err)
@@ -106,6 +104,7 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
     """
     source, target = Path(source), Path(target)
     compress = target.suffix.lower() == ".laz"
+    # units only scale what a filter reads; a copy needs none (and a file in degrees is fine)
     with open_points(source, trust_data=trust_data, units="m") as stream:
         backends = las_io._compressors(stream.header.point_format.id, target) if compress else None
         with atomic_output(target, force=force, input_paths=[*input_paths, source],

@@ -36,9 +36,9 @@ class TileLabels:
     def __init__(self, catalog: Catalog, filter_fn: Callable, config, folder: str | Path, *, returns: str = "all"):
         self.catalog, self.filter_fn, self.config, self.returns = catalog, filter_fn, config, returns
         self.origin = np.asarray(catalog.frame.origin_m[:2], np.float64)
-        self.labels, self.keys, self.done = [], [], set()
+        self.labels_of, self.keys, self.done = [], [], set()
         for i, entry in enumerate(catalog.entries):
-            self.labels.append(np.lib.format.open_memmap(Path(folder) / f"{i}.ground.npy", mode="w+",
+            self.labels_of.append(np.lib.format.open_memmap(Path(folder) / f"{i}.ground.npy", mode="w+",
                                                          dtype=np.bool_, shape=(entry.n_points,)))
             packed = set()
             for _, block in entry.blocks():
@@ -54,35 +54,41 @@ class TileLabels:
         """Tile key `(col, row)` int64 `(n, 2)` of points `xy_m` `(n, 2)` [m], as `tiles.split` computes it."""
         return np.floor((np.asarray(xy_m, np.float64) - self.origin) / self.config.tile_size_m).astype(np.int64)
 
-    def ground(self, i: int, margin_m: float = 0.0, *, labels_only: bool = False):
-        """`(ground, near_ground_m)`: file `i`'s labels, bool `(n_i,)`, and the other files'
-        ground points within `margin_m` of its bounding box, float64 `(k, 3)` [m]; runs the
-        tiles these need that have not run yet. `labels_only`: the labels alone, as their
-        memory-mapped store (nothing read into memory)."""
-        entry = self.catalog.entries[i]
+    def _box(self, i: int, margin_m: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """File `i`'s bounding box grown by `margin_m` [m], `(lo (2,), hi (2,))`, or None."""
+        frame = self.catalog.entries[i].frame
+        if frame is None or margin_m <= 0:
+            return None
+        return (np.asarray(frame.origin_m[:2], np.float64) - margin_m,
+                np.asarray(frame.upper_m, np.float64) + margin_m)
+
+    def labels(self, i: int, margin_m: float = 0.0) -> np.ndarray:
+        """File `i`'s labels, bool `(n_i,)` memory-mapped, once every tile holding its points
+        (and, with `margin_m`, every tile within that of its bounding box) has run."""
         needed = set(self.keys[i])
-        if entry.frame is not None and margin_m > 0:
-            lo = np.asarray(entry.frame.origin_m[:2], np.float64) - margin_m
-            hi = np.asarray(entry.frame.upper_m, np.float64) + margin_m
-            first, last = self.key_of(lo[None])[0], self.key_of(hi[None])[0]
+        box = self._box(i, margin_m)
+        if box is not None:
+            first, last = self.key_of(box[0][None])[0], self.key_of(box[1][None])[0]
             needed |= {k for keys in self.keys for k in keys
                        if first[0] <= k[0] <= last[0] and first[1] <= k[1] <= last[1]}
         for key in sorted(needed - self.done, key=lambda k: (k[1], k[0])):
             self._run(key)
-        if labels_only:
-            self.labels[i].flush()
-            return self.labels[i]
-        near = np.empty((0, 3), np.float64)
-        if entry.frame is not None and margin_m > 0:
-            parts = []
+        self.labels_of[i].flush()
+        return self.labels_of[i]
+
+    def near_ground(self, i: int, margin_m: float) -> np.ndarray:
+        """The other files' ground points within `margin_m` of file `i`'s bounding box, float64
+        `(k, 3)` [m] (after `labels(i, margin_m)`)."""
+        box = self._box(i, margin_m)
+        parts = [np.empty((0, 3), np.float64)]
+        if box is not None:
             for j, other in enumerate(self.catalog.entries):
-                if j == i or not overlaps(other.frame, lo, hi):
+                if j == i or not overlaps(other.frame, *box):
                     continue
-                take = points_in(other, lo, hi)
-                take = take[self.labels[j][take]]
+                take = points_in(other, *box)
+                take = take[self.labels_of[j][take]]
                 parts.append(np.asarray(other.records()["xyz_m"][take]))
-            near = np.concatenate([near, *parts])
-        return np.array(self.labels[i]), near
+        return np.concatenate(parts)
 
     def _run(self, key: tuple[int, int]) -> None:
         """Filter tile `key` from its window's points and store its core points' labels."""
@@ -109,6 +115,6 @@ class TileLabels:
         for j, take in owners:
             stop = start + take.size
             mine = in_core[start:stop]
-            self.labels[j][take[mine]] = ground[start:stop][mine]
+            self.labels_of[j][take[mine]] = ground[start:stop][mine]
             start = stop
         self.done.add(key)

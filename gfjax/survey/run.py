@@ -46,7 +46,7 @@ class Runner:
         never read whole; `gfjax filter --out-of-core`)."""
         if self.tiles is None:
             raise ValueError("Runner.ground: only a tiled method labels a file without reading it")
-        return self.tiles.ground(i, labels_only=True)
+        return self.tiles.labels(i)
 
     def __call__(self, i: int, cloud: Cloud) -> tuple[Result, np.ndarray]:
         """File `i` of the catalog, read as `cloud`, filtered.
@@ -60,8 +60,9 @@ class Runner:
         """
         if self.tiles is None:
             return filter_file(self.catalog, i, cloud, self.filter_fn, self.config, returns=self.returns)
-        ground, near_m = self.tiles.ground(i, margin_m=HALO_M if self.context else 0.0)
-        return Result(ground=ground), near_m
+        margin_m = HALO_M if self.context else 0.0
+        ground = np.array(self.tiles.labels(i, margin_m))
+        return Result(ground=ground), self.tiles.near_ground(i, margin_m)
 
 
 def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str | Path, *, config=None, params=None,
