@@ -25,6 +25,12 @@ The runs behind the committed results (one command each; the first prepares the 
     nice .venv/bin/python experiments/tune_isprs.py --method pmf --phases abecd --steps 60 --folds 3
     nice .venv/bin/python experiments/tune_isprs.py --method csf --phases abecd --steps 40 --folds 3 --check-filter --d-unguarded
 
+MASF and DMF (`--method masf|dmf`) are tuned by grid search: this script hands them to
+`experiments/tune_grid.py` (the same protocols from one table of labels per sample):
+
+    nice .venv/bin/python experiments/tune_isprs.py --method masf
+    nice .venv/bin/python experiments/tune_isprs.py --method dmf
+
 CSF (`--method csf`): the class threshold is fitted by gradient; time step and rigidness
 (grid `gfjax.tune.csf.GRID`, 3 x 3 cloths) are searched on the grid, each cloth simulated
 once per sample and its point-to-cloth distances cached under --cloth-cache (in a subfolder
@@ -117,6 +123,13 @@ def write_report(out: Path, method: tmethods.Method) -> None:
 
 
 def main(argv=None) -> int:
+    args = sys.argv[1:] if argv is None else list(argv)
+    method = next((a.split("=", 1)[1] for a in args if a.startswith("--method=")), None)
+    if "--method" in args[:-1]:
+        method = args[args.index("--method") + 1]
+    if method in ("masf", "dmf"):                   # searched on a grid: no gradient
+        import tune_grid
+        return tune_grid.main(args)
     ap = argparse.ArgumentParser()
     ap.add_argument("--steps", type=int, default=40)
     ap.add_argument("--folds", type=int, default=2)

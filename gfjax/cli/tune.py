@@ -1,4 +1,4 @@
-"""`gfjax tune TRAIN... --method smrf|pmf|csf -o params.json`: fit a filter's thresholds to labelled files.
+"""`gfjax tune TRAIN... --method smrf|pmf|csf|masf -o params.json`: fit a filter's thresholds to labelled files.
 
 The thresholds (SMRF: slope, threshold_m, scalar; PMF: slope, initial_distance_m,
 max_distance_m; CSF: class_threshold_m) are fitted by Adam on a relaxed (sigmoid) form of the
@@ -9,6 +9,17 @@ each cloth is simulated once per file, then the threshold is fitted on each; par
 them as grid-searched, never as fitted by gradient. Several files are tuned together (one
 parameter set, unweighted mean of their losses), batched under `jax.vmap` by tile shape. The
 fit is regularised toward the defaults (`--prior`).
+
+MASF and DMF (`--method masf|dmf`) have no gradient to follow: MASF's alpha_max_m,
+alpha_step_m, st and ft_m act through the alpha pyramid and a TIN grown on the host; DMF's v0
+sets the voxel size W (whole metres), and max_filter_px, rc_min_share and the height rule's
+height_threshold_m + height_threshold_w * W act in host code or bounded loops. Every
+combination of a grid is tried (`--grid KEY=V,V,...` replaces one key's values; defaults:
+MASF alpha_max_m 10,15,20,25, alpha_step_m 1,2,4,9, st 0.01,0.03,0.05,0.1,0.15, ft_m
+0.3,0.5,0.7, 240 runs per file; DMF v0 1,1.5,2,2.5,3, max_filter_px 1,2,3, rc_min_share
+0.5,0.75,1, height_threshold_m 0,0.25,0.5, height_threshold_w 0,0.1,0.15,0.25,0.4, 675 final
+rules on 45 preparations per file) and the best on the labels is guarded as below with a
+single level.
 
 Guard (tuned values are often worse than the defaults on other data): the labelled data are
 cross-validated in `--folds` folds, by file when several files are given, else by square
@@ -31,7 +42,8 @@ from gfjax.cli import _job
 from gfjax.cli._common import add_units_option, check_inputs, positive_float, positive_int, ranged
 from gfjax.errors import InputError
 
-TUNABLE = ("smrf", "pmf", "csf")          # gfjax.tune.methods.METHODS (not imported: no JAX at parse time)
+TUNABLE = ("smrf", "pmf", "csf", "masf", "dmf")   # gfjax.tune.methods.METHODS and SEARCHED (no JAX at parse time)
+SEARCHED = ("masf", "dmf")                        # tuned by grid search (`gfjax.tune.search`), not by gradient
 
 
 def _positive_list(item: Callable[[str], float | int]) -> Callable[[str], tuple]:
@@ -53,6 +65,20 @@ def _level(text: str) -> float:
     if not 0 < value < 1:
         raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}")
     return value
+
+
+def _grid_item(text: str) -> tuple[str, tuple[float, ...]]:
+    """argparse type of `--grid`: `KEY=V,V,...` with at least one number."""
+    key, sep, values = text.partition("=")
+    if not sep or not key.strip():
+        raise argparse.ArgumentTypeError(f"expected KEY=V,V,..., got {text!r}")
+    parsed = []
+    for v in values.split(","):
+        try:
+            parsed.append(float(v))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{key}: expected numbers, got {v!r}") from None
+    return key.strip(), tuple(parsed)
 
 
 def _check_grids(args: argparse.Namespace) -> None:
@@ -98,6 +124,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="CSF's time-step grid, each in (0, 10) (default 0.5,0.65,0.8)")
     parser.add_argument("--rigidness", type=_positive_list(positive_int), default=None, metavar="R,R,...",
                         help="CSF's rigidness grid (default 1,2,3)")
+    parser.add_argument("--grid", action="append", type=_grid_item, default=[], metavar="KEY=V,V,...",
+                        help="MASF, DMF: the values tried for one key of the grid (see above); repeatable")
     parser.add_argument("--returns", choices=("all", "last"), default="all", help="returns used (default all)")
     add_units_option(parser)
     parser.add_argument("--force", action="store_true", help="overwrite an existing params file")
@@ -115,6 +143,10 @@ def run(args: argparse.Namespace) -> int:
     inputs = las_io.expand_inputs(args.inputs)
     _job.check_outputs([("-o", out, (".json",))], inputs=inputs, force=args.force)
     check_inputs(inputs, units=args.units)
+    if args.grid and args.method not in SEARCHED:
+        raise InputError(f"--grid: only {', '.join(SEARCHED)} are tuned on a grid of settings, not {args.method}")
+    if args.method in SEARCHED:
+        return _run_search(args, inputs, out)
 
     import numpy as np
 
@@ -182,4 +214,71 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"no validation: training {kind} defaults {validation['default']:.4f}, tuned "
               f"{validation['tuned']:.4f}; fitted: {', '.join(fitted) or 'none'}")
+    return 0
+
+
+def _run_search(args: argparse.Namespace, inputs, out) -> int:
+    """`--method masf|dmf`: every combination of the grid, then the guard (`gfjax.tune.search`)."""
+    import importlib
+
+    import numpy as np
+
+    from gfjax import limits
+    from gfjax.io import las as las_io
+    from gfjax.tune.params import write_params
+    from gfjax.tune.problem import Sample
+
+    method_config = importlib.import_module(f"gfjax.{args.method}.config")
+    tmodule = importlib.import_module(f"gfjax.tune.{args.method}")
+    config = method_config.Config()
+
+    for option, value in (("--windows", args.windows), ("--time-steps", args.time_steps),
+                          ("--rigidness", args.rigidness)):
+        if value:
+            raise InputError(f"{option}: not a setting of {args.method}")
+    if args.loss != "total-error":
+        raise InputError(f"--loss {args.loss}: {args.method} is searched on total error only")
+    grid = tmodule.default_grid(config)
+    for key, values in args.grid:
+        if key not in grid:
+            raise InputError(f"--grid {key}: unknown key; {args.method} searches {', '.join(grid)}")
+        allowed = method_config.RANGES[key]
+        if allowed.integer:             # a whole number given as "2" or "2.0" is the integer 2
+            values = tuple(int(v) if float(v).is_integer() else v for v in values)
+        for value in values:
+            try:
+                limits.check_value(key, value, allowed)
+            except ValueError as err:
+                raise InputError(f"--grid: {err}") from None
+        grid[key] = values
+    samples = [Sample.from_cloud(las_io.read(p, units=args.units), returns=args.returns) for p in inputs]
+    if not any(np.any(s.ref_ground[s.use]) for s in samples):
+        raise InputError(f"{', '.join(map(str, inputs))}: no reference ground (class 2) to tune on")
+    try:
+        tuned = tmodule.tune(samples, config=config, grid=grid, folds=args.folds, block_m=args.block, alpha=args.alpha,
+                           progress=True)
+    except ValueError as err:
+        raise InputError(f"--grid: {err}") from None
+    v = tuned.choice
+    defaults = tuned.combos[tuned.default]
+    fitted = [k for k in tuned.values if tuned.values[k] != defaults[k]]
+    validation = {"folds": args.folds, "measure": "total error",
+                  "units": ("files" if v.by_sample else f"blocks of {args.block:g} m") if args.folds >= 2 else None,
+                  "default": v.default_error, "tuned": v.tuned_error, "p_value": v.p_value, "alpha": args.alpha,
+                  "changed_units": v.units, "kept": v.kept, "per_fold": v.fold_errors.tolist(),
+                  "best_on_all_labels": tuned.combos[v.best]}
+    extra = {"fitted": fitted, "validation": validation, "search": "exhaustive grid",
+             "grid": {k: sorted({c[k] for c in tuned.combos}) for k in tuned.values},
+             "not_differentiable": {k: tmodule.NOTE for k in tuned.values},
+             "training_files": [str(p) for p in inputs]}
+    write_params(out, method=args.method, values=tuned.values, units=tmodule.UNITS, extra=extra)
+    print(f"{out}: {args.method} " + ", ".join(f"{k}={tuned.values[k]:.4g}" for k in tuned.values))
+    if args.folds >= 2:
+        print(f"validation ({args.folds} folds by {validation['units']}): out-of-fold total error defaults "
+              f"{v.default_error:.4f}, tuned {v.tuned_error:.4f}, p = {v.p_value:.3g} over {v.units} units -> "
+              f"{'fitted values kept' if v.kept else 'defaults kept (no significant gain)'}; "
+              f"fitted: {', '.join(fitted) or 'none'}")
+    else:
+        print(f"no validation: training total error defaults {v.default_error:.4f}, tuned {v.tuned_error:.4f}; "
+              f"fitted: {', '.join(fitted) or 'none'}")
     return 0

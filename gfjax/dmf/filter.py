@@ -31,7 +31,7 @@ from gfjax.io.tiled import checked_options, laid_out
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
 
-__all__ = ["Diagnostics", "filter", "run_raster_stages", "stage_options", "batched_stages", "SHAPE_QUANTUM_PX", "MAX_BATCH"]
+__all__ = ["Diagnostics", "Prepared", "prepare", "filter", "run_raster_stages", "stage_options", "batched_stages", "SHAPE_QUANTUM_PX", "MAX_BATCH"]
 
 SHAPE_QUANTUM_PX = 16          # tile rasters are padded to multiples of this (few compiles)
 
@@ -286,32 +286,52 @@ def survey_config(config: Config, clouds: Iterable[np.ndarray]) -> Config:
     return dataclasses.replace(config, voxel_m=voxels.size_of(total / count, config.v0) if count else 1.0)
 
 
-def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,  # noqa: A001
-           returns: str = "all", progress: bool = False) -> Result:
-    """Classify ground points with DMF (Wu et al. 2025; our readings: SPEC section 3).
+class Prepared(NamedTuple):
+    """Steps 1-6 of DMF on one cloud: everything before the support nodes and the final rule
+    (Sec. 2.6). Only step 7 reads `v1`, `fill_neighbours`, `support_z`, `support_elevation` and
+    `Params` (and `final_rule`, whose M-nearest search also needs `tree`), so one preparation
+    serves every value of those (`gfjax.tune.dmf` tries them on it).
 
-    Args:
-      cloud: the point cloud (metres via `cloud.xyz_m`; noise and withheld points ignored).
-      config: static options (`Config`); params: traced thresholds (`Params`).
-      returns: "all" or "last" returns.
-      progress: show a progress bar over NGNEM tile batches.
-
-    Returns:
-      `Result(ground, diagnostics, instance_id)`: ground bool `(n,)`; `Diagnostics` (None
-      when groups of points far apart were moved together: `gfjax.io.groups`);
-      instance_id uint32 `(n,)`: the object region (NGNEM_RC instance) of each non-ground
-      point's cell, 0 for ground points and points outside every object region.
+    Attributes:
+      config: the settings the steps ran with (`voxel_m` set on a survey's window).
+      use: bool `(n,)` the cloud's points filtered; the arrays below hold those only.
+      layout: how far groups were moved together (`gfjax.io.groups`), or None.
+      local: float64 `(u, 3)` used points less `origin` [m]; origin: float64 `(3,)` [m].
+      tree: a `cKDTree` of `local` (None when neither W nor the M-nearest rule needed one).
+      cell_m, mean_nn: W and the sampled mean nearest-neighbour distance [m].
+      vox: the voxel columns; in_ndng, basal: step 3; rs: steps 4-6 (`stages.RasterStages`);
+      ngnem_valid: the NGNEM's valid cells; overflowed: a basal table overflowed.
+      seconds: wall-clock seconds per step so far.
     """
-    config, params, use = _check(cloud, config, params, returns)
-    n_all = cloud.n_points
-    ground_all = np.zeros(n_all, bool)
-    instance_all = np.zeros(n_all, np.uint32)
-    if not use.any():
-        return Result(ground=ground_all, diagnostics=None, instance_id=instance_all)
+
+    config: Config
+    use: np.ndarray
+    layout: object
+    local: np.ndarray
+    origin: np.ndarray
+    tree: cKDTree | None
+    cell_m: float
+    mean_nn: float
+    vox: voxels.Voxels
+    in_ndng: np.ndarray
+    basal: object
+    rs: stages.RasterStages
+    ngnem_valid: np.ndarray
+    overflowed: bool
+    seconds: dict
+
+    @property
+    def object_cell(self) -> np.ndarray:
+        """bool `(h * w,)`: NGNEM_RC, the cells of object regions."""
+        return np.asarray(self.rs.ngnem_rc).reshape(-1)
+
+
+def prepare(cloud: CloudView, use: np.ndarray, config: Config, *, progress: bool = False) -> Prepared:
+    """Steps 1-6 on the points `use` (bool `(n,)`, at least one) of `cloud` (`config` checked)."""
     xyz, layout = laid_out(cloud, use, config, reach_m=config.raster_buffer_m)
     xyz = xyz if use.all() else xyz[use]          # no 20 MB copy when every point is used
     clock = [time.perf_counter()]
-    seconds = {}
+    seconds: dict[str, float] = {}
 
     def lap(name):                           # steps 3 and 4-6 interleave: their laps add up
         now = time.perf_counter()
@@ -335,23 +355,51 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
         mean_nn = window_nn if np.isnan(mean_nn) else mean_nn
         lap("voxels")
         in_ndng, basal, rs, ngnem_valid, overflowed = _layers(vox, cell_m, config, worker, lap, progress)
+    return Prepared(config, use, layout, local, origin, tree, cell_m, mean_nn, vox, in_ndng, basal, rs, ngnem_valid,
+                    overflowed, seconds)
 
+
+def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,  # noqa: A001
+           returns: str = "all", progress: bool = False) -> Result:
+    """Classify ground points with DMF (Wu et al. 2025; our readings: SPEC section 3).
+
+    Args:
+      cloud: the point cloud (metres via `cloud.xyz_m`; noise and withheld points ignored).
+      config: static options (`Config`); params: traced thresholds (`Params`).
+      returns: "all" or "last" returns.
+      progress: show a progress bar over NGNEM tile batches.
+
+    Returns:
+      `Result(ground, diagnostics, instance_id)`: ground bool `(n,)`; `Diagnostics` (None
+      when groups of points far apart were moved together: `gfjax.io.groups`);
+      instance_id uint32 `(n,)`: the object region (NGNEM_RC instance) of each non-ground
+      point's cell, 0 for ground points and points outside every object region.
+    """
+    config, params, use = _check(cloud, config, params, returns)
+    n_all = cloud.n_points
+    ground_all = np.zeros(n_all, bool)
+    instance_all = np.zeros(n_all, np.uint32)
+    if not use.any():
+        return Result(ground=ground_all, diagnostics=None, instance_id=instance_all)
+    prep = prepare(cloud, use, config, progress=progress)
+    clock = time.perf_counter()
     # Step 7: support nodes and the final rule.
-    object_cell = np.asarray(rs.ngnem_rc).reshape(-1)
-    nodes, ground, m_points = extract.extract_ground(local, vox, object_cell, in_ndng, config, params, points_tree=tree)
-    instance = np.asarray(rs.instances).reshape(-1)[vox.point_cell].astype(np.uint32)
+    nodes, ground, m_points = extract.extract_ground(prep.local, prep.vox, prep.object_cell, prep.in_ndng,
+                                                     prep.config, params, points_tree=prep.tree)
+    instance = np.asarray(prep.rs.instances).reshape(-1)[prep.vox.point_cell].astype(np.uint32)
     instance[ground] = 0
-    lap("extract")
+    seconds = {**prep.seconds, "extract": time.perf_counter() - clock}
     ground_all[use] = ground
     instance_all[use] = instance
-    if layout is not None:                  # the rasters lie under the moved groups: no map of the cloud
+    if prep.layout is not None:             # the rasters lie under the moved groups: no map of the cloud
         return Result(ground=ground_all, diagnostics=None, instance_id=instance_all)
+    rs, basal = prep.rs, prep.basal
     diagnostics = Diagnostics(
-        cell_m=cell_m, mean_nn_m=mean_nn, origin_m=origin, nd_ce=vox.centroid, basal_z=basal.z,
-        in_ndng=in_ndng, ngnem=np.asarray(rs.ngnem), ngnem_valid=ngnem_valid, layer=np.asarray(rs.layer),
+        cell_m=prep.cell_m, mean_nn_m=prep.mean_nn, origin_m=prep.origin, nd_ce=prep.vox.centroid, basal_z=basal.z,
+        in_ndng=prep.in_ndng, ngnem=np.asarray(rs.ngnem), ngnem_valid=prep.ngnem_valid, layer=np.asarray(rs.layer),
         rhc=np.asarray(rs.rhc), ngnem_bi=np.asarray(rs.ngnem_bi), ngnem_rc0=np.asarray(rs.ngnem_rc0),
         ngnem_rc=np.asarray(rs.ngnem_rc), instances=np.asarray(rs.instances), support=nodes, m_points=int(m_points),
         basal_iterations=int(basal.iterations), converged=bool(basal.converged) and bool(rs.converged),
-        table_overflowed=overflowed,
-        voxels=vox, stage_seconds=seconds)
+        table_overflowed=prep.overflowed,
+        voxels=prep.vox, stage_seconds=seconds)
     return Result(ground=ground_all, diagnostics=diagnostics, instance_id=instance_all)

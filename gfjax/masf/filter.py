@@ -44,7 +44,7 @@ from gfjax.masf import alpha_shape, densify as densify_mod, preprocess, tin
 from gfjax.masf.config import Config, Params
 from gfjax.result import Result
 
-__all__ = ["filter", "MASFDiagnostics", "filter_points"]
+__all__ = ["filter", "MASFDiagnostics", "filter_points", "Prepared", "prepare", "pyramid", "densify"]
 
 
 class MASFDiagnostics(NamedTuple):
@@ -77,19 +77,47 @@ class MASFDiagnostics(NamedTuple):
     seconds: dict
 
 
-def filter_points(xyz_m: np.ndarray, config: Config, params: Params,
-                  frame: Frame | None = None) -> tuple[np.ndarray, MASFDiagnostics]:
-    """MASF on an array of points.
+class Prepared(NamedTuple):
+    """What MASF computes before any alpha, ST or FT enters (Sec. 2.1 and the triangulation of
+    Sec. 2.2): `prepare` reads only `grid_m`, `outlier_gap_m`, `neighbour_drop_m` and
+    `low_cluster_max_m2` of the config, so one preparation serves every pyramid and threshold
+    (`gfjax.tune.masf` searches them on it).
+
+    Attributes:
+      local: float64 `(n, 3)` the points less `origin` [m].
+      origin: float64 `(3,)` the local origin; the grid's south-west corner is its x, y [m].
+      pre: the potential ground points (`preprocess.potential_ground`).
+      faces: the 3D Delaunay triangles of the potential ground points (`tin.delaunay_faces`),
+        None when they span no tetrahedron.
+      geometry: `alpha_shape.triangle_geometry` of `faces` (None with them).
+      bottom_z, inside: the rasterised bottom surface (local heights [m]) and its hull mask.
+      seconds: stage -> wall-clock seconds.
+    """
+
+    local: np.ndarray
+    origin: np.ndarray
+    pre: preprocess.Preprocessed
+    faces: tuple | None
+    geometry: tuple | None
+    bottom_z: np.ndarray
+    inside: np.ndarray
+    seconds: dict
+
+    @property
+    def seed_xyz(self) -> np.ndarray:
+        """float64 `(p, 3)` the potential ground points, local [m]."""
+        return self.local[self.pre.index]
+
+
+def prepare(xyz_m: np.ndarray, config: Config, frame: Frame | None = None) -> Prepared:
+    """Preprocess and triangulate once (steps 1 and the start of 2 of the module docstring).
 
     Args:
       xyz_m: float64 `(n, 3)` metres (any origin; the minimum corner is subtracted here).
-      config, params: as for `filter`.
+      config: the settings (only those named in `Prepared` are read).
       frame: a survey's frame (`gfjax.io.tiles.Frame`): the grid's origin is then the corner of
         the survey's lattice cell that holds the minimum corner, so a window of the survey
         grids its points as the whole survey in one file does.
-
-    Returns:
-      `(ground, diagnostics)`: bool `(n,)` and a `MASFDiagnostics` (indices into `xyz_m`).
     """
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
@@ -98,44 +126,75 @@ def filter_points(xyz_m: np.ndarray, config: Config, params: Params,
     if frame is not None and len(xyz_m):
         origin = frame.snap(origin, config.grid_m)
     local = xyz_m - origin
-    alphas = config.alphas_m()
     pre = preprocess.potential_ground(local, grid_m=config.grid_m, outlier_gap_m=config.outlier_gap_m,
                                       neighbour_drop_m=config.neighbour_drop_m,
                                       max_cluster_cells=config.low_cluster_max_cells)
-    seed_xyz = local[pre.index]
     seconds["preprocess"] = time.perf_counter() - clock
-    empty_diag = dict(potential_ground=pre.index, alphas_m=alphas, occupied_cells=int(pre.occupied.sum()),
-                      neighbour_outliers=pre.neighbour_outliers, origin_m=origin, seconds=seconds)
-    if len(pre.index) == 0:
-        return np.zeros(len(xyz_m), dtype=bool), MASFDiagnostics(
-            layers=np.zeros((len(alphas), 0), dtype=bool), added_per_layer=np.zeros(len(alphas), dtype=np.int64),
-            bottom_z_m=np.zeros(pre.shape), n_triangles=0, tin_rebuilds=0, **empty_diag)
+    faces = geometry = None
+    bottom_z, inside = np.zeros(pre.shape), np.zeros(pre.shape, bool)
+    if len(pre.index):
+        seed_xyz = local[pre.index]
+        clock = time.perf_counter()
+        faces = tin.delaunay_faces(seed_xyz)
+        seconds["delaunay_3d"] = time.perf_counter() - clock
+        clock = time.perf_counter()
+        bottom_z, inside = tin.bottom_surface(seed_xyz, pre.row, pre.col, pre.shape, cell_m=config.grid_m)
+        if faces is not None:
+            geometry = alpha_shape.triangle_geometry(seed_xyz, *faces)
+        seconds["alpha_shape"] = time.perf_counter() - clock
+    return Prepared(local, origin, pre, faces, geometry, bottom_z, inside, seconds)
 
-    clock = time.perf_counter()
-    faces = tin.delaunay_faces(seed_xyz)
-    seconds["delaunay_3d"] = time.perf_counter() - clock
-    clock = time.perf_counter()
-    bottom_z, inside = tin.bottom_surface(seed_xyz, pre.row, pre.col, pre.shape, cell_m=config.grid_m)
-    if faces is None:
-        layers = np.zeros((len(alphas), len(pre.index)), dtype=bool)
-        n_triangles = 0
-    else:
-        geometry = alpha_shape.triangle_geometry(seed_xyz, *faces)
-        layers = alpha_shape.layer_points(seed_xyz, faces[0], geometry, bottom_z, inside, alphas,
-                                          cell_m=config.grid_m, tol_m=config.empty_tol_m)
-        n_triangles = len(faces[0])
-    seconds["alpha_shape"] = time.perf_counter() - clock
 
-    clock = time.perf_counter()
-    result = densify_mod.densify(local, pre.index, layers, alphas, shape=pre.shape, cell_m=config.grid_m,
-                                 st=float(params.st), ft_m=float(params.ft_m),
+def pyramid(prep: Prepared, config: Config) -> np.ndarray:
+    """bool `(L, p)`: the layer of the data pyramid (`config.alphas_m()`, Eq. 1) each potential
+    ground point belongs to; none when they span no tetrahedron (every one then seeds the TIN)."""
+    alphas = config.alphas_m()
+    if prep.faces is None:
+        return np.zeros((len(alphas), len(prep.pre.index)), dtype=bool)
+    return alpha_shape.layer_points(prep.seed_xyz, prep.faces[0], prep.geometry, prep.bottom_z, prep.inside,
+                                    alphas, cell_m=config.grid_m, tol_m=config.empty_tol_m)
+
+
+def densify(prep: Prepared, layers: np.ndarray, config: Config, params: Params) -> densify_mod.Densified:
+    """Multiscale TIN densification of the pyramid `layers` (`pyramid`) with `DT_k = ST *
+    alpha_k + FT` (Eq. 2): ground of every point of `prep.local`."""
+    return densify_mod.densify(prep.local, prep.pre.index, layers, config.alphas_m(), shape=prep.pre.shape,
+                                 cell_m=config.grid_m, st=float(params.st), ft_m=float(params.ft_m),
                                  pit_drop_m=config.neighbour_drop_m, pit_slope=config.pit_slope,
                                  pit_cap_m=config.pit_cap_m, nearest_facet=config.distance == "nearest_facet",
                                  layer_passes=config.layer_passes, retest_earlier=config.retest_earlier,
                                  retriangulate=config.retriangulate)
-    seconds["densify"] = time.perf_counter() - clock
+
+
+def filter_points(xyz_m: np.ndarray, config: Config, params: Params,
+                  frame: Frame | None = None) -> tuple[np.ndarray, MASFDiagnostics]:
+    """MASF on an array of points: `prepare`, `pyramid`, `densify`.
+
+    Args:
+      xyz_m: float64 `(n, 3)` metres (any origin; the minimum corner is subtracted here).
+      config, params: as for `filter`.
+      frame: as for `prepare`.
+
+    Returns:
+      `(ground, diagnostics)`: bool `(n,)` and a `MASFDiagnostics` (indices into `xyz_m`).
+    """
+    prep = prepare(xyz_m, config, frame)
+    alphas = config.alphas_m()
+    empty_diag = dict(potential_ground=prep.pre.index, alphas_m=alphas, occupied_cells=int(prep.pre.occupied.sum()),
+                      neighbour_outliers=prep.pre.neighbour_outliers, origin_m=prep.origin, seconds=prep.seconds)
+    if len(prep.pre.index) == 0:
+        return np.zeros(len(prep.local), dtype=bool), MASFDiagnostics(
+            layers=np.zeros((len(alphas), 0), dtype=bool), added_per_layer=np.zeros(len(alphas), dtype=np.int64),
+            bottom_z_m=np.zeros(prep.pre.shape), n_triangles=0, tin_rebuilds=0, **empty_diag)
+    clock = time.perf_counter()
+    layers = pyramid(prep, config)
+    prep.seconds["alpha_shape"] += time.perf_counter() - clock
+    clock = time.perf_counter()
+    result = densify(prep, layers, config, params)
+    prep.seconds["densify"] = time.perf_counter() - clock
     return result.ground, MASFDiagnostics(layers=layers, added_per_layer=result.added_per_layer,
-                                          bottom_z_m=bottom_z + origin[2], n_triangles=n_triangles,
+                                          bottom_z_m=prep.bottom_z + prep.origin[2],
+                                          n_triangles=0 if prep.faces is None else len(prep.faces[0]),
                                           tin_rebuilds=result.tin_rebuilds, **empty_diag)
 
 

@@ -43,7 +43,7 @@ import numpy as np
 from gfjax.tune import fit as tfit
 from gfjax.tune.problem import Problem, block_folds, block_ids
 
-__all__ = ["Validation", "validate", "sign_flip_p", "SHRINK"]
+__all__ = ["Validation", "validate", "sign_flip_p", "fold_plan", "SHRINK"]
 
 SHRINK = (1 / 3, 2 / 3, 1.0)   # points on the segment defaults -> fit that validation compares
 _EXACT_UNITS = 16
@@ -105,20 +105,28 @@ def sign_flip_p(gains: np.ndarray, *, seed: int = 0) -> float:
     return float((1 + np.sum(signs @ size >= observed - tol)) / (1 + _DRAWS))
 
 
-def _fold_plan(problem: Problem, base, group, weight, folds, block_m, seed):
-    """Per sample: fold id per point (-1: never held out) and unit id per point (global)."""
+def fold_plan(xyzs: list[np.ndarray], group: np.ndarray, weight: np.ndarray, folds: int, block_m: float,
+              seed: int) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray], int]:
+    """The validation units and folds of samples `xyzs` (each float `(n_i, 3)` [m]; rule 1 of
+    the module docstring).
+
+    Returns:
+      `(by_sample (g,) bool, fold id per point of each sample (-1: never held out), unit id per
+      point of each sample (global: samples first, then blocks), number of units)`.
+    """
+    n_samples = len(xyzs)
     n_groups = int(group.max()) + 1
     positive = weight > 0
     by_sample = np.bincount(group[positive], minlength=n_groups) >= 2
     rng = np.random.default_rng(seed)
-    fold_of_sample = np.full(problem.n_samples, -1)
+    fold_of_sample = np.full(n_samples, -1)
     for g in np.flatnonzero(by_sample):
         members = rng.permutation(np.flatnonzero((group == g) & positive))
         fold_of_sample[members] = np.arange(members.size) % min(folds, members.size)
     fold_id, unit_id = [], []
-    offset = problem.n_samples                       # units 0..c-1 are whole samples
-    for i, s in enumerate(problem.samples):
-        n = len(s.xyz_m)
+    offset = n_samples                               # units 0..c-1 are whole samples
+    for i, xyz_m in enumerate(xyzs):
+        n = len(xyz_m)
         if by_sample[group[i]]:
             fold_id.append(np.full(n, fold_of_sample[i]))
             unit_id.append(np.full(n, i, np.int64))
@@ -126,8 +134,8 @@ def _fold_plan(problem: Problem, base, group, weight, folds, block_m, seed):
             fold_id.append(np.full(n, -1))
             unit_id.append(np.full(n, i, np.int64))
         else:
-            fold_id.append(block_folds(s.xyz_m, folds=folds, block_m=block_m, seed=seed + i))
-            blocks = block_ids(s.xyz_m, block_m=block_m)
+            fold_id.append(block_folds(xyz_m, folds=folds, block_m=block_m, seed=seed + i))
+            blocks = block_ids(xyz_m, block_m=block_m)
             unit_id.append(offset + blocks)
             offset += int(blocks.max(initial=-1)) + 1
     return by_sample, fold_id, unit_id, offset
@@ -190,7 +198,8 @@ def validate(problem: Problem, settings: tfit.Settings = tfit.Settings(), *, poi
                           np.zeros(n_groups, int), np.zeros(n_groups, bool), np.zeros((0, n_groups, 2)), final,
                           final.hard_evaluations, final.gradient_calls)
 
-    by_sample, fold_id, unit_id, n_units = _fold_plan(problem, base, group, weight, folds, block_m, seed)
+    by_sample, fold_id, unit_id, n_units = fold_plan([s.xyz_m for s in problem.samples], group, weight, folds,
+                                                     block_m, seed)
     n_points = np.array([m.sum() for m in base], np.float64)
     scale = np.where(n_points > 0, weight / np.maximum(n_points, 1), 0.0)     # per-point weight of a sample
     wrong_default = _wrong(problem, defaults, default_window, group)
