@@ -57,7 +57,7 @@ def table(method: str, sample: Sample, combos, cache: Path) -> np.ndarray:
         return np.load(path)
     start = time.perf_counter()
     module, tmodule = METHODS[method]
-    wrong = tmodule.wrong_table(sample, module.Config(), combos)
+    wrong = tmodule.METHOD.wrong_table(sample, module.Config(), combos)
     print(f"{sample.name}: {len(combos)} runs in {time.perf_counter() - start:.0f} s", flush=True)
     np.save(path, wrong)
     return wrong

@@ -255,7 +255,7 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
     if not any(np.any(s.ref_ground[s.use]) for s in samples):
         raise InputError(f"{', '.join(map(str, inputs))}: no reference ground (class 2) to tune on")
     try:
-        tuned = tmodule.tune(samples, config=config, grid=grid, folds=args.folds, block_m=args.block, alpha=args.alpha,
+        tuned = tmodule.METHOD.tune(samples, config=config, grid=grid, folds=args.folds, block_m=args.block, alpha=args.alpha,
                            progress=True)
     except ValueError as err:
         raise InputError(f"--grid: {err}") from None

@@ -16,7 +16,7 @@ prepared once per `v0` (`gfjax.dmf.filter.prepare`: steps 1-6) and each candidat
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -27,7 +27,7 @@ from gfjax.io.cloud import Cloud
 from gfjax.tune import search
 from gfjax.tune.problem import Sample
 
-__all__ = ["GRID", "V1_VALUES", "NOTE", "UNITS", "default_grid", "candidates", "wrong_table", "tune"]
+__all__ = ["GRID", "V1_VALUES", "NOTE", "UNITS", "default_grid", "candidates", "labels", "METHOD"]
 
 GRID: dict[str, tuple[float, ...]] = {
     "v0": (1.0, 1.5, 2.0, 2.5, 3.0),
@@ -73,37 +73,24 @@ def _config(config: Config, combo: Mapping[str, float]) -> Config:
                                           for k, v in values.items()})
 
 
-def wrong_table(sample: Sample, config: Config, combos: Sequence[Mapping[str, float]], *, bar=None) -> np.ndarray:
-    """bool `(c, n)`: the points of `sample` that DMF with each combination mislabels (against
-    `sample.ref_ground`; unused points count as non-ground, as in `filter`). The sample runs
-    as `gfjax.dmf.filter` runs a cloud, so the defaults' row is the plain filter's errors,
-    point for point (tested). `bar`: a tqdm bar advanced once per combination."""
+def labels(sample: Sample, config: Config, combos: Sequence[Mapping[str, float]]) -> Iterator[np.ndarray]:
+    """DMF's ground (bool `(n,)`) on `sample` with each combination in turn, run as
+    `gfjax.dmf.filter` runs a cloud (unused points are never ground): the defaults' labels are
+    the plain filter's, point for point (tested)."""
     cloud = Cloud.from_xyz(sample.xyz_m)
-    wrong = np.empty((len(combos), len(sample.xyz_m)), bool)
-    labels = np.zeros(len(sample.xyz_m), bool)
+    ground = np.zeros(len(sample.xyz_m), bool)
     prep, prepared_key = None, None
-    for row, combo in enumerate(combos):
+    for combo in combos:
         cfg = _config(config, combo)
         if sample.use.any():
             key = tuple(combo[k] for k in _PREPARED_KEYS)
             if key != prepared_key:
                 prep, prepared_key = prepare(cloud, sample.use, cfg), key
             params = Params(**{k: combo[k] for k in _PARAMS_KEYS})
-            _, ground, _ = extract.extract_ground(prep.local, prep.vox, prep.object_cell, prep.in_ndng,
-                                                  dataclasses.replace(prep.config, v1=cfg.v1), params,
-                                                  points_tree=prep.tree)
-            labels[sample.use] = ground
-        wrong[row] = labels != sample.ref_ground
-        if bar is not None:
-            bar.update(1)
-    return wrong
+            _, ground[sample.use], _ = extract.extract_ground(prep.local, prep.vox, prep.object_cell, prep.in_ndng,
+                                                              dataclasses.replace(prep.config, v1=cfg.v1), params,
+                                                              points_tree=prep.tree)
+        yield ground.copy()
 
 
-def tune(samples: Sequence[Sample], *, config: Config | None = None, grid: Mapping[str, Sequence[float]] | None = None,
-         masks: Sequence[np.ndarray] | None = None, folds: int = 3, block_m: float = 50.0, alpha: float = 0.05,
-         seed: int = 0, progress: bool = False) -> search.Tuned:
-    """One DMF setting for labelled `samples`, chosen on the grid and guarded (`search.tune`)."""
-    config = Config() if config is None else config
-    combos, default = candidates(config, grid)
-    return search.tune(samples, lambda s, bar: wrong_table(s, config, combos, bar=bar), combos, default, masks=masks,
-                       folds=folds, block_m=block_m, alpha=alpha, seed=seed, progress="dmf grid" if progress else None)
+METHOD = search.Searched("dmf", Config, default_grid, candidates, labels, UNITS, NOTE)

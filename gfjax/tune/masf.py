@@ -13,7 +13,7 @@ densifies. The choice and its guard are `gfjax.tune.search`'s.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -23,7 +23,7 @@ from gfjax.masf.config import Config, Params
 from gfjax.tune import search
 from gfjax.tune.problem import Sample
 
-__all__ = ["GRID", "CONFIG_KEYS", "PARAMS_KEYS", "NOTE", "UNITS", "default_grid", "candidates", "wrong_table", "tune"]
+__all__ = ["GRID", "CONFIG_KEYS", "PARAMS_KEYS", "NOTE", "UNITS", "default_grid", "candidates", "labels", "METHOD"]
 
 CONFIG_KEYS = ("alpha_max_m", "alpha_step_m")      # set the pyramid (`Config`)
 PARAMS_KEYS = ("st", "ft_m")                       # set the densification (`Params`)
@@ -64,40 +64,25 @@ def _settings(config: Config, combo: Mapping[str, float]) -> tuple[Config, Param
             Params(**{k: combo[k] for k in PARAMS_KEYS}))
 
 
-def wrong_table(sample: Sample, config: Config, combos: Sequence[Mapping[str, float]], *,
-                bar=None) -> np.ndarray:
-    """bool `(c, n)`: the points of `sample` that MASF with each combination mislabels (against
-    `sample.ref_ground`; points the filter does not use count as non-ground, as in `filter`).
-
-    The sample runs as `gfjax.masf.filter` runs a cloud (far groups moved together first, the
-    same stages): the defaults' row is the plain filter's errors, point for point (tested).
-    `bar`: a tqdm bar advanced once per combination.
-    """
+def labels(sample: Sample, config: Config, combos: Sequence[Mapping[str, float]]) -> Iterator[np.ndarray]:
+    """MASF's ground (bool `(n,)`) on `sample` with each combination in turn, run as
+    `gfjax.masf.filter` runs a cloud (far groups moved together first, the same stages; unused
+    points are never ground): the defaults' labels are the plain filter's, point for point
+    (tested)."""
     used = np.flatnonzero(sample.use)
     reach_m = 2 * max(c["alpha_max_m"] for c in combos)
     xyz, _ = groups.compacted(sample.xyz_m, max(groups.GAP_M, reach_m), use=sample.use)
     prep = prepare(xyz[used], config)
-    wrong = np.empty((len(combos), len(sample.xyz_m)), bool)
-    labels = np.zeros(len(sample.xyz_m), bool)
+    ground = np.zeros(len(sample.xyz_m), bool)
     layers, pyramid_of = None, None
-    for row, combo in enumerate(combos):
+    for combo in combos:
         cfg, params = _settings(config, combo)
         if len(prep.pre.index):
             key = (cfg.alpha_max_m, cfg.alpha_step_m)
             if key != pyramid_of:
                 layers, pyramid_of = pyramid(prep, cfg), key
-            labels[used] = densify(prep, layers, cfg, params).ground
-        wrong[row] = labels != sample.ref_ground
-        if bar is not None:
-            bar.update(1)
-    return wrong
+            ground[used] = densify(prep, layers, cfg, params).ground
+        yield ground.copy()
 
 
-def tune(samples: Sequence[Sample], *, config: Config | None = None, grid: Mapping[str, Sequence[float]] | None = None,
-         masks: Sequence[np.ndarray] | None = None, folds: int = 3, block_m: float = 50.0, alpha: float = 0.05,
-         seed: int = 0, progress: bool = False) -> search.Tuned:
-    """One MASF setting for labelled `samples`, chosen on the grid and guarded (`search.tune`)."""
-    config = Config() if config is None else config
-    combos, default = candidates(config, grid)
-    return search.tune(samples, lambda s, bar: wrong_table(s, config, combos, bar=bar), combos, default, masks=masks,
-                       folds=folds, block_m=block_m, alpha=alpha, seed=seed, progress="masf grid" if progress else None)
+METHOD = search.Searched("masf", Config, default_grid, candidates, labels, UNITS, NOTE)

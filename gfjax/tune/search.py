@@ -21,8 +21,9 @@ fold's fit, so the out-of-fold gain already pays for it: no multiplicity factor.
 """
 from __future__ import annotations
 
+import dataclasses
 import itertools
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -30,7 +31,7 @@ import numpy as np
 from gfjax.tune.guard import fold_plan, sign_flip_p
 from gfjax.tune.problem import Sample
 
-__all__ = ["Choice", "Tuned", "errors", "grid_candidates", "tune", "validate"]
+__all__ = ["Choice", "Searched", "Tuned", "errors", "grid_candidates", "validate", "wrong_table"]
 
 
 class Choice(NamedTuple):
@@ -160,23 +161,64 @@ class Tuned(NamedTuple):
     wrong: list[np.ndarray]
 
 
-def tune(samples: Sequence[Sample], table: Callable, combos: list[dict[str, float]], default: int, *,
-         masks: Sequence[np.ndarray] | None = None, folds: int = 3, block_m: float = 50.0, alpha: float = 0.05,
-         seed: int = 0, progress: str | None = None) -> Tuned:
-    """One setting for labelled `samples`: `table(sample, bar) -> bool (c, n)` labels each
-    sample with every candidate of `combos` (advancing the tqdm `bar`, or None, once per
-    candidate); the choice is `validate`'s (equal weight per sample; `masks`: the labelled
-    points that count, default every used point). `progress`: the bar's label, or None."""
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=len(combos) * len(samples), desc=progress, unit="run", leave=False)
-    try:
-        wrong = [table(s, bar) for s in samples]
-    finally:
+def wrong_table(labels: Iterator[np.ndarray], sample: Sample, n_combos: int, *, bar=None) -> np.ndarray:
+    """bool `(c, n)`: where each of the `n_combos` label arrays `labels` yields (bool `(n,)`,
+    the filter's ground for each candidate in turn) disagrees with `sample.ref_ground`. `bar`:
+    a tqdm bar advanced once per candidate."""
+    wrong = np.empty((n_combos, len(sample.xyz_m)), bool)
+    for row, ground in enumerate(labels):
+        wrong[row] = ground != sample.ref_ground
         if bar is not None:
-            bar.close()
-    masks = [s.use for s in samples] if masks is None else [np.asarray(m, bool) & s.use for m, s in zip(masks, samples)]
-    choice = validate(wrong, [s.xyz_m for s in samples], masks, default=default, folds=folds, block_m=block_m,
-                      alpha=alpha, seed=seed)
-    return Tuned(dict(combos[choice.index]), combos, default, choice, wrong)
+            bar.update(1)
+    return wrong
+
+
+@dataclasses.dataclass(frozen=True)
+class Searched:
+    """A method tuned by grid search (`gfjax.tune.masf.METHOD`, `gfjax.tune.dmf.METHOD`).
+
+    Attributes:
+      name: the method's name in `gfjax.methods` and params.json.
+      config_type: its `Config` class.
+      default_grid: `(config) -> {key: values}`, the grid `gfjax tune` searches by default.
+      candidates: `(config, grid or None) -> (combinations, index of the defaults')`.
+      labels: `(sample, config, combinations)` -> an iterator of the filter's ground (bool
+        `(n,)`) with each combination in turn, from the filter's own stages.
+      units: unit of every key written to params.json.
+      note: why the keys are searched, not fitted by gradient (params.json).
+    """
+
+    name: str
+    config_type: type
+    default_grid: Callable
+    candidates: Callable
+    labels: Callable
+    units: Mapping[str, str]
+    note: str
+
+    def wrong_table(self, sample: Sample, config, combos: Sequence[Mapping[str, float]], *, bar=None) -> np.ndarray:
+        """bool `(c, n)`: the points of `sample` the method with each combination mislabels."""
+        return wrong_table(self.labels(sample, config, combos), sample, len(combos), bar=bar)
+
+    def tune(self, samples: Sequence[Sample], *, config=None, grid: Mapping[str, Sequence[float]] | None = None,
+             masks: Sequence[np.ndarray] | None = None, folds: int = 3, block_m: float = 50.0, alpha: float = 0.05,
+             seed: int = 0, progress: bool = False) -> Tuned:
+        """One setting for labelled `samples`: every candidate of `grid` (default
+        `default_grid`) labels every sample, and `validate` chooses (equal weight per sample;
+        `masks`: the labelled points that count, default every used point)."""
+        config = self.config_type() if config is None else config
+        combos, default = self.candidates(config, grid)
+        bar = None
+        if progress:
+            from tqdm import tqdm
+            bar = tqdm(total=len(combos) * len(samples), desc=f"{self.name} grid", unit="run", leave=False)
+        try:
+            wrong = [self.wrong_table(s, config, combos, bar=bar) for s in samples]
+        finally:
+            if bar is not None:
+                bar.close()
+        masks = ([s.use for s in samples] if masks is None
+                 else [np.asarray(m, bool) & s.use for m, s in zip(masks, samples)])
+        choice = validate(wrong, [s.xyz_m for s in samples], masks, default=default, folds=folds, block_m=block_m,
+                          alpha=alpha, seed=seed)
+        return Tuned(dict(combos[choice.index]), combos, default, choice, wrong)

@@ -95,7 +95,7 @@ def test_every_row_of_the_table_is_the_plain_filters_errors(far_group):
                                                                           cloud.classification[:50]]))
     sample = Sample.from_cloud(cloud)
     combos, default = tmasf.candidates(masf.Config(), SMALL_GRID)
-    wrong = tmasf.wrong_table(sample, masf.Config(), combos)
+    wrong = tmasf.METHOD.wrong_table(sample, masf.Config(), combos)
     assert wrong.shape == (len(combos), cloud.n_points)
     for row in sorted({default, 0, len(combos) - 1, 3}):
         c = combos[row]
@@ -115,7 +115,7 @@ def test_every_row_of_dmfs_table_is_the_plain_filters_errors():
     combos, default = tdmf.candidates(dmf.Config(), DMF_GRID)
     assert combos[default] == {"v0": 2.0, "max_filter_px": 2.0, "rc_min_share": 1.0, "height_threshold_m": 0.0,
                                "height_threshold_w": 0.15}
-    wrong = tdmf.wrong_table(sample, dmf.Config(), combos)
+    wrong = tdmf.METHOD.wrong_table(sample, dmf.Config(), combos)
     for row in sorted({default, 0, 5}):
         c = combos[row]
         config = dataclasses.replace(dmf.Config(), v0=c["v0"], max_filter_px=int(c["max_filter_px"]),
