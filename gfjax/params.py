@@ -11,6 +11,7 @@ recompiles); `check()` tests concrete values against `ranges` outside `jit`.
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import ClassVar
 
@@ -20,7 +21,7 @@ from jaxtyping import Array, Float
 
 from gfjax import limits
 
-__all__ = ["Params", "f32", "param"]
+__all__ = ["Params", "declared_defaults", "f32", "param"]
 
 
 def f32(value) -> Float[Array, "*batch"]:
@@ -31,6 +32,11 @@ def f32(value) -> Float[Array, "*batch"]:
 def param(default: float):
     """An `eqx.Module` field holding a float32 scalar, `default` when not given."""
     return eqx.field(default=default, converter=f32)
+
+
+def declared_defaults(params_type: type) -> dict[str, float]:
+    """`{field: default}` of a `Params` class as declared (the Python numbers, not their float32)."""
+    return {f.name: f.default for f in dataclasses.fields(params_type)}
 
 
 class Params(eqx.Module):

@@ -48,12 +48,12 @@ from gfjax.csf import stages
 from gfjax.csf.config import BUFFER_PX
 from gfjax.io import tiles as tiling
 from gfjax.tune import relax
-from gfjax.tune.params import Bound
+from gfjax.tune.params import bound
 
 __all__ = ["BOUNDS", "UNITS", "TIME_STEPS", "RIGIDNESS", "GRID", "TuneConfig", "Prepared", "encode", "decode",
            "cloth_distances", "sample_distances", "prepare_samples", "ground_weight", "cloth_cache"]
 
-BOUNDS = (Bound("class_threshold_m", 0.5, 0.1, 1.5, "m"),)
+BOUNDS = (bound(csf.Params, "class_threshold_m", 0.1, 1.5, "m"),)
 UNITS = {"class_threshold_m": "m", "time_step": "1 (simulation time step)",
          "rigidness": "1 (spring relaxations per step)"}
 TIME_STEPS = (0.5, 0.65, 0.8)

@@ -24,6 +24,7 @@ from gfjax.dmf import extract
 from gfjax.dmf.config import Config, Params
 from gfjax.dmf.filter import prepare
 from gfjax.io.cloud import Cloud
+from gfjax.params import declared_defaults
 from gfjax.tune import search
 from gfjax.tune.problem import Sample
 
@@ -47,7 +48,7 @@ _PARAMS_KEYS = ("height_threshold_m", "height_threshold_w")
 
 
 def _defaults(config: Config) -> dict[str, float]:
-    declared = {f.name: f.default for f in dataclasses.fields(Params)}
+    declared = declared_defaults(Params)
     keys = {k: float(getattr(config, k)) for k in _PREPARED_KEYS}
     if config.final_rule != "height":
         keys["v1"] = float(config.v1)

@@ -19,6 +19,7 @@ import numpy as np
 
 from gfjax.io import groups
 from gfjax.masf.filter import densify, prepare, pyramid
+from gfjax.params import declared_defaults
 from gfjax.masf.config import Config, Params
 from gfjax.tune import search
 from gfjax.tune.problem import Sample
@@ -42,7 +43,7 @@ NOTE = ("alpha_max_m and alpha_step_m change which points make each layer of the
 
 def _defaults(config: Config) -> dict[str, float]:
     """The config's pyramid and `Params`' declared defaults (the numbers, not their float32)."""
-    declared = {f.name: f.default for f in dataclasses.fields(Params)}
+    declared = declared_defaults(Params)
     return {k: float(getattr(config, k)) for k in CONFIG_KEYS} | {k: float(declared[k]) for k in PARAMS_KEYS}
 
 

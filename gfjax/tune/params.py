@@ -22,19 +22,26 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from gfjax.io.atomic import atomic_output
+from gfjax.params import declared_defaults
 from gfjax.io.params_file import read_params
 
-__all__ = ["Bound", "to_raw", "from_raw", "prior_penalty", "write_params", "read_params"]
+__all__ = ["Bound", "bound", "to_raw", "from_raw", "prior_penalty", "write_params", "read_params"]
 
 
 class Bound(NamedTuple):
-    """One tuned scalar: its name (a `Params` field), default, bounds and unit."""
+    """One tuned scalar: its name (a `Params` field), default, bounds and unit (`bound` reads
+    the default from the method's `Params`: one place)."""
 
     name: str
     default: float
     lo: float
     hi: float
     unit: str
+
+
+def bound(params_type: type, name: str, lo: float, hi: float, unit: str) -> Bound:
+    """The `Bound` of `params_type`'s field `name`, its default the field's declared one."""
+    return Bound(name, float(declared_defaults(params_type)[name]), lo, hi, unit)
 
 
 def _check(bounds: Sequence[Bound]) -> None:

@@ -30,14 +30,14 @@ from gfjax.pmf import stages
 from gfjax.pmf.config import Config, Params
 from gfjax.raster.grid import cell_index, domain_mask
 from gfjax.tune import relax
-from gfjax.tune.params import Bound
+from gfjax.tune.params import bound
 
 __all__ = ["BOUNDS", "UNITS", "Prepared", "prepare_tile", "ground_weight", "make_params"]
 
 BOUNDS = (
-    Bound("slope", 1.0, 0.1, 3.0, "1 (rise over run)"),
-    Bound("initial_distance_m", 0.15, 0.05, 1.0, "m"),
-    Bound("max_distance_m", 2.5, 0.5, 6.0, "m"),
+    bound(Params, "slope", 0.1, 3.0, "1 (rise over run)"),
+    bound(Params, "initial_distance_m", 0.05, 1.0, "m"),
+    bound(Params, "max_distance_m", 0.5, 6.0, "m"),
 )
 UNITS = {b.name: b.unit for b in BOUNDS}
 

@@ -48,7 +48,7 @@ from gfjax.raster.rasterize import rasterize
 from gfjax.smrf import stages
 from gfjax.smrf.config import Config, Params
 from gfjax.tune import relax
-from gfjax.tune.params import Bound
+from gfjax.tune.params import bound
 
 __all__ = ["BOUNDS", "GRID", "UNITS", "Prepared", "prepare_tile", "ground_weight", "make_params",
            "soft_inpaint", "radius_for"]
@@ -57,9 +57,9 @@ __all__ = ["BOUNDS", "GRID", "UNITS", "Prepared", "prepare_tile", "ground_weight
 # grid over each (`numpy.linspace(lo, hi, 5)`, the grid search of the experiments) holds the
 # defaults.
 BOUNDS = (
-    Bound("slope", 0.15, 0.05, 0.45, "1 (rise over run)"),
-    Bound("threshold_m", 0.5, 0.1, 0.9, "m"),
-    Bound("scalar", 1.25, 0.0, 2.5, "m per unit slope"),
+    bound(Params, "slope", 0.05, 0.45, "1 (rise over run)"),
+    bound(Params, "threshold_m", 0.1, 0.9, "m"),
+    bound(Params, "scalar", 0.0, 2.5, "m per unit slope"),
 )
 # Static parameters searched on a grid (each value: its own relaxed fit).
 GRID = {"window_m": (12.0, 18.0, 24.0)}
