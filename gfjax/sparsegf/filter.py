@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from typing import NamedTuple
 from collections.abc import Callable
 
@@ -42,7 +43,8 @@ def patches(xyz_m: np.ndarray, config: Config, *, angle: float | Callable[[], fl
 
 
 def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progress: bool = False):
-    """Soft-voted ground probability and vote count per point of `xyz_m` `(n, 3)` [m].
+    """Soft-voted ground probability and vote count per point of `xyz_m` `(n, 3)` [m] (every
+    patch `config.vote_rotations` times, rotated).
 
     Patches are prepared on the host while the previous pack runs (JAX dispatches
     asynchronously); a pack whose pyramid overflowed its plan is run again with a grown plan.
@@ -67,7 +69,9 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
         if bar is not None:
             bar.update(len(packed.patches))
 
-    for todo in group(patches(xyz_m, config), config.batch_size):
+    rotations = (patches(xyz_m, config, angle=2 * np.pi * k / config.vote_rotations)
+                 for k in range(config.vote_rotations))
+    for todo in group(itertools.chain.from_iterable(rotations), config.batch_size):
         packed = pack(todo, config.batch_size, plans)
         result = predict(model, packed)
         if pending is not None:
