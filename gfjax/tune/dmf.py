@@ -23,7 +23,6 @@ import numpy as np
 from gfjax.dmf import extract
 from gfjax.dmf.config import Config, Params
 from gfjax.dmf.filter import prepare
-from gfjax.io.cloud import Cloud
 from gfjax.params import declared_defaults
 from gfjax.tune import search
 from gfjax.tune.problem import Sample
@@ -78,7 +77,6 @@ def labels(sample: Sample, config: Config, combos: Sequence[Mapping[str, float]]
     """DMF's ground (bool `(n,)`) on `sample` with each combination in turn, run as
     `gfjax.dmf.filter` runs a cloud (unused points are never ground): the defaults' labels are
     the plain filter's, point for point (tested)."""
-    cloud = Cloud.from_xyz(sample.xyz_m)
     ground = np.zeros(len(sample.xyz_m), bool)
     prep, prepared_key = None, None
     for combo in combos:
@@ -86,7 +84,7 @@ def labels(sample: Sample, config: Config, combos: Sequence[Mapping[str, float]]
         if sample.use.any():
             key = tuple(combo[k] for k in _PREPARED_KEYS)
             if key != prepared_key:
-                prep, prepared_key = prepare(cloud, sample.use, cfg), key
+                prep, prepared_key = prepare(sample, sample.use, cfg), key
             params = Params(**{k: combo[k] for k in _PARAMS_KEYS})
             _, ground[sample.use], _ = extract.extract_ground(prep.local, prep.vox, prep.object_cell, prep.in_ndng,
                                                               dataclasses.replace(prep.config, v1=cfg.v1), params,

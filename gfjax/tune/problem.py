@@ -27,7 +27,8 @@ __all__ = ["Sample", "Bucket", "Problem", "block_ids", "block_folds"]
 
 
 class Sample(NamedTuple):
-    """One labelled cloud.
+    """One labelled cloud; a `gfjax.io.cloud.CloudView` of its own coordinates (exactly those of
+    the file it came from, so a method's stages see what its `filter` sees).
 
     Attributes:
       name: for reports.
@@ -40,6 +41,15 @@ class Sample(NamedTuple):
     xyz_m: np.ndarray
     ref_ground: np.ndarray
     use: np.ndarray
+
+    @property
+    def n_points(self) -> int:
+        return len(self.xyz_m)
+
+    @property
+    def frame(self) -> None:
+        """No survey frame: a sample is a cloud of its own (a `CloudView` for a method's stages)."""
+        return None
 
     @classmethod
     def from_cloud(cls, cloud: Cloud, *, returns: str = "all") -> "Sample":
