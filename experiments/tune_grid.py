@@ -26,6 +26,7 @@ import argparse
 import hashlib
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -50,17 +51,22 @@ def pct(x: float | None) -> str:
     return "-" if x is None else f"{100 * x:.2f}"
 
 
-def table(method: str, sample: Sample, combos, cache: Path) -> np.ndarray:
+def table(method: str, sample: Sample, combos, cache: Path) -> tuple[np.ndarray, float]:
+    """The sample's table of mislabelled points per candidate and the seconds it took to make
+    (cached in `cache`)."""
     key = hashlib.sha256(json.dumps([method, sample.name, combos, gfjax.__version__]).encode()).hexdigest()[:16]
     path = cache / f"{method}-{sample.name}-{key}.npy"
-    if path.exists():
-        return np.load(path)
+    seconds = path.with_suffix(".seconds")
+    if path.exists() and seconds.exists():
+        return np.load(path), float(seconds.read_text())
     start = time.perf_counter()
     module, tmodule = METHODS[method]
     wrong = tmodule.METHOD.wrong_table(sample, module.Config(), combos)
-    print(f"{sample.name}: {len(combos)} runs in {time.perf_counter() - start:.0f} s", flush=True)
+    took = time.perf_counter() - start
+    print(f"{sample.name}: {len(combos)} runs in {took:.0f} s", flush=True)
     np.save(path, wrong)
-    return wrong
+    seconds.write_text(f"{took:.1f}")
+    return wrong, took
 
 
 def error(wrong_row: np.ndarray, mask: np.ndarray) -> float:
@@ -79,14 +85,14 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
     module, tmodule = METHODS[args.method]
     combos, default = tmodule.candidates(module.Config())
-    samples, wrong, paper = [], [], {}
+    samples, wrong, paper, table_s = [], [], {}, 0.0
     for name in args.samples:
         cloud = gfjax.read(ISPRS / f"{name}-utm.laz")
         sample = Sample.from_cloud(cloud)._replace(name=name)
-        w = table(args.method, sample, combos, cache)
+        w, took = table(args.method, sample, combos, cache)
+        table_s += took
         plain = module.filter(cloud).ground != sample.ref_ground
         assert np.array_equal(w[default], plain), f"{name}: the defaults' row differs from {args.method}.filter"
         if args.method == "masf":
@@ -95,7 +101,6 @@ def main(argv=None) -> int:
                                 sample.use)
         samples.append(sample)
         wrong.append(w)
-    table_s = time.perf_counter() - t0
 
     rows, choices = [], {}
     for i, (s, w) in enumerate(zip(samples, wrong)):
@@ -130,7 +135,7 @@ def main(argv=None) -> int:
               "table_seconds": table_s, "samples": args.samples}
     out = Path(args.out) if args.out else RESULTS / f"tune_isprs_{args.method}.md"
     out.with_suffix(".json").write_text(json.dumps(result, indent=1))
-    out.write_text(report(result, argv))
+    out.write_text(report(result, sys.argv[1:] if argv is None else argv))
     print(out.read_text())
     return 0
 
