@@ -28,6 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from gfjax import aot
 from gfjax.tune.guard import fold_plan, sign_flip_p
 from gfjax.tune.problem import Sample
 
@@ -197,8 +198,13 @@ class Searched:
     note: str
 
     def wrong_table(self, sample: Sample, config, combos: Sequence[Mapping[str, float]], *, bar=None) -> np.ndarray:
-        """bool `(c, n)`: the points of `sample` the method with each combination mislabels."""
-        return wrong_table(self.labels(sample, config, combos), sample, len(combos), bar=bar)
+        """bool `(c, n)`: the points of `sample` the method with each combination mislabels.
+        The programs its candidates compiled are released afterwards (`gfjax.aot.release`):
+        a grid over static settings compiles many shapes, and each holds memory maps."""
+        try:
+            return wrong_table(self.labels(sample, config, combos), sample, len(combos), bar=bar)
+        finally:
+            aot.release()
 
     def tune(self, samples: Sequence[Sample], *, config=None, grid: Mapping[str, Sequence[float]] | None = None,
              masks: Sequence[np.ndarray] | None = None, folds: int = 3, block_m: float = 50.0, alpha: float = 0.05,
