@@ -35,12 +35,14 @@ class Sample(NamedTuple):
       xyz_m: float64 `(n, 3)` [m].
       ref_ground: bool `(n,)` reference ground (class 2).
       use: bool `(n,)` points the filter sees (noise and withheld excluded).
+      returns: the returns `use` keeps ("all" or "last").
     """
 
     name: str
     xyz_m: np.ndarray
     ref_ground: np.ndarray
     use: np.ndarray
+    returns: str = "all"
 
     @property
     def n_points(self) -> int:
@@ -51,6 +53,12 @@ class Sample(NamedTuple):
         """No survey frame: a sample is a cloud of its own (a `CloudView` for a method's stages)."""
         return None
 
+    def filter_mask(self, returns: str = "all") -> np.ndarray:
+        """`use`: the points of the `returns` the sample was made with (`from_cloud`)."""
+        if returns != self.returns:
+            raise ValueError(f"{self.name}: a sample of {self.returns!r} returns, asked for {returns!r}")
+        return self.use
+
     @classmethod
     def from_cloud(cls, cloud: Cloud, *, returns: str = "all") -> "Sample":
         """Reference ground = ASPRS class 2 of the cloud (ISPRS: object = class 0)."""
@@ -59,7 +67,7 @@ class Sample(NamedTuple):
         except ValueError as err:
             raise InputError(f"{cloud.name}: {err}") from None
         ref = np.asarray(cloud.classification) == 2
-        return cls(cloud.name, np.asarray(cloud.xyz_m, np.float64), ref, use)
+        return cls(cloud.name, np.asarray(cloud.xyz_m, np.float64), ref, use, returns)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

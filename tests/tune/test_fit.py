@@ -89,7 +89,7 @@ def test_cli_tune_writes_params_that_filter_reads(tmp_path, capsys):
     else:
         assert report["p_value"] < 0.05 and report["tuned"] < report["default"]
     assert cli_main.main(["tune", str(laz), "-o", str(out), "--steps", "2"]) == 2          # exists
-    assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "p.json"), "--method", "dmf"]) == 2
+    assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "p.json"), "--method", "sparsegf"]) == 2
     assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "p.txt")]) == 2
     assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "q.json"), "--alpha", "1.5"]) == 2
 
