@@ -13,7 +13,6 @@ Writes `experiments/results/sparsegf_eval.md` (and `.json`).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import time
@@ -61,10 +60,6 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", default=None, help="model file (default: the model shipped in gfjax)")
     parser.add_argument("--ablation", nargs="*", default=[], metavar="NAME=MODEL.eqx")
-    parser.add_argument("--rotations", type=int, nargs="*", default=[], metavar="N",
-                        help="also the first model with vote_rotations=N (each patch voted N times, turned)")
-    parser.add_argument("--validation", action="store_true",
-                        help="also score every row on the validation file samp31 (first, before the test split)")
     parser.add_argument("--out", type=Path, default=RESULTS / "sparsegf_eval.md")
     args = parser.parse_args()
     clouds = {s: gfjax.read(ISPRS / f"{s}-utm.laz") for s in TEST_SAMPLES}
@@ -73,25 +68,15 @@ def main():
     runs = [evaluate("gfjax smrf (defaults)", lambda c: gfjax.smrf.filter(c).ground, clouds)]
     models = [("sparsegf " + (Path(args.model).name if args.model else "shipped tiny"), args.model)]
     models += [tuple(item.split("=", 1)) for item in args.ablation]
-    rows = [(name, path, None) for name, path in models]
-    rows[1:1] = [(f"{models[0][0]}, vote_rotations={n}", models[0][1], n) for n in args.rotations]
-    validation = {}
-    for name, path, rotations in rows:
+    for name, path in models:
         net, config = sparsegf.load_model(path)
-        if rotations is not None:
-            config = dataclasses.replace(config, vote_rotations=rotations)
-        run = lambda c, net=net, config=config: sparsegf.filter(c, model=net, config=config).ground   # noqa: E731
-        if args.validation:
-            val = gfjax.read(ISPRS / "samp31-utm.laz")
-            validation[name] = point_metrics(run(val), val.classification == 2)["total_error"]
-        runs.append(evaluate(name, run, clouds))
+        runs.append(evaluate(name, lambda c, net=net, config=config: sparsegf.filter(c, model=net, config=config).ground,
+                             clouds))
 
     lines = ["# SparseGF on the test split (never trained on)", "",
              "Command: `nice .venv/bin/python experiments/sparsegf_eval.py"
              + (f" --model {args.model}" if args.model else "")
-             + (" --ablation " + " ".join(args.ablation) if args.ablation else "")
-             + (" --rotations " + " ".join(map(str, args.rotations)) if args.rotations else "")
-             + (" --validation" if args.validation else "") + "`  ",
+             + (" --ablation " + " ".join(args.ablation) if args.ablation else "") + "`  ",
              f"Load average at the end: {' '.join(f'{x:.1f}' for x in os.getloadavg())}; 2-core CPU.", "",
              "| filter | " + " | ".join(f"{s} TE % (I / II, kappa)" for s in TEST_SAMPLES)
              + " | mean TE % | bcts_2 DTM RMSE m | bcts_2 R_O % | points/s (warm filter calls) |",
@@ -103,16 +88,12 @@ def main():
         mean = np.mean([100 * f[s]["total_error"] for s in TEST_SAMPLES])
         lines.append(f"| {run['name']} | " + " | ".join(cells) + f" | **{mean:.2f}** | {f['bcts_2']['rmse_m']:.3f} "
                      f"| {100 * f['bcts_2']['r_o']:.2f} | {run['points_per_s']:,.0f} |")
-    if validation:
-        lines += ["", "Validation (samp31, not trained on) total error: " + "; ".join(
-            f"{name}: {100 * te:.2f} %" for name, te in validation.items()) + "."]
     lines += ["", "Per file, first call (compiles) and warm call [s]: " + "; ".join(
         f"{run['name']}: " + ", ".join(f"{k} {v['first_s']:.1f} / {v['warm_s']:.1f}" for k, v in run["files"].items())
         for run in runs) + "."]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines) + "\n")
-    args.out.with_suffix(".json").write_text(json.dumps({"runs": runs, "validation": validation} if validation else runs,
-                                                        indent=1, default=float))
+    args.out.with_suffix(".json").write_text(json.dumps(runs, indent=1, default=float))
     print("\n".join(lines))
 
 
