@@ -23,7 +23,6 @@ RANGES: dict[str, Range] = {
     "max_context_points": Range(1_000, 10_000_000, integer=True),
     "batch_size": Range(1, 64, integer=True),
     "ground_probability": Range(0, 1, low_open=True, high_open=True),
-    "vote_rotations": Range(1, 16, integer=True),
 }
 
 
@@ -44,10 +43,6 @@ class Config:
         thinned at random with a fixed seed); a CPU budget, not in the paper.
       batch_size: patches per network call at most (they are packed into one sparse tensor).
       ground_probability: a point is ground when its mean vote exceeds this (0.5, Algorithm 1).
-      vote_rotations: each patch is classified this many times, rotated about its axis by
-        `2 pi k / vote_rotations` (k = 0, 1, ...), and the soft vote averages them all: a
-        test-time use of the training's rotation augmentation (not in the paper; 1 = off),
-        costing that many times the network's time.
     """
 
     voxel_m: float = VOXEL_M
@@ -60,7 +55,6 @@ class Config:
     max_context_points: int = MAX_CONTEXT_POINTS
     batch_size: int = 8
     ground_probability: float = 0.5
-    vote_rotations: int = 1
 
     def __post_init__(self):
         limits.check_fields(self, RANGES)

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from typing import NamedTuple
 from collections.abc import Callable
 
@@ -43,8 +42,7 @@ def patches(xyz_m: np.ndarray, config: Config, *, angle: float | Callable[[], fl
 
 
 def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progress: bool = False):
-    """Soft-voted ground probability and vote count per point of `xyz_m` `(n, 3)` [m] (every
-    patch `config.vote_rotations` times, rotated).
+    """Soft-voted ground probability and vote count per point of `xyz_m` `(n, 3)` [m].
 
     Patches are prepared on the host while the previous pack runs (JAX dispatches
     asynchronously); a pack whose pyramid overflowed its plan is run again with a grown plan.
@@ -69,9 +67,7 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
         if bar is not None:
             bar.update(len(packed.patches))
 
-    rotations = (patches(xyz_m, config, angle=2 * np.pi * k / config.vote_rotations)
-                 for k in range(config.vote_rotations))
-    for todo in group(itertools.chain.from_iterable(rotations), config.batch_size):
+    for todo in group(patches(xyz_m, config), config.batch_size):
         packed = pack(todo, config.batch_size, plans)
         result = predict(model, packed)
         if pending is not None:

@@ -107,18 +107,6 @@ def test_filter_votes_every_point(net):
     assert np.all((p >= 0) & (p <= 1))
 
 
-def test_rotated_votes_add_to_the_unrotated_ones(net):
-    xyz, cls = scene()
-    cloud = Cloud.from_xyz(xyz, classification=cls)
-    once = sparsegf.filter(cloud, model=net).diagnostics
-    twice = sparsegf.filter(cloud, model=net, config=Config(vote_rotations=2)).diagnostics
-    np.testing.assert_array_equal(twice.votes, 2 * once.votes)
-    assert twice.n_patches == 2 * once.n_patches
-    assert not np.array_equal(twice.prob_ground, once.prob_ground)        # the half-turn votes differ
-    with pytest.raises(ValueError, match="vote_rotations"):
-        Config(vote_rotations=0)
-
-
 def test_training_steps_lower_the_loss_and_are_deterministic(net):
     xyz, cls = scene()
     data = [train.labelled(xyz, cls)]
