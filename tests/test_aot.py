@@ -401,3 +401,20 @@ def test_prefetching_an_exported_program_compiles_it_too(folder):
     assert out.shape == (2,) and len(_files(folder, "export")) == 1
     (program,) = aot._loaded.values()
     assert hasattr(program, "compile")            # its executable went to JAX's cache as well
+
+
+def test_release_drops_the_programs_this_process_holds():
+    import jax
+    import jax.numpy as jnp
+
+    from gfjax import aot
+
+    @jax.jit
+    def double(x):
+        return 2 * x
+
+    double(jnp.ones(3))
+    assert double._cache_size() == 1
+    aot.release()
+    assert double._cache_size() == 0
+    np.testing.assert_array_equal(double(jnp.ones(3)), 2 * np.ones(3))     # compiled again on demand
