@@ -157,8 +157,10 @@ def test_cli_tune_masf_writes_params_that_filter_reads(tmp_path, capsys):
     (["--grid", "st=1", "--method", "smrf"], "only masf, dmf are tuned on a grid"),
     (["--loss", "kappa"], "--loss kappa: masf is searched on total error only"),
     (["--windows", "12"], "--windows: not a setting of masf"),
-], ids=["unknown-key", "out-of-range", "not-a-grid-method", "kappa", "windows"])
-def test_cli_tune_masf_refuses_bad_grids_by_name(tmp_path, capsys, args, message):
+    (["--method", "dmf", "--grid", "max_filter_px=1.5"], "--grid: max_filter_px must be an integer"),
+    (["--method", "dmf", "--grid", "alpha_max_m=20"], "--grid alpha_max_m: unknown key; dmf searches"),
+], ids=["unknown-key", "out-of-range", "not-a-grid-method", "kappa", "windows", "dmf-integer", "dmf-key-of-masf"])
+def test_cli_tune_by_grid_refuses_bad_grids_by_name(tmp_path, capsys, args, message):
     laz = tmp_path / "crop.laz"
     gfjax.write(crop_cloud(), laz)
     argv = ["tune", str(laz), "-o", str(tmp_path / "p.json"), *args]
