@@ -148,13 +148,12 @@ def run(args: argparse.Namespace) -> int:
     if args.method in SEARCHED:
         return _run_search(args, inputs, out)
 
-    import numpy as np
 
     from gfjax.tune import fit as tfit
     from gfjax.tune import guard
     from gfjax.tune import methods as tmethods
     from gfjax.tune.params import write_params
-    from gfjax.tune.problem import Problem, Sample
+    from gfjax.tune.problem import Problem
 
     method = tmethods.get(args.method)
     if args.windows and method.static != "window_m":
@@ -163,9 +162,7 @@ def run(args: argparse.Namespace) -> int:
         if value and method.name != "csf":
             raise InputError(f"{option}: only CSF has a cloth grid, not {args.method}")
     _check_grids(args)
-    samples = [Sample.from_cloud(las_io.read(p, units=args.units), returns=args.returns) for p in inputs]
-    if not any(np.any(s.ref_ground[s.use]) for s in samples):
-        raise InputError(f"{', '.join(map(str, inputs))}: no reference ground (class 2) to tune on")
+    samples = _labelled_samples(args, inputs)
     config = method.config_type()
     if method.name == "csf":
         from gfjax.tune import csf as tcsf
@@ -204,16 +201,7 @@ def run(args: argparse.Namespace) -> int:
                   "grid_chosen": {k: kept and static_values[k] != static_defaults[k] for k in static_values},
                   "not_differentiable": {k: method.static_note for k in static_values}}
     write_params(out, method=args.method, values=values, units=method.units, extra=extra)
-    print(f"{out}: {args.method} " + ", ".join(f"{k}={values[k]:.4g}" for k in values))
-    if args.folds >= 2:
-        print(f"validation ({args.folds} folds by {validation['units']}): out-of-fold total error defaults "
-              f"{validation['default']:.4f}, tuned {validation['tuned']:.4f} (shrink {v.shrink[0]:.2f}), "
-              f"p = {validation['p_value']:.3g} over {validation['changed_units']} units -> "
-              f"{'fitted values kept' if kept else 'defaults kept (no significant gain)'}; "
-              f"fitted: {', '.join(fitted) or 'none'}")
-    else:
-        print(f"no validation: training {kind} defaults {validation['default']:.4f}, tuned "
-              f"{validation['tuned']:.4f}; fitted: {', '.join(fitted) or 'none'}")
+    _summary(out, args.method, values, validation, fitted, kind=kind, shrink=float(v.shrink[0]))
     return 0
 
 
@@ -221,12 +209,9 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
     """`--method masf|dmf`: every combination of the grid, then the guard (`gfjax.tune.search`)."""
     import importlib
 
-    import numpy as np
 
     from gfjax import limits
-    from gfjax.io import las as las_io
     from gfjax.tune.params import write_params
-    from gfjax.tune.problem import Sample
 
     method_config = importlib.import_module(f"gfjax.{args.method}.config")
     tmodule = importlib.import_module(f"gfjax.tune.{args.method}")
@@ -251,9 +236,7 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
             except ValueError as err:
                 raise InputError(f"--grid: {err}") from None
         grid[key] = values
-    samples = [Sample.from_cloud(las_io.read(p, units=args.units), returns=args.returns) for p in inputs]
-    if not any(np.any(s.ref_ground[s.use]) for s in samples):
-        raise InputError(f"{', '.join(map(str, inputs))}: no reference ground (class 2) to tune on")
+    samples = _labelled_samples(args, inputs)
     try:
         tuned = tmodule.METHOD.tune(samples, config=config, grid=grid, folds=args.folds, block_m=args.block, alpha=args.alpha,
                            progress=True)
@@ -269,16 +252,37 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
                   "best_on_all_labels": tuned.combos[v.best]}
     extra = {"fitted": fitted, "validation": validation, "search": "exhaustive grid",
              "grid": {k: sorted({c[k] for c in tuned.combos}) for k in tuned.values},
-             "not_differentiable": {k: tmodule.NOTE for k in tuned.values},
+             "not_differentiable": {k: tmodule.METHOD.note for k in tuned.values},
              "training_files": [str(p) for p in inputs]}
-    write_params(out, method=args.method, values=tuned.values, units=tmodule.UNITS, extra=extra)
-    print(f"{out}: {args.method} " + ", ".join(f"{k}={tuned.values[k]:.4g}" for k in tuned.values))
-    if args.folds >= 2:
-        print(f"validation ({args.folds} folds by {validation['units']}): out-of-fold total error defaults "
-              f"{v.default_error:.4f}, tuned {v.tuned_error:.4f}, p = {v.p_value:.3g} over {v.units} units -> "
-              f"{'fitted values kept' if v.kept else 'defaults kept (no significant gain)'}; "
+    write_params(out, method=args.method, values=tuned.values, units=tmodule.METHOD.units, extra=extra)
+    _summary(out, args.method, tuned.values, validation, fitted)
+    return 0
+
+
+def _labelled_samples(args: argparse.Namespace, inputs) -> list:
+    """The training files as `gfjax.tune.problem.Sample`s; InputError when none holds class 2."""
+    import numpy as np
+
+    from gfjax.io import las as las_io
+    from gfjax.tune.problem import Sample
+
+    samples = [Sample.from_cloud(las_io.read(p, units=args.units), returns=args.returns) for p in inputs]
+    if not any(np.any(s.ref_ground[s.use]) for s in samples):
+        raise InputError(f"{', '.join(map(str, inputs))}: no reference ground (class 2) to tune on")
+    return samples
+
+
+def _summary(out, method: str, values: dict, validation: dict, fitted: list[str], *, kind: str = "total error",
+             shrink: float | None = None) -> None:
+    """The lines `gfjax tune` prints: the values written, then what the guard decided."""
+    print(f"{out}: {method} " + ", ".join(f"{k}={values[k]:.4g}" for k in values))
+    if validation["units"] is not None:
+        level = f" (shrink {shrink:.2f})" if shrink is not None else ""
+        print(f"validation ({validation['folds']} folds by {validation['units']}): out-of-fold total error defaults "
+              f"{validation['default']:.4f}, tuned {validation['tuned']:.4f}{level}, "
+              f"p = {validation['p_value']:.3g} over {validation['changed_units']} units -> "
+              f"{'fitted values kept' if validation['kept'] else 'defaults kept (no significant gain)'}; "
               f"fitted: {', '.join(fitted) or 'none'}")
     else:
-        print(f"no validation: training total error defaults {v.default_error:.4f}, tuned {v.tuned_error:.4f}; "
-              f"fitted: {', '.join(fitted) or 'none'}")
-    return 0
+        print(f"no validation: training {kind} defaults {validation['default']:.4f}, tuned "
+              f"{validation['tuned']:.4f}; fitted: {', '.join(fitted) or 'none'}")

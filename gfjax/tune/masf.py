@@ -18,9 +18,9 @@ from collections.abc import Iterator, Mapping, Sequence
 import numpy as np
 
 from gfjax.io import groups
+from gfjax.masf.config import Config, Params
 from gfjax.masf.filter import densify, prepare, pyramid
 from gfjax.params import declared_defaults
-from gfjax.masf.config import Config, Params
 from gfjax.tune import search
 from gfjax.tune.problem import Sample
 
@@ -56,7 +56,7 @@ def default_grid(config: Config) -> dict[str, tuple[float, ...]]:
 def candidates(config: Config, grid: Mapping[str, Sequence[float]] | None = None) -> tuple[list[dict[str, float]], int]:
     """Every combination of `grid` (default `GRID`; `search.grid_candidates`) whose pyramid
     `Config` accepts (alpha_max at least alpha_min), and the index of the defaults' combination."""
-    return search.grid_candidates(_defaults(config), GRID if grid is None else grid,
+    return search.grid_candidates(_defaults(config), default_grid(config) if grid is None else grid,
                                   keep=lambda c: c["alpha_max_m"] >= config.min_alpha_m)
 
 

@@ -100,8 +100,8 @@ def validate(wrong: list[np.ndarray], xyzs: list[np.ndarray], masks: list[np.nda
     """
     if not 0 < alpha < 1:
         raise ValueError(f"alpha must lie in (0, 1), got {alpha}")
-    c = len(wrong)
-    weight = np.full(c, 1.0 / c) if weight is None else np.asarray(weight, np.float64)
+    n_samples = len(wrong)
+    weight = np.full(n_samples, 1.0 / n_samples) if weight is None else np.asarray(weight, np.float64)
     masks = [np.asarray(m, bool) for m in masks]
     train_errors = errors(wrong, masks, weight)
     best = _choose(train_errors, default)
@@ -110,7 +110,7 @@ def validate(wrong: list[np.ndarray], xyzs: list[np.ndarray], masks: list[np.nda
         return Choice(best if kept else default, best, kept, float(train_errors[default]), float(train_errors[best]),
                       float("nan"), 0, False, np.zeros((0, 2)), train_errors)
 
-    group = np.zeros(c, np.int32)
+    group = np.zeros(n_samples, np.int32)
     by_sample, fold_id, unit_id, n_units = fold_plan(xyzs, group, weight, folds, block_m, seed)
     labelled = np.array([m.sum() for m in masks], np.float64)
     scale = np.where(labelled > 0, weight / np.maximum(labelled, 1), 0.0)     # per-point weight of a sample
@@ -126,7 +126,7 @@ def validate(wrong: list[np.ndarray], xyzs: list[np.ndarray], masks: list[np.nda
         chosen = _choose(errors(wrong, train, w_k), default)
         held_n = np.array([h.sum() for h in held], np.float64)
         fold_scale = np.where(held_n > 0, weight / np.maximum(held_n, 1), 0.0)
-        for i in range(c):
+        for i in range(n_samples):
             h = held[i]
             fixed = wrong[i][default, h].astype(np.int64) - wrong[i][chosen, h].astype(np.int64)
             np.add.at(gains, unit_id[i][h], scale[i] * fixed)
