@@ -256,7 +256,9 @@ def equal_layer_regions(layer: Labels, inside: Mask) -> tuple[Labels, Bool[Array
     Labelled as the 4-connected components of a `(2h, 2w)` grid whose even cells are the
     raster's and whose odd cells join two neighbours with the same k.
 
-    Returns: `(labels, converged)`, int32 `(h, w)`, 0 outside `inside`.
+    Returns: `(labels, converged)`, int32 `(h, w)`, 0 outside `inside`; a region's id is 1 +
+    the row-major index of its first cell in the raster (`label_components`' convention on
+    this raster, so ids stay below `h * w + 1`, the segment count of `patch_correction`).
     """
     h, w = layer.shape
     right = inside & shift(inside, 0, 1, False) & (layer == shift(layer, 0, 1, 0))
@@ -265,7 +267,10 @@ def equal_layer_regions(layer: Labels, inside: Mask) -> tuple[Labels, Bool[Array
     odd = jnp.stack([down, jnp.zeros_like(down)], axis=-1).reshape(h, 2 * w)
     grid = jnp.stack([even, odd], axis=1).reshape(2 * h, 2 * w)
     labels, conv = label_components(grid, connectivity=4)
-    return labels[0::2, 0::2], conv
+    # A region's first cell on the grid is a raster cell (a joining cell comes after the cell
+    # it joins), at grid index (2 r) (2 w) + 2 c: back to the raster's index r w + c.
+    first = labels[0::2, 0::2] - 1
+    return jnp.where(first >= 0, first // (4 * w) * w + first % (2 * w) // 2 + 1, 0), conv
 
 
 def patch_correction(ngnem: Raster, layer: Labels, bi: Mask, inside: Mask,

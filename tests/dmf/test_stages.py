@@ -132,3 +132,27 @@ def test_equal_layer_regions_match_scipy_per_value():
         offset += n
     assert bool(conv)
     np.testing.assert_array_equal(_canonical(np.asarray(got)), _canonical(expected))
+    got = np.asarray(got)
+    for lab in np.unique(got[got > 0]):                  # id = 1 + the row-major index of the first cell
+        assert lab == 1 + np.flatnonzero(got.ravel() == lab)[0]
+    assert got.max() <= layer.size
+
+
+def test_the_equal_layer_correction_applies_all_over_the_raster():
+    """(a) resets a BI region's cells whose equal-layer region is not wholly in NGNEM_BI, in the
+    last rows of a raster as in its first (region ids must index the per-region sums)."""
+    h, w = 24, 20
+    layer = np.zeros((h, w), np.int32)
+    bi = np.zeros((h, w), bool)
+    for r0 in (1, h - 5):                                # a block at the top and one at the bottom
+        layer[r0:r0 + 4, 3:9] = 1                        # a region of layer 1, 4 x 6 cells ...
+        bi[r0:r0 + 4, 3:8] = True                        # ... of which NGNEM_BI covers all but a column
+        layer[r0:r0 + 3, 12:16] = 2                      # a region wholly in NGNEM_BI
+        bi[r0:r0 + 3, 12:16] = True
+    ngnem = np.where(layer > 0, 5.0, 0.0).astype(np.float32)
+    inside = np.ones((h, w), bool)
+    rc0, _, _, conv = stages.patch_correction(jnp.asarray(ngnem), jnp.asarray(layer), jnp.asarray(bi),
+                                              jnp.asarray(inside))
+    rc0 = np.asarray(rc0)
+    assert bool(conv)
+    np.testing.assert_array_equal(rc0, bi & (layer == 2))
