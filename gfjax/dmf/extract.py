@@ -32,7 +32,9 @@ from scipy.spatial import cKDTree
 from gfjax import aot
 from gfjax.dmf.config import Config, Params
 from gfjax.dmf.voxels import Voxels
-from gfjax.raster import inpaint_nearest, sample_bilinear
+from gfjax.dmf.shapes import raster_shape
+from gfjax.io.tiles import canonical_capacity
+from gfjax.raster import inpaint_nearest, replicate_edges, sample_bilinear
 
 __all__ = ["extract_ground", "SupportNodes", "support_nodes", "column_lowest_z", "m_nearest_ground", "height_ground",
            "mark_ground"]
@@ -144,34 +146,55 @@ def m_nearest_ground(points: np.ndarray, nodes: SupportNodes, *, points_tree: cK
     return np.asarray(ground), m
 
 
-@functools.partial(jax.jit, static_argnames="cell_m")
-def _height_rule(surface: Float[Array, "h w"], valid: Bool[Array, "h w"], points: Float[Array, "n 3"],
-                 threshold_m: Float[Array, ""], *, cell_m: float) -> Bool[Array, " n"]:
-    filled = inpaint_nearest(surface, valid)
-    s = sample_bilinear(filled, points[:, :2], cell_m=cell_m)
+@jax.jit
+def _fill_surface(surface: Float[Array, "h w"], valid: Bool[Array, "h w"], hw: Int[Array, " 2"]) -> Float[Array, "h w"]:
+    """The support surface with its empty cells taken from the nearest node, on a raster padded
+    to a canonical shape (the data in its south-west corner, `hw` rows and columns; the
+    padding repeats the data's edges, so that sampling clamps there as on the unpadded one)."""
+    return replicate_edges(inpaint_nearest(surface, valid), hw)
+
+
+@jax.jit
+def _height_test(filled: Float[Array, "h w"], points: Float[Array, "n 3"], cell_m: Float[Array, ""],
+                 threshold_m: Float[Array, ""]) -> Bool[Array, " n"]:
+    """`z - S(x, y) <= threshold_m` for points in local metres (x, y from the raster's
+    south-west corner), S sampled bilinearly between the centres of cells of `cell_m` (traced:
+    one program serves every W)."""
+    s = sample_bilinear(filled, points[:, :2] / cell_m, cell_m=1.0)
     return points[:, 2] - s <= threshold_m
 
 
-def prefetch_height_rule(n_points: int, shape: tuple[int, int], cell_m: float) -> None:
-    """Load the stored program `height_ground` will run (`gfjax.aot.prefetch`), for `n_points`
-    points on a raster `shape` of cell `cell_m`."""
+def prefetch_height_rule(n_points: int, shape: tuple[int, int]) -> None:
+    """Load the stored programs `height_ground` will run (`gfjax.aot.prefetch`), for `n_points`
+    points (padded: `canonical_capacity`) on a raster of padded `shape` (`shapes.raster_shape`)."""
     spec = jax.ShapeDtypeStruct
-    aot.prefetch(_height_rule, spec(shape, np.float32), spec(shape, np.bool_), spec((n_points, 3), np.float32),
-                 spec((), np.float32), cell_m=float(cell_m))
+    aot.prefetch(_fill_surface, spec(shape, np.float32), spec(shape, np.bool_), spec((2,), np.int32))
+    aot.prefetch(_height_test, spec(shape, np.float32), spec((canonical_capacity(n_points), 3), np.float32),
+                 spec((), np.float32), spec((), np.float32))
 
 
-def height_ground(points: np.ndarray, nodes: SupportNodes, vox: Voxels, threshold_m) -> np.ndarray:
+def height_ground(points: np.ndarray, nodes: SupportNodes, vox: Voxels, threshold_m, config: Config) -> np.ndarray:
     """Alternative final rule: ground when `z - S(x, y) <= threshold_m`, S the support surface
-    (not lowered) sampled bilinearly between cell centres. Returns bool `(n,)`."""
+    (not lowered) sampled bilinearly between cell centres. Returns bool `(n,)`.
+
+    The raster is padded to a canonical shape (`shapes.raster_shape`, with `config`'s NGNEM
+    tiling) and the points to a canonical capacity: a handful of programs per machine."""
     h, w = vox.shape
-    surface = np.zeros(h * w, np.float32)
-    valid = np.zeros(h * w, bool)
-    surface[nodes.cell] = nodes.z_surface
-    valid[nodes.cell] = True
+    rows, cols = raster_shape((h, w), vox.cell_m, config)
+    surface = np.zeros((rows, cols), np.float32)
+    valid = np.zeros((rows, cols), bool)
+    flat_s, flat_v = np.zeros(h * w, np.float32), np.zeros(h * w, bool)
+    flat_s[nodes.cell] = nodes.z_surface
+    flat_v[nodes.cell] = True
+    surface[rows - h:, :w] = flat_s.reshape(h, w)                   # the data in the south-west corner
+    valid[rows - h:, :w] = flat_v.reshape(h, w)
+    n = len(points)
+    padded = np.zeros((canonical_capacity(n), 3), np.float32)
+    padded[:n] = points
     threshold_m = threshold_m if isinstance(threshold_m, jax.Array) else np.float32(threshold_m)
-    out = aot.call(_height_rule, surface.reshape(h, w), valid.reshape(h, w), points.astype(np.float32), threshold_m,
-                   cell_m=float(vox.cell_m))
-    return np.asarray(out)
+    filled = aot.call(_fill_surface, surface, valid, np.asarray([h, w], np.int32))
+    out = aot.call(_height_test, filled, padded, np.float32(vox.cell_m), threshold_m)
+    return np.asarray(out)[:n]
 
 
 def extract_ground(points: np.ndarray, vox: Voxels, object_cell: np.ndarray, in_ndng: np.ndarray, config: Config,
@@ -195,5 +218,5 @@ def extract_ground(points: np.ndarray, vox: Voxels, object_cell: np.ndarray, in_
         ground, m_points = m_nearest_ground(points, nodes, points_tree=points_tree)
     if config.final_rule in ("height", "both"):
         host = jax.tree.map(np.asarray, params)           # numpy arithmetic: no tiny JAX programs
-        ground = ground & height_ground(points, nodes, vox, host.threshold_m(vox.cell_m))
+        ground = ground & height_ground(points, nodes, vox, host.threshold_m(vox.cell_m), config)
     return nodes, ground, m_points

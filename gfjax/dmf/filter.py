@@ -24,16 +24,15 @@ from scipy.spatial import cKDTree
 
 from gfjax import aot
 from gfjax.dmf import basal as basal_lib
-from gfjax.dmf import extract, neighbours, stages, voxels
+from gfjax.dmf import extract, neighbours, shapes, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params
 from gfjax.io.cloud import CloudView
 from gfjax.io.tiled import checked_options, laid_out
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
 
-__all__ = ["Diagnostics", "Prepared", "prepare", "filter", "run_raster_stages", "stage_options", "batched_stages", "SHAPE_QUANTUM_PX", "MAX_BATCH"]
-
-SHAPE_QUANTUM_PX = 16          # tile rasters are padded to multiples of this (few compiles)
+__all__ = ["Diagnostics", "Prepared", "prepare", "filter", "warm", "run_raster_stages", "stage_options",
+           "batched_stages", "MAX_BATCH"]
 
 
 class Diagnostics(NamedTuple):
@@ -90,10 +89,6 @@ def _check(cloud, config, params, returns) -> tuple[Config, Params, np.ndarray]:
                            package="gfjax.dmf")
 
 
-def _round_up(n: int, q: int) -> int:
-    return max(q, -(-n // q) * q)
-
-
 def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_m: float, config: Config,
                       *, progress: bool = False) -> stages.RasterStages:
     """Steps 4-6 on the whole NGNEM: one tile, or a vmapped batch of buffered, padded tiles.
@@ -130,8 +125,8 @@ def _dispatch_raster_stages(z, layer, valid, cell_m, config, *, progress=False):
             rows = (max(0, r0 - buf), min(h, r0 + core + buf))
             cols = (max(0, c0 - buf), min(w, c0 + core + buf))
             windows.append((r0, c0, rows, cols))
-    shape = (_round_up(max(b - a for _, _, (a, b), _ in windows), SHAPE_QUANTUM_PX),
-             _round_up(max(b - a for _, _, _, (a, b) in windows), SHAPE_QUANTUM_PX))
+    side = shapes.raster_sides(cell_m, config)[-1]          # every window fits the largest: one program per W
+    shape = (side, side)
     fields = {name: np.zeros((h, w), dtype) for name, dtype in
               (("ngnem", np.float32), ("layer", np.int32), ("rhc", bool), ("ngnem_bi", bool),
                ("ngnem_rc0", bool), ("ngnem_rc", bool))}
@@ -182,7 +177,7 @@ def _one_tile_shape(shape: tuple[int, int], cell_m: float, config: Config) -> tu
     core = _tile_core_px(cell_m, config)
     if h > core or w > core:
         return None
-    return _round_up(h, SHAPE_QUANTUM_PX), _round_up(w, SHAPE_QUANTUM_PX)
+    return shapes.raster_shape((h, w), cell_m, config)
 
 
 def _pad_tile(z, layer, valid, shape):
@@ -220,7 +215,7 @@ def _voxels(local: np.ndarray, config: Config, worker) -> tuple[cKDTree | None, 
     shape = tuple(int(v) for v in np.floor(local[:, 1::-1].max(axis=0) / cell_m) + 1)
     worker.submit(_prefetch_raster_program, shape, cell_m, config)
     if config.final_rule in ("height", "both"):
-        worker.submit(extract.prefetch_height_rule, len(local), shape, cell_m)
+        worker.submit(extract.prefetch_height_rule, len(local), shapes.raster_shape(shape, cell_m, config))
     return tree, cell_m, mean_nn, voxels.bin_voxels(local, cell_m)
 
 
@@ -232,6 +227,71 @@ def _prefetch_raster_program(shape: tuple[int, int], cell_m: float, config: Conf
     spec = jax.ShapeDtypeStruct
     aot.prefetch(stages.raster_stages, spec(padded, np.float32), spec(padded, np.int32), spec(padded, np.bool_),
                  spec(padded, np.bool_), spec((), np.float32), spec((), np.float32), **stage_options(config))
+
+
+def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False) -> int:
+    """Load, or compile and store (`gfjax.aot`), the programs `filter` runs on a cloud of any
+    size at W of `shapes.WARM_VOXELS_M` (1 and 2 m): the raster stages on every canonical
+    side of one tile and on a batch of the largest, the basal loop on every node capacity up to
+    `shapes.NODE_WARM_MAX_CAPACITY`, and the height rule on every side with every canonical
+    point capacity. Nothing runs; nothing is kept when the program cache is off. Returns the
+    number of programs prepared (`gfjax warmup`)."""
+    from gfjax.io import tiles as tiling
+
+    config = config or Config()
+    spec = jax.ShapeDtypeStruct
+    options = stage_options(config)
+    one_tile, batched = set(), set()
+    for cell_m in shapes.WARM_VOXELS_M:
+        core = _tile_core_px(cell_m, config)
+        sides = shapes.raster_sides(cell_m, config)
+        one_tile.update(s for s in sides if s <= shapes.raster_shape((core, core), cell_m, config)[0])
+        batched.add(sides[-1])
+
+    def tile_specs(batch, side):
+        lead = (batch,) if batch else ()
+        return (spec((*lead, side, side), np.float32), spec((*lead, side, side), np.int32),
+                spec((*lead, side, side), np.bool_), spec((*lead, side, side), np.bool_),
+                spec((), np.float32), spec((), np.float32))
+
+    jobs = [(stages.raster_stages, tile_specs(0, s), options) for s in sorted(one_tile)]
+    jobs += [(batched_stages, tile_specs(MAX_BATCH, s), options) for s in sorted(batched)]
+    width = config.basal_table_width
+    cap = shapes.NODE_MIN_CAPACITY
+    while cap <= shapes.NODE_WARM_MAX_CAPACITY:
+        jobs.append((basal_lib.basal_layer, (spec((cap, 3), np.float32), spec((cap, width), np.int32),
+                                             spec((cap, width), np.bool_), spec((), np.float32)),
+                     dict(stop=config.basal_stop, max_iter=config.basal_max_iter)))
+        cap *= 2
+    if config.final_rule in ("height", "both"):
+        for side in sorted(one_tile):
+            for n in tiling.canonical_capacities():
+                jobs.append((extract.prefetch_height_rule, (n, (side, side)), None))
+    if progress:
+        from tqdm.auto import tqdm
+        jobs = tqdm(jobs, desc="dmf programs", unit="program")
+    for fn, args, static in jobs:
+        if static is None:
+            fn(*args)
+        else:
+            aot.prefetch(fn, *args, **static)
+    return len(jobs)
+
+
+def _padded_nodes(centroid: np.ndarray, table: neighbours.NeighbourTable, width: int):
+    """The basal loop's inputs padded to a canonical shape: `shapes.node_capacity` rows, `width`
+    (`Config.basal_table_width`) columns. A padded node, or slot, holds its own row and is
+    invalid: it never enters another node's median and never moves, so the basal layer of the
+    real nodes is the unpadded one."""
+    m, k = table.index.shape
+    cap = shapes.node_capacity(m)
+    xyz = np.zeros((cap, 3), np.float32)
+    xyz[:m] = centroid
+    index = np.repeat(np.arange(cap, dtype=np.int32)[:, None], width, axis=1)
+    index[:m, :k] = table.index
+    valid = np.zeros((cap, width), bool)
+    valid[:m, :k] = table.valid
+    return xyz, index, valid
 
 
 def _layers(vox: voxels.Voxels, cell_m: float, config: Config, worker, lap, progress: bool):
@@ -250,17 +310,19 @@ def _layers(vox: voxels.Voxels, cell_m: float, config: Config, worker, lap, prog
     table = neighbours.cylinder_table(vox.centroid[:, :2], radius_m=config.basal_radius_w * cell_m,
                                       k=config.basal_neighbours, max_width=config.basal_table_width)
     cap = np.inf if config.basal_sink_cap_w is None else config.basal_sink_cap_w * cell_m
-    basal = aot.call(basal_lib.basal_layer, vox.centroid.astype(np.float32), table.index, table.valid,
+    m = len(vox.centroid)
+    basal = aot.call(basal_lib.basal_layer, *_padded_nodes(vox.centroid, table, config.basal_table_width),
                      np.float32(cap), stop=config.basal_stop, max_iter=config.basal_max_iter)
     node_tree = cKDTree(vox.centroid)                       # while the basal loop runs
-    basal_z = np.asarray(basal.z)
+    basal_z = np.asarray(basal.z)[:m]
     basal_xyz = np.concatenate([vox.centroid[:, :2], basal_z[:, None].astype(np.float64)], axis=1)
     in_ndng = np.zeros(len(vox.cell), bool)
     in_ndng[neighbours.nearest_node(vox.centroid, basal_xyz, tree=node_tree)] = True
     lap("basal")
     rs = raster_future.result()()
     lap("raster")
-    return in_ndng, basal._replace(z=basal_z), rs, v_r.reshape(h, w), table.overflowed
+    basal = basal._replace(z=basal_z, nearest=np.asarray(basal.nearest)[:m])
+    return in_ndng, basal, rs, v_r.reshape(h, w), table.overflowed
 
 
 def survey_config(config: Config, clouds: Iterable[np.ndarray]) -> Config:

@@ -5,7 +5,7 @@ are carried by a `valid` mask, never NaN. Row 0 of a raster is its northern edge
 `gfjax.raster.grid`). The contract is `docs/ARCHITECTURE.md`, section "Raster kernels".
 """
 from gfjax.raster.fill import fill_holes, inpaint_harmonic, inpaint_nearest, nearest_valid_index, solve_harmonic
-from gfjax.raster.grid import cell_index, domain_mask, sample_bilinear
+from gfjax.raster.grid import cell_index, domain_mask, replicate_edges, sample_bilinear
 from gfjax.raster.label import RingStats, boundary_ring, label_components, relabel_consecutive
 from gfjax.raster.morphology import (
     chord_half_widths,
@@ -20,7 +20,7 @@ from gfjax.raster.morphology import (
 from gfjax.raster.rasterize import CellStats, flat_cell, rasterize
 
 __all__ = [
-    "cell_index", "domain_mask", "sample_bilinear", "CellStats", "rasterize", "flat_cell",
+    "cell_index", "domain_mask", "replicate_edges", "sample_bilinear", "CellStats", "rasterize", "flat_cell",
     "inpaint_nearest", "inpaint_harmonic", "solve_harmonic", "nearest_valid_index", "fill_holes",
     "disk", "chord_half_widths", "min_filter", "max_filter", "erode", "dilate", "opening", "closing",
     "label_components", "relabel_consecutive", "RingStats", "boundary_ring",

@@ -16,7 +16,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from gfjax._types import XY, Mask, Raster
 
-__all__ = ["cell_index", "domain_mask", "sample_bilinear"]
+__all__ = ["cell_index", "domain_mask", "replicate_edges", "sample_bilinear"]
 
 
 def _check_cell_shape(cell_m: float, shape: tuple[int, int]) -> None:
@@ -93,3 +93,12 @@ def domain_mask(hw: Int[Array, " 2"], shape: tuple[int, int]) -> Mask:
     rows = jnp.arange(h, dtype=jnp.int32) >= h - hw[0]
     cols = jnp.arange(w, dtype=jnp.int32) < hw[1]
     return rows[:, None] & cols[None, :]
+
+
+def replicate_edges(z: Raster, hw: Int[Array, " 2"]) -> Raster:
+    """Copy the domain's northern row and eastern column over the padding, so that bilinear
+    sampling near the domain edge clamps there as it would at the raster's own edge."""
+    h, w = z.shape
+    rows = jnp.maximum(jnp.arange(h, dtype=jnp.int32), h - hw[0])
+    cols = jnp.minimum(jnp.arange(w, dtype=jnp.int32), jnp.maximum(hw[1] - 1, 0))
+    return z[rows[:, None], cols[None, :]]

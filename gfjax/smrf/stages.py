@@ -23,14 +23,14 @@ from jaxtyping import Array, Float, Int
 
 from gfjax._types import Heights, Mask, PointMask, Points, Raster
 from gfjax.raster.fill import inpaint_harmonic, inpaint_nearest
-from gfjax.raster.grid import domain_mask, sample_bilinear
+from gfjax.raster.grid import domain_mask, replicate_edges, sample_bilinear
 from gfjax.raster.morphology import opening
 from gfjax.raster.rasterize import rasterize
 from gfjax.smrf.config import Config, Params
 
 __all__ = [
     "Diagnostics", "is_object", "is_ground_point", "progressive_filter", "low_outliers", "inpaint",
-    "gradient_magnitude", "replicate_edges", "rasterize_min", "surfaces", "classify_points",
+    "gradient_magnitude", "rasterize_min", "surfaces", "classify_points",
 ]
 
 
@@ -146,15 +146,6 @@ def gradient_magnitude(z: Raster, domain: Mask, *, cell_m: float) -> Raster:
 
     gy, gx = axis_derivative(0), axis_derivative(1)
     return jnp.sqrt(gx * gx + gy * gy)
-
-
-def replicate_edges(z: Raster, hw: Int[Array, "2"]) -> Raster:
-    """Copy the domain's northern row and eastern column over the padding, so that bilinear
-    sampling near the domain edge clamps there as it would at the raster's own edge."""
-    h, w = z.shape
-    rows = jnp.maximum(jnp.arange(h, dtype=jnp.int32), h - hw[0])
-    cols = jnp.minimum(jnp.arange(w, dtype=jnp.int32), jnp.maximum(hw[1] - 1, 0))
-    return z[rows[:, None], cols[None, :]]
 
 
 def rasterize_min(xyz: Points, valid: PointMask, *, cell_m: float, shape: tuple[int, int]) -> tuple[Raster, Mask]:

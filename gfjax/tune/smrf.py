@@ -42,7 +42,7 @@ from jax import lax
 from jaxtyping import Array, Float, Int
 
 from gfjax._types import Mask, PointMask, Points, Raster
-from gfjax.raster.grid import domain_mask, sample_bilinear
+from gfjax.raster.grid import domain_mask, replicate_edges, sample_bilinear
 from gfjax.raster.morphology import opening
 from gfjax.raster.rasterize import rasterize
 from gfjax.smrf import stages
@@ -201,8 +201,8 @@ def ground_weight(prep: Prepared, params: Params, *, config: Config,
         keep = jnp.where(prep.candidate, 1 - objects, jnp.zeros((), zimin.dtype))
         zipro = soft_inpaint(zimin, keep, config=config, domain=prep.domain, sweeps=sweeps)
         slope = stages.gradient_magnitude(lax.stop_gradient(zipro), prep.domain, cell_m=config.cell_m)
-    surface_at = sample_bilinear(stages.replicate_edges(zipro, prep.hw), xy, cell_m=config.cell_m)
-    slope_at = sample_bilinear(stages.replicate_edges(slope, prep.hw), xy, cell_m=config.cell_m)
+    surface_at = sample_bilinear(replicate_edges(zipro, prep.hw), xy, cell_m=config.cell_m)
+    slope_at = sample_bilinear(replicate_edges(slope, prep.hw), xy, cell_m=config.cell_m)
     dz = z - surface_at
     if temperature is None:
         return prep.valid & stages.is_ground_point(dz, slope_at, params)

@@ -108,3 +108,22 @@ def test_basal_layer_reports_cap_on_iterations():
     out = basal.basal_layer(jnp.asarray(xyz), jnp.asarray(table.index), jnp.asarray(table.valid),
                             jnp.float32(np.inf), stop="global", max_iter=1)
     assert int(out.iterations) == 1 and not bool(out.converged)
+
+
+@pytest.mark.parametrize("stop", ["global", "per_node"])
+def test_padding_to_a_canonical_shape_leaves_the_basal_layer_as_it_is(stop):
+    """`dmf.filter` pads the nodes to a power-of-two capacity and the table to its full width:
+    the real nodes' layer, nearest nodes and iteration count are the unpadded ones."""
+    from gfjax.dmf.filter import _padded_nodes
+
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(0, 12, (150, 2))
+    xyz = np.column_stack([xy, 0.2 * xy[:, 1] + rng.uniform(0, 3, 150) ** 3]).astype(np.float32)
+    table = neighbours.cylinder_table(xy, radius_m=2.5, k=49, max_width=32)
+    plain = basal.basal_layer(xyz, table.index, table.valid, np.float32(np.inf), stop=stop, max_iter=60)
+    xyz_p, index_p, valid_p = _padded_nodes(xyz, table, 32)
+    assert xyz_p.shape == (4096, 3) and index_p.shape == valid_p.shape == (4096, 32)
+    padded = basal.basal_layer(xyz_p, index_p, valid_p, np.float32(np.inf), stop=stop, max_iter=60)
+    np.testing.assert_array_equal(np.asarray(padded.z)[:150], np.asarray(plain.z))
+    np.testing.assert_array_equal(np.asarray(padded.nearest)[:150], np.asarray(plain.nearest))
+    assert int(padded.iterations) == int(plain.iterations) and bool(padded.converged) == bool(plain.converged)

@@ -149,3 +149,22 @@ def test_paper_preset_on_the_box(box):
     assert d.m_points >= 1 and d.converged and d.instances.max() == 1
     assert not result.ground[roof].any()
     assert result.ground[ground].mean() > 0.7
+
+
+def test_warm_prepares_every_program_filter_runs(monkeypatch):
+    """A cloud of a size never seen runs only programs `dmf.warm` prepares (canonical raster
+    sides, node and point capacities): after `gfjax warmup`, its first run compiles nothing.
+    The programs' keys are compared; nothing is compiled for `warm`."""
+    from gfjax import aot
+
+    ran, prepared = set(), set()
+    monkeypatch.setattr(aot, "call", lambda fn, *args, tag=None, **static: (
+        ran.add(aot.program_key(fn, args, static, tag)), fn(*args, **static))[1])
+    monkeypatch.setattr(aot, "prefetch", lambda fn, *specs, tag=None, **static: None)
+    cloud, _, _ = scenes.box_scene()
+    keep = np.random.default_rng(0).random(cloud.n_points) < 0.83          # another point count
+    dmf.filter(gfjax.Cloud.from_xyz(cloud.xyz_m[keep]))
+    monkeypatch.setattr(aot, "prefetch", lambda fn, *specs, tag=None, **static: prepared.add(
+        aot.program_key(fn, specs, static, tag)))
+    assert dmf.warm() > 0
+    assert ran and ran <= prepared, f"{len(ran - prepared)} of {len(ran)} programs not warmed"
