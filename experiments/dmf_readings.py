@@ -7,7 +7,7 @@ threshold) are then applied to the same diagnostics with the functions `extract.
 composes. Files: the 11 shared ISPRS samples (point labels) and the two BCTS forest tiles (DTM
 of 2 m cell means against the vendor ground; SPEC section 8).
 
-Selection (issue #5's two done criteria): a reading is *forest-feasible* when on both BCTS
+Selection (the forest DTM bound of SPEC section 3): a reading is *forest-feasible* when on both BCTS
 tiles its DTM RMSE is at most 0.3 m and R_O at most 5 %. Leave-one-out on ISPRS: for each of
 the 11 samples, the forest-feasible reading with the lowest mean total error on the other 10
 is chosen and scored on the held-out sample. The unconstrained LOO (ISPRS alone, the previous
@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 from experiments.common import DATA as SHARED  # noqa: E402  ($GFJAX_SHARED_DATA; README, "Data")
 SAMPLES = ["samp12", "samp21", "samp22", "samp24", "samp31", "samp41", "samp42", "samp51", "samp52", "samp54", "samp71"]
 BCTS = ["bcts_1", "bcts_2"]
-FOREST_RMSE_M = 0.3           # issue #5: DTM RMSE against the vendor ground at most 0.3 m
+FOREST_RMSE_M = 0.3           # DTM RMSE against the vendor ground at most 0.3 m
 FOREST_R_O = 0.05             # and R_O at most 5 %, on both tiles
 # Pipeline readings (each runs the filter once per file), as in the previous run: the SPEC
 # reading, the best global-stop reading of run 1 (`dmf_readings_run1.md`: sink cap 2 W,

@@ -1,4 +1,4 @@
-"""MASF (Cao et al. 2024) on the 11 shared ISPRS samples, and its speed (issue 7).
+"""MASF (Cao et al. 2024) on the 11 shared ISPRS samples, and its speed.
 
 Accuracy: per-sample total error, type I, type II and kappa (ground = class 2, everything else
 non-ground) (a) with the default set (alpha_max 20 m, step 2 m, ST 0.05, FT 0.5 m) and (b) with

@@ -104,8 +104,8 @@ NOTES = """
 Notes (read with the table above):
 - Disk opening: gfjax uses the exact disk (= skimage.morphology.disk(18), 1009 cells) and is
   bit-identical to scipy.ndimage with that footprint. skimage's `decomposition="sequence"` composes
-  to a larger, approximate disk, so its output differs; it is timed as the fast reference the
-  issue names.
+  to a larger, approximate disk, so its output differs; it is timed as the fast
+  reference.
 - The 1-D running max: "table" (doubling levels shared by all widths) is the default; "vhgw"
   (van Herk / Gil-Werman, unrolled block scans) gives the same bits but measured slower and
   compiles much longer on XLA CPU. `lax.cummax` lowers to a full-block reduce_window on CPU

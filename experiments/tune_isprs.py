@@ -1,4 +1,4 @@
-"""Tuning SMRF on the 11 ISPRS reference samples: protocol (a)-(e) of issue 9.
+"""Tuning SMRF on the 11 ISPRS reference samples: protocols (a)-(e).
 
 (a) defaults; (b) tuned per sample on its own labels (no prior, no validation: the papers'
 protocol); (c) half split: tuned on the west half (x < median x) of each sample, scored on the
@@ -317,7 +317,7 @@ def report(res: dict) -> str:
     names = res["samples"]
     method = res.get("method", "smrf")
     pnames = ", ".join(res.get("param_names", ["slope", "threshold_m", "scalar", "window_m"]))
-    lines = [f"# {method.upper()} tuning on the 11 ISPRS reference samples (issue 9, protocol a-e)", "",
+    lines = [f"# {method.upper()} tuning on the 11 ISPRS reference samples (protocols a-e)", "",
              f"Command: `{res['command']}`  ", f"Device: {res['device']}, JAX {res['jax']}. "
              "Total error in percent (hard labels, plain-filter pipeline), unweighted mean over samples.", ""]
     cols, header = [], ["sample"]

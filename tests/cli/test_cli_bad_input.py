@@ -1,4 +1,4 @@
-"""Issue 2, "Bad input": one-line message naming the file or option, exit 2, no output left."""
+"""Bad input: one-line message naming the file or option, exit 2, no output left."""
 from __future__ import annotations
 
 import os
