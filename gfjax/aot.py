@@ -519,7 +519,7 @@ def call(fn: Callable, *args, tag=None, **static):
     key = program_key(fn, args, static, tag)
     compiled = _loaded.get(key)
     if compiled is None and key not in _plain:
-        compiled = _load_or_compile(fn, args, static, folder, key)
+        compiled = _load_or_compile(fn, args, static, folder, key, _module(fn, tag))
     if compiled is None:                                    # not storable, or refused: plain jit
         return fn(*args, **static)
     if key not in _from_disk:
@@ -561,7 +561,7 @@ def prefetch(fn: Callable, *specs, tag=None, **static) -> None:
     key = program_key(fn, specs, static, tag)
     program = _loaded.get(key)
     if program is None and key not in _plain:
-        program = _load_or_compile(fn, specs, static, folder, key)
+        program = _load_or_compile(fn, specs, static, folder, key, _module(fn, tag))
     if hasattr(program, "compile"):       # exported: its executable lives in JAX's cache
         import jax
 
@@ -589,7 +589,17 @@ def on_compile(callback: Callable[[str], None] | None) -> None:
     _state["on_compile"] = callback
 
 
-def _load_or_compile(fn, args, static, folder: Path, key: str):
+def _module(fn, tag) -> str:
+    """The module a program belongs to, for `on_compile`: a tag's leading dotted name (e.g.
+    "gfjax.smrf.rasterize_min" -> "gfjax.smrf"; a tagged program is often a partial, whose own
+    module is functools'), else `fn`'s module."""
+    head = tag[0] if isinstance(tag, tuple) and tag else tag
+    if isinstance(head, str) and head.startswith("gfjax."):
+        return head.rsplit(".", 1)[0]
+    return getattr(fn, "__module__", None) or "gfjax"
+
+
+def _load_or_compile(fn, args, static, folder: Path, key: str, module: str):
     """The stored program of `key` (a function of the leaves of `args`), loaded or built and
     stored; None when it runs through plain jit: it cannot be stored (a marker file then says
     so to later processes), or the folder is refused now (one warning line)."""
@@ -599,12 +609,12 @@ def _load_or_compile(fn, args, static, folder: Path, key: str):
         _warn_once(f"{_reason(err, folder)}; compiling without the program cache")
         return None
     try:
-        return _load_or_compile_in(fn, args, static, dir_fd, key)
+        return _load_or_compile_in(fn, args, static, dir_fd, key, module)
     finally:
         os.close(dir_fd)
 
 
-def _load_or_compile_in(fn, args, static, dir_fd: int, key: str):
+def _load_or_compile_in(fn, args, static, dir_fd: int, key: str, module: str):
     name, exported, marker = (f"{key}{suffix}" for suffix in (_SUFFIX, _EXPORT_SUFFIX, _PLAIN_SUFFIX))
     if _marker_present(dir_fd, marker):
         _plain.add(key)
@@ -616,7 +626,7 @@ def _load_or_compile_in(fn, args, static, dir_fd: int, key: str):
         _from_disk.add(key)
     else:
         if _state.get("on_compile") is not None:
-            _state["on_compile"](getattr(fn, "__module__", None) or "gfjax")
+            _state["on_compile"](module)
         compiled, fresh = _compile_fresh(fn, args, static)
         if compiled is not None:
             program = compiled
