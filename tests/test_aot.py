@@ -191,14 +191,14 @@ def test_key_follows_the_machine(monkeypatch):
 
 
 def test_dmf_through_the_cache_equals_the_plain_call(folder):
-    """DMF's programs (basal loop, raster stages, final rule) compiled, stored, reloaded:
+    """DMF's programs (basal loop, raster stages, the final rule's fill and test) compiled, stored, reloaded:
     labels, instances and every diagnostic raster equal the plain jitted path."""
     cloud, _, _ = scenes.box_scene()
     aot.disable()
     plain = dmf.filter(cloud)
     aot.enable(folder)
     exported = dmf.filter(cloud)
-    assert len(_files(folder)) == 3
+    assert len(_files(folder)) == 4
     aot._loaded.clear()
     loaded = dmf.filter(cloud)
     for result in (exported, loaded):
@@ -265,7 +265,7 @@ def test_stored_programs_run_in_a_new_process_when_jax_cache_is_warm(tmp_path):
 
     plain = run("-")
     assert run(str(export)) == plain
-    assert len(list(export.glob("*.gfjaxexe"))) == 3
+    assert len(list(export.glob("*.gfjaxexe"))) == 4
     assert run(str(export)) == plain
 
 

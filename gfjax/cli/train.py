@@ -40,8 +40,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--validate", nargs="+", default=(), metavar="FILES", help="labelled files scored after each epoch")
     parser.add_argument("--ground-class", type=ranged("--ground-class"), default=2, help="class code of ground in the labels (default 2)")
     parser.add_argument("--features", choices=FEATURE_SETS, default=DEFAULT_FEATURES,
-                        help="per-point inputs: xyz (the paper's coordinates) or xyz+tophat (and heights over "
-                             f"opened minimum surfaces; default {DEFAULT_FEATURES})")
+                        help="per-point inputs: xyz (the paper's coordinates), xyz+tophat (and heights over "
+                             "opened minimum surfaces) or xyz+tophat+smrf (and the height over SMRF's ground "
+                             f"surface and SMRF's margin; default {DEFAULT_FEATURES})")
     parser.add_argument("--no-compression", action="store_true", help="ablation: no context compression, 1 m voxels")
     parser.add_argument("--no-refinement", action="store_true", help="ablation: no point-wise refinement module")
     parser.add_argument("--no-hag-loss", action="store_true", help="ablation: classification loss only (lambda 0)")

@@ -36,9 +36,10 @@ class Config:
       r_in_m, r_oc_m, r_oo_m: inner invariant, outer compressed and outer original radii [m]
         (25 sqrt 2, 44, 150).
       compression: apply the context compression (False: the ablation without it).
-      features: the network's per-point inputs, `"xyz"` (the paper's coordinates) or
-        `"xyz+tophat"` (and the heights over eight opened minimum surfaces; see
-        `gfjax.sparsegf.features`).
+      features: the network's per-point inputs: `"xyz"` (the paper's coordinates),
+        `"xyz+tophat"` (and the heights over eight opened minimum surfaces) or
+        `"xyz+tophat+smrf"` (and the height over SMRF's ground surface and SMRF's margin,
+        computed once per cloud; `gfjax.sparsegf.features`, `gfjax.sparsegf.smrf_prior`).
       max_context_points: points per patch at most (all central ones kept; the periphery
         thinned at random with a fixed seed); a CPU budget, not in the paper.
       batch_size: patches per network call at most (they are packed into one sparse tensor).
@@ -51,7 +52,7 @@ class Config:
     r_oc_m: float = R_OC_M
     r_oo_m: float = R_OO_M
     compression: bool = True
-    features: str = "xyz+tophat"
+    features: str = "xyz+tophat+smrf"
     max_context_points: int = MAX_CONTEXT_POINTS
     batch_size: int = 8
     ground_probability: float = 0.5

@@ -1,6 +1,6 @@
 """Per-point input features of SparseGF's network.
 
-Two sets (`Config.features`):
+Three sets (`Config.features`):
 
 - `"xyz"`, the paper's: the point's compressed, patch-centred coordinates,
   `x / R_oc, y / R_oc, (z - patch mean) / Z_SCALE_M`, and a constant 1 (MinkowskiEngine's
@@ -17,6 +17,10 @@ Two sets (`Config.features`):
   network does not learn these cues from coordinates alone (measured in
   `experiments/results/sparsegf_eval.md`).
 
+- `"xyz+tophat+smrf"`: those twelve, and the point's height over SMRF's ground surface and
+  SMRF's own margin (`gfjax.sparsegf.smrf_prior`), computed once per cloud on the host
+  (`cloud_features`) and appended to the per-patch ones.
+
 Heights enter as `sign(h) log(1 + |h| / 1 m)`: tens of metres and centimetres both matter.
 Pure JAX (jit, vmap over patches).
 """
@@ -30,7 +34,8 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from gfjax import raster
 
-FEATURE_SETS = ("xyz", "xyz+tophat")
+FEATURE_SETS = ("xyz", "xyz+tophat", "xyz+tophat+smrf")
+N_SMRF_FEATURES = 2                            # `smrf_prior.smrf_heights`' columns
 Z_SCALE_M = 10.0                               # patch-centred heights are divided by this [m]
 TOPHAT_CELL_M = 1.0                            # cell of the minimum raster [m]
 TOPHAT_RADII_PX = (1, 2, 4, 8, 16, 32, 64)     # half-widths of the opening squares [cells]
@@ -40,7 +45,25 @@ def n_features(features: str) -> int:
     """Input channels of a feature set."""
     if features not in FEATURE_SETS:
         raise ValueError(f"features must be one of {FEATURE_SETS}, got {features!r}")
+    return patch_features(features) + (N_SMRF_FEATURES if features.endswith("+smrf") else 0)
+
+
+def patch_features(features: str) -> int:
+    """Input channels computed per patch (`_point_inputs`): the set's xyz and top-hat ones."""
     return 4 if features == "xyz" else 4 + 1 + len(TOPHAT_RADII_PX)
+
+
+def cloud_features(xyz_m, features: str):
+    """The inputs of a feature set that are computed once per cloud, `(n, e)` float32 already
+    logged (`signed_log`), or None when the set has none. `xyz_m` `(n, 3)` [m], host numpy."""
+    if not features.endswith("+smrf"):
+        return None
+    import numpy as np
+
+    from gfjax.sparsegf.smrf_prior import smrf_heights
+
+    h = smrf_heights(xyz_m)
+    return (np.sign(h) * np.log1p(np.abs(h))).astype(np.float32)
 
 
 def signed_log(h: Array) -> Array:

@@ -12,7 +12,7 @@ from gfjax.io.cloud import CloudView
 from gfjax.result import Result
 from gfjax.sparsegf import checkpoint
 from gfjax.sparsegf.config import Config
-from gfjax.sparsegf.features import n_features
+from gfjax.sparsegf.features import cloud_features, n_features
 from gfjax.sparsegf.model import Model
 from gfjax.sparsegf.partition import PartitionConfig, partition
 from gfjax.sparsegf.pipeline import capacity, group, pack, predict, prepare, run_with_room, unpack
@@ -29,20 +29,25 @@ class Diagnostics(NamedTuple):
 
 
 def patches(xyz_m: np.ndarray, config: Config, *, angle: float | Callable[[], float] = 0.0, seed: int = 0,
-            shift_m=(0.0, 0.0)):
+            shift_m=(0.0, 0.0), cloud_feats: np.ndarray | None = None):
     """Every voxelized patch of a cloud, in partition order (`angle`: a rotation about z [rad]
-    for every patch, or a function drawing one per patch)."""
+    for every patch, or a function drawing one per patch; `cloud_feats`: the cloud's
+    `features.cloud_features`, computed here when None and the feature set has some)."""
+    if cloud_feats is None:
+        cloud_feats = cloud_features(xyz_m, config.features)
     part = partition(xyz_m, PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m),
                      shift_m=shift_m)
     for batch in part.batches:
         for row, pid in enumerate(batch.patch_id):
             members = batch.index[row][batch.valid[row]]
             yield prepare(xyz_m, members, part.centers_m[pid], int(pid), config=config,
-                          angle=angle() if callable(angle) else angle, seed=seed)
+                          angle=angle() if callable(angle) else angle, seed=seed, cloud_feats=cloud_feats)
 
 
-def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progress: bool = False):
-    """Soft-voted ground probability and vote count per point of `xyz_m` `(n, 3)` [m].
+def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progress: bool = False,
+                       cloud_feats: np.ndarray | None = None):
+    """Soft-voted ground probability and vote count per point of `xyz_m` `(n, 3)` [m]
+    (`cloud_feats`: as `patches`).
 
     Patches are prepared on the host while the previous pack runs (JAX dispatches
     asynchronously); a pack whose pyramid overflowed its plan is run again with a grown plan.
@@ -67,7 +72,7 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
         if bar is not None:
             bar.update(len(packed.patches))
 
-    for todo in group(patches(xyz_m, config), config.batch_size):
+    for todo in group(patches(xyz_m, config, cloud_feats=cloud_feats), config.batch_size):
         packed = pack(todo, config.batch_size, plans)
         result = predict(model, packed)
         if pending is not None:
@@ -97,7 +102,9 @@ def warm(config: Config | None = None, params=None, *, progress: bool = False) -
     pack of the smallest capacity (`pipeline.PACK_VOXELS` voxels) with its standard plan, the
     costly one (`gfjax warmup`; the command line keeps it in the program cache). It filters a
     small generated scene; the cheap per-patch feature and vote programs of other sizes still
-    compile on first use. Returns the number of network shapes prepared (1)."""
+    compile on first use, and so do SMRF's for a model that reads SMRF's surface, unless
+    `gfjax.smrf.warm` prepared them (`gfjax warmup` does both). Returns the number of network
+    shapes prepared (1)."""
     from gfjax.io.cloud import Cloud
 
     rng = np.random.default_rng(0)
@@ -144,6 +151,9 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
         model, trained_with = load_model(model)
         config = trained_with if config is None else config
     config = Config() if config is None else config
+    if n_features(config.features) != model.net.config.in_features:
+        raise InputError(f"sparsegf: the model takes {model.net.config.in_features} input features, the settings' "
+                         f"feature set {config.features!r} gives {n_features(config.features)}")
     if params is not None:
         raise InputError("sparsegf: takes no params (its parameters are the model's weights; see --model)")
     try:

@@ -47,6 +47,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from gfjax.nn import sparse
+from gfjax.sparsegf.config import Config
 from gfjax.sparsegf.features import n_features
 from gfjax.sparsegf.hag import N_HAG_BINS
 
@@ -61,7 +62,8 @@ class NetConfig:
       layers: residual blocks after each of those 8 (strided or transposed) convolutions.
       refine: channels of each refinement LBR (0: no refinement module, the ablation).
       point: channels of the point branch (a point's own features).
-      in_features: per-point input features (`features.n_features`).
+      in_features: per-point input features (`features.n_features`; default: those of the
+        default feature set, `Config.features`).
     """
 
     stem: int = 32
@@ -69,7 +71,7 @@ class NetConfig:
     layers: tuple[int, ...] = (2, 3, 4, 6, 2, 2, 2, 2)
     refine: int = 32
     point: int = 32
-    in_features: int = n_features("xyz+tophat")
+    in_features: int = n_features(Config.features)
 
     def __post_init__(self):
         if len(self.planes) != 8 or len(self.layers) != 8:

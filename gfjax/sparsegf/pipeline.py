@@ -92,7 +92,7 @@ def _point_inputs(local_xyz, valid, keep, keep_valid, angle, *, features, r_in, 
     z_mean = jnp.sum(jnp.where(keep_valid, pts[:, 2], 0.0)) / jnp.maximum(jnp.sum(keep_valid), 1).astype(pts.dtype)
     pts = pts.at[:, 2].add(-z_mean)
     f = F.xyz_features(pts, keep_valid, r_oc_m=r_oc)
-    if features == "xyz+tophat":
+    if features != "xyz":
         # heights over the surfaces of all the patch's points, before thinning, rotation (a
         # property of the point, not of the augmentation) and compression
         surfaces = F.tophat_surfaces(local_xyz, valid, half_extent_m=r_oo)
@@ -137,8 +137,10 @@ def _padded(a: np.ndarray, size: int, value=0) -> np.ndarray:
 
 
 def prepare(xyz_m: np.ndarray, members: np.ndarray, center_m: np.ndarray, patch_id: int, *, config,
-            angle: float = 0.0, seed: int = 0) -> Patch:
-    """Voxelize one cylinder (`members`: its cloud indices) for the network."""
+            angle: float = 0.0, seed: int = 0, cloud_feats: np.ndarray | None = None) -> Patch:
+    """Voxelize one cylinder (`members`: its cloud indices) for the network; `cloud_feats`
+    `(n, e)`: the cloud's per-point inputs computed once per cloud (`features.cloud_features`),
+    appended to the patch's own."""
     local = np.empty((len(members), 3), np.float32)
     local[:, :2] = (xyz_m[members, :2] - center_m[None, :]).astype(np.float32)
     local[:, 2] = xyz_m[members, 2].astype(np.float32)
@@ -151,6 +153,8 @@ def prepare(xyz_m: np.ndarray, members: np.ndarray, center_m: np.ndarray, patch_
         np.float32(angle), features=config.features, r_in=config.r_in_m, r_oc=config.r_oc_m, r_oo=config.r_oo_m,
         use_compression=config.compression))
     pts, central, feats = pts[:len(keep)], central[:len(keep)], feats[:len(keep)]
+    if cloud_feats is not None:
+        feats = np.concatenate([feats, cloud_feats[members[keep]]], axis=1)
     coords, vfeats, row = voxelize(pts, feats, config.voxel_m)
     return Patch(coords, vfeats, members[keep][central].astype(np.int64), row[central],
                  feats[central] - vfeats[row[central]], int(patch_id))

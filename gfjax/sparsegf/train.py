@@ -17,6 +17,7 @@ import numpy as np
 import optax
 
 from gfjax.sparsegf.config import Config
+from gfjax.sparsegf.features import cloud_features
 from gfjax.sparsegf.filter import patches
 from gfjax.sparsegf.hag import hag_targets
 from gfjax.sparsegf.loss import LAMBDA, height_aware_loss
@@ -33,11 +34,14 @@ CALIBRATION_PASSES = 30       # packs that measure the batch-norm statistics bef
 
 
 class Labelled(NamedTuple):
-    """A training cloud: `xyz_m` `(n, 3)` [m], `ground` `(n,)` bool, `hag_bin` `(n,)` int32."""
+    """A training cloud: `xyz_m` `(n, 3)` [m], `ground` `(n,)` bool, `hag_bin` `(n,)` int32, and
+    `cloud_feats`, its per-cloud inputs (`features.cloud_features`; None until `fit` sets them
+    for its feature set, or for a set without any)."""
 
     xyz_m: np.ndarray
     ground: np.ndarray
     hag_bin: np.ndarray
+    cloud_feats: np.ndarray | None = None
 
 
 def labelled(xyz_m: np.ndarray, classification: np.ndarray, *, ground_class: int = 2) -> Labelled:
@@ -77,7 +81,8 @@ def training_batches(data: list[Labelled], config: Config, *, batch_size: int, r
         while True:
             shift = rng.uniform(0.0, config.step_m, 2)
             draw = lambda: float(rng.uniform(0.0, 2 * np.pi))           # noqa: E731
-            more = list(patches(d.xyz_m, config, angle=draw, seed=int(rng.integers(1 << 30)), shift_m=shift))
+            more = list(patches(d.xyz_m, config, angle=draw, seed=int(rng.integers(1 << 30)), shift_m=shift,
+                                cloud_feats=d.cloud_feats))
             if not more:
                 break
             need = min_patches - len(drawn)
@@ -193,7 +198,7 @@ def validation_error(model: Model, data: list[Labelled], config: Config) -> floa
 
     errors = []
     for d in data:
-        prob, _, _ = ground_probability(model, d.xyz_m, config)
+        prob, _, _ = ground_probability(model, d.xyz_m, config, cloud_feats=d.cloud_feats)
         errors.append(100.0 * point_metrics(prob > config.ground_probability, d.ground)["total_error"])
     return float(np.mean(errors))
 
@@ -213,6 +218,8 @@ def fit(model: Model, data: list[Labelled], *, config: Config, epochs: int, batc
     from gfjax.sparsegf import checkpoint
 
     opt, opt_state = init(model)
+    data = [d._replace(cloud_feats=cloud_features(d.xyz_m, config.features)) for d in data]
+    validate = [d._replace(cloud_feats=cloud_features(d.xyz_m, config.features)) for d in validate or []]
     first, logs, plans = 0, [], {}
     if resume_path is not None and checkpoint.has_state(resume_path):
         model, opt_state, first, logs = checkpoint.load_state(resume_path, model, opt_state)

@@ -144,13 +144,15 @@ def test_bench_runs_sparsegf_with_the_model_it_is_given(scene, tmp_path):
     from gfjax.bench import job
     from gfjax.io import las as las_io
     from gfjax.sparsegf import checkpoint
+    from gfjax.sparsegf.features import n_features
     from gfjax.sparsegf.model import NetConfig
 
-    net = sparsegf.init(NetConfig(stem=4, planes=(4,) * 8, layers=(1,) * 8, refine=4), key=jax.random.key(5))
+    net = sparsegf.init(NetConfig(stem=4, planes=(4,) * 8, layers=(1,) * 8, refine=4, in_features=n_features("xyz+tophat")),
+                        key=jax.random.key(5))
     model = tmp_path / "micro.eqx"
-    checkpoint.save(model, net, {})
+    checkpoint.save(model, net, {"config": {"features": "xyz+tophat"}})
     runners, _ = bench.plan("sparsegf", "none", model=str(model))
     assert [r.label for r in runners] == ["gfjax sparsegf (micro.eqx)"]
     record = job.bench_one(path=str(scene[0]), kind="method", name="sparsegf", model=str(model))
-    want = sparsegf.filter(las_io.read(scene[0]), model=net).ground
+    want = sparsegf.filter(las_io.read(scene[0]), model=str(model)).ground
     assert 0 < record["n_ground"] == int(np.sum(want)) < len(want)

@@ -10,9 +10,9 @@ from cli_helpers import error_line, run_cli, write_scene
 def test_train_dry_run_prints_the_parameter_count(tmp_path, capsys):
     scene = write_scene(tmp_path / "a.las")
     code, out, _ = run_cli(capsys, "train", scene, "-o", tmp_path / "m.eqx", "--dry-run")
-    assert code == 0 and "tiny: 827,128 parameters" in out and "1 patches per epoch" in out
+    assert code == 0 and "tiny: 831,160 parameters" in out and "1 patches per epoch" in out
     code, out, _ = run_cli(capsys, "train", scene, "-o", tmp_path / "m.eqx", "--dry-run", "--preset", "paper")
-    assert code == 0 and "paper: 37,909,544 parameters" in out
+    assert code == 0 and "paper: 37,917,608 parameters" in out
     assert not (tmp_path / "m.eqx").exists()
 
 

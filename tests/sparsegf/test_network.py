@@ -13,10 +13,13 @@ from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
 from gfjax.sparsegf import checkpoint, pipeline, train
 from gfjax.sparsegf.config import Config
+from gfjax.sparsegf.features import n_features
 from gfjax.sparsegf.filter import patches
 from gfjax.sparsegf.model import NET_PRESETS, NetConfig, count_parameters, init
 
-MICRO = NetConfig(stem=4, planes=(4,) * 8, layers=(1,) * 8, refine=4, point=4)
+# The network and pipeline tests use the feature set without SMRF's surface: no SMRF to compile.
+FEATURES = "xyz+tophat"
+MICRO = NetConfig(stem=4, planes=(4,) * 8, layers=(1,) * 8, refine=4, point=4, in_features=n_features(FEATURES))
 
 
 def scene(seed=0):
@@ -71,9 +74,16 @@ def test_a_model_whose_inputs_differ_from_its_settings_is_refused(tmp_path):
         sparsegf.load_model(path)
 
 
+def test_a_model_object_given_settings_of_other_inputs_is_refused(net):
+    xyz, cls = scene()
+    with pytest.raises(InputError, match="the model takes 12 input features, the settings' feature set "
+                                         "'xyz\\+tophat\\+smrf' gives 14"):
+        sparsegf.filter(Cloud.from_xyz(xyz, classification=cls), model=net)             # Config(): 14
+
+
 def test_a_patch_gets_the_same_output_alone_or_packed_with_others(net):
     xyz, _ = scene()
-    found = list(patches(xyz, Config()))
+    found = list(patches(xyz, Config(features=FEATURES)))
     assert len(found) == 2
     alone = []
     for p in found:
@@ -89,7 +99,7 @@ def test_a_patch_gets_the_same_output_alone_or_packed_with_others(net):
 
 def test_points_of_one_voxel_can_get_different_outputs(net):
     xyz, _ = scene()
-    patch = next(patches(xyz, Config()))
+    patch = next(patches(xyz, Config(features=FEATURES)))
     packed = pipeline.pack([patch], 8)
     prob = pipeline.unpack(packed, np.asarray(pipeline.predict(net, packed)[0]))[0]
     shared = np.flatnonzero(patch.central_counts() >= 2)
@@ -100,7 +110,7 @@ def test_points_of_one_voxel_can_get_different_outputs(net):
 
 def test_filter_votes_every_point(net):
     xyz, cls = scene()
-    result = sparsegf.filter(Cloud.from_xyz(xyz, classification=cls), model=net)
+    result = sparsegf.filter(Cloud.from_xyz(xyz, classification=cls), model=net, config=Config(features=FEATURES))
     assert result.ground.shape == (len(xyz),)
     assert np.all(result.diagnostics.votes >= 1) and result.diagnostics.n_patches == 2
     p = result.diagnostics.prob_ground
@@ -112,7 +122,7 @@ def test_training_steps_lower_the_loss_and_are_deterministic(net):
     data = [train.labelled(xyz, cls)]
 
     def run():
-        steps = list(train.training_batches(data, Config(), batch_size=4, rng=np.random.default_rng(0)))
+        steps = list(train.training_batches(data, Config(features=FEATURES), batch_size=4, rng=np.random.default_rng(0)))
         assert len(steps[0].packed.patches) >= 2         # the shifted grid has more, smaller patches
         step = steps[0]
         assert step.labels.shape == step.bins.shape == step.packed.point_valid.shape
@@ -141,7 +151,7 @@ def test_a_small_file_is_drawn_again_until_it_gives_min_patches():
     data = [train.labelled(xyz, cls), train.labelled(big, cls)]     # about 2 and 20 patches a pass
 
     def count(min_patches):
-        steps = train.training_batches(data, Config(), batch_size=4, rng=np.random.default_rng(3),
+        steps = train.training_batches(data, Config(features=FEATURES), batch_size=4, rng=np.random.default_rng(3),
                                        min_patches=min_patches)
         return sum(len(step.packed.patches) for step in steps)
 
@@ -149,7 +159,7 @@ def test_a_small_file_is_drawn_again_until_it_gives_min_patches():
     assert 10 < one_pass < 40
     assert count(1) == one_pass                       # a minimum every file meets changes nothing
     assert count(40) == 80                            # both files topped up to exactly 40
-    assert train.count_patches(data, Config(), 40) == 80
+    assert train.count_patches(data, Config(features=FEATURES), 40) == 80
 
 
 def test_a_pack_that_overflows_the_standard_plan_runs_again_with_a_grown_plan(net):
@@ -157,7 +167,7 @@ def test_a_pack_that_overflows_the_standard_plan_runs_again_with_a_grown_plan(ne
     # standard plan's room, so the first run overflows
     xyz = np.stack(np.meshgrid(np.arange(48), np.arange(48), np.arange(16), indexing="ij"), -1).reshape(-1, 3)
     xyz = xyz * 0.5 + 0.25 + np.asarray([5e5, 5e6, 100.0])
-    patch = next(patches(xyz, Config()))
+    patch = next(patches(xyz, Config(features=FEATURES)))
     plans = {}
     packed = pipeline.pack([patch], 8, plans)
     calls = []

@@ -1,0 +1,61 @@
+"""SMRF's terrain as two per-point inputs of SparseGF's network (feature set `"...+smrf"`).
+
+Per point of a cloud, from SMRF run once over the whole cloud with its defaults (Pingel et
+al. 2013; `gfjax.smrf`):
+
+- `dz = z - ZIpro(x, y)`: the height over SMRF's provisional ground surface;
+- `margin = threshold + scalar * slope(x, y) - |dz|`: SMRF's own final test, >= 0 where SMRF
+  calls the point ground;
+
+both bilinear between cell centres, as SMRF's point test samples them, and entered as
+`sign(h) log(1 + |h| / 1 m)` like the top-hat heights (`features.signed_log`). Not in the
+paper: its network learns the terrain from 542 M labelled points; from a few million the
+tiny network gets further by refining a classic filter's surface than by finding the
+terrain from coordinates and openings alone (measured in
+`experiments/results/sparsegf_eval.md`). Computed on the host before partitioning: the
+surface is the cloud's, so a point has one value whichever patch it falls in, and the
+rotation and shift augmentations leave it unchanged.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.ndimage
+from jaxtyping import Float
+
+from gfjax.sparsegf.features import N_SMRF_FEATURES
+
+
+
+def smrf_heights(xyz_m: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 2"]:
+    """`(dz, margin)` `(n, 2)` float32 [m] of every point (module docstring), raw (not logged).
+
+    SMRF runs over the cloud's buffered tiles as `gfjax.smrf.filter` does (far groups of
+    points laid side by side first, `gfjax.io.groups`), and each point is read off the
+    rasters of the tile whose core holds it, sampled as SMRF's own point test samples them."""
+    from gfjax.io import groups, tiled
+    from gfjax.io import tiles as tiling
+    from gfjax.smrf import programs
+    from gfjax.smrf.config import MAX_BATCH, Config, Params
+
+    xyz_m = np.asarray(xyz_m, np.float64)
+    if len(xyz_m) == 0:
+        return np.zeros((0, N_SMRF_FEATURES), np.float32)
+    config, params = Config(), Params()
+    xyz_m, _ = groups.compacted(xyz_m, max(groups.GAP_M, config.buffer_m))
+    run = tiled.classify_cloud(xyz_m, np.ones(len(xyz_m), bool), programs.classify_batch, params, config,
+                               max_batch=MAX_BATCH)
+    dzs, margins = [], []
+    for tile, diag in zip(run.tiles, run.diagnostics):
+        h, w = tile.shape
+        u = tile.local_xyz[:, 0] / config.cell_m - 0.5                     # fractional column
+        v = (h - 0.5) - tile.local_xyz[:, 1] / config.cell_m               # fractional row, row 0 = north
+
+        def at(raster, u=u, v=v):
+            return scipy.ndimage.map_coordinates(np.asarray(raster, np.float64), [v, u], order=1, mode="nearest")
+
+        dz = tile.local_xyz[:, 2] - at(diag.zipro)
+        margin = float(params.threshold_m) + float(params.scalar) * at(diag.slope) - np.abs(dz)
+        dzs.append(dz.astype(np.float32))
+        margins.append(margin.astype(np.float32))
+    n = len(xyz_m)
+    return np.stack([tiling.merge(n, run.tiles, dzs), tiling.merge(n, run.tiles, margins)], axis=1)
