@@ -34,7 +34,7 @@ GRID: dict[str, tuple[float, ...]] = {
     "max_filter_px": (1, 2, 3),
     "rc_min_share": (0.5, 0.75, 1.0),
     "height_threshold_m": (0.0, 0.25, 0.5),
-    "height_threshold_w": (0.0, 0.1, 0.15, 0.25, 0.4),
+    "height_threshold_w": (0.0, 0.1, 0.15, 0.2, 0.25, 0.4),
 }
 _PREPARED_KEYS = ("v0", "max_filter_px", "rc_min_share")     # each value: steps 1-6 again
 V1_VALUES = (1.0, 1.5, 2.0, 3.0)        # added to the grid when the final rule uses the M-nearest search

@@ -37,11 +37,11 @@ def test_threshold_is_affine_in_w_and_traced():
 
 
 def test_default_rejects_the_understory_and_keeps_the_ground(shrub):
-    """Default: the height rule at 0.15 W = 0.15 m; the understory stands 0.45 m high."""
+    """Default: the height rule at 0.2 W = 0.2 m; the understory stands 0.45 m high."""
     flag, _, d = shrub
     cloud, _ = scenes.shrub_scene()
     result = dmf.filter(cloud)
-    assert float(dmf.Params().threshold_m(d.cell_m)) == pytest.approx(0.15)
+    assert float(dmf.Params().threshold_m(d.cell_m)) == pytest.approx(0.2)
     assert d.cell_m == 1.0 and not d.ngnem_rc.any()                 # no object: all cells TP_G
     assert not result.ground[flag].any() and result.ground[~flag].all()
 

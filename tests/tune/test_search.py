@@ -105,16 +105,16 @@ def test_every_row_of_the_table_is_the_plain_filters_errors(far_group):
     assert len({w.tobytes() for w in wrong}) > 1                 # the settings do matter on this crop
 
 
-DMF_GRID = {"v0": (1.5, 2.0), "max_filter_px": (2,), "rc_min_share": (0.75, 1.0), "height_threshold_m": (0.0, 0.5),
-            "height_threshold_w": (0.15,)}
+DMF_GRID = {"v0": (1.5, 2.0), "max_filter_px": (2,), "rc_min_share": (0.5, 1.0), "height_threshold_m": (0.0, 0.5),
+            "height_threshold_w": (0.2,)}
 
 
 def test_every_row_of_dmfs_table_is_the_plain_filters_errors():
     cloud = crop_cloud()
     sample = Sample.from_cloud(cloud)
     combos, default = tdmf.candidates(dmf.Config(), DMF_GRID)
-    assert combos[default] == {"v0": 2.0, "max_filter_px": 2.0, "rc_min_share": 1.0, "height_threshold_m": 0.0,
-                               "height_threshold_w": 0.15}
+    assert combos[default] == {"v0": 2.0, "max_filter_px": 2.0, "rc_min_share": 0.5, "height_threshold_m": 0.0,
+                               "height_threshold_w": 0.2}
     wrong = tdmf.METHOD.wrong_table(sample, dmf.Config(), combos)
     for row in sorted({default, 0, 5}):
         c = combos[row]
