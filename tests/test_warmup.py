@@ -49,7 +49,7 @@ from gfjax import aot, sparsegf
 compiled = []
 aot.on_compile(lambda module: compiled.append(module) if not module.startswith("gfjax.smrf") else None)
 rng = np.random.default_rng(2)
-xy = rng.uniform(0, [90, 70], (9000, 2))                 # another size than the scene warm filters
+xy = rng.uniform(0, [110, 70], (9000, 2))                # another size than the scene warm filters (SMRF: its side)
 cloud = gfjax.Cloud.from_xyz(np.column_stack([xy + 6e5, 50 + 0.05 * xy[:, 1]]))
 ground = sparsegf.filter(cloud).ground
 print(len(compiled), int(ground.sum()))
