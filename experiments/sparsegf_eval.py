@@ -5,7 +5,8 @@
 Test split (SPEC section 5): ISPRS `samp22`, `samp42`, `samp54` (total error, type I/II,
 kappa; ground = class 2) and the forest tile `bcts_2` (DTM RMSE and R_O at 2 m cells against
 the vendor's ground, whose point labels are weak truth). Each SparseGF model runs with the
-settings it was trained with; `--ablation` adds a row per extra model (e.g. trained with
+settings it was trained with (decision `"network+smrf"` unless stored otherwise; the main
+model is scored with the decision `"network"` too); `--ablation` adds a row per extra model (e.g. trained with
 `gfjax train --no-refinement`). Times: the warm `filter` call per file (read and write
 excluded), points per second over the whole split, and the first call (compiles) apart.
 Writes `experiments/results/sparsegf_eval.md` (and `.json`).
@@ -13,6 +14,7 @@ Writes `experiments/results/sparsegf_eval.md` (and `.json`).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import time
@@ -68,10 +70,13 @@ def main():
     runs = [evaluate("gfjax smrf (defaults)", lambda c: gfjax.smrf.filter(c).ground, clouds)]
     models = [("sparsegf " + (Path(args.model).name if args.model else "shipped tiny"), args.model)]
     models += [tuple(item.split("=", 1)) for item in args.ablation]
-    for name, path in models:
+    for i, (name, path) in enumerate(models):
         net, config = sparsegf.load_model(path)
-        runs.append(evaluate(name, lambda c, net=net, config=config: sparsegf.filter(c, model=net, config=config).ground,
-                             clouds))
+        decisions = [config] if i else [config, dataclasses.replace(config, decision="network")]
+        for config in decisions:            # the main model also alone, without SMRF's verdict
+            label = name if config.decision == "network+smrf" else f"{name}, network alone (decision network)"
+            runs.append(evaluate(label, lambda c, net=net, config=config: sparsegf.filter(c, model=net, config=config).ground,
+                                 clouds))
 
     lines = ["# SparseGF on the test split (never trained on)", "",
              "Command: `nice .venv/bin/python experiments/sparsegf_eval.py"

@@ -28,7 +28,7 @@ from gfjax.sparsegf.compress import CENTRAL_TOL_M, R_IN_M, R_OC_M, R_OO_M, Compr
 from gfjax.sparsegf.hag import HAG_BIN_EDGES_M, N_HAG_BINS, HagTargets, ground_surface, hag_bins, hag_targets
 from gfjax.sparsegf.loss import HAG_WEIGHTS, LAMBDA, HeightAwareLoss, height_aware_loss
 from gfjax.sparsegf.partition import STEP_M, Partition, PartitionConfig, PatchBatch, capacity_bucket, partition
-from gfjax.sparsegf.vote import UNCOVERED, Vote, soft_vote
+from gfjax.sparsegf.vote import UNCOVERED, Vote, decide, soft_vote
 
 Params = None      # no thresholds: the network's weights are SparseGF's parameters
 
@@ -40,5 +40,5 @@ __all__ = [
     "HAG_WEIGHTS", "LAMBDA", "UNCOVERED",
     "Compressed", "HagTargets", "HeightAwareLoss", "Partition", "PartitionConfig", "PatchBatch", "Vote",
     "capacity_bucket", "compress", "compression_ratio", "ground_surface", "hag_bins", "hag_targets",
-    "height_aware_loss", "partition", "soft_vote",
+    "height_aware_loss", "partition", "decide", "soft_vote",
 ]

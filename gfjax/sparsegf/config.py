@@ -12,6 +12,12 @@ from gfjax.sparsegf.partition import STEP_M
 
 VOXEL_M = 0.5            # voxel edge of the sparse convolutions [m] (Sec. 3.3)
 MAX_CONTEXT_POINTS = 10_000
+DECISIONS = ("network", "network+smrf")
+# The decision "network+smrf" (`vote.decide`): thresholds on the mean vote of the points SMRF
+# calls ground and of those it calls objects, chosen on validation files only
+# (`experiments/sparsegf_decision.py`).
+SMRF_GROUND_PROBABILITY = 0.3
+SMRF_OBJECT_PROBABILITY = 0.8
 
 # The valid range of every numeric Config field (`gfjax.limits`).
 RANGES: dict[str, Range] = {
@@ -23,6 +29,8 @@ RANGES: dict[str, Range] = {
     "max_context_points": Range(1_000, 10_000_000, integer=True),
     "batch_size": Range(1, 64, integer=True),
     "ground_probability": Range(0, 1, low_open=True, high_open=True),
+    "smrf_ground_probability": Range(0, 1, low_open=True, high_open=True),
+    "smrf_object_probability": Range(0, 1, low_open=True, high_open=True),
 }
 
 
@@ -43,7 +51,16 @@ class Config:
       max_context_points: points per patch at most (all central ones kept; the periphery
         thinned at random with a fixed seed); a CPU budget, not in the paper.
       batch_size: patches per network call at most (they are packed into one sparse tensor).
-      ground_probability: a point is ground when its mean vote exceeds this (0.5, Algorithm 1).
+      decision: how the mean votes become labels (`vote.decide`): `"network"`, the paper's
+        (Algorithm 1): ground when the mean vote exceeds `ground_probability`;
+        `"network+smrf"`: the network arbitrates SMRF's verdict, a point SMRF calls ground
+        is ground when its mean vote exceeds `smrf_ground_probability`, one SMRF calls an
+        object when it exceeds `smrf_object_probability` (SMRF with its defaults, run once
+        over the cloud: `smrf_prior`). Not in the paper: the tiny network alone misses
+        much ground under forest canopy (`experiments/results/sparsegf_decision.md`).
+      ground_probability: the threshold of the decision `"network"` (0.5, Algorithm 1).
+      smrf_ground_probability, smrf_object_probability: the two thresholds of the decision
+        `"network+smrf"`.
     """
 
     voxel_m: float = VOXEL_M
@@ -55,10 +72,15 @@ class Config:
     features: str = "xyz+tophat+smrf"
     max_context_points: int = MAX_CONTEXT_POINTS
     batch_size: int = 8
+    decision: str = "network+smrf"
     ground_probability: float = 0.5
+    smrf_ground_probability: float = SMRF_GROUND_PROBABILITY
+    smrf_object_probability: float = SMRF_OBJECT_PROBABILITY
 
     def __post_init__(self):
         limits.check_fields(self, RANGES)
+        if self.decision not in DECISIONS:
+            raise SettingError(f"decision must be one of {DECISIONS}, got {self.decision!r}", "decision")
         if self.features not in FEATURE_SETS:
             raise SettingError(f"features must be one of {FEATURE_SETS}, got {self.features!r}", "features")
         if not self.r_in_m < self.r_oc_m <= self.r_oo_m:

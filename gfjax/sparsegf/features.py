@@ -53,16 +53,17 @@ def patch_features(features: str) -> int:
     return 4 if features == "xyz" else 4 + 1 + len(TOPHAT_RADII_PX)
 
 
-def cloud_features(xyz_m, features: str):
+def cloud_features(xyz_m, features: str, *, smrf=None):
     """The inputs of a feature set that are computed once per cloud, `(n, e)` float32 already
-    logged (`signed_log`), or None when the set has none. `xyz_m` `(n, 3)` [m], host numpy."""
+    logged (`signed_log`), or None when the set has none. `xyz_m` `(n, 3)` [m], host numpy;
+    `smrf`: the cloud's `smrf_prior.smrf_heights` when already computed."""
     if not features.endswith("+smrf"):
         return None
     import numpy as np
 
     from gfjax.sparsegf.smrf_prior import smrf_heights
 
-    h = smrf_heights(xyz_m)
+    h = smrf_heights(xyz_m) if smrf is None else smrf
     return (np.sign(h) * np.log1p(np.abs(h))).astype(np.float32)
 
 

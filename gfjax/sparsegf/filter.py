@@ -16,16 +16,20 @@ from gfjax.sparsegf.features import cloud_features, n_features
 from gfjax.sparsegf.model import Model
 from gfjax.sparsegf.partition import PartitionConfig, partition
 from gfjax.sparsegf.pipeline import capacity, group, pack, predict, prepare, run_with_room, unpack
-from gfjax.sparsegf.vote import soft_vote
+from gfjax.sparsegf.smrf_prior import smrf_heights
+from gfjax.sparsegf.vote import decide, soft_vote
 
 
 class Diagnostics(NamedTuple):
     """`prob_ground` `(n,)` mean ground probability of the votes (0 for unused points),
-    `votes` `(n,)` int32 number of patches that classified each point, `n_patches`."""
+    `votes` `(n,)` int32 number of patches that classified each point, `n_patches`,
+    `smrf_ground` `(n,)` bool SMRF's verdict (None when neither the inputs nor the decision
+    read SMRF)."""
 
     prob_ground: np.ndarray
     votes: np.ndarray
     n_patches: int
+    smrf_ground: np.ndarray | None = None
 
 
 def patches(xyz_m: np.ndarray, config: Config, *, angle: float | Callable[[], float] = 0.0, seed: int = 0,
@@ -145,7 +149,9 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
         the model shipped in gfjax.
 
     Returns:
-      `Result(ground, Diagnostics)`; ground = mean vote > `config.ground_probability`.
+      `Result(ground, Diagnostics)`; ground by `config.decision` (`vote.decide`): by default
+      SMRF's verdict (run once over the cloud) unless the network's mean vote is confident
+      against it; `decision="network"` is the paper's mean vote > `ground_probability`.
     """
     if not isinstance(model, Model):
         model, trained_with = load_model(model)
@@ -161,11 +167,20 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
     except ValueError as err:
         raise InputError(f"{cloud.name}: --returns: {err}") from None
     used_index = np.flatnonzero(used)
-    prob, votes, n_patches = ground_probability(model, cloud.xyz_m[used_index], config, progress=progress)
-    ground = np.zeros(cloud.n_points, bool)
-    ground[used_index] = prob > config.ground_probability
-    full_prob = np.zeros(cloud.n_points, np.float32)
+    xyz_m = cloud.xyz_m[used_index]
+    smrf = smrf_heights(xyz_m) if config.features.endswith("+smrf") or config.decision == "network+smrf" else None
+    smrf_ground = None if smrf is None else smrf[:, 1] >= 0
+    prob, votes, n_patches = ground_probability(model, xyz_m, config, progress=progress,
+                                                cloud_feats=cloud_features(xyz_m, config.features, smrf=smrf))
+    n = cloud.n_points
+    ground = np.zeros(n, bool)
+    ground[used_index] = np.asarray(decide(prob, smrf_ground, config=config))
+    full_prob = np.zeros(n, np.float32)
     full_prob[used_index] = prob
-    full_votes = np.zeros(cloud.n_points, np.int32)
+    full_votes = np.zeros(n, np.int32)
     full_votes[used_index] = votes
-    return Result(ground=ground, diagnostics=Diagnostics(full_prob, full_votes, n_patches))
+    full_smrf = None
+    if smrf_ground is not None:
+        full_smrf = np.zeros(n, bool)
+        full_smrf[used_index] = smrf_ground
+    return Result(ground=ground, diagnostics=Diagnostics(full_prob, full_votes, n_patches, full_smrf))

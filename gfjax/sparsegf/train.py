@@ -7,6 +7,7 @@ minimises the height-aware loss (Eqs. 4-5) over their central points. Labels: gr
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import NamedTuple
 
@@ -23,6 +24,7 @@ from gfjax.sparsegf.hag import hag_targets
 from gfjax.sparsegf.loss import LAMBDA, height_aware_loss
 from gfjax.sparsegf.model import Model
 from gfjax.sparsegf.pipeline import Pack, forward, group, inputs, pack, run_with_room
+from gfjax.sparsegf.vote import decide
 
 # The paper's cosine schedule runs from 1e-1 to 1e-3 (Sec. 3.3). With Adam, group norms and
 # batches of 4 patches, 1e-1 made the loss jump from 3.3 to 15.7 at the second step of a tiny
@@ -192,14 +194,16 @@ def count_patches(data: list[Labelled], config: Config, min_patches: int = 0) ->
 
 
 def validation_error(model: Model, data: list[Labelled], config: Config) -> float:
-    """Unweighted mean total error (%) of the model on labelled clouds."""
+    """Unweighted mean total error (%) of the network alone on labelled clouds (the decision
+    `"network"`: what training improves, whatever decision the filter later applies)."""
     from gfjax.metrics import point_metrics
     from gfjax.sparsegf.filter import ground_probability
 
+    alone = dataclasses.replace(config, decision="network")
     errors = []
     for d in data:
         prob, _, _ = ground_probability(model, d.xyz_m, config, cloud_feats=d.cloud_feats)
-        errors.append(100.0 * point_metrics(prob > config.ground_probability, d.ground)["total_error"])
+        errors.append(100.0 * point_metrics(np.asarray(decide(prob, config=alone)), d.ground)["total_error"])
     return float(np.mean(errors))
 
 

@@ -11,6 +11,9 @@ Algorithm 1 line 10). Algorithm 1 labels only points with `C[p] > 0`; here a poi
 vote keeps `count == 0` and `label == UNCOVERED` (-1) rather than a silent non-ground label,
 so callers can detect a partition that missed points (`partition` never does).
 
+`decide` turns the mean votes into labels: the paper's threshold, or the network arbitrating
+SMRF's verdict (`Config.decision`).
+
 Pure JAX (`jax.ops.segment_sum`); jit-able, vmap-able over independent sets of votes.
 """
 from __future__ import annotations
@@ -23,6 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike
 from jaxtyping import Array, Bool, Float, Int
+
+from gfjax.sparsegf.config import Config
 
 UNCOVERED = -1   # label of a point that no patch classified
 GROUND = 1
@@ -84,3 +89,25 @@ def _soft_vote(point_index, prob_ground, mask, *, n_points):
     mean = total / jnp.maximum(count, 1).astype(total.dtype)
     label = jnp.where(count > 0, jnp.where(mean > 0.5, GROUND, NON_GROUND), UNCOVERED)
     return Vote(mean, count, label.astype(jnp.int32))
+
+
+def decide(prob_ground: Float[ArrayLike, " n"], smrf_ground: Bool[ArrayLike, " n"] | None = None, *,
+           config: Config) -> Bool[Array, " n"]:
+    """Ground labels `(n,)` from mean votes `(n,)` (`Vote.prob_ground`), by `config.decision`.
+
+    `"network"` (Algorithm 1): `prob_ground > ground_probability`. `"network+smrf"`: the
+    threshold is `smrf_ground_probability` where SMRF calls the point ground (`smrf_ground`,
+    `smrf_prior.smrf_heights`' margin >= 0) and `smrf_object_probability` elsewhere: with
+    0.3 and 0.8, SMRF's verdict stands unless the network is confident against it. A point
+    with no vote (`prob_ground` 0) is never ground.
+    """
+    prob_ground = jnp.asarray(prob_ground)
+    if config.decision == "network":
+        return prob_ground > config.ground_probability
+    if smrf_ground is None:
+        raise ValueError(f"decide: the decision {config.decision!r} needs SMRF's verdict (smrf_ground)")
+    smrf_ground = jnp.asarray(smrf_ground)
+    if smrf_ground.shape != prob_ground.shape:
+        raise ValueError(f"decide: smrf_ground {smrf_ground.shape} and prob_ground {prob_ground.shape} differ")
+    threshold = jnp.where(smrf_ground, config.smrf_ground_probability, config.smrf_object_probability)
+    return prob_ground > threshold

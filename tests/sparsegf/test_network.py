@@ -8,6 +8,7 @@ import jax
 import numpy as np
 import pytest
 
+import gfjax
 from gfjax import sparsegf
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
@@ -110,11 +111,26 @@ def test_points_of_one_voxel_can_get_different_outputs(net):
 
 def test_filter_votes_every_point(net):
     xyz, cls = scene()
-    result = sparsegf.filter(Cloud.from_xyz(xyz, classification=cls), model=net, config=Config(features=FEATURES))
+    cloud = Cloud.from_xyz(xyz, classification=cls)
+    result = sparsegf.filter(cloud, model=net, config=Config(features=FEATURES, decision="network"))
     assert result.ground.shape == (len(xyz),)
-    assert np.all(result.diagnostics.votes >= 1) and result.diagnostics.n_patches == 2
-    p = result.diagnostics.prob_ground
-    assert np.all((p >= 0) & (p <= 1))
+    d = result.diagnostics
+    assert np.all(d.votes >= 1) and d.n_patches == 2 and d.smrf_ground is None    # SMRF not run
+    assert np.all((d.prob_ground >= 0) & (d.prob_ground <= 1))
+    np.testing.assert_array_equal(result.ground, d.prob_ground > 0.5)
+
+
+def test_the_default_decision_arbitrates_smrfs_verdict(net):
+    xyz, cls = scene()
+    cloud = Cloud.from_xyz(xyz, classification=cls)
+    config = Config(features=FEATURES)
+    assert config.decision == "network+smrf"
+    result = sparsegf.filter(cloud, model=net, config=config)
+    d = result.diagnostics
+    np.testing.assert_array_equal(d.smrf_ground, gfjax.smrf.filter(cloud).ground)
+    np.testing.assert_array_equal(result.ground, np.asarray(sparsegf.decide(d.prob_ground, d.smrf_ground, config=config)))
+    alone = sparsegf.filter(cloud, model=net, config=Config(features=FEATURES, decision="network"))
+    np.testing.assert_array_equal(alone.diagnostics.prob_ground, d.prob_ground)     # the network is unchanged
 
 
 def test_training_steps_lower_the_loss_and_are_deterministic(net):

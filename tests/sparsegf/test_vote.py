@@ -6,7 +6,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gfjax.sparsegf import UNCOVERED, soft_vote
+from gfjax.errors import SettingError
+from gfjax.sparsegf import UNCOVERED, Config, decide, soft_vote
 
 N_POINTS = 40
 SHAPE = (5, 24)   # 5 patches x 24 padded slots
@@ -102,3 +103,57 @@ def test_bad_input_raises():
         soft_vote(jnp.zeros(3, jnp.int32), jnp.zeros(3, jnp.float32), 3, mask=jnp.zeros(2, bool))
     with pytest.raises(ValueError, match="n_points"):
         soft_vote(jnp.zeros(3, jnp.int32), jnp.zeros(3, jnp.float32), -1)
+
+
+def decide_loop(prob, smrf_ground, config):
+    """`decide` written out point by point."""
+    out = np.zeros(len(prob), bool)
+    for i, p in enumerate(prob):
+        if config.decision == "network":
+            out[i] = p > config.ground_probability
+        else:
+            out[i] = p > (config.smrf_ground_probability if smrf_ground[i] else config.smrf_object_probability)
+    return out
+
+
+DECISIONS = {
+    "paper": Config(decision="network"),
+    "with smrf (defaults)": Config(),
+    "with smrf, other thresholds": Config(smrf_ground_probability=0.6, smrf_object_probability=0.2),
+}
+
+
+@pytest.mark.parametrize("name", DECISIONS)
+def test_decide_matches_a_loop_under_jit_and_vmap(name):
+    config = DECISIONS[name]
+    rng = np.random.default_rng(3)
+    prob = rng.uniform(0, 1, (4, 50)).astype(np.float32)
+    prob[:, :6] = [0.0, 0.3, 0.5, 0.8, 1.0, 0.2]                  # the thresholds themselves: not ground
+    verdict = rng.uniform(size=(4, 50)) < 0.5
+    want = np.stack([decide_loop(p, v, config) for p, v in zip(prob, verdict)])
+    np.testing.assert_array_equal(np.asarray(decide(prob[0], verdict[0], config=config)), want[0])
+    jitted = jax.jit(decide, static_argnames="config")
+    np.testing.assert_array_equal(np.asarray(jitted(prob[1], verdict[1], config=config)), want[1])
+    batched = jax.vmap(lambda p, v: decide(p, v, config=config))(prob, verdict)
+    np.testing.assert_array_equal(np.asarray(batched), want)
+
+
+def test_decide_with_smrf_changes_labels_only_against_the_network_when_confident():
+    prob = np.array([0.35, 0.35, 0.75, 0.75, 0.9, 0.1], np.float32)
+    verdict = np.array([True, False, True, False, False, True])
+    np.testing.assert_array_equal(np.asarray(decide(prob, verdict, config=Config())),
+                                  [True, False, True, False, True, False])
+
+
+def test_decide_refuses_a_missing_or_misshapen_verdict():
+    prob = np.full(5, 0.5, np.float32)
+    with pytest.raises(ValueError, match="needs SMRF's verdict"):
+        decide(prob, config=Config())
+    with pytest.raises(SHAPE_ERRORS):
+        decide(prob, np.ones(4, bool), config=Config())
+    assert not np.any(np.asarray(decide(prob, config=Config(decision="network"))))
+
+
+def test_config_refuses_an_unknown_decision():
+    with pytest.raises(SettingError, match="decision must be one of"):
+        Config(decision="smrf")
