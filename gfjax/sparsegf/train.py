@@ -8,6 +8,7 @@ minimises the height-aware loss (Eqs. 4-5) over their central points. Labels: gr
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from typing import NamedTuple
 
@@ -107,9 +108,11 @@ def learning_rate(progress: float, lr: float = LR_START) -> float:
     return lr * (LR_END_RATIO + (1.0 - LR_END_RATIO) * 0.5 * (1.0 + np.cos(np.pi * progress)))
 
 
+@functools.cache
 def optimizer() -> optax.GradientTransformation:
     """Adam whose learning rate is an input of each step (`learning_rate`, set by the host:
-    an epoch's step count is only known once its patches are drawn)."""
+    an epoch's step count is only known once its patches are drawn). One object per process:
+    the jitted step takes it as a static argument, so a new one would compile the step again."""
     return optax.inject_hyperparams(optax.adam)(learning_rate=LR_START)
 
 

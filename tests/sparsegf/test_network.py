@@ -159,6 +159,7 @@ def test_training_steps_lower_the_loss_and_are_deterministic(net):
     first = run()
     assert np.all(np.isfinite(first)) and first[-1] < first[0]
     assert run() == first
+    assert train.optimizer() is train.optimizer()     # one static optimizer: the step compiles once
 
 
 def test_a_small_file_is_drawn_again_until_it_gives_min_patches():
