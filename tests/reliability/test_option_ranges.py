@@ -86,6 +86,10 @@ OUT_OF_RANGE = {
     "masf alpha step": ("masf", "alpha_step_m=0.001", "alpha_step_m must give at most 1000 layers"),
     "masf grid": ("masf", "grid_m=0", "grid_m must be > 0 and <= 100 m, got 0.0"),
     "masf passes": ("masf", "layer_passes=1000", "layer_passes must be an integer >= 1 and <= 100, got 1000"),
+    "sparsegf decision threshold": ("sparsegf", "smrf_object_probability=1.5",
+                                    "smrf_object_probability must be > 0 and < 1, got 1.5"),
+    "sparsegf unknown decision": ("sparsegf", "decision=smrf",
+                                  "decision must be one of ('network', 'network+smrf'), got 'smrf'"),
 }
 
 
