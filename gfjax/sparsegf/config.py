@@ -7,7 +7,7 @@ from gfjax import limits
 from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.sparsegf.compress import R_IN_M, R_OC_M, R_OO_M
-from gfjax.sparsegf.features import FEATURE_SETS
+from gfjax.sparsegf.features import FEATURE_SETS, reads_smrf
 from gfjax.sparsegf.partition import STEP_M
 
 VOXEL_M = 0.5            # voxel edge of the sparse convolutions [m] (Sec. 3.3)
@@ -76,6 +76,11 @@ class Config:
     ground_probability: float = 0.5
     smrf_ground_probability: float = SMRF_GROUND_PROBABILITY
     smrf_object_probability: float = SMRF_OBJECT_PROBABILITY
+
+    @property
+    def reads_smrf(self) -> bool:
+        """Whether the inputs or the decision need SMRF's run over the cloud."""
+        return reads_smrf(self.features) or self.decision == "network+smrf"
 
     def __post_init__(self):
         limits.check_fields(self, RANGES)

@@ -41,11 +41,16 @@ TOPHAT_CELL_M = 1.0                            # cell of the minimum raster [m]
 TOPHAT_RADII_PX = (1, 2, 4, 8, 16, 32, 64)     # half-widths of the opening squares [cells]
 
 
+def reads_smrf(features: str) -> bool:
+    """Whether a feature set has SMRF's per-cloud inputs."""
+    return features.endswith("+smrf")
+
+
 def n_features(features: str) -> int:
     """Input channels of a feature set."""
     if features not in FEATURE_SETS:
         raise ValueError(f"features must be one of {FEATURE_SETS}, got {features!r}")
-    return patch_features(features) + (N_SMRF_FEATURES if features.endswith("+smrf") else 0)
+    return patch_features(features) + (N_SMRF_FEATURES if reads_smrf(features) else 0)
 
 
 def patch_features(features: str) -> int:
@@ -57,7 +62,7 @@ def cloud_features(xyz_m, features: str, *, smrf=None):
     """The inputs of a feature set that are computed once per cloud, `(n, e)` float32 already
     logged (`signed_log`), or None when the set has none. `xyz_m` `(n, 3)` [m], host numpy;
     `smrf`: the cloud's `smrf_prior.smrf_heights` when already computed."""
-    if not features.endswith("+smrf"):
+    if not reads_smrf(features):
         return None
     import numpy as np
 

@@ -168,19 +168,17 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
         raise InputError(f"{cloud.name}: --returns: {err}") from None
     used_index = np.flatnonzero(used)
     xyz_m = cloud.xyz_m[used_index]
-    smrf = smrf_heights(xyz_m) if config.features.endswith("+smrf") or config.decision == "network+smrf" else None
+    smrf = smrf_heights(xyz_m) if config.reads_smrf else None
     smrf_ground = None if smrf is None else smrf[:, 1] >= 0
     prob, votes, n_patches = ground_probability(model, xyz_m, config, progress=progress,
                                                 cloud_feats=cloud_features(xyz_m, config.features, smrf=smrf))
-    n = cloud.n_points
-    ground = np.zeros(n, bool)
-    ground[used_index] = np.asarray(decide(prob, smrf_ground, config=config))
-    full_prob = np.zeros(n, np.float32)
-    full_prob[used_index] = prob
-    full_votes = np.zeros(n, np.int32)
-    full_votes[used_index] = votes
-    full_smrf = None
-    if smrf_ground is not None:
-        full_smrf = np.zeros(n, bool)
-        full_smrf[used_index] = smrf_ground
-    return Result(ground=ground, diagnostics=Diagnostics(full_prob, full_votes, n_patches, full_smrf))
+
+    def full(values, dtype):                     # per used point -> per point of the cloud (0 elsewhere)
+        out = np.zeros(cloud.n_points, dtype)
+        out[used_index] = values
+        return out
+
+    ground = full(np.asarray(decide(prob, smrf_ground, config=config)), bool)
+    diagnostics = Diagnostics(full(prob, np.float32), full(votes, np.int32), n_patches,
+                              None if smrf_ground is None else full(smrf_ground, bool))
+    return Result(ground=ground, diagnostics=diagnostics)
