@@ -17,14 +17,18 @@ for _folder in [_TESTS, *sorted(p for p in _TESTS.iterdir() if p.is_dir() and no
         sys.path.append(str(_folder))
 
 # `gfjax.cli.main` turns on JAX's persistent compilation cache under $XDG_CACHE_HOME: keep the
-# tests' cache out of the user's home, in one folder per test session.
+# tests' cache out of the user's home, in one folder per test session, shared by the session's
+# worker processes (they inherit the controller's environment).
 if "GFJAX_TEST_KEEP_CACHE" not in os.environ:
-    import tempfile
-    os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="gfjax-test-cache-")
+    if "GFJAX_TEST_SESSION_CACHE" not in os.environ:
+        import tempfile
+        os.environ["GFJAX_TEST_SESSION_CACHE"] = tempfile.mkdtemp(prefix="gfjax-test-cache-")
+    os.environ["XDG_CACHE_HOME"] = os.environ["GFJAX_TEST_SESSION_CACHE"]
 
-# `import gfjax` turns the persistent caches on (`gfjax.cache.setup`); the tests' own process
-# keeps them off, so each test sees plain jit unless it enables a cache itself. Subprocesses
-# get the default (caches on, in the folder above).
+# `import gfjax` turns the persistent caches on (`gfjax.cache.setup`). The tests' own process
+# keeps gfjax's program store off, so each test sees plain jit unless it enables the store
+# itself, but uses JAX's compilation cache in the session folder (GFJAX_TEST_JAX_CACHE=0: not
+# even that). Subprocesses get the default (both caches on, in the folder above).
 os.environ["GFJAX_CACHE"] = "0"
 if os.environ.get("GFJAX_TYPECHECK", "1") == "1":
     # every annotated function of gfjax is checked at each call, jaxtyping's shapes and dtypes
@@ -35,6 +39,16 @@ if os.environ.get("GFJAX_TYPECHECK", "1") == "1":
     jaxtyping.install_import_hook("gfjax", "typecheck.checker")
 import gfjax  # noqa: E402,F401
 del os.environ["GFJAX_CACHE"]
+if os.environ.get("GFJAX_TEST_JAX_CACHE", "1") == "1":
+    # a program one worker or subprocess compiled, another loads: the suite spends most of its
+    # time compiling. It changes no result (tests/test_cache.py and tests/test_warmup.py check
+    # the caches themselves, in folders of their own).
+    from gfjax import cache as _cache
+
+    _cache.enable()
+    from gfjax import aot as _aot
+
+    _aot.disable()
 
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
