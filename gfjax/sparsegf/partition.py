@@ -180,8 +180,19 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
     near = np.hypot(gap[:, None], gap[None, :]) <= config.r_oo_m   # (dy, dx)
 
     r_oo_sq, r_in_sq = config.r_oo_m ** 2, (config.r_in_m + CENTRAL_TOL_M) ** 2
+    # only cells with a point within r_in of their centre are kept, and such a point lies at
+    # most `reach_in` cells away: the loop visits the occupied cells' neighbourhoods, never
+    # the empty box (a sparse cloud over a large extent costs its points, not its box)
+    reach_in = math.floor((config.r_in_m + CENTRAL_TOL_M) / step + 0.5)
+    occupied = np.unique(home)
+    oy, ox = np.divmod(occupied, nx)
+    candidates = [(oy + dy) * nx + (ox + dx)
+                  for dy in range(-reach_in, reach_in + 1) for dx in range(-reach_in, reach_in + 1)]
+    inside = [(oy + dy >= 0) & (oy + dy < ny) & (ox + dx >= 0) & (ox + dx < nx)
+              for dy in range(-reach_in, reach_in + 1) for dx in range(-reach_in, reach_in + 1)]
+    candidates = np.unique(np.concatenate([c[i] for c, i in zip(candidates, inside)]))
     kept, members = [], []
-    for cell in range(nx * ny):
+    for cell in candidates.tolist():
         iy, ix = divmod(cell, nx)
         cells = [(iy + dy) * nx + (ix + dx)
                  for a, dy in enumerate(offsets) for b, dx in enumerate(offsets)

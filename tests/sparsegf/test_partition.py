@@ -10,6 +10,7 @@ import pytest
 from gfjax.errors import InputError
 from gfjax.sparsegf import (CENTRAL_TOL_M, R_IN_M, R_OO_M, STEP_M, PartitionConfig, capacity_bucket, compress,
                             partition, soft_vote)
+from gfjax.sparsegf.partition import grid_centers
 
 UTM = np.array([512_345.678, 5_403_210.987, 0.0])   # far from the origin: float64 input
 
@@ -121,6 +122,22 @@ def test_empty_cells_are_dropped():
     assert len(part.centers_m) < nx * ny
     d = xyz[None, :, :2] - part.centers_m[:, None, :]
     assert np.all(np.any(np.hypot(d[..., 0], d[..., 1]) <= R_IN_M, axis=1))
+
+
+def test_a_sparse_cloud_over_a_large_box_keeps_exactly_the_cells_near_its_points():
+    # 150 points over 6 km x 6 km (14,400 grid cells), two of them 1 m apart: the kept axes
+    # are every cell centre within R_in of a point, found by brute force over the whole grid
+    rng = np.random.default_rng(7)
+    xy = rng.uniform(0, 6_000, (150, 2))
+    xy[1] = xy[0] + 1.0
+    xy = xy + UTM[:2]
+    part = partition(np.column_stack([xy, np.zeros(len(xy))]))
+    centres, (ny, nx), _ = grid_centers(xy.min(axis=0), xy.max(axis=0), STEP_M)
+    assert nx * ny > 14_000
+    near = np.hypot(*(centres[:, None, :] - xy[None, :, :]).transpose(2, 0, 1)) <= R_IN_M + CENTRAL_TOL_M
+    want = centres[near.any(axis=1)]
+    order = np.lexsort((part.centers_m[:, 0], part.centers_m[:, 1]))
+    np.testing.assert_allclose(part.centers_m[order], want[np.lexsort((want[:, 0], want[:, 1]))], atol=1e-6)
 
 
 def test_local_xyz_is_relative_to_the_axis():
