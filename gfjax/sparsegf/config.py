@@ -27,7 +27,6 @@ RANGES: dict[str, Range] = {
     "r_oc_m": Range(0, 1e5, low_open=True, high_open=True, unit="m", extra="<= r_oo_m"),
     "r_oo_m": Range(0, 1e5, low_open=True, high_open=True, unit="m"),
     "max_context_points": Range(1_000, 10_000_000, integer=True),
-    "batch_size": Range(1, 64, integer=True),
     "ground_probability": Range(0, 1, low_open=True, high_open=True),
     "smrf_ground_probability": Range(0, 1, low_open=True, high_open=True),
     "smrf_object_probability": Range(0, 1, low_open=True, high_open=True),
@@ -50,7 +49,6 @@ class Config:
         computed once per cloud; `gfjax.sparsegf.features`, `gfjax.sparsegf.smrf_prior`).
       max_context_points: points per patch at most (all central ones kept; the periphery
         thinned at random with a fixed seed); a CPU budget, not in the paper.
-      batch_size: patches per network call at most (they are packed into one sparse tensor).
       decision: how the mean votes become labels (`vote.decide`): `"network"`, the paper's
         (Algorithm 1): ground when the mean vote exceeds `ground_probability`;
         `"network+smrf"`: the network arbitrates SMRF's verdict, a point SMRF calls ground
@@ -71,7 +69,6 @@ class Config:
     compression: bool = True
     features: str = "xyz+tophat+smrf"
     max_context_points: int = MAX_CONTEXT_POINTS
-    batch_size: int = 8
     decision: str = "network+smrf"
     ground_probability: float = 0.5
     smrf_ground_probability: float = SMRF_GROUND_PROBABILITY

@@ -15,7 +15,7 @@ from gfjax.sparsegf.config import Config
 from gfjax.sparsegf.features import cloud_features, n_features
 from gfjax.sparsegf.model import Model
 from gfjax.sparsegf.partition import PartitionConfig, partition
-from gfjax.sparsegf.pipeline import capacity, group, pack, predict, prepare, run_with_room, unpack
+from gfjax.sparsegf.pipeline import PACK_SLOTS, capacity, group, pack, predict, prepare, run_with_room, unpack
 from gfjax.sparsegf.smrf_prior import smrf_heights
 from gfjax.sparsegf.vote import decide, soft_vote
 
@@ -76,8 +76,8 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
         if bar is not None:
             bar.update(len(packed.patches))
 
-    for todo in group(patches(xyz_m, config, cloud_feats=cloud_feats), config.batch_size):
-        packed = pack(todo, config.batch_size, plans)
+    for todo in group(patches(xyz_m, config, cloud_feats=cloud_feats), PACK_SLOTS):
+        packed = pack(todo, PACK_SLOTS, plans)
         result = predict(model, packed)
         if pending is not None:
             finish(*pending)

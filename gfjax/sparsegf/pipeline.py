@@ -44,6 +44,10 @@ DEPTH = 4                  # levels of the U-Net below the input
 PACK_VOXELS = 65_536       # voxel rows of a pack: patches are packed up to this many
 MIN_POINTS = 4_096         # smallest point capacity of the per-patch feature program
 POINTS_PER_VOXEL = 4       # central point rows of a pack per voxel row
+# Patches per network call at most when classifying. A pack costs about the same whatever it
+# holds, so small patches (a sparse cloud's, a cloud's edges) share one; the batch index only
+# keeps them apart, and the one compiled program serves every cloud.
+PACK_SLOTS = 1024
 
 
 def capacity(n: int, minimum: int = PACK_VOXELS) -> int:
