@@ -186,11 +186,12 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
     reach_in = math.floor((config.r_in_m + CENTRAL_TOL_M) / step + 0.5)
     occupied = np.unique(home)
     oy, ox = np.divmod(occupied, nx)
-    candidates = [(oy + dy) * nx + (ox + dx)
-                  for dy in range(-reach_in, reach_in + 1) for dx in range(-reach_in, reach_in + 1)]
-    inside = [(oy + dy >= 0) & (oy + dy < ny) & (ox + dx >= 0) & (ox + dx < nx)
-              for dy in range(-reach_in, reach_in + 1) for dx in range(-reach_in, reach_in + 1)]
-    candidates = np.unique(np.concatenate([c[i] for c, i in zip(candidates, inside)]))
+    around = []
+    for dy in range(-reach_in, reach_in + 1):
+        for dx in range(-reach_in, reach_in + 1):
+            y, x = oy + dy, ox + dx
+            around.append((y * nx + x)[(y >= 0) & (y < ny) & (x >= 0) & (x < nx)])
+    candidates = np.unique(np.concatenate(around))
     kept, members = [], []
     for cell in candidates.tolist():
         iy, ix = divmod(cell, nx)
