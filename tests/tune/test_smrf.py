@@ -44,7 +44,7 @@ def test_hard_evaluation_equals_smrf_filter():
     plain = gfjax.smrf.filter(cloud, config=CONFIG).ground
     pb = problem(("crop",))
     bucket = pb.buckets[0]
-    fn = jax.vmap(lambda prep: tsmrf.ground_weight(prep, Params(), config=CONFIG))
+    fn = jax.jit(jax.vmap(lambda prep: tsmrf.ground_weight(prep, Params(), config=CONFIG)))
     (labels,) = pb.labels([np.asarray(fn(bucket.prep))])
     np.testing.assert_array_equal(labels, plain)
     errs = tfit.hard_errors(pb, tfit.DEFAULTS[None, :], pb.masks(), np.zeros(1, np.int32), CONFIG.window_m)
