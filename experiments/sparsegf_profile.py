@@ -1,0 +1,128 @@
+"""Where `gfjax.sparsegf.filter` spends its time, stage by stage, with the shipped model.
+
+    nice .venv/bin/python experiments/sparsegf_profile.py [--file lasR_bcts/bcts_2.laz] [--repeats 3]
+
+Warm timings (every program compiled by a first call), each the median of `--repeats` calls:
+
+- the whole `filter` call, and SMRF on the same cloud (`gfjax.smrf.filter`), its ratio;
+- the stages of the pipeline: SMRF's prior surface (`smrf_prior.smrf_heights`), the per-point
+  cloud features, the patches (partition, per-patch features, compression, voxels: host and
+  small jitted programs), packing, and the network over every pack (`pipeline.predict`);
+- inside one full pack: the whole network call, the pyramid of kernel maps alone
+  (`sparse.build_pyramid`), and its parts (key sort, the stem's kernel-5 table, a kernel-3
+  table, one downsampling, the level-0 pairs);
+- the packs' fill: valid voxel rows over the rows the network computes.
+
+Writes `experiments/results/sparsegf_profile.md`.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import gfjax  # noqa: E402
+from experiments.common import DATA, RESULTS  # noqa: E402
+from gfjax import sparsegf  # noqa: E402
+from gfjax.nn import sparse  # noqa: E402
+from gfjax.nn.sparse import keys as K  # noqa: E402
+from gfjax.nn.sparse import maps as M  # noqa: E402
+from gfjax.sparsegf import pipeline as P  # noqa: E402
+from gfjax.sparsegf.features import cloud_features  # noqa: E402
+from gfjax.sparsegf.smrf_prior import smrf_heights  # noqa: E402
+
+F = importlib.import_module("gfjax.sparsegf.filter")      # the module, not the function of that name
+
+
+def median_s(fn, repeats: int) -> float:
+    """Median wall time [s] of `repeats` calls after one warm-up call (results waited for)."""
+    jax.block_until_ready(fn())
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--file", default="lasR_bcts/bcts_2.laz", help="relative to the shared data folder")
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    cloud = gfjax.read(DATA / args.file)
+    model, config = sparsegf.load_model()
+    xyz = cloud.xyz_m
+    rows = []
+
+    def row(name, seconds, note=""):
+        rows.append((name, seconds, note))
+        print(f"{name}: {seconds:.3f} s {note}", flush=True)
+
+    whole = median_s(lambda: sparsegf.filter(cloud).ground, args.repeats)
+    smrf = median_s(lambda: gfjax.smrf.filter(cloud).ground, args.repeats)
+    row("sparsegf.filter", whole)
+    row("smrf.filter", smrf, f"(sparsegf / smrf: {whole / smrf:.1f}x)")
+    row("SMRF prior surface", median_s(lambda: smrf_heights(xyz), args.repeats))
+    prior = smrf_heights(xyz)
+    row("cloud features", median_s(lambda: cloud_features(xyz, config.features, smrf=prior), args.repeats))
+    feats = cloud_features(xyz, config.features, smrf=prior)
+    patches = list(F.patches(xyz, config, cloud_feats=feats))
+    row("patches (partition, features, compression, voxels)",
+        median_s(lambda: len(list(F.patches(xyz, config, cloud_feats=feats))), args.repeats), f"({len(patches)} patches)")
+    packs = [P.pack(g, P.PACK_SLOTS) for g in P.group(patches, P.PACK_SLOTS)]
+    row("pack", median_s(lambda: [P.pack(g, P.PACK_SLOTS) for g in P.group(patches, P.PACK_SLOTS)], args.repeats))
+    row("network over every pack", median_s(lambda: [P.predict(model, p)[0] for p in packs], args.repeats),
+        f"({len(packs)} packs)")
+    valid = sum(int(p.valid.sum()) for p in packs)
+    computed = sum(len(p.valid) for p in packs)
+
+    full = max(packs, key=lambda p: int(p.valid.sum()))
+    c, v = jnp.asarray(full.coords), jnp.asarray(full.valid)
+    n = c.shape[0]
+    row("one pack: network", median_s(lambda: P.predict(model, full)[0], args.repeats), f"({int(full.valid.sum()):,} voxels)")
+    pyramid = jax.jit(sparse.build_pyramid, static_argnames="plan")
+    row("one pack: pyramid of kernel maps", median_s(lambda: pyramid(c, v, plan=full.plan), args.repeats))
+    sort = jax.jit(lambda c, v: K.sort_keys(K.pack(c, v)))
+    stem = jax.jit(lambda c, v: M.neighbour_table(c, v, c, v, kernel_size=5))
+    table3 = jax.jit(lambda c, v: M.neighbour_table(c, v, c, v, kernel_size=3))
+    down = jax.jit(lambda c, v: M.downsample(c, v, capacity=n))
+    row("  key sort", median_s(lambda: sort(c, v), args.repeats))
+    row("  stem kernel-5 table", median_s(lambda: stem(c, v), args.repeats))
+    row("  one kernel-3 table", median_s(lambda: table3(c, v), args.repeats))
+    row("  one downsampling", median_s(lambda: down(c, v), args.repeats))
+    inner = M.inner_table(stem(c, v), 3)
+    block, n_blocks = full.plan.submanifold[0]
+    row("  level-0 pairs from the table", median_s(lambda: M.pairs_from_table(
+        inner, n_in=n, block=block, n_blocks=n_blocks, in_coords=c, in_valid=v, out_coords=c, out_valid=v), args.repeats))
+
+    lines = ["# Where SparseGF's time goes", "",
+             f"`nice .venv/bin/python experiments/sparsegf_profile.py --file {args.file} --repeats {args.repeats}` "
+             f"on {platform.processor() or platform.machine()}, {jax.device_count()} {jax.default_backend()} device(s); "
+             f"{cloud.n_points:,} points, the shipped model, warm calls (median of {args.repeats}).", "",
+             "| stage | seconds | |", "| --- | ---: | --- |"]
+    lines += [f"| {name} | {seconds:.3f} | {note} |" for name, seconds, note in rows]
+    seconds = {name: s for name, s, _ in rows}
+    lines += ["", f"Packs: {len(packs)}, {valid:,} valid voxel rows of {computed:,} computed "
+              f"({100 * valid / computed:.0f} % fill; a pack holds {P.PACK_VOXELS:,} rows); "
+              f"{sum(len(p.point_index) for p in patches):,} central point votes for {cloud.n_points:,} points.",
+              "",
+              f"Shares: the network alone takes {100 * seconds['network over every pack'] / whole:.0f} % of `filter`'s "
+              "time (`filter` prepares patches while packs run); "
+              f"in a pack, the pyramid {100 * seconds['one pack: pyramid of kernel maps'] / seconds['one pack: network']:.0f} % "
+              f"and the stem's kernel-5 table alone "
+              f"{100 * seconds['  stem kernel-5 table'] / seconds['one pack: network']:.0f} %."]
+    (RESULTS / "sparsegf_profile.md").write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
