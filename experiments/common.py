@@ -27,7 +27,7 @@ from gfjax.io.cloud import Cloud
 from gfjax.metrics import point_metrics
 
 __all__ = ["ROOT", "DATA", "ISPRS_REFERENCE", "RESULTS", "KEYS", "isprs_samples", "files_parser",
-           "first_and_again", "score", "write_json", "write_markdown"]
+           "first_and_again", "median_time", "score", "write_json", "write_markdown"]
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("GFJAX_SHARED_DATA", ROOT.parent / "shared" / "data"))
@@ -82,3 +82,17 @@ def score(ground: np.ndarray, cloud: Cloud, mask: np.ndarray | None = None) -> d
     """`point_metrics` of bool `(n,)` ground labels against the cloud's class 2, on `mask`
     (bool `(n,)`, default all points)."""
     return point_metrics(ground, cloud.classification == 2, mask=mask)
+
+
+def median_time(fn: Callable, *args, repeats: int) -> float:
+    """Median wall time [s] of `repeats` calls `fn(*args)` after one warm-up call (compiles
+    apart), each waited for (`jax.block_until_ready`)."""
+    import jax
+
+    jax.block_until_ready(fn(*args))
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))

@@ -22,7 +22,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -31,7 +31,10 @@ import jax.numpy as jnp
 import laspy
 import numpy as np
 
-from gfjax.nn import sparse
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from experiments.common import median_time  # noqa: E402
+from gfjax.nn import sparse  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("GFJAX_SHARED_DATA", ROOT.parent / "shared" / "data"))
@@ -39,16 +42,6 @@ FILES = {"bcts_2": DATA / "lasR_bcts" / "bcts_2.laz", "samp22": DATA / "isprs_fi
 RESULTS = ROOT / "experiments" / "results" / "sparse_conv_speed.md"
 C = 32
 VOXEL_M = 0.5
-
-
-def median_time(fn, *args, repeats):
-    jax.block_until_ready(fn(*args))
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def compile_time(fn, *args):

@@ -20,9 +20,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import platform
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -31,7 +29,7 @@ import jax.numpy as jnp
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import gfjax  # noqa: E402
-from experiments.common import DATA, RESULTS  # noqa: E402
+from experiments.common import DATA, RESULTS, median_time  # noqa: E402
 from gfjax import sparsegf  # noqa: E402
 from gfjax.nn import sparse  # noqa: E402
 from gfjax.nn.sparse import keys as K  # noqa: E402
@@ -41,17 +39,6 @@ from gfjax.sparsegf.features import cloud_features  # noqa: E402
 from gfjax.sparsegf.smrf_prior import smrf_heights  # noqa: E402
 
 F = importlib.import_module("gfjax.sparsegf.filter")      # the module, not the function of that name
-
-
-def median_s(fn, repeats: int) -> float:
-    """Median wall time [s] of `repeats` calls after one warm-up call (results waited for)."""
-    jax.block_until_ready(fn())
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -68,20 +55,20 @@ def main() -> None:
         rows.append((name, seconds, note))
         print(f"{name}: {seconds:.3f} s {note}", flush=True)
 
-    whole = median_s(lambda: sparsegf.filter(cloud).ground, args.repeats)
-    smrf = median_s(lambda: gfjax.smrf.filter(cloud).ground, args.repeats)
+    whole = median_time(lambda: sparsegf.filter(cloud).ground, repeats=args.repeats)
+    smrf = median_time(lambda: gfjax.smrf.filter(cloud).ground, repeats=args.repeats)
     row("sparsegf.filter", whole)
     row("smrf.filter", smrf, f"(sparsegf / smrf: {whole / smrf:.1f}x)")
-    row("SMRF prior surface", median_s(lambda: smrf_heights(xyz), args.repeats))
+    row("SMRF prior surface", median_time(lambda: smrf_heights(xyz), repeats=args.repeats))
     prior = smrf_heights(xyz)
-    row("cloud features", median_s(lambda: cloud_features(xyz, config.features, smrf=prior), args.repeats))
+    row("cloud features", median_time(lambda: cloud_features(xyz, config.features, smrf=prior), repeats=args.repeats))
     feats = cloud_features(xyz, config.features, smrf=prior)
     patches = list(F.patches(xyz, config, cloud_feats=feats))
     row("patches (partition, features, compression, voxels)",
-        median_s(lambda: len(list(F.patches(xyz, config, cloud_feats=feats))), args.repeats), f"({len(patches)} patches)")
+        median_time(lambda: len(list(F.patches(xyz, config, cloud_feats=feats))), repeats=args.repeats), f"({len(patches)} patches)")
     packs = [P.pack(g, P.PACK_SLOTS) for g in P.group(patches, P.PACK_SLOTS)]
-    row("pack", median_s(lambda: [P.pack(g, P.PACK_SLOTS) for g in P.group(patches, P.PACK_SLOTS)], args.repeats))
-    row("network over every pack", median_s(lambda: [P.predict(model, p)[0] for p in packs], args.repeats),
+    row("pack", median_time(lambda: [P.pack(g, P.PACK_SLOTS) for g in P.group(patches, P.PACK_SLOTS)], repeats=args.repeats))
+    row("network over every pack", median_time(lambda: [P.predict(model, p)[0] for p in packs], repeats=args.repeats),
         f"({len(packs)} packs)")
     valid = sum(int(p.valid.sum()) for p in packs)
     computed = sum(len(p.valid) for p in packs)
@@ -89,21 +76,21 @@ def main() -> None:
     full = max(packs, key=lambda p: int(p.valid.sum()))
     c, v = jnp.asarray(full.coords), jnp.asarray(full.valid)
     n = c.shape[0]
-    row("one pack: network", median_s(lambda: P.predict(model, full)[0], args.repeats), f"({int(full.valid.sum()):,} voxels)")
+    row("one pack: network", median_time(lambda: P.predict(model, full)[0], repeats=args.repeats), f"({int(full.valid.sum()):,} voxels)")
     pyramid = jax.jit(sparse.build_pyramid, static_argnames="plan")
-    row("one pack: pyramid of kernel maps", median_s(lambda: pyramid(c, v, plan=full.plan), args.repeats))
+    row("one pack: pyramid of kernel maps", median_time(lambda: pyramid(c, v, plan=full.plan), repeats=args.repeats))
     sort = jax.jit(lambda c, v: K.sort_keys(K.pack(c, v)))
     stem = jax.jit(lambda c, v: M.neighbour_table(c, v, c, v, kernel_size=5))
     table3 = jax.jit(lambda c, v: M.neighbour_table(c, v, c, v, kernel_size=3))
     down = jax.jit(lambda c, v: M.downsample(c, v, capacity=n))
-    row("  key sort", median_s(lambda: sort(c, v), args.repeats))
-    row("  stem kernel-5 table", median_s(lambda: stem(c, v), args.repeats))
-    row("  one kernel-3 table", median_s(lambda: table3(c, v), args.repeats))
-    row("  one downsampling", median_s(lambda: down(c, v), args.repeats))
+    row("  key sort", median_time(lambda: sort(c, v), repeats=args.repeats))
+    row("  stem kernel-5 table", median_time(lambda: stem(c, v), repeats=args.repeats))
+    row("  one kernel-3 table", median_time(lambda: table3(c, v), repeats=args.repeats))
+    row("  one downsampling", median_time(lambda: down(c, v), repeats=args.repeats))
     inner = M.inner_table(stem(c, v), 3)
     block, n_blocks = full.plan.submanifold[0]
-    row("  level-0 pairs from the table", median_s(lambda: M.pairs_from_table(
-        inner, n_in=n, block=block, n_blocks=n_blocks, in_coords=c, in_valid=v, out_coords=c, out_valid=v), args.repeats))
+    row("  level-0 pairs from the table", median_time(lambda: M.pairs_from_table(
+        inner, n_in=n, block=block, n_blocks=n_blocks, in_coords=c, in_valid=v, out_coords=c, out_valid=v), repeats=args.repeats))
 
     lines = ["# Where SparseGF's time goes", "",
              f"`nice .venv/bin/python experiments/sparsegf_profile.py --file {args.file} --repeats {args.repeats}` "

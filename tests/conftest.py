@@ -93,18 +93,10 @@ def unchecked():
     jaxtyping.config.update("jaxtyping_disable", before)
 
 
-# The modules whose tests take tens of seconds each (compiling in subprocesses, training,
-# notebooks) run first, and idle workers steal queued tests (`--dist worksteal`, pyproject):
-# the session then ends on short tests, with both workers busy to the end, instead of one
-# worker finishing a notebook while the other waits.
-_HEAVY_FIRST = ("test_notebooks.py", "test_warmup.py", "test_cache.py", "test_aot.py", "reliability/test_far_outlier.py",
-                "survey/test_survey.py", "survey/test_out_of_core.py", "bench/test_cli_bench.py", "tune/test_fit.py",
-                "sparsegf/test_network.py", "nn/test_sparse_layers.py", "tune/test_smrf.py")
-
 
 def pytest_collection_modifyitems(config, items):
-    def light(item) -> bool:
-        path = item.nodeid.split("::")[0]
-        return item.get_closest_marker("slow") is None and not path.endswith(_HEAVY_FIRST)
-
-    items.sort(key=light)
+    """Tests marked `slow` (tens of seconds each: compiling in subprocesses, training,
+    notebooks) run first, and idle workers steal queued tests (`--dist worksteal`,
+    pyproject): the session then ends on short tests with both workers busy, instead of one
+    worker finishing a notebook while the other waits."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)

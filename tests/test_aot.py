@@ -19,6 +19,8 @@ from gfjax import cache
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "dmf"))
 import dmf_scenes as scenes  # noqa: E402
 
+pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
+
 
 class Pair(NamedTuple):
     scaled: jax.Array

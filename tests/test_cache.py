@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
+
 REPO = Path(__file__).resolve().parents[1]
 
 _FILTER = r"""

@@ -7,6 +7,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
+
 
 REPO = Path(__file__).resolve().parents[1]
 

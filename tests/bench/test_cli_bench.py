@@ -13,6 +13,8 @@ from gfjax.bench import run as bench
 from gfjax.cli.main import main
 from gfjax.metrics import DTM_KEYS, POINT_KEYS
 
+pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
+
 TOP_KEYS = {"schema", "gfjax_version", "command", "created_utc", "machine", "repeat", "threads", "compile_cache",
             "dtm_cell_m", "notes", "runs", "summary"}
 

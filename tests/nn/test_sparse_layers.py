@@ -11,6 +11,8 @@ import pytest
 
 from gfjax.nn import sparse
 
+pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
+
 
 def cloud(n=400, seed=0, extent=6.0):
     rng = np.random.default_rng(seed)

@@ -17,6 +17,8 @@ from gfjax.io import groups
 from gfjax.io.cloud import Cloud
 from gfjax.io.tiles import Frame
 
+pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
+
 REPO = Path(__file__).resolve().parents[2]
 
 _PROGRAM = r"""

@@ -18,6 +18,8 @@ from gfjax.sparsegf.features import n_features
 from gfjax.sparsegf.filter import patches
 from gfjax.sparsegf.model import NET_PRESETS, NetConfig, count_parameters, init
 
+pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
+
 # The network and pipeline tests use the feature set without SMRF's surface: no SMRF to compile.
 FEATURES = "xyz+tophat"
 MICRO = NetConfig(stem=4, planes=(4,) * 8, layers=(1,) * 8, refine=4, point=4, in_features=n_features(FEATURES))

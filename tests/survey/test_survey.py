@@ -13,6 +13,8 @@ from gfjax.io.cloud import Cloud
 from gfjax.io.tiles import Frame, split
 from gfjax.survey.halo import HALO_M
 
+pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
+
 SMALL_TILES = {"tile_size_m": 40.0, "buffer_m": 8.0}     # several tiles, seams inside each file
 
 

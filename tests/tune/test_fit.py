@@ -15,6 +15,8 @@ from gfjax.tune.problem import block_folds
 
 from .helpers import WINDOWS, crop_cloud, problem
 
+pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
+
 SETTINGS = tfit.Settings(steps=4, eval_every=2, windows_m=WINDOWS)
 
 

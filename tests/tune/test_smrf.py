@@ -18,6 +18,8 @@ from gfjax.tune import smrf as tsmrf
 
 from .helpers import CONFIG, crop_batch, crop_cloud, crop_prepared, problem
 
+pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
+
 PARAMS = [Params(), Params(slope=0.3, threshold_m=0.2, scalar=0.0), Params(slope=0.05, threshold_m=0.9, scalar=2.5)]
 
 
@@ -44,8 +46,8 @@ def test_hard_evaluation_equals_smrf_filter():
     plain = gfjax.smrf.filter(cloud, config=CONFIG).ground
     pb = problem(("crop",))
     bucket = pb.buckets[0]
-    fn = jax.jit(jax.vmap(lambda prep: tsmrf.ground_weight(prep, Params(), config=CONFIG)))
-    (labels,) = pb.labels([np.asarray(fn(bucket.prep))])
+    weights = jax.vmap(hard_weight(), in_axes=(0, None))(bucket.prep, Params())
+    (labels,) = pb.labels([np.asarray(weights)])
     np.testing.assert_array_equal(labels, plain)
     errs = tfit.hard_errors(pb, tfit.DEFAULTS[None, :], pb.masks(), np.zeros(1, np.int32), CONFIG.window_m)
     ref = pb.samples[0].ref_ground
