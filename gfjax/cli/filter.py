@@ -12,6 +12,12 @@ file border gets the label it would get if the survey were one file (exactly so 
 tiled methods, SMRF and PMF). The files must share their CRS and units. `--independent`
 filters each file on its own instead.
 
+`--workers N` filters the tiles (a file each, for a method that does not tile) as tasks on a
+local Dask cluster of N worker processes, which share this machine's cores; `--scheduler
+ADDRESS` sends them to an existing Dask cluster, whose workers must reach the inputs and the
+temporary folder (`TMPDIR`). Labels and outputs are those of one process; a file is written
+once all its tasks are done, and a worker that dies has its task run again.
+
 A file too large for the memory budget (`GFJAX_MEMORY_BUDGET_GB`, default half the
 machine's memory) is filtered out of core by SMRF and PMF (`--out-of-core` forces it): read
 a chunk at a time into an index on disk (28 bytes a point, in a private temporary folder),
@@ -30,7 +36,9 @@ when every file was.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import functools
 import os
 import sys
 import tempfile
@@ -41,7 +49,7 @@ import numpy as np
 
 from gfjax.cli import _job
 from gfjax.cli._common import (TIF_SUFFIXES, add_method_options, add_units_option, method_setup,
-                               nonnegative_float, output_targets, positive_float, say_crs_warning)
+                               nonnegative_float, output_targets, positive_float, positive_int, say_crs_warning)
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 
@@ -72,6 +80,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="DTM cell size [m] (default 1)")
     parser.add_argument("--independent", action="store_true",
                         help="filter each input on its own, without its neighbours' points")
+    parser.add_argument("--workers", type=positive_int, default=None, metavar="N",
+                        help="filter the tiles as tasks on a local Dask cluster of N worker processes "
+                             "(needs dask.distributed: pip install 'gfjax[dask]')")
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="filter the tiles on the Dask cluster at ADDRESS (tcp://host:8786); its workers "
+                             "must reach the inputs and the temporary folder (TMPDIR)")
     parser.add_argument("--out-of-core", action="store_true",
                         help="filter tile by tile from disk, memory bounded by a tile's window (SMRF, PMF; "
                              "chosen by itself for a file larger than the memory budget)")
@@ -130,20 +144,40 @@ def run(args: argparse.Namespace) -> int:
                             extra_bytes_per_point=4 if args.instances else 0, trust_data=args.trust_data)
     say_crs_warning([(job.source, job.crs_units) for job in planned])
     out_of_core = _out_of_core(args, setup, planned)
-    with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder:
+    with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder, _cluster(args) as client:
         if out_of_core:
-            return _run_out_of_core(args, setup, inputs, planned, folder)
+            return _run_out_of_core(args, setup, inputs, planned, folder, client)
         runner = None
-        if len(inputs) > 1 and not args.independent:
+        if client is not None or (len(inputs) > 1 and not args.independent):
             from gfjax import survey
 
             catalog = survey.index(inputs, folder, returns=args.returns, units=args.units,
                                    trust_data=args.trust_data)
             setup = setup._replace(config=survey.survey_config(setup.module, setup.config, catalog,
                                                                returns=args.returns))
-            runner = survey.Runner(catalog, lambda points, returns: setup.filter(points, returns=returns, progress=True),
-                                   setup.config, folder, returns=args.returns, context=args.dtm is not None)
+            runner = survey.Runner(catalog, functools.partial(_filter, setup, client is None), setup.config, folder,
+                                   returns=args.returns, context=args.dtm is not None, client=client)
         return _run(args, setup, inputs, planned, runner)
+
+
+def _filter(setup, progress: bool, points, returns: str):
+    """`setup`'s filter on a survey's window (a module-level function: it travels to Dask workers)."""
+    return setup.filter(points, returns=returns, progress=progress)
+
+
+def _cluster(args: argparse.Namespace):
+    """The Dask client that `--workers` / `--scheduler` ask for (`gfjax.survey.cluster`), or
+    a context giving None."""
+    if args.workers is None and args.scheduler is None:
+        return contextlib.nullcontext(None)
+    if args.workers is not None and args.scheduler is not None:
+        raise InputError("--workers and --scheduler: give one (a local cluster of N workers, or an existing one)")
+    if args.independent:
+        option = "--workers" if args.workers is not None else "--scheduler"
+        raise InputError(f"{option}: the cluster filters the inputs as one survey; drop --independent")
+    from gfjax.survey import cluster
+
+    return cluster.client(workers=args.workers, scheduler=args.scheduler)
 
 
 def _run(args, setup, inputs, planned, runner) -> int:
@@ -232,20 +266,19 @@ def _out_of_core(args, setup, planned) -> bool:
     return True
 
 
-def _run_out_of_core(args, setup, inputs, planned, folder) -> int:
+def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
     """Filter and write every planned file tile by tile from disk (`gfjax.survey.lattice`): the
     files as one survey, or each alone with `--independent`."""
     from gfjax import survey
     from gfjax.io import asprs, stream
     from gfjax.io.cloud import use_mask
 
-    def filter_fn(points, returns):
-        return setup.filter(points, returns=returns, progress=False)
-
+    filter_fn = functools.partial(_filter, setup, False)
     shared = None
-    if len(inputs) > 1 and not args.independent:
+    if client is not None or (len(inputs) > 1 and not args.independent):
         catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data)
-        shared = (survey.Runner(catalog, filter_fn, setup.config, folder, returns=args.returns, context=False),
+        shared = (survey.Runner(catalog, filter_fn, setup.config, folder, returns=args.returns, context=False,
+                                client=client),
                   {source: i for i, source in enumerate(inputs)})
 
     def one(job: _job.Planned) -> None:

@@ -5,11 +5,12 @@ file is then filtered on the survey's own tiling frame, so a point gets the tile
 context it would get if the whole survey were one file (`filtered`, `Runner`): a tiled
 method runs each tile of the survey's lattice once from a window gathered across the files
 (`lattice`), any other method each file with a halo of its neighbours' points (`halo`); a
-method's per-cloud estimates are made once for the survey (`survey_config`).
+method's per-cloud estimates are made once for the survey (`survey_config`). The tiles (or
+files) can run as tasks on a Dask cluster (`cluster`, `filter(..., client=...)`).
 """
 from gfjax.survey.catalog import Catalog, Entry, index
 from gfjax.survey.halo import Points, filter_file, halo_region, survey_config, window
-from gfjax.survey.run import Runner, filtered
+from gfjax.survey.run import Runner, filter, filtered
 
-__all__ = ["Catalog", "Entry", "Points", "Runner", "filter_file", "filtered", "halo_region", "index",
+__all__ = ["Catalog", "Entry", "Points", "Runner", "filter", "filter_file", "filtered", "halo_region", "index",
            "survey_config", "window"]

@@ -18,6 +18,7 @@ import numpy as np
 
 from gfjax.io.cloud import use_mask
 from gfjax.result import Result
+from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog
 from gfjax.survey.halo import Points, overlaps, points_in, tiles_region
 
@@ -35,8 +36,7 @@ class TileLabels:
 
     def __init__(self, catalog: Catalog, filter_fn: Callable, config, folder: str | Path, *, returns: str = "all"):
         self.catalog, self.filter_fn, self.config, self.returns = catalog, filter_fn, config, returns
-        self.origin = np.asarray(catalog.frame.origin_m[:2], np.float64)
-        self.labels_of, self.keys, self.done = [], [], set()
+        self.labels_of, self.keys, self.done, self.pending = [], [], set(), {}
         for i, entry in enumerate(catalog.entries):
             self.labels_of.append(np.lib.format.open_memmap(Path(folder) / f"{i}.ground.npy", mode="w+",
                                                          dtype=np.bool_, shape=(entry.n_points,)))
@@ -51,8 +51,8 @@ class TileLabels:
         return use_mask(records["ignored"], records["return_number"], records["number_of_returns"], self.returns)
 
     def key_of(self, xy_m: np.ndarray) -> np.ndarray:
-        """Tile key `(col, row)` int64 `(n, 2)` of points `xy_m` `(n, 2)` [m], as `tiles.split` computes it."""
-        return np.floor((np.asarray(xy_m, np.float64) - self.origin) / self.config.tile_size_m).astype(np.int64)
+        """`tile_key` on this survey."""
+        return tile_key(xy_m, self.catalog, self.config)
 
     def _box(self, i: int, margin_m: float) -> tuple[np.ndarray, np.ndarray] | None:
         """File `i`'s bounding box grown by `margin_m` [m], `(lo (2,), hi (2,))`, or None."""
@@ -91,30 +91,69 @@ class TileLabels:
         return np.concatenate(parts)
 
     def _run(self, key: tuple[int, int]) -> None:
-        """Filter tile `key` from its window's points and store its core points' labels."""
-        lo, hi = tiles_region(np.asarray(key), np.asarray(key), self.catalog.frame, self.config)
-        parts, owners = [], []
-        for j, entry in enumerate(self.catalog.entries):
-            if not overlaps(entry.frame, lo, hi):
-                continue
-            take = points_in(entry, lo, hi)
-            if take.size:
-                parts.append(entry.records()[take])
-                owners.append((j, take))
-        if not parts:
-            self.done.add(key)
-            return
-        chosen = np.concatenate(parts)
-        points = Points(xyz_m=chosen["xyz_m"], classification=chosen["classification"],
-                        return_number=chosen["return_number"], number_of_returns=chosen["number_of_returns"],
-                        ignored=chosen["ignored"], name=f"survey tile {key}", frame=self.catalog.frame.only([key]))
-        result: Result = self.filter_fn(points, returns=self.returns)
-        ground = np.asarray(result.ground, bool)
-        in_core = np.all(self.key_of(chosen["xyz_m"][:, :2]) == np.asarray(key)[None], axis=1)
-        start = 0
-        for j, take in owners:
-            stop = start + take.size
-            mine = in_core[start:stop]
-            self.labels_of[j][take[mine]] = ground[start:stop][mine]
-            start = stop
+        """Filter tile `key` (here, or on the cluster that `submit` sent it to) and store its
+        core points' labels."""
+        future = self.pending.pop(key, None)
+        parts = cluster.result(future, f"survey tile {key}") if future is not None else tile_labels(self.catalog, self.filter_fn, self.config,
+                                                                        key, returns=self.returns)
+        for j, index, ground in parts:
+            self.labels_of[j][index] = ground
         self.done.add(key)
+
+    def submit(self, submit: Callable) -> None:
+        """Send every tile not yet done to a cluster: `submit(tile_labels, config, key,
+        returns=...)` returns a future of `tile_labels(catalog, filter_fn, config, key, ...)`
+        (`gfjax.survey.run`'s submitter, over `dask.distributed.Client.submit`); `labels`
+        then waits for the tiles it needs instead of running them here. Files come first in
+        catalog order, so the first file's tiles finish first."""
+        for i in range(len(self.catalog.entries)):
+            for key in sorted(self.keys[i] - self.done - self.pending.keys(), key=lambda k: (k[1], k[0])):
+                self.pending[key] = submit(tile_labels, self.config, key, returns=self.returns)
+
+
+def tile_key(xy_m: np.ndarray, catalog: Catalog, config) -> np.ndarray:
+    """Tile key `(col, row)` int64 `(n, 2)` of points `xy_m` `(n, 2)` [m] on the survey's
+    lattice, as `gfjax.io.tiles.split` computes it."""
+    origin = np.asarray(catalog.frame.origin_m[:2], np.float64)
+    return np.floor((np.asarray(xy_m, np.float64) - origin) / config.tile_size_m).astype(np.int64)
+
+
+def tile_labels(catalog: Catalog, filter_fn: Callable, config, key: tuple[int, int], *,
+                returns: str = "all") -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """Tile `key` filtered from its window's points, gathered from every file it meets.
+
+    A pure function of the catalog (its stores are read, nothing is written), so it runs in
+    any process that reaches the catalog's folder: a Dask worker's too.
+
+    Returns:
+      `(j, index, ground)` per file `j` with points in the tile's core: `index` uint32 or
+      int64 `(k,)` of those points in file `j`, `ground` bool `(k,)` their labels.
+    """
+    lo, hi = tiles_region(np.asarray(key), np.asarray(key), catalog.frame, config)
+    parts, owners = [], []
+    for j, entry in enumerate(catalog.entries):
+        if not overlaps(entry.frame, lo, hi):
+            continue
+        take = points_in(entry, lo, hi)
+        if take.size:
+            parts.append(entry.records()[take])
+            owners.append((j, take))
+    if not parts:
+        return []
+    chosen = np.concatenate(parts)
+    points = Points(xyz_m=chosen["xyz_m"], classification=chosen["classification"],
+                    return_number=chosen["return_number"], number_of_returns=chosen["number_of_returns"],
+                    ignored=chosen["ignored"], name=f"survey tile {key}", frame=catalog.frame.only([key]))
+    result: Result = filter_fn(points, returns=returns)
+    ground = np.asarray(result.ground, bool)
+    in_core = np.all(tile_key(chosen["xyz_m"][:, :2], catalog, config) == np.asarray(key)[None], axis=1)
+    out, start = [], 0
+    for j, take in owners:
+        stop = start + take.size
+        mine = in_core[start:stop]
+        index = take[mine]
+        if index.size:
+            small = catalog.entries[j].n_points <= np.iinfo(np.uint32).max
+            out.append((j, index.astype(np.uint32) if small else index, ground[start:stop][mine]))
+        start = stop
+    return out

@@ -5,6 +5,7 @@ method filters each file with its neighbours' points within `HALO_M` (`gfjax.sur
 """
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from types import ModuleType
@@ -13,8 +14,10 @@ import numpy as np
 
 from gfjax import methods
 from gfjax.io import las as las_io
+from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
 from gfjax.result import Result
+from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog, index
 from gfjax.survey.halo import HALO_M, Points, filter_file, is_tiled, survey_config
 from gfjax.survey.lattice import TileLabels
@@ -31,15 +34,25 @@ class Runner:
       returns: "all" or "last".
       context: whether each call also gives the ground points around the file (a tiled
         method gathers them apart; a DTM needs them).
+      client: a `dask.distributed.Client` (`gfjax.survey.cluster.client`), or None: every
+        tile (a tiled method) or file (any other) is sent to its cluster at once, and each
+        call waits for the tasks its file needs. `filter_fn` and `config` travel to the
+        workers (pickled), and the catalog's folder must be one they reach.
     """
 
     def __init__(self, catalog: Catalog, filter_fn: Callable, config, folder: str | Path, *, returns: str = "all",
-                 context: bool = True):
+                 context: bool = True, client=None):
         self.catalog, self.filter_fn, self.config, self.returns = catalog, filter_fn, config, returns
         self.context = context
-        self.tiles = None
+        self.tiles, self.pending = None, {}
         if is_tiled(config) and catalog.frame is not None:
             self.tiles = TileLabels(catalog, filter_fn, config, folder, returns=returns)
+            if client is not None:
+                self.tiles.submit(_submitter(client, catalog, filter_fn))
+        elif client is not None:
+            submit = _submitter(client, catalog, filter_fn)
+            self.pending = {i: submit(file_labels, config, i, returns=returns)
+                            for i in range(len(catalog.entries))}
 
     def ground(self, i: int) -> np.ndarray:
         """File `i`'s labels, bool `(n_i,)` memory-mapped (a tiled method only: the file is
@@ -59,14 +72,42 @@ class Runner:
           without `context`).
         """
         if self.tiles is None:
+            future = self.pending.pop(i, None)
+            if future is not None:
+                return cluster.result(future, f"{self.catalog.entries[i].path}")
             return filter_file(self.catalog, i, cloud, self.filter_fn, self.config, returns=self.returns)
         margin_m = HALO_M if self.context else 0.0
         ground = np.array(self.tiles.labels(i, margin_m))
         return Result(ground=ground), self.tiles.near_ground(i, margin_m)
 
 
+def file_labels(catalog: Catalog, filter_fn: Callable, config, i: int, *,
+                returns: str = "all") -> tuple[Result, np.ndarray]:
+    """`filter_file` on file `i` read from its catalog store, not from the file (a Dask task:
+    the points are those the file's read gives, in metres)."""
+    records = catalog.entries[i].records()
+    own = Points(xyz_m=np.asarray(records["xyz_m"]), classification=np.asarray(records["classification"]),
+                 return_number=np.asarray(records["return_number"]),
+                 number_of_returns=np.asarray(records["number_of_returns"]), ignored=np.asarray(records["ignored"]),
+                 name=str(catalog.entries[i].path))
+    result, halo_ground_m = filter_file(catalog, i, own, filter_fn, config, returns=returns)
+    return result._replace(diagnostics=None), halo_ground_m
+
+
+def _submitter(client, catalog: Catalog, filter_fn: Callable) -> Callable:
+    """`submit(fn, *args) -> future` of `fn(catalog, filter_fn, *args)` on `client`'s cluster,
+    the catalog and `filter_fn` sent once, not with every task; tasks are never cached by Dask's key (`pure=False`: a rerun of the survey
+    filters again)."""
+    catalog_f, filter_f = client.scatter([catalog, filter_fn], broadcast=True, hash=False)
+
+    def submit(fn: Callable, *args, **kwargs):
+        return client.submit(fn, catalog_f, filter_f, *args, pure=False, **kwargs)
+
+    return submit
+
+
 def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str | Path, *, config=None, params=None,
-             returns: str = "all", units: str | None = None, **options) -> Iterator[tuple[Cloud, Result]]:
+             returns: str = "all", units: str | None = None, client=None, **options) -> Iterator[tuple[Cloud, Result]]:
     """Each file of a survey and its `Result`, filtered as a part of the whole survey.
 
     ```python
@@ -82,6 +123,8 @@ def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str 
         the halo, and its per-cloud estimates are made once for the survey (`survey_config`).
       returns: "all" or "last".
       units: `--units` override.
+      client: a `dask.distributed.Client` whose cluster filters the tiles (`Runner`), or None
+        for this process.
       options: further keyword arguments of the method's `filter` (SparseGF's `model`).
 
     Yields:
@@ -92,11 +135,51 @@ def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str 
     config = module.Config() if config is None else config
     catalog = index(paths, folder, returns=returns, units=units)
     config = survey_config(module, config, catalog, returns=returns)
-
-    def filter_fn(points: Points, returns: str) -> Result:
-        return module.filter(points, config=config, params=params, returns=returns, **options)
-
-    run = Runner(catalog, filter_fn, config, folder, returns=returns, context=False)
+    filter_fn = functools.partial(_method_filter, module, config, params, options)
+    run = Runner(catalog, filter_fn, config, folder, returns=returns, context=False, client=client)
     for i, entry in enumerate(catalog.entries):
         cloud = las_io.read(entry.path, units=units)
         yield cloud, run(i, cloud)[0]
+
+
+def _method_filter(module: ModuleType, config, params, options: dict, points: Points, returns: str) -> Result:
+    return module.filter(points, config=config, params=params, returns=returns, **options)
+
+
+def filter(paths: Sequence[str | Path], out: str | Path, *, method: str | ModuleType = methods.DEFAULT_METHOD,
+           config=None, params=None, returns: str = "all", units: str | None = None, client=None,
+           reset_nonground: bool = False, force: bool = False, **options) -> list[Path]:
+    """Filter a survey as one and write each file's copy, classified, into the folder `out`.
+
+    ```python
+    from dask.distributed import Client
+    with Client("tcp://scheduler:8786") as client:
+        gfjax.survey.filter(sorted(Path("survey").glob("*.laz")), "classified", method="smrf", client=client)
+    ```
+
+    Each output keeps every point and attribute of its input; only the classification changes
+    (`Cloud.with_ground`), and it is written atomically once every tile of its file is done.
+
+    Args:
+      paths: the survey's LAS/LAZ files.
+      out: an existing folder; each output has its input's name.
+      method, config, params, returns, units, client, options: as `filtered`.
+      reset_nonground: every non-ground point becomes class 1 (default: only former class 2).
+      force: overwrite existing outputs.
+
+    Returns:
+      The paths written, in the order of `paths`.
+    """
+    import tempfile
+
+    out = Path(out)
+    if not out.is_dir():
+        raise InputError(f"{out}: not an existing folder")
+    written = []
+    with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder:
+        for cloud, result in filtered(paths, method, folder, config=config, params=params, returns=returns,
+                                      units=units, client=client, **options):
+            labelled = cloud.with_ground(result.ground, reset_nonground=reset_nonground,
+                                         used=cloud.filter_mask(returns))
+            written.append(las_io.write(labelled, out / Path(cloud.path).name, force=force, input_paths=paths))
+    return written

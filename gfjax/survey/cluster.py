@@ -1,0 +1,90 @@
+"""A survey's tiles as tasks on a Dask cluster (`dask.distributed`).
+
+The catalog is made here, in the client's process (`gfjax.survey.index`); each task then
+reads what it needs from the catalog's stores, in a folder every worker reaches (a local
+cluster shares this machine's; a remote one needs the folder on shared storage, e.g.
+`TMPDIR` on a network file system), and returns one tile's core labels, or one file's labels
+for a method that does not tile. The writer is the same as in one process: it waits for the
+tasks that a file needs, then writes that file (`gfjax.survey.Runner`).
+
+A task is a pure function of its arguments, so a worker that dies mid-task has its task run
+again by Dask (on another or a restarted worker) with the same result. Each worker compiles
+a program once and keeps it in the persistent caches (`gfjax.cache`), like any process.
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from collections.abc import Iterator
+
+from gfjax.errors import InputError
+
+WORKERS_ENV = "GFJAX_WORKERS"        # set in a local cluster's workers: how many share this machine's cores
+
+
+def available() -> None:
+    """Raise `InputError` when `dask.distributed` is not installed (pip install 'gfjax[dask]')."""
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise InputError("--workers/--scheduler need dask.distributed: pip install 'gfjax[dask]'") from None
+
+
+@contextlib.contextmanager
+def client(workers: int | None = None, scheduler: str | None = None) -> Iterator:
+    """A `dask.distributed.Client`: on a new local cluster of `workers` processes on the
+    loopback interface, or on the existing cluster at `scheduler` ("tcp://host:8786").
+
+    A local cluster's workers run one task at a time and split this machine's cores between
+    them (`dask_setup`), so N workers do not each start a thread pool over every core.
+
+    Raises:
+      InputError: dask.distributed missing, or no scheduler answering at `scheduler`.
+    """
+    available()
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        try:
+            c = Client(scheduler)                # waits distributed.comm.timeouts.connect (30 s)
+        except (OSError, TimeoutError) as err:
+            raise InputError(f"--scheduler {scheduler}: no Dask scheduler answers there ({err})") from None
+        with c:
+            yield c
+        return
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address=None, scheduler_kwargs={"dashboard_address": ":0"},  # its HTTP server: any free port
+                           silence_logs=logging.ERROR, preload=[__name__],
+                           env={WORKERS_ENV: str(workers)})
+    with cluster, Client(cluster) as c:
+        yield c
+
+
+def result(future, what: str):
+    """`future.result()`; a task whose workers kept dying (Dask's `KilledWorker`, after
+    `distributed.scheduler.allowed-failures` tries) becomes a `RuntimeError` naming `what`."""
+    try:
+        return future.result()
+    except Exception as err:
+        if type(err).__name__ != "KilledWorker":
+            raise
+        raise RuntimeError(f"{what}: every Dask worker that ran it died (out of memory? killed?); see the "
+                           "workers' logs") from None
+
+
+def dask_setup(worker) -> None:
+    """Run by each local worker as it starts (Dask's preload hook), before any task imports
+    JAX: worker k of N keeps cores k, k+N, ... of this machine, so JAX's thread pool (sized
+    from the cores a process may use) does not oversubscribe them."""
+    n = int(os.environ.get(WORKERS_ENV, "0") or 0)
+    if n <= 1 or not hasattr(os, "sched_setaffinity"):
+        return
+    cores = sorted(os.sched_getaffinity(0))
+    try:
+        k = int(worker.name) % n
+    except (TypeError, ValueError):
+        return
+    mine = cores[k::n]
+    if mine:
+        os.sched_setaffinity(0, mine)

@@ -1,0 +1,161 @@
+"""A survey's tiles as tasks on a real Dask cluster: the same labels as one process, a killed
+worker's tile run again, a failing task named."""
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import types
+
+import numpy as np
+import pytest
+
+distributed = pytest.importorskip("distributed")
+import cloudpickle  # noqa: E402  (a dependency of distributed)
+
+from gfjax import dmf, smrf, survey  # noqa: E402
+from gfjax.cli.main import main  # noqa: E402
+from gfjax.errors import InputError  # noqa: E402
+from gfjax.io import las as las_io  # noqa: E402
+from gfjax.survey import cluster  # noqa: E402
+from test_survey import SMALL_TILES, town, write_grid  # noqa: E402
+
+pytestmark = pytest.mark.slow
+
+# The test's own filters travel to the workers by value (the workers cannot import this file).
+cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+
+@pytest.fixture(scope="module")
+def grid(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("cluster")
+    xyz, cls = town(seed=3)
+    paths, _, _ = write_grid(folder, xyz, cls)
+    return paths
+
+
+@pytest.fixture(scope="module")
+def client():
+    with cluster.client(workers=2) as c:
+        yield c
+
+
+def labels(paths) -> list[np.ndarray]:
+    return [np.asarray(las_io.read(p).classification) for p in paths]
+
+
+@pytest.fixture(scope="module")
+def in_process(grid, tmp_path_factory):
+    """Each method's classes of every file of `grid`, filtered as one survey in this process."""
+    done = {}
+
+    def classes(method, config) -> list[np.ndarray]:
+        if method not in done:
+            out = tmp_path_factory.mktemp("one")
+            done[method] = labels(survey.filter(grid, out, method=method, config=config))
+        return done[method]
+
+    return classes
+
+
+@pytest.mark.parametrize("method, config", [(smrf, smrf.Config(**SMALL_TILES)), (dmf, None)], ids=["smrf", "dmf"])
+def test_the_cluster_labels_every_file_as_one_process(grid, client, in_process, method, config, tmp_path):
+    want = in_process(method, config)
+    (tmp_path / "many").mkdir()
+    written = survey.filter(grid, tmp_path / "many", method=method, config=config, client=client)
+    assert [p.name for p in written] == [p.name for p in grid]
+    for a, b in zip(labels(written), want):
+        np.testing.assert_array_equal(a, b)
+    assert any(np.any(a == 2) for a in want) and any(np.any(a != 2) for a in want)
+
+
+def test_filter_workers_and_scheduler_write_the_single_process_files(grid, client, tmp_path):
+    names = ("one", "workers", "scheduler", "out-of-core")
+    outs = {name: tmp_path / name for name in names}
+    for out in outs.values():
+        out.mkdir()
+    sets = ["--method", "smrf", "--tile-size", "40", "--buffer", "8"]
+    cluster_options = {"workers": ["--workers", "2"], "scheduler": ["--scheduler", client.scheduler.address],
+                       "out-of-core": ["--out-of-core", "--scheduler", client.scheduler.address]}
+    assert main(["filter", *map(str, grid), "-o", str(outs["one"]), *sets]) == 0
+    for name, options in cluster_options.items():
+        assert main(["filter", *map(str, grid), "-o", str(outs[name]), *options, *sets]) == 0
+    for path in grid:
+        want = las_io.read(outs["one"] / path.name)
+        for name in cluster_options:
+            got = las_io.read(outs[name] / path.name)
+            np.testing.assert_array_equal(got.classification, want.classification, err_msg=name)
+            assert np.array_equal(got.las.points.array, want.las.points.array), name
+
+
+def test_one_file_on_the_cluster_labels_as_in_process(grid, client, tmp_path):
+    sets = ["--method", "smrf", "--tile-size", "40", "--buffer", "8"]
+    assert main(["filter", str(grid[0]), "-o", str(tmp_path / "one.laz"), *sets]) == 0
+    assert main(["filter", str(grid[0]), "-o", str(tmp_path / "cluster.laz"), "--scheduler", client.scheduler.address,
+                 *sets]) == 0
+    np.testing.assert_array_equal(las_io.read(tmp_path / "cluster.laz").classification,
+                                  las_io.read(tmp_path / "one.laz").classification)
+
+
+def _dies_once(marker: str) -> types.ModuleType:
+    """SMRF, except that the first tile to run kills its worker process (SIGKILL, mid-task)."""
+
+    def filter(points, **kwargs):
+        try:
+            os.close(os.open(marker, os.O_CREAT | os.O_EXCL))
+        except FileExistsError:
+            return smrf.filter(points, **kwargs)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    return _method("dies_once", filter)
+
+
+def _method(name: str, filter) -> types.ModuleType:
+    """A method package made here: SMRF's Config with `filter`."""
+    module = types.ModuleType(name)
+    module.Config, module.filter = smrf.Config, filter
+    return module
+
+
+def test_a_killed_worker_has_its_tile_run_again(grid, client, in_process, tmp_path):
+    config = smrf.Config(**SMALL_TILES)
+    want = in_process(smrf, config)
+    marker = tmp_path / "killed"
+    (tmp_path / "many").mkdir()
+    written = survey.filter(grid, tmp_path / "many", method=_dies_once(str(marker)), config=config, client=client)
+    assert marker.exists()                       # a worker did die mid-task
+    for a, b in zip(labels(written), want):
+        np.testing.assert_array_equal(a, b)
+    client.wait_for_workers(2, timeout=60)        # the nanny restarted it
+
+
+def _fails_on_tile(bad_key):
+    def filter(points, **kwargs):
+        if points.name == f"survey tile {bad_key}":
+            raise InputError(f"{points.name}: a bad tile")
+        return smrf.filter(points, **kwargs)
+
+    return _method("fails_on_tile", filter)
+
+
+def test_a_failing_task_is_named_and_nothing_is_written(grid, client, tmp_path):
+    with pytest.raises(InputError, match=r"survey tile \(0, 0\): a bad tile"):
+        survey.filter(grid, tmp_path, method=_fails_on_tile((0, 0)), config=smrf.Config(**SMALL_TILES), client=client)
+    assert not list(tmp_path.glob("*.laz"))           # the first file needs tile (0, 0): none written
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--workers", "0"], "--workers"),
+    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "give one"),
+    (["--workers", "2", "--independent"], "drop --independent"),
+    (["--scheduler", "tcp://127.0.0.1:1"], "no Dask scheduler answers"),
+], ids=["zero", "both", "independent", "no-scheduler"])
+def test_bad_cluster_options_are_one_line(grid, tmp_path, capsys, options, message):
+    import dask
+
+    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+        code = main(["filter", *map(str, grid), "-o", str(tmp_path), *options])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not list(tmp_path.iterdir())
