@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
             from gfjax import survey
 
             catalog = survey.index(inputs, folder, returns=args.returns, units=args.units,
-                                   trust_data=args.trust_data)
+                                   trust_data=args.trust_data, client=client)
             setup = setup._replace(config=survey.survey_config(setup.module, setup.config, catalog,
                                                                returns=args.returns))
             runner = survey.Runner(catalog, functools.partial(_filter, setup, client is None), setup.config, folder,
@@ -276,7 +276,8 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
     filter_fn = functools.partial(_filter, setup, False)
     shared = None
     if client is not None or (len(inputs) > 1 and not args.independent):
-        catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data)
+        catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data,
+                               client=client)
         shared = (survey.Runner(catalog, filter_fn, setup.config, folder, returns=args.returns, context=False,
                                 client=client),
                   {source: i for i, source in enumerate(inputs)})

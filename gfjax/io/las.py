@@ -18,6 +18,7 @@ import laspy
 import numpy as np
 
 from gfjax.errors import InputError
+from gfjax.io import copc
 from gfjax.io import crs as crs_lib
 from gfjax.io import units as units_lib
 from gfjax.io.atomic import atomic_output, is_temporary
@@ -284,11 +285,12 @@ def _write_las(las: laspy.LasData, f, *, compress: bool, backends) -> None:
     write such bytes back; `surrogateescape` lets it check them without error and write them
     unchanged. (A VLR user id is checked strictly whatever the setting: `write` reports it.)
     """
-    with laspy.LasWriter(f, las.header, do_compress=compress, laz_backend=backends, closefd=False,
+    header, evlrs = copc.without_layout(las.header, las.evlrs)
+    with laspy.LasWriter(f, header, do_compress=compress, laz_backend=backends, closefd=False,
                          encoding_errors="surrogateescape") as writer:
         writer.write_points(las.points)
-        if las.header.version.minor >= 4 and las.evlrs is not None:
-            writer.write_evlrs(las.evlrs)
+        if header.version.minor >= 4 and evlrs:
+            writer.write_evlrs(evlrs)
 
 
 class _KeepWriteError:

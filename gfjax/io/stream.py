@@ -18,6 +18,7 @@ import laspy
 import numpy as np
 
 from gfjax.errors import InputError
+from gfjax.io import copc
 from gfjax.io import las as las_io
 from gfjax.io.atomic import atomic_output
 
@@ -112,13 +113,13 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
             f = las_io._KeepWriteError(raw)
             try:
                 # the writer counts and bounds what it writes in its header: not the reader's
-                with laspy.LasWriter(f, copy.deepcopy(stream.header), do_compress=compress, laz_backend=backends, closefd=False,
+                header, evlrs = copc.without_layout(copy.deepcopy(stream.header), stream._reader.evlrs)
+                with laspy.LasWriter(f, header, do_compress=compress, laz_backend=backends, closefd=False,
                                      encoding_errors="surrogateescape") as writer:
                     for start, points in stream.chunks():
                         points.classification = classify(start, points)
                         writer.write_points(points)
-                    evlrs = stream._reader.evlrs
-                    if stream.header.version.minor >= 4 and evlrs:
+                    if header.version.minor >= 4 and evlrs:
                         writer.write_evlrs(evlrs)
             except UnicodeError as err:
                 raise InputError(f"{target}: cannot write the text fields of {source} unchanged: LAS text "

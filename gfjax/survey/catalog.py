@@ -9,15 +9,18 @@ file holding the whole survey would get.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
+import laspy
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import asprs, stream
+from gfjax.io import asprs, copc, stream
+from gfjax.io import las as las_io
 from gfjax.io.cloud import use_mask
 from gfjax.io.tiles import Frame
 
@@ -33,26 +36,74 @@ class Entry(NamedTuple):
       path: the file.
       n_points: its points.
       frame: bounding box of its points filtered (`Frame`), or None when it has none.
-      store: the `.npy` of its `STORE` records.
+      store: the `.npy` of its `STORE` records, or None for a COPC file (its records are read
+        from the file, a box's from the octree nodes that meet it: `gfjax.io.copc`).
+      scale_m: metres per unit of x, y and z.
     """
 
     path: Path
     n_points: int
     frame: Frame | None
-    store: Path
+    store: Path | None
+    scale_m: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def records(self) -> np.ndarray:
         """The file's `STORE` records `(n_points,)`, memory-mapped (index it with the few rows
-        wanted: every page read stays resident while the map lives)."""
+        wanted: every page read stays resident while the map lives); a COPC file's, read."""
+        if self.store is None:
+            parts = [block for _, block in self.blocks()]
+            return np.concatenate(parts) if parts else np.empty(0, STORE)
         return np.load(self.store, mmap_mode="r")
 
     def blocks(self, size: int = BLOCK_POINTS) -> Iterator[tuple[int, np.ndarray]]:
         """`(start, records)` of `size` rows at a time, read into memory (not mapped, so a pass
         over a file larger than memory holds one block)."""
+        if self.store is None:
+            with laspy.open(self.path, laz_backend=las_io.LAZ_BACKENDS) as reader:
+                start = 0
+                for chunk in reader.chunk_iterator(size):
+                    yield start, to_records(chunk, self.scale_m)
+                    start += len(chunk)
+            return
         offset = np.load(self.store, mmap_mode="r").offset          # the header's length; no page read
         for start in range(0, self.n_points, size):
             count = min(size, self.n_points - start)
             yield start, np.fromfile(self.store, dtype=STORE, count=count, offset=offset + start * STORE.itemsize)
+
+    def within(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The points inside the x-y box `lo`..`hi` [m]: `(index, records)`, int64 `(k,)` their
+        indices in the file, ascending, and their `STORE` records `(k,)`.
+
+        Every point, when the entry's frame (the box of the points its filter uses) lies inside
+        the box, so the few points a filter ignores may come from outside, unused. A COPC file
+        decompresses only the octree nodes that meet the box.
+        """
+        frame = self.frame
+        if frame is not None and np.all(frame.origin_m[:2] >= lo) and np.all(frame.upper_m <= hi):
+            return np.arange(self.n_points), np.asarray(self.records())
+        if self.store is None:
+            with copc.Reader(self.path) as reader:
+                index, points = reader.within(lo, hi, self.scale_m[0])
+            return index, to_records(points, self.scale_m)
+        found = []
+        for start, block in self.blocks():
+            xy = block["xyz_m"][:, :2]
+            found.append(start + np.flatnonzero(np.all((xy >= lo[None, :]) & (xy <= hi[None, :]), axis=1)))
+        index = np.concatenate(found) if found else np.empty(0, np.int64)
+        return index, self.records()[index]
+
+
+def to_records(points, scale_m) -> np.ndarray:
+    """`STORE` records `(n,)` of a chunk of a file's points (a laspy point record), its
+    coordinates times `scale_m` (metres per unit of x, y, z)."""
+    part = np.empty(len(points), STORE)
+    part["xyz_m"] = np.stack([np.asarray(points.x, np.float64), np.asarray(points.y, np.float64),
+                              np.asarray(points.z, np.float64)], axis=1) * np.asarray(scale_m, np.float64)
+    part["classification"] = np.asarray(points.classification, np.uint8)
+    part["return_number"] = np.asarray(points.return_number, np.uint8)
+    part["number_of_returns"] = np.asarray(points.number_of_returns, np.uint8)
+    part["ignored"] = asprs.ignored_mask(points)
+    return part
 
 
 class Catalog(NamedTuple):
@@ -71,8 +122,17 @@ def _units(cloud) -> tuple[float, float]:
     return (cloud.horizontal_unit_m, cloud.vertical_unit_m)
 
 
+class _Indexed(NamedTuple):
+    """One file's index (`index_file`), with what the survey's checks compare."""
+
+    entry: Entry
+    crs: object                   # pyproj.CRS or None
+    units: tuple[float, float]
+    description: str
+
+
 def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, returns: str = "all",
-          units: str | None = None, trust_data: bool = False) -> Catalog:
+          units: str | None = None, trust_data: bool = False, client=None) -> Catalog:
     """Read every file once into a catalog whose stores live in `folder`.
 
     Args:
@@ -82,58 +142,74 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
       units: `--units` override, or None for each file's CRS.
       trust_data: index the points a file holds when its header's count disagrees
         (`gfjax.io.las.read`).
+      client: a `dask.distributed.Client` whose workers index the files, each file a task
+        (`folder` must be one they reach), or None: here, one file after another.
 
     Raises:
       InputError: an unreadable file, files whose CRS or units differ, a file whose points lie
         outside its header's bounds (the index would misplace it), or a file that duplicates
         another (same points and bounds: its points would count twice in their halos).
     """
+    paths = [Path(p) for p in paths]
+    jobs = [(i, path, Path(folder) / f"{i}.npy") for i, path in enumerate(paths)]
+    options = dict(returns=returns, units=units, trust_data=trust_data)
+    if client is None:
+        done = (index_file(*job, **options) for job in jobs)
+    else:
+        done = iter(client.gather(client.map(lambda job: index_file(*job, **options), jobs, pure=False)))
     entries, first = [], None
-    for i, path in enumerate(map(Path, paths)):
-        with stream.open_points(path, units=units, trust_data=trust_data) as points:
-            if first is None:
-                first = points
-            elif _units(points) != _units(first) or (points.crs is None) != (first.crs is None) or (
-                    points.crs is not None and not points.crs.equals(first.crs)):
-                raise InputError(f"{path}: CRS or units differ from {first.path} ({_describe(points)} vs "
-                                 f"{_describe(first)}), so they are not one survey; filter them independently "
-                                 "(gfjax filter --independent)")
-            store = Path(folder) / f"{i}.npy"
-            offset = np.lib.format.open_memmap(store, mode="w+", dtype=STORE, shape=(points.n_points,)).offset
-            with open(store, "r+b") as out:     # a chunk at a time: mapped pages would stay resident
-                scale = np.array([points.horizontal_unit_m, points.horizontal_unit_m, points.vertical_unit_m])
-                low = np.full(3, np.inf)
-                high = np.full(3, -np.inf)
-                box_lo, box_hi = np.full(3, np.inf), np.full(2, -np.inf)
-                for start, chunk in points.chunks():
-                    xyz = np.stack([np.asarray(chunk.x, np.float64), np.asarray(chunk.y, np.float64),
-                                    np.asarray(chunk.z, np.float64)], axis=1)
-                    low, high = np.minimum(low, xyz.min(axis=0)), np.maximum(high, xyz.max(axis=0))
-                    xyz *= scale
-                    part = np.empty(len(chunk), STORE)
-                    part["xyz_m"] = xyz
-                    part["classification"] = np.asarray(chunk.classification, np.uint8)
-                    part["return_number"] = np.asarray(chunk.return_number, np.uint8)
-                    part["number_of_returns"] = np.asarray(chunk.number_of_returns, np.uint8)
-                    part["ignored"] = ignored = asprs.ignored_mask(chunk)
-                    used = use_mask(ignored, part["return_number"], part["number_of_returns"], returns)
-                    if used.any():
-                        box_lo = np.minimum(box_lo, xyz[used].min(axis=0))
-                        box_hi = np.maximum(box_hi, xyz[used, :2].max(axis=0))
+    for indexed in done:
+        entry = indexed.entry
+        if first is None:
+            first = indexed
+        elif indexed.units != first.units or (indexed.crs is None) != (first.crs is None) or (
+                indexed.crs is not None and not indexed.crs.equals(first.crs)):
+            raise InputError(f"{entry.path}: CRS or units differ from {first.entry.path} ({indexed.description} vs "
+                             f"{first.description}), so they are not one survey; filter them independently "
+                             "(gfjax filter --independent)")
+        for other in entries:
+            if other.n_points == entry.n_points and _same_frame(other.frame, entry.frame):
+                raise InputError(f"{entry.path}: holds as many points in the same bounds as {other.path}: "
+                                 "the same tile twice? Filter one of them, or the files independently")
+        entries.append(entry)
+    frame = None
+    for entry in entries:
+        if entry.frame is not None:
+            frame = entry.frame if frame is None else frame.union(entry.frame)
+    return Catalog(tuple(entries), frame)
+
+
+def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: str | None = None,
+               trust_data: bool = False) -> _Indexed:
+    """File `path` read once, a chunk at a time: its `STORE` records written to `store` (none
+    for a COPC file), the box of its points filtered, its bounds checked."""
+    with stream.open_points(path, units=units, trust_data=trust_data) as points:
+        scale = (points.horizontal_unit_m, points.horizontal_unit_m, points.vertical_unit_m)
+        if copc.is_copc(path, points.header):
+            store = None
+        with contextlib.ExitStack() as stack:
+            if store is not None:       # a chunk at a time: mapped pages would stay resident
+                offset = np.lib.format.open_memmap(store, mode="w+", dtype=STORE, shape=(points.n_points,)).offset
+                out = stack.enter_context(open(store, "r+b"))
+            low = np.full(3, np.inf)
+            high = np.full(3, -np.inf)
+            box_lo, box_hi = np.full(3, np.inf), np.full(2, -np.inf)
+            for start, chunk in points.chunks():
+                part = to_records(chunk, scale)
+                xyz = part["xyz_m"]
+                low = np.minimum(low, xyz.min(axis=0) / scale)
+                high = np.maximum(high, xyz.max(axis=0) / scale)
+                used = use_mask(part["ignored"], part["return_number"], part["number_of_returns"], returns)
+                if used.any():
+                    box_lo = np.minimum(box_lo, xyz[used].min(axis=0))
+                    box_hi = np.maximum(box_hi, xyz[used, :2].max(axis=0))
+                if store is not None:
                     out.seek(offset + start * STORE.itemsize)
                     out.write(part.tobytes())
-            _check_bounds(points, low, high)
+        _check_bounds(points, low, high)
         frame = Frame(box_lo, box_hi) if np.all(np.isfinite(box_lo)) else None
-        for other in entries:
-            if other.n_points == points.n_points and _same_frame(other.frame, frame):
-                raise InputError(f"{path}: holds as many points in the same bounds as {other.path}: "
-                                 "the same tile twice? Filter one of them, or the files independently")
-        entries.append(Entry(path, points.n_points, frame, store))
-    frames = [e.frame for e in entries if e.frame is not None]
-    frame = None
-    for f in frames:
-        frame = f if frame is None else frame.union(f)
-    return Catalog(tuple(entries), frame)
+        return _Indexed(Entry(path, points.n_points, frame, store, scale), points.crs, _units(points),
+                        _describe(points))
 
 
 def _same_frame(a: Frame | None, b: Frame | None) -> bool:

@@ -19,7 +19,7 @@ import numpy as np
 from gfjax.io.cloud import Cloud, use_mask
 from gfjax.io.tiles import Frame
 from gfjax.result import Result
-from gfjax.survey.catalog import Catalog, Entry
+from gfjax.survey.catalog import Catalog
 
 HALO_M = 50.0           # context around a file for methods that do not tile [m]
 
@@ -88,21 +88,6 @@ def overlaps(frame: Frame | None, lo: np.ndarray, hi: np.ndarray) -> bool:
     return frame is not None and not (np.any(frame.origin_m[:2] > hi) or np.any(frame.upper_m < lo))
 
 
-def points_in(entry: Entry, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Indices int64 `(k,)` of the points of a catalog entry inside the x-y box `lo`..`hi`
-    [m], read a block at a time; every point, unread, when the entry's frame (the box of the
-    points its filter uses) lies inside it, so the few points a filter ignores may come from
-    outside, unused."""
-    frame = entry.frame
-    if frame is not None and np.all(frame.origin_m[:2] >= lo) and np.all(frame.upper_m <= hi):
-        return np.arange(entry.n_points)
-    found = []
-    for start, block in entry.blocks():
-        xy = block["xyz_m"][:, :2]
-        found.append(start + np.flatnonzero(np.all((xy >= lo[None, :]) & (xy <= hi[None, :]), axis=1)))
-    return np.concatenate(found) if found else np.empty(0, np.int64)
-
-
 def window(catalog: Catalog, i: int, cloud: Cloud, config) -> Points:
     """File `i` of the catalog (read as `cloud`) followed by its halo, on the survey's frame."""
     entry = catalog.entries[i]
@@ -113,9 +98,8 @@ def window(catalog: Catalog, i: int, cloud: Cloud, config) -> Points:
         for j, other in enumerate(catalog.entries):
             if j == i or not overlaps(other.frame, lo, hi):
                 continue
-            take = points_in(other, lo, hi)
+            take, chosen = other.within(lo, hi)
             if take.size:
-                chosen = other.records()[take]
                 parts.append({name: np.asarray(chosen[name]) for name in parts[0]})
     fields = {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
     return Points(**fields, name=cloud.name, frame=catalog.frame)

@@ -20,7 +20,7 @@ from gfjax.io.cloud import use_mask
 from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog
-from gfjax.survey.halo import Points, overlaps, points_in, tiles_region
+from gfjax.survey.halo import Points, overlaps, tiles_region
 
 
 class TileLabels:
@@ -85,9 +85,8 @@ class TileLabels:
             for j, other in enumerate(self.catalog.entries):
                 if j == i or not overlaps(other.frame, *box):
                     continue
-                take = points_in(other, *box)
-                take = take[self.labels_of[j][take]]
-                parts.append(np.asarray(other.records()["xyz_m"][take]))
+                take, records = other.within(*box)
+                parts.append(records["xyz_m"][self.labels_of[j][take]])
         return np.concatenate(parts)
 
     def _run(self, key: tuple[int, int]) -> None:
@@ -134,9 +133,9 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, config, key: tuple[int, i
     for j, entry in enumerate(catalog.entries):
         if not overlaps(entry.frame, lo, hi):
             continue
-        take = points_in(entry, lo, hi)
+        take, records = entry.within(lo, hi)
         if take.size:
-            parts.append(entry.records()[take])
+            parts.append(records)
             owners.append((j, take))
     if not parts:
         return []

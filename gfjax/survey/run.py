@@ -133,7 +133,7 @@ def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str 
     """
     module = methods.get(method) if isinstance(method, str) else method
     config = module.Config() if config is None else config
-    catalog = index(paths, folder, returns=returns, units=units)
+    catalog = index(paths, folder, returns=returns, units=units, client=client)
     config = survey_config(module, config, catalog, returns=returns)
     filter_fn = functools.partial(_method_filter, module, config, params, options)
     run = Runner(catalog, filter_fn, config, folder, returns=returns, context=False, client=client)

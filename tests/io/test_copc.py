@@ -1,0 +1,113 @@
+"""COPC input: a box's points read from the octree nodes that meet it, with their file indices;
+a survey of COPC files labels as its LAS copies; outputs are plain LAZ with every point kept."""
+from __future__ import annotations
+
+import laspy
+import numpy as np
+import pytest
+
+from gfjax import smrf, survey
+from gfjax.cli.main import main
+from gfjax.errors import InputError
+from gfjax.io import copc
+from gfjax.io.cloud import Cloud
+
+pytest.importorskip("copclib")
+from copc_writer import write_copc  # noqa: E402
+
+SMALL_TILES = {"tile_size_m": 40.0, "buffer_m": 8.0}
+
+
+def hills(seed=0, n=20_000, size=(160.0, 120.0), origin=(300_000.0, 4_100_000.0)):
+    """Rolling ground with a few 6 m boxes on it, classes 2 and 6, one noise point (7)."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, size, (n, 2))
+    z = 50 + 3 * np.sin(xy[:, 0] / 25) + 2 * np.cos(xy[:, 1] / 30) + rng.normal(0, 0.03, n)
+    box = (np.abs((xy[:, 0] % 40) - 20) < 6) & (np.abs((xy[:, 1] % 40) - 20) < 6)
+    z[box] += 6.0
+    cls = np.where(box, 6, 2).astype(np.uint8)
+    cls[7] = 7
+    return Cloud.from_xyz(np.column_stack([xy + origin, z]), classification=cls).las
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory):
+    """A COPC file and its LAS copy (the same points in the same order)."""
+    folder = tmp_path_factory.mktemp("copc")
+    written = write_copc(hills(), folder / "hills.copc.laz")
+    written.write(folder / "hills.las")
+    return folder / "hills.copc.laz", folder / "hills.las"
+
+
+def test_a_copc_file_is_told_from_plain_laz(pair):
+    assert copc.is_copc(pair[0]) and not copc.is_copc(pair[1])
+
+
+@pytest.mark.parametrize("box", [(30, 20, 70, 55), (-5, -5, 3, 200), (0, 0, 160, 120), (500, 500, 600, 600),
+                                 (80, 60, 80, 60)], ids=["inside", "edge", "all", "outside", "a-point-wide"])
+def test_within_gives_the_box_points_with_their_file_indices(pair, box):
+    whole = laspy.read(pair[1])
+    lo = np.asarray(whole.header.mins[:2]) + box[:2]
+    hi = np.asarray(whole.header.mins[:2]) + box[2:]
+    x, y = np.asarray(whole.x), np.asarray(whole.y)
+    want = np.flatnonzero((x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1]))
+    with copc.Reader(pair[0]) as reader:
+        index, points = reader.within(lo, hi)
+        assert reader.n_points == len(whole.points)
+        np.testing.assert_array_equal(index, want)
+        np.testing.assert_array_equal(points.array, whole.points.array[want])
+        if box == (30, 20, 70, 55):
+            assert reader.read_points < 0.5 * reader.n_points       # only the nodes that meet the box
+
+
+@pytest.mark.slow
+def test_a_survey_of_copc_files_labels_as_its_las_copies(tmp_path):
+    las = hills(seed=1, n=30_000, size=(240.0, 120.0))
+    x = np.asarray(las.x)
+    cut = np.quantile(x, 0.5)
+    copcs, plain = [], []
+    for k, keep in enumerate((x < cut, x >= cut)):
+        part = laspy.LasData(las.header, las.points[keep].copy())
+        written = write_copc(part, tmp_path / f"part{k}.copc.laz")
+        written.write(tmp_path / f"part{k}.las")
+        copcs.append(tmp_path / f"part{k}.copc.laz")
+        plain.append(tmp_path / f"part{k}.las")
+    config = smrf.Config(**SMALL_TILES)
+    stores = tmp_path / "stores"
+    stores.mkdir()
+    catalog = survey.index(copcs, stores)
+    assert all(entry.store is None for entry in catalog.entries) and not list(stores.iterdir())
+    got = [r.ground for _, r in survey.filtered(copcs, smrf, tmp_path / "stores", config=config)]
+    (tmp_path / "stores2").mkdir()
+    want = [r.ground for _, r in survey.filtered(plain, smrf, tmp_path / "stores2", config=config)]
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
+    assert any(np.any(g) for g in got) and any(np.any(~g) for g in got)
+
+
+@pytest.mark.slow
+def test_filtering_a_copc_file_writes_plain_laz_with_every_point(pair, tmp_path):
+    source = laspy.read(pair[0])
+    outs = {"copc": tmp_path / "copc.laz", "copc-out-of-core": tmp_path / "ooc.laz", "las": tmp_path / "las.laz"}
+    assert main(["filter", str(pair[0]), "-o", str(outs["copc"])]) == 0
+    assert main(["filter", str(pair[0]), "-o", str(outs["copc-out-of-core"]), "--out-of-core"]) == 0
+    assert main(["filter", str(pair[1]), "-o", str(outs["las"])]) == 0
+    want = laspy.read(outs["las"]).classification
+    for name in ("copc", "copc-out-of-core"):
+        back = laspy.read(outs[name])
+        assert not copc.is_copc(outs[name]), name
+        assert not any(v.user_id == "copc" for v in back.evlrs or []), name
+        for dim in source.point_format.dimension_names:
+            if dim != "classification":
+                np.testing.assert_array_equal(back[dim], source[dim], err_msg=f"{name} {dim}")
+        np.testing.assert_array_equal(back.classification, want, err_msg=name)
+
+
+def test_a_copc_file_whose_data_is_cut_is_named(pair, tmp_path):
+    """Its second half zeroed: the hierarchy (at the end) or the nodes' data no longer read."""
+    cut = tmp_path / "cut.copc.laz"
+    data = pair[0].read_bytes()
+    cut.write_bytes(data[:len(data) // 2] + bytes(len(data) - len(data) // 2))
+    with pytest.raises(InputError, match="cut.copc.laz"):
+        with copc.Reader(cut) as reader:
+            reader.within(np.array([-1e12, -1e12]), np.array([1e12, 1e12]))
