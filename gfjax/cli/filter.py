@@ -145,6 +145,8 @@ def run(args: argparse.Namespace) -> int:
     say_crs_warning([(job.source, job.crs_units) for job in planned])
     out_of_core = _out_of_core(args, setup, planned)
     with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder, _cluster(args) as client:
+        if client is not None and args.dtm is None and not args.instances:
+            return _run_on_cluster(args, setup, inputs, planned, folder, client)
         if out_of_core:
             return _run_out_of_core(args, setup, inputs, planned, folder, client)
         runner = None
@@ -158,6 +160,45 @@ def run(args: argparse.Namespace) -> int:
             runner = survey.Runner(catalog, functools.partial(_filter, setup, client is None), setup.config, folder,
                                    returns=args.returns, context=args.dtm is not None, client=client)
         return _run(args, setup, inputs, planned, runner)
+
+
+def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
+    """Filter and write every planned file on the cluster: the tiles (or files) as tasks, then
+    each file's copy, classified, written to a temporary by a task once its labels are done
+    (`gfjax.survey.Runner.write`); here each is committed in the files' order, so a file that
+    fails leaves the later ones unwritten, as in one process."""
+    from gfjax import survey
+    from gfjax.io import atomic
+    from gfjax.survey import cluster
+
+    catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data,
+                           client=client)
+    setup = setup._replace(config=survey.survey_config(setup.module, setup.config, catalog, returns=args.returns))
+    runner = survey.Runner(catalog, functools.partial(_filter, setup, False), setup.config, folder,
+                           returns=args.returns, context=False, client=client)
+    position = {source: i for i, source in enumerate(inputs)}
+    writes = {job.source: runner.write(position[job.source], job.target, returns=args.returns,
+                                       reset_nonground=args.reset_nonground, force=args.force, input_paths=inputs,
+                                       trust_data=args.trust_data) for job in planned}
+    committed: set[Path] = set()
+
+    def one(job: _job.Planned) -> None:
+        tmp, n_ground, n = cluster.result(writes[job.source], str(job.source))
+        atomic.commit(tmp, job.target)
+        committed.add(job.source)
+        print(f"{job.source} -> {job.target}: {setup.name} (on the cluster), {n_ground:,} ground of {n:,} points "
+              f"({100.0 * n_ground / max(n, 1):.1f} %)")
+
+    try:
+        return _job.run_files(planned, one, keep_going=args.keep_going, report=None)
+    finally:
+        for source, future in writes.items():       # the copies not committed: none left behind
+            if source in committed:
+                continue
+            future.cancel()
+            if future.status == "finished":
+                with contextlib.suppress(OSError):
+                    Path(future.result()[0]).unlink()
 
 
 def _filter(setup, progress: bool, points, returns: str):
@@ -270,8 +311,7 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
     """Filter and write every planned file tile by tile from disk (`gfjax.survey.lattice`): the
     files as one survey, or each alone with `--independent`."""
     from gfjax import survey
-    from gfjax.io import asprs, stream
-    from gfjax.io.cloud import use_mask
+    from gfjax.io import stream
 
     filter_fn = functools.partial(_filter, setup, False)
     shared = None
@@ -292,25 +332,12 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
 
     def write(job: _job.Planned, runner, i: int) -> None:
         start_s = time.perf_counter()
-        ground = runner.ground(i)
-        counts = [0, 0]
-
-        def classify(start: int, points) -> np.ndarray:
-            n = len(points)
-            used = use_mask(asprs.ignored_mask(points), np.asarray(points.return_number),
-                            np.asarray(points.number_of_returns), args.returns)
-            mine = np.asarray(ground[start:start + n], bool) & used
-            counts[0] += int(mine.sum())
-            counts[1] += n
-            return asprs.relabel(np.asarray(points.classification), mine, used,
-                                 reset_nonground=args.reset_nonground)
-
-        stream.rewrite(job.source, job.target, classify, force=args.force, input_paths=inputs,
-                       trust_data=args.trust_data)
+        n_ground, n = stream.relabel(job.source, job.target, runner.ground(i), returns=args.returns,
+                                     reset_nonground=args.reset_nonground, force=args.force, input_paths=inputs,
+                                     trust_data=args.trust_data)
         seconds = time.perf_counter() - start_s
-        print(f"{job.source} -> {job.target}: {setup.name} (out of core), {counts[0]:,} ground of {counts[1]:,} "
-              f"points ({100.0 * counts[0] / max(counts[1], 1):.1f} %), {seconds:.1f} s "
-              f"({counts[1] / max(seconds, 1e-9):,.0f} points/s)")
+        print(f"{job.source} -> {job.target}: {setup.name} (out of core), {n_ground:,} ground of {n:,} "
+              f"points ({100.0 * n_ground / max(n, 1):.1f} %), {seconds:.1f} s ({n / max(seconds, 1e-9):,.0f} points/s)")
 
     return _job.run_files(planned, one, keep_going=args.keep_going, report=None)
 

@@ -160,7 +160,8 @@ def existing_output_message(where: str, *, more: int = 0) -> str:
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, *, force: bool = False,
                   input_paths: Iterable[str | os.PathLike] = (),
-                  suffixes: tuple[str, ...] | None = None, option: str = "") -> Iterator[Path]:
+                  suffixes: tuple[str, ...] | None = None, option: str = "",
+                  staged: list[Path] | None = None) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success fsync it and rename it onto `path`.
 
     The temporary file (`temporary_name`: hidden, same folder, no input suffix, mode 0666 less
@@ -168,10 +169,14 @@ def atomic_output(path: str | os.PathLike, *, force: bool = False,
     leaves no file behind; stale temporaries of killed runs in the folder are removed first
     (`remove_stale_temporaries`). Writers must name the format explicitly (the temporary has
     no suffix to guess it from). Checks as `check_output`.
+
+    With `staged`, a list, the complete temporary is appended to it instead of renamed: another
+    process commits it later (`commit`), or removes it.
     """
     out = check_output(path, force=force, input_paths=input_paths, suffixes=suffixes, option=option)
     remove_stale_temporaries(out.absolute().parent)
     tmp = temporary_name(out)
+    kept = False
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         os.close(fd)
@@ -181,12 +186,30 @@ def atomic_output(path: str | os.PathLike, *, force: bool = False,
             os.fsync(fd)
         finally:
             os.close(fd)
+        if staged is not None:
+            staged.append(tmp)
+            kept = True
+            return
         os.replace(tmp, out)
     except OSError as err:
         raise InputError(f"{out}: cannot write ({err.strerror or err})") from None
     finally:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
+        if not kept:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+    _sync_folder(out)
+
+
+def commit(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
+    """Rename a staged temporary (`atomic_output(..., staged=...)`) onto `path`, durably."""
+    try:
+        os.replace(tmp, path)
+    except OSError as err:
+        raise InputError(f"{path}: cannot write ({err.strerror or err})") from None
+    _sync_folder(Path(path))
+
+
+def _sync_folder(out: Path) -> None:
     with contextlib.suppress(OSError):  # make the rename durable; not every file system can
         dir_fd = os.open(out.absolute().parent, os.O_RDONLY)
         try:
@@ -195,5 +218,5 @@ def atomic_output(path: str | os.PathLike, *, force: bool = False,
             os.close(dir_fd)
 
 
-__all__ = ["atomic_output", "check_output", "existing_output_message", "temporary_name", "is_temporary", "is_stale",
+__all__ = ["atomic_output", "check_output", "commit", "existing_output_message", "temporary_name", "is_temporary", "is_stale",
            "remove_stale_temporaries", "STALE_AGE_S"]

@@ -18,9 +18,10 @@ import laspy
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import copc
+from gfjax.io import asprs, copc
 from gfjax.io import las as las_io
 from gfjax.io.atomic import atomic_output
+from gfjax.io.cloud import use_mask
 
 CHUNK_POINTS = 1 << 20          # points a chunk holds (about 30-70 MB of point records)
 
@@ -89,7 +90,8 @@ def open_points(path: str | os.PathLike, *, units: str | None = None, trust_data
 
 def rewrite(source: str | os.PathLike, target: str | os.PathLike,
             classify: Callable[[int, laspy.ScaleAwarePointRecord], np.ndarray], *, force: bool = False,
-            input_paths: Iterable[str | os.PathLike] = (), trust_data: bool = False) -> Path:
+            input_paths: Iterable[str | os.PathLike] = (), trust_data: bool = False,
+            staged: list[Path] | None = None) -> Path:
     """Copy `source` to `target` atomically with each chunk's classification replaced.
 
     Args:
@@ -98,6 +100,8 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
       classify: `classify(start, points) -> (len(points),) uint8`: the new classes of the
         points `start` to `start + len(points)` of `source`.
       force, input_paths: as `gfjax.io.las.write`.
+      staged: a list: the complete copy is left as a temporary beside `target`, appended to
+        it, for another process to commit (`gfjax.io.atomic.commit`).
       trust_data: as `gfjax.io.las.read`.
 
     Returns:
@@ -109,7 +113,7 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
     with open_points(source, trust_data=trust_data, units="m") as stream:
         backends = las_io._compressors(stream.header.point_format.id, target) if compress else None
         with atomic_output(target, force=force, input_paths=[*input_paths, source],
-                           suffixes=las_io.LAS_SUFFIXES) as tmp, open(tmp, "w+b") as raw:
+                           suffixes=las_io.LAS_SUFFIXES, staged=staged) as tmp, open(tmp, "w+b") as raw:
             f = las_io._KeepWriteError(raw)
             try:
                 # the writer counts and bounds what it writes in its header: not the reader's
@@ -131,3 +135,29 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
                     raise f.error from None
                 raise
     return target
+
+
+def relabel(source: str | os.PathLike, target: str | os.PathLike, ground: np.ndarray, *, returns: str = "all",
+            reset_nonground: bool = False, force: bool = False, input_paths: Iterable[str | os.PathLike] = (),
+            trust_data: bool = False, staged: list[Path] | None = None) -> tuple[int, int]:
+    """Copy `source` to `target` (`rewrite`) with the classes that `ground` says, bool
+    `(n_points,)` (array-like; read a chunk at a time, so a memory map stays unread), as
+    `Cloud.with_ground` sets them: ground 2; former ground 1 (every non-ground point 1 with
+    `reset_nonground`); the points the filter does not use (`returns`, noise, withheld) kept.
+
+    Returns:
+      `(n_ground, n_points)` written.
+    """
+    counts = [0, 0]
+
+    def classify(start: int, points) -> np.ndarray:
+        n = len(points)
+        used = use_mask(asprs.ignored_mask(points), np.asarray(points.return_number),
+                        np.asarray(points.number_of_returns), returns)
+        mine = np.asarray(ground[start:start + n], bool) & used
+        counts[0] += int(mine.sum())
+        counts[1] += n
+        return asprs.relabel(np.asarray(points.classification), mine, used, reset_nonground=reset_nonground)
+
+    rewrite(source, target, classify, force=force, input_paths=input_paths, trust_data=trust_data, staged=staged)
+    return counts[0], counts[1]

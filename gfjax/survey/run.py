@@ -14,6 +14,7 @@ import numpy as np
 
 from gfjax import methods
 from gfjax.io import las as las_io
+from gfjax.io import stream
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
 from gfjax.result import Result
@@ -44,15 +45,30 @@ class Runner:
                  context: bool = True, client=None):
         self.catalog, self.filter_fn, self.config, self.returns = catalog, filter_fn, config, returns
         self.context = context
-        self.tiles, self.pending = None, {}
+        self.tiles, self.pending, self.submit = None, {}, None
+        if client is not None:
+            self.submit = _submitter(client, catalog, filter_fn)
         if is_tiled(config) and catalog.frame is not None:
             self.tiles = TileLabels(catalog, filter_fn, config, folder, returns=returns)
             if client is not None:
-                self.tiles.submit(_submitter(client, catalog, filter_fn))
+                self.tiles.submit(self.submit)
         elif client is not None:
-            submit = _submitter(client, catalog, filter_fn)
-            self.pending = {i: submit(file_labels, config, i, returns=returns)
+            self.pending = {i: self.submit(file_labels, config, i, returns=returns)
                             for i in range(len(catalog.entries))}
+
+    def write(self, i: int, target: str | Path, **options):
+        """File `i` copied, classified, to a temporary beside `target` by a task on the cluster
+        once the tasks it needs are done (`write_labels`): a future of `(temporary, n_ground,
+        n_points)`, the temporary for the caller to commit (`gfjax.io.atomic.commit`) or
+        remove. `options`: `gfjax.io.stream.relabel`'s. Only with a client; `__call__` and
+        `ground` then no longer give file `i`."""
+        if self.submit is None:
+            raise ValueError("Runner.write: only on a cluster (client=...)")
+        if self.tiles is None:
+            needed = [self.pending.pop(i)] if i in self.pending else []
+        else:
+            needed = [self.tiles.pending[key] for key in sorted(self.tiles.keys[i])]
+        return self.submit(write_labels, i, Path(target), options, *needed)
 
     def ground(self, i: int) -> np.ndarray:
         """File `i`'s labels, bool `(n_i,)` memory-mapped (a tiled method only: the file is
@@ -92,6 +108,26 @@ def file_labels(catalog: Catalog, filter_fn: Callable, config, i: int, *,
                  name=str(catalog.entries[i].path))
     result, halo_ground_m = filter_file(catalog, i, own, filter_fn, config, returns=returns)
     return result._replace(diagnostics=None), halo_ground_m
+
+
+def write_labels(catalog: Catalog, filter_fn: Callable, i: int, target: Path, options: dict,
+                 *results) -> tuple[Path, int, int]:
+    """A task: file `i`'s labels gathered from the `results` of the tasks that labelled it
+    (`tile_labels`'s parts, or `file_labels`'s `(result, halo)`), and its copy written with
+    them (`gfjax.io.stream.relabel`) to a temporary beside `target`, left for the caller to
+    commit. Returns `(temporary, n_ground, n_points)`."""
+    entry = catalog.entries[i]
+    ground = np.zeros(entry.n_points, bool)
+    for result in results:
+        if isinstance(result, tuple):                 # file_labels: (Result, halo ground)
+            ground = np.asarray(result[0].ground, bool)
+            continue
+        for j, rows, labels in result:
+            if j == i:
+                ground[rows] = labels
+    staged: list[Path] = []
+    n_ground, n = stream.relabel(entry.path, target, ground, staged=staged, **options)
+    return staged[0], n_ground, n
 
 
 def _submitter(client, catalog: Catalog, filter_fn: Callable) -> Callable:

@@ -70,16 +70,23 @@ def test_the_cluster_labels_every_file_as_one_process(grid, client, in_process, 
 
 
 def test_filter_workers_and_scheduler_write_the_single_process_files(grid, client, tmp_path):
-    names = ("one", "workers", "scheduler", "out-of-core")
+    """Each file's copy written by a worker (committed by the command), or, with `--dtm`, by
+    the command from the cluster's labels."""
+    names = ("one", "workers", "scheduler", "out-of-core", "dtm", "dtms")
     outs = {name: tmp_path / name for name in names}
     for out in outs.values():
         out.mkdir()
     sets = ["--method", "smrf", "--tile-size", "40", "--buffer", "8"]
-    cluster_options = {"workers": ["--workers", "2"], "scheduler": ["--scheduler", client.scheduler.address],
-                       "out-of-core": ["--out-of-core", "--scheduler", client.scheduler.address]}
+    address = client.scheduler.address
+    cluster_options = {"workers": ["--workers", "2"], "scheduler": ["--scheduler", address],
+                       "out-of-core": ["--out-of-core", "--scheduler", address],
+                       "dtm": ["--scheduler", address, "--dtm", str(outs["dtms"])]}
     assert main(["filter", *map(str, grid), "-o", str(outs["one"]), *sets]) == 0
     for name, options in cluster_options.items():
         assert main(["filter", *map(str, grid), "-o", str(outs[name]), *options, *sets]) == 0
+    assert sorted(p.name for p in outs["dtms"].iterdir()) == sorted(p.with_suffix(".tif").name for p in grid)
+    for out in outs.values():
+        assert not [p for p in out.iterdir() if p.name.startswith(".")]        # no temporary left
     for path in grid:
         want = las_io.read(outs["one"] / path.name)
         for name in cluster_options:
