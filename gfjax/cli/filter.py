@@ -12,11 +12,14 @@ file border gets the label it would get if the survey were one file (exactly so 
 tiled methods, SMRF and PMF). The files must share their CRS and units. `--independent`
 filters each file on its own instead.
 
-`--workers N` filters the tiles (a file each, for a method that does not tile) as tasks on a
-local Dask cluster of N worker processes, which share this machine's cores; `--scheduler
-ADDRESS` sends them to an existing Dask cluster, whose workers must reach the inputs and the
-temporary folder (`TMPDIR`). Labels and outputs are those of one process; a file is written
-once all its tasks are done, and a worker that dies has its task run again.
+`--workers N` runs the survey as tasks on a local Dask cluster of N worker processes, which
+share this machine's cores: each file's index and each tile (each file with its halo, for a
+method that does not tile); this process writes the files. `--scheduler ADDRESS` sends them
+to an existing Dask cluster, whose workers must reach the inputs, the outputs and the
+temporary folder (`TMPDIR`) at the same paths; there each file's classified copy is a task
+too, renamed into place here in the files' order (this process writes the files with `--dtm`
+or `--instances`). Outputs, errors and the summary are those of one process; a worker that
+dies has its task run again.
 
 A file too large for the memory budget (`GFJAX_MEMORY_BUDGET_GB`, default half the
 machine's memory) is filtered out of core by SMRF and PMF (`--out-of-core` forces it): read
@@ -145,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
     say_crs_warning([(job.source, job.crs_units) for job in planned])
     out_of_core = _out_of_core(args, setup, planned)
     with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder, _cluster(args) as client:
-        if client is not None and args.dtm is None and not args.instances:
+        if args.scheduler is not None and args.dtm is None and not args.instances:
             return _run_on_cluster(args, setup, inputs, planned, folder, client)
         if out_of_core:
             return _run_out_of_core(args, setup, inputs, planned, folder, client)
@@ -163,10 +166,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
-    """Filter and write every planned file on the cluster: the tiles (or files) as tasks, then
-    each file's copy, classified, written to a temporary by a task once its labels are done
-    (`gfjax.survey.Runner.write`); here each is committed in the files' order, so a file that
-    fails leaves the later ones unwritten, as in one process."""
+    """Filter and write every planned file on a cluster of other machines (`--scheduler`): the
+    tiles (or files) as tasks, then each file's copy, classified, written to a temporary by a
+    task once its labels are done (`gfjax.survey.Runner.write`), so the points do not all pass
+    through this machine; here each is committed in the files' order, so a file that fails
+    leaves the later ones unwritten, as in one process. (A local cluster's files are written
+    here, where they are: this process's writer then uses the cores the workers leave idle.)"""
     from gfjax import survey
     from gfjax.io import atomic
     from gfjax.survey import cluster

@@ -1,11 +1,12 @@
 """A survey's tiles as tasks on a Dask cluster (`dask.distributed`).
 
-The catalog is made here, in the client's process (`gfjax.survey.index`); each task then
-reads what it needs from the catalog's stores, in a folder every worker reaches (a local
-cluster shares this machine's; a remote one needs the folder on shared storage, e.g.
-`TMPDIR` on a network file system), and returns one tile's core labels, or one file's labels
-for a method that does not tile. The writer is the same as in one process: it waits for the
-tasks that a file needs, then writes that file (`gfjax.survey.Runner`).
+The catalog's index is a task per file; each filtering task then reads what it needs from the
+catalog's stores (or a COPC file's nodes), in a folder every worker reaches (a local cluster
+shares this machine's; a remote one needs the folder on shared storage, e.g. `TMPDIR` on a
+network file system), and returns one tile's core labels, or one file's labels for a method
+that does not tile. The command waits for the tasks that a file needs, then writes that file
+as one process does (`gfjax.survey.Runner`); on a remote cluster the file's copy is a task too
+(`Runner.write`), renamed into place by the command.
 
 A task is a pure function of its arguments, so a worker that dies mid-task has its task run
 again by Dask (on another or a restarted worker) with the same result. Each worker compiles

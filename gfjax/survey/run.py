@@ -132,8 +132,8 @@ def write_labels(catalog: Catalog, filter_fn: Callable, i: int, target: Path, op
 
 def _submitter(client, catalog: Catalog, filter_fn: Callable) -> Callable:
     """`submit(fn, *args) -> future` of `fn(catalog, filter_fn, *args)` on `client`'s cluster,
-    the catalog and `filter_fn` sent once, not with every task; tasks are never cached by Dask's key (`pure=False`: a rerun of the survey
-    filters again)."""
+    the catalog and `filter_fn` sent once, not with every task; tasks are never cached by
+    Dask's key (`pure=False`: a rerun of the survey filters again)."""
     catalog_f, filter_f = client.scatter([catalog, filter_fn], broadcast=True, hash=False)
 
     def submit(fn: Callable, *args, **kwargs):
