@@ -147,7 +147,9 @@ def run(args: argparse.Namespace) -> int:
                             extra_bytes_per_point=4 if args.instances else 0, trust_data=args.trust_data)
     say_crs_warning([(job.source, job.crs_units) for job in planned])
     out_of_core = _out_of_core(args, setup, planned)
-    with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder, _cluster(args) as client:
+    # cleanup errors ignored: after a failed task a worker may still be writing a store there
+    with tempfile.TemporaryDirectory(prefix="gfjax-survey-", ignore_cleanup_errors=True) as folder, \
+            _cluster(args) as client:
         if args.scheduler is not None and args.dtm is None and not args.instances:
             return _run_on_cluster(args, setup, inputs, planned, folder, client)
         if out_of_core:
@@ -168,10 +170,11 @@ def run(args: argparse.Namespace) -> int:
 def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
     """Filter and write every planned file on a cluster of other machines (`--scheduler`): the
     tiles (or files) as tasks, then each file's copy, classified, written to a temporary by a
-    task once its labels are done (`gfjax.survey.Runner.write`), so the points do not all pass
-    through this machine; here each is committed in the files' order, so a file that fails
+    task once its labels are done (`gfjax.survey.Runner.write`), so the classified copies are not
+    written through this machine; here each is committed in the files' order, so a file that fails
     leaves the later ones unwritten, as in one process. (A local cluster's files are written
-    here, where they are: this process's writer then uses the cores the workers leave idle.)"""
+    here, where they are: this process's writer then uses the cores the workers leave idle.)
+    This process still reads the stores once, for the tiles each file meets."""
     from gfjax import survey
     from gfjax.io import atomic
     from gfjax.survey import cluster
@@ -182,28 +185,37 @@ def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
     runner = survey.Runner(catalog, functools.partial(_filter, setup, False), setup.config, folder,
                            returns=args.returns, context=False, client=client)
     position = {source: i for i, source in enumerate(inputs)}
-    writes = {job.source: runner.write(position[job.source], job.target, returns=args.returns,
-                                       reset_nonground=args.reset_nonground, force=args.force, input_paths=inputs,
-                                       trust_data=args.trust_data) for job in planned}
+    # temporaries named here: this process's id in their names keeps other sweeps off them
+    # (absolute paths: workers resolve a relative one in their own working folder)
+    staged = {job.source: atomic.temporary_name(job.target.absolute()) for job in planned}
+    writes = {job.source: runner.write(position[job.source], job.target.absolute(), staged[job.source],
+                                       returns=args.returns, reset_nonground=args.reset_nonground, force=args.force,
+                                       input_paths=[p.absolute() for p in inputs], trust_data=args.trust_data)
+              for job in planned}
+    runner.release()
     committed: set[Path] = set()
 
     def one(job: _job.Planned) -> None:
-        tmp, n_ground, n = cluster.result(writes[job.source], str(job.source))
-        atomic.commit(tmp, job.target)
+        start = time.perf_counter()
+        n_ground, n = cluster.result(writes[job.source], str(job.source))
+        if n != job.header.point_count:
+            print(f"gfjax: warning: {job.source}: header says {job.header.point_count:,} points, the file holds "
+                  f"{n:,}; filtered the {n:,} points present (--trust-data)", file=sys.stderr)
+        atomic.commit(staged[job.source], job.target)
         committed.add(job.source)
+        seconds = time.perf_counter() - start
         print(f"{job.source} -> {job.target}: {setup.name} (on the cluster), {n_ground:,} ground of {n:,} points "
-              f"({100.0 * n_ground / max(n, 1):.1f} %)")
+              f"({100.0 * n_ground / max(n, 1):.1f} %), waited {seconds:.1f} s")
 
     try:
         return _job.run_files(planned, one, keep_going=args.keep_going, report=None)
     finally:
-        for source, future in writes.items():       # the copies not committed: none left behind
-            if source in committed:
-                continue
-            future.cancel()
-            if future.status == "finished":
-                with contextlib.suppress(OSError):
-                    Path(future.result()[0]).unlink()
+        # the copies not committed: cancelled, and removed if written; one still being written
+        # when this process ends carries its id, so the next run's sweep of the folder removes it
+        for source, future in writes.items():
+            if source not in committed:
+                future.cancel()
+                Path(staged[source]).unlink(missing_ok=True)
 
 
 def _filter(setup, progress: bool, points, returns: str):

@@ -161,7 +161,7 @@ def existing_output_message(where: str, *, more: int = 0) -> str:
 def atomic_output(path: str | os.PathLike, *, force: bool = False,
                   input_paths: Iterable[str | os.PathLike] = (),
                   suffixes: tuple[str, ...] | None = None, option: str = "",
-                  staged: list[Path] | None = None) -> Iterator[Path]:
+                  staged: Path | None = None) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success fsync it and rename it onto `path`.
 
     The temporary file (`temporary_name`: hidden, same folder, no input suffix, mode 0666 less
@@ -170,12 +170,13 @@ def atomic_output(path: str | os.PathLike, *, force: bool = False,
     (`remove_stale_temporaries`). Writers must name the format explicitly (the temporary has
     no suffix to guess it from). Checks as `check_output`.
 
-    With `staged`, a list, the complete temporary is appended to it instead of renamed: another
-    process commits it later (`commit`), or removes it.
+    With `staged`, a temporary name beside `path` (`temporary_name`, made by the process that
+    will commit it, so its own sweep never takes it for stale while it lives), the file is
+    written there and left there on success, for that process to `commit` or remove.
     """
     out = check_output(path, force=force, input_paths=input_paths, suffixes=suffixes, option=option)
     remove_stale_temporaries(out.absolute().parent)
-    tmp = temporary_name(out)
+    tmp = temporary_name(out) if staged is None else Path(staged)
     kept = False
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
@@ -187,7 +188,6 @@ def atomic_output(path: str | os.PathLike, *, force: bool = False,
         finally:
             os.close(fd)
         if staged is not None:
-            staged.append(tmp)
             kept = True
             return
         os.replace(tmp, out)

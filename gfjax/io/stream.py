@@ -91,7 +91,7 @@ def open_points(path: str | os.PathLike, *, units: str | None = None, trust_data
 def rewrite(source: str | os.PathLike, target: str | os.PathLike,
             classify: Callable[[int, laspy.ScaleAwarePointRecord], np.ndarray], *, force: bool = False,
             input_paths: Iterable[str | os.PathLike] = (), trust_data: bool = False,
-            staged: list[Path] | None = None) -> Path:
+            staged: Path | None = None) -> Path:
     """Copy `source` to `target` atomically with each chunk's classification replaced.
 
     Args:
@@ -100,8 +100,8 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
       classify: `classify(start, points) -> (len(points),) uint8`: the new classes of the
         points `start` to `start + len(points)` of `source`.
       force, input_paths: as `gfjax.io.las.write`.
-      staged: a list: the complete copy is left as a temporary beside `target`, appended to
-        it, for another process to commit (`gfjax.io.atomic.commit`).
+      staged: a temporary name beside `target` (`gfjax.io.atomic.temporary_name`): the copy is
+        written there and left for the process that named it to commit (`gfjax.io.atomic.commit`).
       trust_data: as `gfjax.io.las.read`.
 
     Returns:
@@ -139,7 +139,7 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
 
 def relabel(source: str | os.PathLike, target: str | os.PathLike, ground: np.ndarray, *, returns: str = "all",
             reset_nonground: bool = False, force: bool = False, input_paths: Iterable[str | os.PathLike] = (),
-            trust_data: bool = False, staged: list[Path] | None = None) -> tuple[int, int]:
+            trust_data: bool = False, staged: Path | None = None) -> tuple[int, int]:
     """Copy `source` to `target` (`rewrite`) with the classes that `ground` says, bool
     `(n_points,)` (array-like; read a chunk at a time, so a memory map stays unread), as
     `Cloud.with_ground` sets them: ground 2; former ground 1 (every non-ground point 1 with

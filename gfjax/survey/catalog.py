@@ -150,13 +150,14 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
         outside its header's bounds (the index would misplace it), or a file that duplicates
         another (same points and bounds: its points would count twice in their halos).
     """
-    paths = [Path(p) for p in paths]
+    # on a cluster, absolute paths: workers resolve a relative one in their own working folder
+    paths = [Path(p) if client is None else Path(p).absolute() for p in paths]
     jobs = [(i, path, Path(folder) / f"{i}.npy") for i, path in enumerate(paths)]
     options = dict(returns=returns, units=units, trust_data=trust_data)
     if client is None:
         done = (index_file(*job, **options) for job in jobs)
     else:
-        done = iter(client.gather(client.map(lambda job: index_file(*job, **options), jobs, pure=False)))
+        done = _gathered(client, jobs, options)
     entries, first = [], None
     for indexed in done:
         entry = indexed.entry
@@ -177,6 +178,19 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
         if entry.frame is not None:
             frame = entry.frame if frame is None else frame.union(entry.frame)
     return Catalog(tuple(entries), frame)
+
+
+def _gathered(client, jobs: list, options: dict) -> Iterator[_Indexed]:
+    """`index_file` of each job as a task on `client`'s cluster, the results in order; after a
+    failure the tasks not yet run are cancelled."""
+    from gfjax.survey import cluster
+
+    futures = [client.submit(index_file, *job, pure=False, **options) for job in jobs]
+    try:
+        for (_, path, _), future in zip(jobs, futures):
+            yield cluster.result(future, f"{path}: index")
+    finally:
+        client.cancel(futures)
 
 
 def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: str | None = None,

@@ -51,6 +51,9 @@ def client(workers: int | None = None, scheduler: str | None = None) -> Iterator
             c = Client(scheduler)                # waits distributed.comm.timeouts.connect (30 s)
         except (OSError, TimeoutError) as err:
             raise InputError(f"--scheduler {scheduler}: no Dask scheduler answers there ({err})") from None
+        except ValueError as err:                # not an address ("http://...", "host:")
+            raise InputError(f"--scheduler {scheduler}: not a Dask scheduler address ({err}); "
+                             "e.g. tcp://host:8786") from None
         with c:
             yield c
         return

@@ -56,19 +56,32 @@ class Runner:
             self.pending = {i: self.submit(file_labels, config, i, returns=returns)
                             for i in range(len(catalog.entries))}
 
-    def write(self, i: int, target: str | Path, **options):
-        """File `i` copied, classified, to a temporary beside `target` by a task on the cluster
-        once the tasks it needs are done (`write_labels`): a future of `(temporary, n_ground,
-        n_points)`, the temporary for the caller to commit (`gfjax.io.atomic.commit`) or
-        remove. `options`: `gfjax.io.stream.relabel`'s. Only with a client; `__call__` and
-        `ground` then no longer give file `i`."""
+    def write(self, i: int, target: str | Path, staged: str | Path, **options):
+        """File `i` copied, classified, by a task on the cluster once the tasks it needs are
+        done (`write_labels`), to `staged`, a temporary beside `target` that the caller named
+        (`gfjax.io.atomic.temporary_name`) and commits (`gfjax.io.atomic.commit`) or removes:
+        a future of `(n_ground, n_points)`. `options`: `gfjax.io.stream.relabel`'s. Only with
+        a client, and instead of `__call__` or `ground` for that file. Paths as the workers
+        see them (absolute, on storage they share)."""
         if self.submit is None:
             raise ValueError("Runner.write: only on a cluster (client=...)")
         if self.tiles is None:
-            needed = [self.pending.pop(i)] if i in self.pending else []
+            if i not in self.pending:
+                raise ValueError(f"Runner.write: file {i}'s labels were already taken")
+            needed = [self.pending[i]]
         else:
-            needed = [self.tiles.pending[key] for key in sorted(self.tiles.keys[i])]
-        return self.submit(write_labels, i, Path(target), options, *needed)
+            keys = sorted(self.tiles.keys[i])
+            if any(key not in self.tiles.pending for key in keys):
+                raise ValueError(f"Runner.write: a tile of file {i} was already taken")
+            needed = [self.tiles.pending[key] for key in keys]
+        return self.submit(write_labels, i, Path(target), Path(staged), options, *needed)
+
+    def release(self) -> None:
+        """Forget the filtering tasks (after `write` for every file): each tile's labels then
+        stay on the cluster only while a write that needs them waits."""
+        self.pending.clear()
+        if self.tiles is not None:
+            self.tiles.pending.clear()
 
     def ground(self, i: int) -> np.ndarray:
         """File `i`'s labels, bool `(n_i,)` memory-mapped (a tiled method only: the file is
@@ -110,12 +123,12 @@ def file_labels(catalog: Catalog, filter_fn: Callable, config, i: int, *,
     return result._replace(diagnostics=None), halo_ground_m
 
 
-def write_labels(catalog: Catalog, filter_fn: Callable, i: int, target: Path, options: dict,
-                 *results) -> tuple[Path, int, int]:
+def write_labels(catalog: Catalog, filter_fn: Callable, i: int, target: Path, staged: Path, options: dict,
+                 *results) -> tuple[int, int]:
     """A task: file `i`'s labels gathered from the `results` of the tasks that labelled it
     (`tile_labels`'s parts, or `file_labels`'s `(result, halo)`), and its copy written with
-    them (`gfjax.io.stream.relabel`) to a temporary beside `target`, left for the caller to
-    commit. Returns `(temporary, n_ground, n_points)`."""
+    them (`gfjax.io.stream.relabel`) to `staged`, a temporary beside `target` named by the
+    process that commits it. Returns `(n_ground, n_points)`."""
     entry = catalog.entries[i]
     ground = np.zeros(entry.n_points, bool)
     for result in results:
@@ -125,9 +138,7 @@ def write_labels(catalog: Catalog, filter_fn: Callable, i: int, target: Path, op
         for j, rows, labels in result:
             if j == i:
                 ground[rows] = labels
-    staged: list[Path] = []
-    n_ground, n = stream.relabel(entry.path, target, ground, staged=staged, **options)
-    return staged[0], n_ground, n
+    return stream.relabel(entry.path, target, ground, staged=staged, **options)
 
 
 def _submitter(client, catalog: Catalog, filter_fn: Callable) -> Callable:
@@ -194,7 +205,8 @@ def filter(paths: Sequence[str | Path], out: str | Path, *, method: str | Module
     ```
 
     Each output keeps every point and attribute of its input; only the classification changes
-    (`Cloud.with_ground`), and it is written atomically once every tile of its file is done.
+    (`Cloud.with_ground`), and it is written atomically, by this process, once every tile of its
+    file is done (`gfjax filter --scheduler` has the workers write the copies: `Runner.write`).
 
     Args:
       paths: the survey's LAS/LAZ files.

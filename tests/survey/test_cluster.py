@@ -95,13 +95,17 @@ def test_filter_workers_and_scheduler_write_the_single_process_files(grid, clien
             assert np.array_equal(got.las.points.array, want.las.points.array), name
 
 
-def test_one_file_on_the_cluster_labels_as_in_process(grid, client, tmp_path):
+def test_one_file_on_the_cluster_labels_as_in_process(grid, client, tmp_path, monkeypatch):
+    """Relative paths too: the workers' working folder is not the command's."""
     sets = ["--method", "smrf", "--tile-size", "40", "--buffer", "8"]
     assert main(["filter", str(grid[0]), "-o", str(tmp_path / "one.laz"), *sets]) == 0
-    assert main(["filter", str(grid[0]), "-o", str(tmp_path / "cluster.laz"), "--scheduler", client.scheduler.address,
-                 *sets]) == 0
-    np.testing.assert_array_equal(las_io.read(tmp_path / "cluster.laz").classification,
+    monkeypatch.chdir(grid[0].parent)
+    (tmp_path / "rel").mkdir()
+    rel = os.path.relpath(tmp_path / "rel" / "cluster.laz")
+    assert main(["filter", grid[0].name, "-o", rel, "--scheduler", client.scheduler.address, *sets]) == 0
+    np.testing.assert_array_equal(las_io.read(tmp_path / "rel" / "cluster.laz").classification,
                                   las_io.read(tmp_path / "one.laz").classification)
+    assert os.listdir(tmp_path / "rel") == ["cluster.laz"]
 
 
 def _dies_once(marker: str) -> types.ModuleType:
@@ -156,7 +160,8 @@ def test_a_failing_task_is_named_and_nothing_is_written(grid, client, tmp_path):
     (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "give one"),
     (["--workers", "2", "--independent"], "drop --independent"),
     (["--scheduler", "tcp://127.0.0.1:1"], "no Dask scheduler answers"),
-], ids=["zero", "both", "independent", "no-scheduler"])
+    (["--scheduler", "http://127.0.0.1:8786"], "not a Dask scheduler address"),
+], ids=["zero", "both", "independent", "no-scheduler", "not-an-address"])
 def test_bad_cluster_options_are_one_line(grid, tmp_path, capsys, options, message):
     import dask
 
