@@ -48,6 +48,14 @@ class Points:
     def n_points(self) -> int:
         return int(self.xyz_m.shape[0])
 
+    @classmethod
+    def from_records(cls, records: np.ndarray, name: str, frame: Frame | None = None) -> Points:
+        """The points of a catalog's `STORE` records `(n,)` (`gfjax.survey.catalog`)."""
+        return cls(xyz_m=np.asarray(records["xyz_m"]), classification=np.asarray(records["classification"]),
+                   return_number=np.asarray(records["return_number"]),
+                   number_of_returns=np.asarray(records["number_of_returns"]),
+                   ignored=np.asarray(records["ignored"]), name=name, frame=frame)
+
     def filter_mask(self, returns: str = "all") -> np.ndarray:
         return use_mask(self.ignored, self.return_number, self.number_of_returns, returns)
 

@@ -140,9 +140,7 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, config, key: tuple[int, i
     if not parts:
         return []
     chosen = np.concatenate(parts)
-    points = Points(xyz_m=chosen["xyz_m"], classification=chosen["classification"],
-                    return_number=chosen["return_number"], number_of_returns=chosen["number_of_returns"],
-                    ignored=chosen["ignored"], name=f"survey tile {key}", frame=catalog.frame.only([key]))
+    points = Points.from_records(chosen, f"survey tile {key}", catalog.frame.only([key]))
     result: Result = filter_fn(points, returns=returns)
     ground = np.asarray(result.ground, bool)
     in_core = np.all(tile_key(chosen["xyz_m"][:, :2], catalog, config) == np.asarray(key)[None], axis=1)

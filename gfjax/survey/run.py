@@ -115,10 +115,7 @@ def file_labels(catalog: Catalog, filter_fn: Callable, config, i: int, *,
     """`filter_file` on file `i` read from its catalog store, not from the file (a Dask task:
     the points are those the file's read gives, in metres)."""
     records = catalog.entries[i].records()
-    own = Points(xyz_m=np.asarray(records["xyz_m"]), classification=np.asarray(records["classification"]),
-                 return_number=np.asarray(records["return_number"]),
-                 number_of_returns=np.asarray(records["number_of_returns"]), ignored=np.asarray(records["ignored"]),
-                 name=str(catalog.entries[i].path))
+    own = Points.from_records(records, str(catalog.entries[i].path))
     result, halo_ground_m = filter_file(catalog, i, own, filter_fn, config, returns=returns)
     return result._replace(diagnostics=None), halo_ground_m
 
