@@ -16,6 +16,7 @@ from gfjax.cli import _job
 from gfjax.cli._common import add_units_option, check_inputs, ranged
 from gfjax.errors import InputError
 from gfjax.io.atomic import existing_output_message
+from gfjax.sparsegf.config import model_settings
 from gfjax.sparsegf.config import Config as _Config
 from gfjax.sparsegf.features import FEATURE_SETS
 
@@ -135,7 +136,8 @@ def run(args: argparse.Namespace) -> int:
     meta = {"preset": args.preset, "seed": args.seed, "epochs": args.epochs, "batch": args.batch,
             "min_patches_per_file": args.min_patches_per_file,
             "files": [Path(p).name for p in inputs], "validate": [Path(p).name for p in validate],
-            "config": dataclasses.asdict(config), "lambda": lam, "lr": args.lr or sgf_train.LR_START, "seconds": time.perf_counter() - started,
+            "config": model_settings(config),
+            "lambda": lam, "lr": args.lr or sgf_train.LR_START, "seconds": time.perf_counter() - started,
             "logs": [log._asdict() for log in logs]}
     checkpoint.save(out, model, meta)
     print(f"{out}: {args.preset} model after {len(logs)} epochs")

@@ -17,7 +17,10 @@ DECISIONS = ("network", "network+smrf")
 # calls ground and of those it calls objects, chosen on validation files only
 # (`experiments/sparsegf_decision.py`).
 SMRF_GROUND_PROBABILITY = 0.3
-SMRF_OBJECT_PROBABILITY = 0.8
+SMRF_OBJECT_PROBABILITY = 0.9
+# How the mean votes become labels: settings of a run, not of a network. A model file does
+# not carry them (`filter.load_model`); they come from `Config`'s defaults or `--set`.
+DECISION_FIELDS = ("decision", "ground_probability", "smrf_ground_probability", "smrf_object_probability")
 
 # The valid range of every numeric Config field (`gfjax.limits`).
 RANGES: dict[str, Range] = {
@@ -93,3 +96,8 @@ class Config:
 PRESETS: dict[str, dict] = {
     "no-compression": {"compression": False, "voxel_m": 1.0},
 }
+
+
+def model_settings(config: Config) -> dict:
+    """The settings a model file records (`gfjax train`): every field but the decision's."""
+    return {k: v for k, v in dataclasses.asdict(config).items() if k not in DECISION_FIELDS}

@@ -11,7 +11,7 @@ from gfjax.errors import InputError
 from gfjax.io.cloud import CloudView
 from gfjax.result import Result
 from gfjax.sparsegf import checkpoint
-from gfjax.sparsegf.config import Config
+from gfjax.sparsegf.config import DECISION_FIELDS, Config
 from gfjax.sparsegf.features import cloud_features, n_features
 from gfjax.sparsegf.model import Model
 from gfjax.sparsegf.partition import PartitionConfig, partition
@@ -119,10 +119,11 @@ def warm(config: Config | None = None, params=None, *, progress: bool = False) -
 
 
 def load_model(path=None) -> tuple[Model, Config]:
-    """The model at `path` (None: the model shipped in gfjax) and the settings it was trained with."""
+    """The model at `path` (None: the model shipped in gfjax) and the settings it was trained
+    with; the decision (`config.DECISION_FIELDS`) keeps `Config`'s defaults."""
     model, header = checkpoint.load(path)
     stored = header.get("meta", {}).get("config", {})
-    names = {f.name for f in dataclasses.fields(Config)}
+    names = {f.name for f in dataclasses.fields(Config)} - set(DECISION_FIELDS)
     try:
         config = Config(**{k: v for k, v in stored.items() if k in names})
     except (TypeError, ValueError) as err:

@@ -98,7 +98,7 @@ def decide(prob_ground: Float[ArrayLike, " n"], smrf_ground: Bool[ArrayLike, " n
     `"network"` (Algorithm 1): `prob_ground > ground_probability`. `"network+smrf"`: the
     threshold is `smrf_ground_probability` where SMRF calls the point ground (`smrf_ground`,
     `smrf_prior.smrf_heights`' margin >= 0) and `smrf_object_probability` elsewhere: with
-    0.3 and 0.8, SMRF's verdict stands unless the network is confident against it. A point
+    0.3 and 0.9, SMRF's verdict stands unless the network is confident against it. A point
     with no vote (`prob_ground` 0) is never ground.
     """
     prob_ground = jnp.asarray(prob_ground)

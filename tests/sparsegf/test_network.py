@@ -13,7 +13,7 @@ from gfjax import sparsegf
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
 from gfjax.sparsegf import checkpoint, pipeline, train
-from gfjax.sparsegf.config import Config
+from gfjax.sparsegf.config import SMRF_OBJECT_PROBABILITY, Config, model_settings
 from gfjax.sparsegf.features import n_features
 from gfjax.sparsegf.filter import patches
 from gfjax.sparsegf.model import NET_PRESETS, NetConfig, count_parameters, init
@@ -75,6 +75,18 @@ def test_a_model_whose_inputs_differ_from_its_settings_is_refused(tmp_path):
     checkpoint.save(path, net, {"config": {"features": "xyz"}})     # 4
     with pytest.raises(InputError, match="m.eqx: the network takes 12 input features, its settings give 4"):
         sparsegf.load_model(path)
+
+
+def test_a_model_files_settings_apply_but_never_its_decision(tmp_path):
+    net = init(MICRO, key=jax.random.key(1))                       # 12 input features: xyz+tophat
+    path = tmp_path / "m.eqx"
+    checkpoint.save(path, net, {"config": {"features": "xyz+tophat", "max_context_points": 5000,
+                                           "decision": "network", "smrf_object_probability": 0.42}})
+    _, config = sparsegf.load_model(path)
+    assert config.max_context_points == 5000 and config.features == "xyz+tophat"
+    assert (config.decision, config.smrf_object_probability) == (Config.decision, SMRF_OBJECT_PROBABILITY)
+    recorded = model_settings(Config(smrf_object_probability=0.42))          # what `gfjax train` writes
+    assert "smrf_object_probability" not in recorded and recorded["features"] == Config.features
 
 
 def test_a_model_object_given_settings_of_other_inputs_is_refused(net):

@@ -128,7 +128,7 @@ def test_decide_matches_a_loop_under_jit_and_vmap(name):
     config = DECISIONS[name]
     rng = np.random.default_rng(3)
     prob = rng.uniform(0, 1, (4, 50)).astype(np.float32)
-    prob[:, :6] = [0.0, 0.3, 0.5, 0.8, 1.0, 0.2]                  # the thresholds themselves: not ground
+    prob[:, :7] = [0.0, 0.3, 0.5, 0.8, 0.9, 1.0, 0.2]                  # the thresholds themselves: not ground
     verdict = rng.uniform(size=(4, 50)) < 0.5
     want = np.stack([decide_loop(p, v, config) for p, v in zip(prob, verdict)])
     np.testing.assert_array_equal(np.asarray(decide(prob[0], verdict[0], config=config)), want[0])
@@ -139,7 +139,7 @@ def test_decide_matches_a_loop_under_jit_and_vmap(name):
 
 
 def test_decide_with_smrf_changes_labels_only_against_the_network_when_confident():
-    prob = np.array([0.35, 0.35, 0.75, 0.75, 0.9, 0.1], np.float32)
+    prob = np.array([0.35, 0.35, 0.75, 0.75, 0.95, 0.1], np.float32)
     verdict = np.array([True, False, True, False, False, True])
     np.testing.assert_array_equal(np.asarray(decide(prob, verdict, config=Config())),
                                   [True, False, True, False, True, False])
