@@ -4,15 +4,16 @@ tuning experiment, from one table per sample.
     nice .venv/bin/python experiments/tune_grid.py --method masf|dmf [--samples samp12 ...] [--folds 3]
 
 Each sample is labelled once with every candidate of the method's grid (`gfjax.tune.masf.GRID`:
-240 MASF runs on one preparation; `gfjax.tune.dmf.GRID`: 675 DMF final rules on 45
+480 MASF runs on one preparation; `gfjax.tune.dmf.GRID`: 675 DMF final rules on 45
 preparations), by `wrong_table`, whose defaults' row is the plain filter's errors (checked
 here on every sample); every protocol is then a choice over those tables (`gfjax.tune.search`):
 
 (a) defaults;
 (p) MASF: the paper's per-sample values (Table 3; `masf.PRESETS["paper-sampNN"]`, run by the filter);
 (b) the best candidate on the sample's own labels, scored on them (in-sample);
-(g) the same guarded (3 folds of 50 m blocks of the sample, the fit kept only where the
-    sign-flip test passes), scored on all its labels;
+(g) guarded: the one-standard-error rule's candidate (the nearest the defaults among those
+    within one standard error of the best), kept only where 3 folds of 50 m blocks of the
+    sample and the sign-flip test say it helps, scored on all its labels;
 (c) half split: tuned on the west half's labels (x below the median), guarded, scored on the
     east half, and the other way round; the filter always runs on the whole sample;
 (d) leave-one-out: tuned on the other 10 samples (guarded by sample, 3 folds), scored on the
@@ -87,6 +88,7 @@ def main(argv=None) -> int:
     cache.mkdir(parents=True, exist_ok=True)
     module, tmodule = METHODS[args.method]
     combos, default = tmodule.candidates(module.Config())
+    distance = search.grid_distance(combos, default)
     samples, wrong, paper, table_s = [], [], {}, 0.0
     for name in args.samples:
         cloud = gfjax.read(ISPRS / f"{name}-utm.laz")
@@ -108,12 +110,12 @@ def main(argv=None) -> int:
         west = use & (s.xyz_m[:, 0] < np.median(s.xyz_m[use, 0]))
         east = use & ~west
         own = search.validate([w], [s.xyz_m], [use], default=default, folds=1)
-        guarded = search.validate([w], [s.xyz_m], [use], default=default, folds=args.folds, block_m=args.block,
-                                  alpha=args.alpha)
+        guarded = search.validate([w], [s.xyz_m], [use], default=default, distance=distance, folds=args.folds,
+                                  block_m=args.block, alpha=args.alpha)
         halves = {}
         for train, test, label in ((west, east, "east"), (east, west, "west")):
-            c = search.validate([w], [s.xyz_m], [train], default=default, folds=args.folds, block_m=args.block,
-                                alpha=args.alpha)
+            c = search.validate([w], [s.xyz_m], [train], default=default, distance=distance, folds=args.folds,
+                                block_m=args.block, alpha=args.alpha)
             halves[label] = {"default": error(w[default], test), "guarded": error(w[c.index], test),
                              "unguarded": error(w[c.best], test), "kept": c.kept, "p": c.p_value,
                              "choice": combos[c.index]}
@@ -121,7 +123,7 @@ def main(argv=None) -> int:
         loo = None
         if others:
             c = search.validate([wrong[j] for j in others], [samples[j].xyz_m for j in others],
-                                [samples[j].use for j in others], default=default,
+                                [samples[j].use for j in others], default=default, distance=distance,
                                 folds=min(args.folds, len(others)), alpha=args.alpha)
             loo = {"guarded": error(w[c.index], use), "unguarded": error(w[c.best], use), "kept": c.kept,
                    "p": c.p_value, "choice": combos[c.index], "best": combos[c.best]}
@@ -153,7 +155,8 @@ def report(res: dict, argv) -> str:
              + (" " + " ".join(argv) if argv else "") + "`  ",
              f"Grid ({res['candidates']} candidates, every combination): "
              + "; ".join(f"{k} {', '.join(f'{v:g}' for v in vals)}" for k, vals in res["grid"].items())
-             + f". Guard: {res['folds']} folds of {res['block_m']:g} m blocks (one sample) or of samples (d), "
+             + f". Guarded choices (g, c, d): the one-standard-error rule toward the defaults (`gfjax.tune.search`), "
+             f"{res['folds']} folds of {res['block_m']:g} m blocks (one sample) or of samples (d), "
              f"sign-flip test at {res['alpha']:g}. Labelling every sample with every candidate took "
              f"{res['table_seconds']:.0f} s (2-core CPU, shared).", "",
              "Total error in percent over each sample's used points (unweighted mean over samples). (a) defaults; "

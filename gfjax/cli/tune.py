@@ -11,14 +11,16 @@ parameter set, unweighted mean of their losses), batched under `jax.vmap` by til
 fit is regularised toward the defaults (`--prior`).
 
 MASF and DMF (`--method masf|dmf`) have no gradient to follow: MASF's alpha_max_m,
-alpha_step_m, st and ft_m act through the alpha pyramid and a TIN grown on the host; DMF's v0
+alpha_step_m, alpha_top_m, st and ft_m act through the alpha pyramid and a TIN grown on the host; DMF's v0
 sets the voxel size W (whole metres), and max_filter_px, rc_min_share and the height rule's
 height_threshold_m + height_threshold_w * W act in host code or bounded loops. Every
 combination of a grid is tried (`--grid KEY=V,V,...` replaces one key's values; defaults:
-MASF alpha_max_m 10,15,20,25, alpha_step_m 1,2,4,9, st 0.01,0.03,0.05,0.1,0.15, ft_m
-0.3,0.5,0.7, 240 runs per file; DMF v0 1,1.5,2,2.5,3, max_filter_px 1,2,3, rc_min_share
+MASF alpha_max_m 10,15,20,25, alpha_step_m 1,2,4,9, alpha_top_m 0 (none),90,
+st 0.01,0.03,0.05,0.1,0.15, ft_m 0.3,0.5,0.7, 480 runs per file; DMF v0 1,1.5,2,2.5,3, max_filter_px 1,2,3, rc_min_share
 0.5,0.75,1, height_threshold_m 0,0.25,0.5, height_threshold_w 0,0.1,0.15,0.25,0.4, 675 final
-rules on 45 preparations per file) and the best on the labels is guarded as below with a
+rules on 45 preparations per file). The candidate chosen is the nearest the defaults (in grid
+steps) among those within one standard error of the lowest total error (the one-standard-error
+rule; the standard error over the validation units below), and it is guarded as below with a
 single level.
 
 Guard (tuned values are often worse than the defaults on other data): the labelled data are
@@ -227,7 +229,7 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
     for key, values in args.grid:
         if key not in grid:
             raise InputError(f"--grid {key}: unknown key; {args.method} searches {', '.join(grid)}")
-        allowed = method_config.RANGES[key]
+        allowed = tmodule.METHOD.grid_ranges.get(key, method_config.RANGES[key])
         if allowed.integer:             # a whole number given as "2" or "2.0" is the integer 2
             values = tuple(int(v) if float(v).is_integer() else v for v in values)
         for value in values:
@@ -243,16 +245,18 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
     except ValueError as err:
         raise InputError(f"--grid: {err}") from None
     v = tuned.choice
-    defaults = tuned.combos[tuned.default]
-    fitted = [k for k in tuned.values if tuned.values[k] != defaults[k]]
+    defaults, chosen = tuned.combos[tuned.default], tuned.combos[v.index]
+    fitted = [k for k in chosen if chosen[k] != defaults[k]]
     validation = {"folds": args.folds, "measure": "total error",
                   "units": ("files" if v.by_sample else f"blocks of {args.block:g} m") if args.folds >= 2 else None,
                   "default": v.default_error, "tuned": v.tuned_error, "p_value": v.p_value, "alpha": args.alpha,
                   "changed_units": v.units, "kept": v.kept, "per_fold": v.fold_errors.tolist(),
-                  "best_on_all_labels": tuned.combos[v.best]}
+                  "best_on_all_labels": tmodule.METHOD.values(tuned.combos[v.best])}
     extra = {"fitted": fitted, "validation": validation, "search": "exhaustive grid",
-             "grid": {k: sorted({c[k] for c in tuned.combos}) for k in tuned.values},
-             "not_differentiable": {k: tmodule.METHOD.note for k in tuned.values},
+             "choice": "one-standard-error rule: the candidate nearest the defaults within one standard error "
+                       "of the best" if args.folds >= 2 else "lowest training error",
+             "grid": {k: sorted({c[k] for c in tuned.combos}) for k in defaults},
+             "not_differentiable": {k: tmodule.METHOD.note for k in defaults},
              "training_files": [str(p) for p in inputs]}
     write_params(out, method=args.method, values=tuned.values, units=tmodule.METHOD.units, extra=extra)
     _summary(out, args.method, tuned.values, validation, fitted)

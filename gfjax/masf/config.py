@@ -135,6 +135,13 @@ class Config:
         return 2.0 * self.grid_m if self.alpha_min_m is None else float(self.alpha_min_m)
 
     @property
+    def reach_m(self) -> float:
+        """How far apart two points can sit and still meet in one triangle of the pyramid: the
+        largest alpha circle's diameter, `2 max(alpha_max, alpha_top)` [m]. Groups of points
+        farther apart never interact (what `gfjax.io.groups` may move)."""
+        return 2.0 * max(self.alpha_max_m, self.alpha_top_m or 0.0)
+
+    @property
     def low_cluster_max_cells(self) -> int:
         """`low_cluster_max_m2` in grid cells (at least 1: single cells are always tested)."""
         return max(1, int(math.floor(self.low_cluster_max_m2 / (self.grid_m * self.grid_m) + 1e-9)))

@@ -9,22 +9,31 @@ wrong, and chooses among the candidates from those tables alone. Every protocol 
 training half, all labels) is then a choice over the same tables: a grid search needs no
 re-run of the filter per fold.
 
-The guard is `gfjax.tune.guard`'s rule with one level instead of three: units (samples when a
-group has two or more, else square spatial blocks, `guard.fold_plan`) are dealt to folds; for
-each fold the candidate of lowest weighted total error on the other folds is scored against
-the defaults on the held-out points; every unit is held out once and gets its out-of-fold gain
+A guarded choice is made by the one-standard-error rule (Breiman et al. 1984; Hastie,
+Tibshirani & Friedman 2009, Sec. 7.10), with the defaults as the simplest model: among the
+candidates whose weighted total error exceeds the lowest by at most one standard error of
+that difference (over the validation units, below), the one fewest grid steps from the
+defaults (`grid_distance`; then the lowest error). The lowest error of a few hundred
+candidates on a few blocks is an optimistic pick: on the ISPRS halves, the plain best
+candidate of one half often sat at the grid's edge and lost on the other half. The rule
+shrinks toward the defaults, as the gradient fits' shrink levels do.
+
+The guard is `gfjax.tune.guard`'s rule with that choice in place of the fit: units (samples
+when a group has two or more, else square spatial blocks, `guard.fold_plan`) are dealt to
+folds; for each fold the candidate the rule picks on the other folds is scored against the
+defaults on the held-out points; every unit is held out once and gets its out-of-fold gain
 (net point errors fixed, times the sample's weight over its labelled points); the sum is tested
-against "no gain" by the one-sided sign-flip test (`guard.sign_flip_p`). The best candidate on
+against "no gain" by the one-sided sign-flip test (`guard.sign_flip_p`). The rule's pick on
 all labelled points is kept only when the summed gain is positive and p < `alpha`; otherwise
-the defaults are. Choosing the best of many candidates on the training folds is part of each
-fold's fit, so the out-of-fold gain already pays for it: no multiplicity factor.
+the defaults are. Choosing among many candidates on the training folds is part of each fold's
+fit, so the out-of-fold gain already pays for it: no multiplicity factor.
 """
 from __future__ import annotations
 
 import dataclasses
 import itertools
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -32,7 +41,8 @@ from gfjax import aot
 from gfjax.tune.guard import fold_plan, sign_flip_p
 from gfjax.tune.problem import Sample
 
-__all__ = ["Choice", "Searched", "Tuned", "errors", "grid_candidates", "validate", "wrong_table"]
+__all__ = ["Choice", "Searched", "Tuned", "errors", "grid_candidates", "grid_distance", "one_se_choice", "unit_errors",
+           "validate", "wrong_table"]
 
 
 class Choice(NamedTuple):
@@ -40,8 +50,9 @@ class Choice(NamedTuple):
 
     Attributes:
       index: the candidate to use (`default` where the fit was not kept).
-      best: the candidate of lowest weighted total error on every labelled point.
-      kept: whether the guard kept `best`.
+      best: the candidate of lowest weighted total error on every labelled point (the plain,
+        unguarded choice).
+      kept: whether the guard kept the rule's pick (`index`).
       default_error, tuned_error: out-of-fold weighted total error of the defaults and of each
         fold's choice (every labelled point held out once); training errors without folds.
       p_value: the sign-flip p-value (nan without folds).
@@ -74,26 +85,87 @@ def errors(wrong: list[np.ndarray], masks: list[np.ndarray], weight: np.ndarray)
     return total
 
 
-def _choose(err: np.ndarray, default: int) -> int:
+_CHUNK = 64          # candidates counted at a time by `unit_errors` (bounds its int32 copy)
+
+
+def unit_errors(wrong: list[np.ndarray], masks: list[np.ndarray], weight: np.ndarray, unit_id: list[np.ndarray],
+                n_units: int) -> tuple[np.ndarray, np.ndarray]:
+    """`errors` split by validation unit: float64 `(c, n_units)`, whose row sums are
+    `errors(wrong, masks, weight)`, and bool `(n_units,)`, the units holding a point of `masks`.
+
+    Args:
+      wrong, masks, weight: as `errors`.
+      unit_id: per sample int `(n_i,)`, the unit of each point (`guard.fold_plan`).
+      n_units: number of units.
+    """
+    out = np.zeros((wrong[0].shape[0], n_units))
+    present = np.zeros(n_units, bool)
+    for w, m, s, unit in zip(wrong, masks, weight, unit_id):
+        count = int(m.sum())
+        if not count or s <= 0:
+            continue
+        ids = unit[m]
+        order = np.argsort(ids, kind="stable")
+        ids = ids[order]
+        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+        cols = w[:, m][:, order]
+        for lo in range(0, cols.shape[0], _CHUNK):
+            counts = np.add.reduceat(cols[lo:lo + _CHUNK].astype(np.int32), starts, axis=1)
+            out[lo:lo + _CHUNK, ids[starts]] += s * counts / count
+        present[ids[starts]] = True
+    return out, present
+
+
+def _lowest(err: np.ndarray, default: int) -> int:
     """The candidate of lowest error; the defaults on a tie (a fit must earn its change)."""
     best = int(np.argmin(err))
     return default if err[default] <= err[best] else best
 
 
+def one_se_choice(unit_err: np.ndarray, default: int, distance: np.ndarray) -> int:
+    """The one-standard-error rule (module docstring): among the candidates whose total error
+    exceeds the lowest by at most one standard error of the difference, the one with the
+    smallest `distance` from the defaults, then the lowest error.
+
+    Args:
+      unit_err: float64 `(c, u)` each candidate's error per validation unit (`unit_errors`,
+        the units holding labelled points only).
+      default: the candidate holding the defaults.
+      distance: `(c,)` each candidate's distance from the defaults (`grid_distance`).
+
+    The standard error of a candidate's excess `sum_u d_u` (d_u: its error in unit u less the
+    lowest candidate's) is `sqrt(u / (u - 1) * sum_u (d_u - mean d)^2)`, the units taken as
+    independent; 0 with one unit (then the rule is the lowest error).
+    """
+    total = unit_err.sum(axis=1)
+    best = _lowest(total, default)
+    diff = unit_err - unit_err[best]
+    u = unit_err.shape[1]
+    if u > 1:
+        se = np.sqrt(u / (u - 1) * np.sum((diff - diff.mean(axis=1, keepdims=True)) ** 2, axis=1))
+    else:
+        se = np.zeros(len(total))
+    near = np.flatnonzero(total - total[best] <= se + 1e-12 * max(1.0, abs(total[best])))
+    pick = near[np.lexsort((total[near], np.asarray(distance)[near]))[0]]
+    return default if total[default] <= total[pick] and distance[default] <= distance[pick] else int(pick)
+
+
 def validate(wrong: list[np.ndarray], xyzs: list[np.ndarray], masks: list[np.ndarray], *, default: int,
-             weight: np.ndarray | None = None, folds: int = 3, block_m: float = 50.0, alpha: float = 0.05,
-             seed: int = 0) -> Choice:
-    """Choose a candidate, and keep it only where cross-validation and a sign-flip test say it
-    beats the defaults (module docstring).
+             distance: np.ndarray | None = None, weight: np.ndarray | None = None, folds: int = 3,
+             block_m: float = 50.0, alpha: float = 0.05, seed: int = 0) -> Choice:
+    """Choose a candidate by the one-standard-error rule, and keep it only where
+    cross-validation and a sign-flip test say it beats the defaults (module docstring).
 
     Args:
       wrong: per sample bool `(c, n_i)`, the points each candidate mislabels.
       xyzs: per sample float `(n_i, 3)` [m] (for the spatial blocks).
       masks: per sample bool `(n_i,)`, the labelled points that count.
       default: the candidate holding the method's defaults.
+      distance: `(c,)` each candidate's distance from the defaults (`grid_distance`; default
+        0 for the defaults and 1 for every other candidate).
       weight: float `(samples,)` (default: equal, summing to 1).
-      folds: cross-validation folds (>= 2), or 0 / 1 for none (the best is kept wherever it
-        lowers the training error).
+      folds: cross-validation folds (>= 2), or 0 / 1 for none (then the lowest training error
+        is kept wherever it lowers the defaults': no rule, no guard).
       block_m: side of the blocks of a single sample [m].
       alpha: level of the test, in (0, 1).
       seed: of the folds and of the randomised test.
@@ -101,10 +173,16 @@ def validate(wrong: list[np.ndarray], xyzs: list[np.ndarray], masks: list[np.nda
     if not 0 < alpha < 1:
         raise ValueError(f"alpha must lie in (0, 1), got {alpha}")
     n_samples = len(wrong)
+    n_combos = wrong[0].shape[0]
     weight = np.full(n_samples, 1.0 / n_samples) if weight is None else np.asarray(weight, np.float64)
+    if distance is None:
+        distance = (np.arange(n_combos) != default).astype(np.int64)
+    distance = np.asarray(distance)
+    if distance.shape != (n_combos,):
+        raise ValueError(f"distance needs one entry per candidate ({n_combos}), got shape {distance.shape}")
     masks = [np.asarray(m, bool) for m in masks]
     train_errors = errors(wrong, masks, weight)
-    best = _choose(train_errors, default)
+    best = _lowest(train_errors, default)
     if folds < 2:
         kept = bool(train_errors[best] < train_errors[default])
         return Choice(best if kept else default, best, kept, float(train_errors[default]), float(train_errors[best]),
@@ -112,6 +190,11 @@ def validate(wrong: list[np.ndarray], xyzs: list[np.ndarray], masks: list[np.nda
 
     group = np.zeros(n_samples, np.int32)
     by_sample, fold_id, unit_id, n_units = fold_plan(xyzs, group, weight, folds, block_m, seed)
+
+    def rule(ms: list[np.ndarray], w: np.ndarray) -> int:
+        per_unit, present = unit_errors(wrong, ms, w, unit_id, n_units)
+        return one_se_choice(per_unit[:, present], default, distance)
+
     labelled = np.array([m.sum() for m in masks], np.float64)
     scale = np.where(labelled > 0, weight / np.maximum(labelled, 1), 0.0)     # per-point weight of a sample
     gains = np.zeros(n_units)
@@ -123,7 +206,7 @@ def validate(wrong: list[np.ndarray], xyzs: list[np.ndarray], masks: list[np.nda
         if not np.any(w_k > 0):
             continue
         w_k *= weight.sum() / w_k.sum()
-        chosen = _choose(errors(wrong, train, w_k), default)
+        chosen = rule(train, w_k)
         held_n = np.array([h.sum() for h in held], np.float64)
         fold_scale = np.where(held_n > 0, weight / np.maximum(held_n, 1), 0.0)
         for i in range(n_samples):
@@ -133,8 +216,9 @@ def validate(wrong: list[np.ndarray], xyzs: list[np.ndarray], masks: list[np.nda
             fold_errors[k] += fold_scale[i] * np.array([wrong[i][default, h].sum(), wrong[i][chosen, h].sum()])
     default_error = float(train_errors[default])
     p_value = sign_flip_p(gains, seed=seed)
-    kept = bool(gains.sum() > 0 and p_value < alpha and best != default)
-    return Choice(best if kept else default, best, kept, default_error, default_error - float(gains.sum()),
+    pick = rule(masks, weight)
+    kept = bool(gains.sum() > 0 and p_value < alpha and pick != default)
+    return Choice(pick if kept else default, best, kept, default_error, default_error - float(gains.sum()),
                   p_value, int(np.count_nonzero(gains)), bool(by_sample[0]), fold_errors, train_errors)
 
 
@@ -148,6 +232,17 @@ def grid_candidates(defaults: Mapping[str, float], grid: Mapping[str, Sequence[f
     combos = [dict(zip(axes, values)) for values in itertools.product(*axes.values())]
     combos = [c for c in combos if keep is None or keep(c)]
     return combos, combos.index({k: float(v) for k, v in defaults.items()})
+
+
+def grid_distance(combos: Sequence[Mapping[str, float]], default: int) -> np.ndarray:
+    """int64 `(c,)`: how many grid steps each candidate lies from the defaults' (per key, the
+    distance between their positions among the key's sorted values, summed over keys)."""
+    out = np.zeros(len(combos), np.int64)
+    for key in combos[default]:
+        axis = sorted({float(c[key]) for c in combos})
+        rank = np.searchsorted(axis, [float(c[key]) for c in combos])
+        out += np.abs(rank - rank[default])
+    return out
 
 
 class Tuned(NamedTuple):
@@ -187,6 +282,9 @@ class Searched:
         `(n,)`) with each combination in turn, from the filter's own stages.
       units: unit of every key written to params.json.
       note: why the keys are searched, not fitted by gradient (params.json).
+      values: `(combination) -> params.json values` (default: the combination as it is).
+      grid_ranges: valid values of a grid key where they differ from the method's `RANGES`
+        (a grid may encode "none" as a number).
     """
 
     name: str
@@ -196,6 +294,8 @@ class Searched:
     labels: Callable
     units: Mapping[str, str]
     note: str
+    values: Callable[[Mapping[str, float]], dict[str, float]] = dict
+    grid_ranges: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
     def wrong_table(self, sample: Sample, config, combos: Sequence[Mapping[str, float]], *, bar=None) -> np.ndarray:
         """bool `(c, n)`: the points of `sample` the method with each combination mislabels.
@@ -225,6 +325,7 @@ class Searched:
                 bar.close()
         masks = ([s.use for s in samples] if masks is None
                  else [np.asarray(m, bool) & s.use for m, s in zip(masks, samples)])
-        choice = validate(wrong, [s.xyz_m for s in samples], masks, default=default, folds=folds, block_m=block_m,
+        choice = validate(wrong, [s.xyz_m for s in samples], masks, default=default,
+                          distance=grid_distance(combos, default), folds=folds, block_m=block_m,
                           alpha=alpha, seed=seed)
-        return Tuned(dict(combos[choice.index]), combos, default, choice, wrong)
+        return Tuned(self.values(combos[choice.index]), combos, default, choice, wrong)
