@@ -42,7 +42,8 @@ GRID: dict[str, tuple[float, ...]] = {
     "ft_m": (0.3, 0.5, 0.7),
 }
 UNITS = {"alpha_max_m": "m", "alpha_step_m": "m", "alpha_top_m": "m", "st": "1 (rise over run)", "ft_m": "m"}
-# alpha_top_m in a grid: NO_TOP, or above every alpha_max_m of the grid's candidates it pairs with
+# alpha_top_m in a grid: NO_TOP or a positive value; a candidate whose top layer is not above its
+# alpha_max_m is left out (`candidates`)
 GRID_RANGES = {"alpha_top_m": Range(0, 100_000, unit="m", extra=f"{NO_TOP:g}: no top layer; else > alpha_max_m")}
 NOTE = ("alpha_max_m, alpha_step_m and alpha_top_m change which points make each layer of the pyramid, and "
         "st and ft_m act through a TIN grown by scipy triangulations on the host: no gradient, "

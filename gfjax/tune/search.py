@@ -104,11 +104,12 @@ def unit_errors(wrong: list[np.ndarray], masks: list[np.ndarray], weight: np.nda
         count = int(m.sum())
         if not count or s <= 0:
             continue
-        ids = unit[m]
-        order = np.argsort(ids, kind="stable")
-        ids = ids[order]
+        points = np.flatnonzero(m)
+        order = np.argsort(unit[points], kind="stable")
+        points = points[order]                       # the labelled points, grouped by unit
+        ids = unit[points]
         starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
-        cols = w[:, m][:, order]
+        cols = w[:, points]
         for lo in range(0, cols.shape[0], _CHUNK):
             counts = np.add.reduceat(cols[lo:lo + _CHUNK].astype(np.int32), starts, axis=1)
             out[lo:lo + _CHUNK, ids[starts]] += s * counts / count
