@@ -10,7 +10,10 @@ merging (SPEC section 1, "Tiles").
 
 Windows are snapped to the raster lattice of `cell_m` anchored at the same corner, so a
 point falls in the same raster cell whichever tile holds it (the float32 local coordinates
-are clamped into their float64 cell), and they are clipped to the cloud's extent. For
+are clamped into their float64 cell), and they are clipped to the cloud's extent. A window
+is cut to its core points' box grown by the buffer when that is at most a quarter of it
+(`CROP_SAVING`): a core of a few points keeps the context a buffer gives them, and a cloud
+spread thin over a large box rasterises about its points, not its tiles. For
 `vmap`, tiles are padded to a few *capacity buckets* (points) and *shape buckets* (raster
 rows/columns) and carry `valid` masks; the tile's own extent sits in the south-west corner
 of the padded raster (row 0 = north, docs/ARCHITECTURE.md). A filter pads to *canonical*
@@ -38,6 +41,7 @@ SHAPE_QUANTUM_PX = 64
 SMALLEST_SIDE_PX = 128        # the smallest canonical raster side (`canonical_sides`)
 CANONICAL_MIN_CAPACITY = 1 << 14
 CANONICAL_MAX_CAPACITY = 1 << 22   # the largest capacity `gfjax warmup` compiles ahead
+CROP_SAVING = 4.0             # a window shrinks to its points' box when that is this many times smaller
 FEW_CORES = 4                 # `split` finds the points of at most this many named tiles by masks
 
 
@@ -93,7 +97,7 @@ class Tile:
       window_px: `(col, row)` of the window's south-west cell in the cloud's cell lattice
         (rows counted from the south).
       core_px: `(col0, row0, col1, row1)`: the core's cells `[col0, col1) x [row0, row1)` in
-        the same lattice, clipped to the cloud's extent.
+        the same lattice, clipped to the window (so to the cloud's extent).
     """
 
     key: tuple[int, int]
@@ -152,6 +156,17 @@ def _clamp_into_cells(local: np.ndarray, cell: np.ndarray, cell_m: float) -> np.
         lo = np.where(np.floor(lo / np.float32(cell_m)) < c, np.nextafter(lo, np.float32(np.inf)), lo)
         out[near] = np.clip(out[near], lo, np.maximum(lo, hi))
     return out
+
+
+def _cropped(core_cells: np.ndarray, reach_px: int, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The window `[lo, hi)` (cells) cut to the box of its core points' cells `(m, 2)` grown
+    by `reach_px`, when that box is at most `1 / CROP_SAVING` of it: a core of a few points
+    in a mostly empty box rasterises their surroundings, not a whole tile."""
+    box_lo = np.maximum(core_cells.min(axis=0) - reach_px, lo)
+    box_hi = np.minimum(core_cells.max(axis=0) + 1 + reach_px, hi)
+    if np.prod((box_hi - box_lo).astype(np.float64)) * CROP_SAVING > np.prod((hi - lo).astype(np.float64)):
+        return lo, hi
+    return box_lo, box_hi
 
 
 def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50.0,
@@ -231,6 +246,7 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         lo = np.maximum(core_lo - buffer_px, 0)
         hi = np.minimum(core_hi + buffer_px, extent_px)
         c = cell[candidates]
+        lo, hi = _cropped(c[np.all(core[candidates] == k[None, :], axis=1)], buffer_px, lo, hi)
         members = candidates[np.all((c >= lo[None, :]) & (c < hi[None, :]), axis=1)]
         in_core = np.all(core[members] == k[None, :], axis=1)
         local_cell = cell[members] - lo[None, :]
@@ -239,6 +255,7 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         local32 = local.astype(np.float32)
         local32[:, :2] = _clamp_into_cells(local[:, :2], local_cell, cell_m)
         shape = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))
+        core_lo, core_hi = np.maximum(core_lo, lo), np.minimum(core_hi, hi)
         tiles.append(Tile(key=(ti, tj), origin_m=origin + shift, shape=shape, index=used[members],
                           core=in_core, local_xyz=local32, window_px=(int(lo[0]), int(lo[1])),
                           core_px=(int(core_lo[0]), int(core_lo[1]), int(core_hi[0]), int(core_hi[1]))))

@@ -61,6 +61,31 @@ def test_every_point_in_exactly_one_core_and_in_its_window():
     np.testing.assert_array_equal(merged, use)
 
 
+def test_a_window_of_few_points_shrinks_to_their_surroundings():
+    """A core whose points fill little of its window rasterises their box grown by the buffer
+    (a quarter of the window or less), and keeps every window point within the buffer."""
+    rng = np.random.default_rng(2)
+    patch = rng.uniform(0, 40, (2000, 3))
+    patch[0] = 0.0                                                  # anchors the lattice at ORIGIN
+    lone = np.array([[1000.5, 1000.5, 3.0]])
+    xyz = np.vstack([patch, lone]) + ORIGIN
+    tiles = tiling.split(xyz, tile_size_m=300.0, buffer_m=20.0, cell_m=1.0)
+    assert {t.key: t.shape for t in tiles} == {(0, 0): (60, 60), (3, 3): (21, 21)}
+    by_key = {t.key: t for t in tiles}
+    assert by_key[(0, 0)].core_px == (0, 0, 60, 60) and by_key[(0, 0)].n_points == 2000
+    assert by_key[(3, 3)].window_px == (980, 980) and list(by_key[(3, 3)].index) == [2000]
+    merged = tiling.merge(len(xyz), tiles, [np.ones(t.n_points, bool) for t in tiles])
+    assert merged.all()
+
+
+def test_windows_of_a_filled_box_are_not_cut(scene, monkeypatch):
+    cut = tiling.split(scene, tile_size_m=32.0, buffer_m=16.0, cell_m=1.0)
+    monkeypatch.setattr(tiling, "CROP_SAVING", np.inf)
+    whole = tiling.split(scene, tile_size_m=32.0, buffer_m=16.0, cell_m=1.0)
+    assert [(t.shape, t.window_px, t.core_px) for t in cut] == [(t.shape, t.window_px, t.core_px) for t in whole]
+    assert all(np.array_equal(a.index, b.index) for a, b in zip(cut, whole))
+
+
 def test_buckets():
     assert [tiling.capacity_bucket(n) for n in (1, 256, 257, 385, 1000)] == [256, 256, 384, 512, 1024]
     assert tiling.shape_bucket((1, 600)) == (64, 640)

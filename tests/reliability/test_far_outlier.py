@@ -5,6 +5,7 @@ whole-cloud diagnostic rasters only touch the pages of the tiles' cores."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -42,7 +43,8 @@ print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, rows, int(result.groun
 
 def _peak(kind: str, method: str, frame: str) -> tuple[int, int, int]:
     done = subprocess.run([sys.executable, "-c", _PROGRAM, kind, method, frame], capture_output=True, text=True, cwd=REPO,
-                          timeout=600, env={"GFJAX_CACHE": "0", "PATH": "/usr/bin:/bin"})
+                          timeout=600, env={"GFJAX_CACHE": "0", "PATH": "/usr/bin:/bin",
+                                            "XLA_FLAGS": os.environ.get("XLA_FLAGS", "")})
     assert done.returncode == 0, done.stderr
     return tuple(map(int, done.stdout.split()))
 
