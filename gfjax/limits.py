@@ -133,6 +133,20 @@ def check_fields(obj: Any, ranges: Mapping[str, Range]) -> None:
         check_value(name, value, allowed)
 
 
+# The tiling options of the methods that filter tile by tile (SMRF, PMF): one range each.
+TILING_RANGES: dict[str, Range] = {
+    "tile_size_m": Range(0, 100_000, low_open=True, unit="m", extra=">= cell_m"),
+    "buffer_m": Range(0, 10_000, unit="m"),
+}
+
+
+def check_tiling(config: Any) -> None:
+    """A tiled method's `tile_size_m` must hold at least one cell (`cell_m`); the ranges of
+    `TILING_RANGES` are checked with the method's own (`check_fields`)."""
+    if config.tile_size_m < config.cell_m:
+        raise SettingError(f"tile_size_m must be >= cell_m, got {config.tile_size_m!r}", "tile_size_m", "cell_m")
+
+
 class Estimate(NamedTuple):
     """A memory estimate of one allocation: what it is (naming the options whose product sets
     it, e.g. "a tile raster of 6,001 x 6,001 cells (tile_size_m + 2 buffer_m) / cell_m, 8 tiles

@@ -21,8 +21,7 @@ RANGES: dict[str, Range] = {
     "cell_m": Range(0, 100, low_open=True, unit="m"),
     "max_window_m": Range(0, 10_000, low_open=True, unit="m", extra="<= 1000 cell_m"),
     "base": Range(2, 16, integer=True),
-    "tile_size_m": Range(0, 100_000, low_open=True, unit="m", extra=">= cell_m"),
-    "buffer_m": Range(0, 10_000, unit="m"),
+    **limits.TILING_RANGES,
     "slope": Range(0, 100),
     "initial_distance_m": Range(0, 1000, unit="m"),
     "max_distance_m": Range(0, 1000, unit="m"),
@@ -61,8 +60,7 @@ class Config:
         limits.check_fields(self, RANGES)
         if not isinstance(self.exponential, bool):
             raise SettingError(f"exponential must be a bool, got {self.exponential!r}", "exponential")
-        if self.tile_size_m < self.cell_m:
-            raise SettingError(f"tile_size_m must be >= cell_m, got {self.tile_size_m!r}", "tile_size_m", "cell_m")
+        limits.check_tiling(self)
         if self.max_window_m > MAX_WINDOW_PX * self.cell_m:
             raise SettingError(f"max_window_m must be <= {MAX_WINDOW_PX} cell_m (max_window_m / cell_m sets the "
                                f"largest window), got {self.max_window_m!r}", "max_window_m", "cell_m")

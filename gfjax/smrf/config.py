@@ -30,8 +30,7 @@ RANGES: dict[str, Range] = {
     "low_outlier_radius_px": Range(1, 100, integer=True, unit="cells"),
     "inpaint_max_iter": Range(1, 1_000_000, integer=True),
     "inpaint_tol_m": Range(0, 100, low_open=True, unit="m"),
-    "tile_size_m": Range(0, 100_000, low_open=True, unit="m", extra=">= cell_m"),
-    "buffer_m": Range(0, 10_000, unit="m"),
+    **limits.TILING_RANGES,
     "slope": Range(0, 100),
     "threshold_m": Range(0, 1000, unit="m"),
     "scalar": Range(0, 1000),
@@ -81,11 +80,11 @@ class Config:
              f"window_m must be <= {MAX_WINDOW_PX} cell_m (window_m / cell_m sets the opening loop)",
              ("window_m", "cell_m")),
             (self.inpaint in INPAINT_METHODS, f"inpaint must be one of {INPAINT_METHODS}", ("inpaint",)),
-            (self.tile_size_m >= self.cell_m, "tile_size_m must be >= cell_m", ("tile_size_m", "cell_m")),
         ]
         for ok, message, keys in checks:
             if not ok:
                 raise SettingError(f"{message}, got {getattr(self, keys[0])!r}", *keys)
+        limits.check_tiling(self)
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
         """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a
