@@ -41,7 +41,7 @@ SHAPE_QUANTUM_PX = 64
 SMALLEST_SIDE_PX = 128        # the smallest canonical raster side (`canonical_sides`)
 CANONICAL_MIN_CAPACITY = 1 << 14
 CANONICAL_MAX_CAPACITY = 1 << 22   # the largest capacity `gfjax warmup` compiles ahead
-CROP_SAVING = 4.0             # a window shrinks to its points' box when that is this many times smaller
+CROP_SAVING = 4.0             # a window shrinks to its core points' box + buffer when that is this many times smaller
 FEW_CORES = 4                 # `split` finds the points of at most this many named tiles by masks
 
 
@@ -246,9 +246,10 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         lo = np.maximum(core_lo - buffer_px, 0)
         hi = np.minimum(core_hi + buffer_px, extent_px)
         c = cell[candidates]
-        lo, hi = _cropped(c[np.all(core[candidates] == k[None, :], axis=1)], buffer_px, lo, hi)
-        members = candidates[np.all((c >= lo[None, :]) & (c < hi[None, :]), axis=1)]
-        in_core = np.all(core[members] == k[None, :], axis=1)
+        of_core = np.all(core[candidates] == k[None, :], axis=1)
+        lo, hi = _cropped(c[of_core], buffer_px, lo, hi)
+        inside = np.all((c >= lo[None, :]) & (c < hi[None, :]), axis=1)
+        members, in_core = candidates[inside], of_core[inside]
         local_cell = cell[members] - lo[None, :]
         shift = np.concatenate([lo * cell_m, [0.0]])
         local = rel[members] - shift[None, :]
