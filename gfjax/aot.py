@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import hashlib
 import importlib.util
 import os
@@ -55,9 +56,9 @@ import threading
 import time
 from pathlib import Path
 from typing import Any
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
-__all__ = ["enable", "disable", "release", "enabled_folder", "private_folder", "call", "prefetch", "prefetching", "program_key",
+__all__ = ["enable", "disable", "release", "enabled_folder", "private_folder", "call", "programs", "prefetch", "prefetching", "program_key",
            "on_compile",
            "MAX_FILES", "MAX_BYTES"]
 
@@ -529,6 +530,23 @@ def call(fn: Callable, *args, tag=None, **static):
     except Exception:             # a stored program that does not fit its caller: plain jit,
         _forget(folder, key)      # and the next call compiles and stores it again
         return fn(*args, **static)
+
+
+def programs(package: str, stages: Sequence[tuple[str, Callable, Any]], *, key: tuple,
+             batched: bool) -> tuple[Callable, ...]:
+    """A method's stages as programs: each `(name, fn, in_axes)` of `stages` becomes
+    `jax.jit(fn)` (of `jax.vmap(fn, in_axes)` when `batched`: a batch of tiles) called through
+    `call`, tagged `(f"{package}.{name}", *key, batched)`. `key` holds what `fn` binds (its
+    static config, the raster shape), so the tag names one program. Each stage compiles apart:
+    a costly raster stage compiles once per raster shape, a cheap point stage again for each
+    point capacity."""
+    import jax
+
+    out = []
+    for name, fn, in_axes in stages:
+        program = jax.jit(jax.vmap(fn, in_axes=in_axes) if batched else fn)
+        out.append(functools.partial(call, program, tag=(f"{package}.{name}", *key, batched)))
+    return tuple(out)
 
 
 def _forget(folder: Path, key: str) -> None:

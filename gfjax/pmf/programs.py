@@ -1,37 +1,31 @@
 """PMF's stages as compiled programs: one tile, or a batch of tiles under `jax.vmap`.
 
-As SMRF's (`gfjax.smrf.programs`): three jitted programs per static setting, the costly
-raster one compiled once per raster shape and only the cheap point ones again for another
-point capacity, each through `gfjax.aot` (kept across processes when it is on).
+As SMRF's (`gfjax.smrf.programs`): three programs per static setting and raster shape
+(`gfjax.aot.programs`), the costly raster one compiled once per raster shape and only the
+cheap point ones again for another point capacity.
 """
 from __future__ import annotations
 
 import functools
 
-import jax
-import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from gfjax import aot
-from gfjax._types import PointMask
-from gfjax.io.tiled import without_tiling
+from gfjax._types import Host, PointMask
 from gfjax.pmf.config import Config, Params
 from gfjax.pmf.stages import Diagnostics, classify_points, rasterize_min, surfaces
 
 __all__ = ["classify_tile", "classify_batch"]
 
-Host = Array | np.ndarray        # a batch arrives from the tiler as host numpy
-
 
 @functools.cache
-def _compiled(config: Config, shape: tuple[int, int], batched: bool):
-    raster = functools.partial(rasterize_min, cell_m=config.cell_m, shape=shape)
-    middle = functools.partial(surfaces, config=config)
-    points = functools.partial(classify_points, config=config)
-    if batched:
-        raster, middle = jax.vmap(raster), jax.vmap(middle)
-        points = jax.vmap(points, in_axes=(0, 0, 0, None))
-    return jax.jit(raster), jax.jit(middle), jax.jit(points)
+def _programs(config: Config, shape: tuple[int, int], batched: bool):
+    """The three programs of a tile (or of a batch) for one static setting and raster shape."""
+    return aot.programs("gfjax.pmf", [
+        ("rasterize_min", functools.partial(rasterize_min, cell_m=config.cell_m, shape=shape), 0),
+        ("surfaces", functools.partial(surfaces, config=config), 0),
+        ("classify_points", functools.partial(classify_points, config=config), (0, 0, 0, None)),
+    ], key=(config, shape), batched=batched)
 
 
 def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host, " 2"], params: Params, *,
@@ -58,10 +52,7 @@ def classify_batch(xyz: Float[Host, "b n 3"], valid: Bool[Host, "b n"], hw: Int[
 
 
 def _run(xyz, valid, hw, params, config: Config, shape: tuple[int, int], *, batched: bool):
-    config = without_tiling(config)
-    raster, middle, points = _compiled(config, shape, batched)
-    tag = (config, shape, batched)
-    z_min, filled = aot.call(raster, xyz, valid, tag=("gfjax.pmf.rasterize_min", *tag))
-    opened, diag = aot.call(middle, z_min, filled, hw, tag=("gfjax.pmf.surfaces", *tag))
-    ground = aot.call(points, xyz, valid, opened, params, tag=("gfjax.pmf.classify_points", *tag))
-    return ground, diag
+    raster, middle, points = _programs(config, shape, batched)
+    z_min, filled = raster(xyz, valid)
+    opened, diag = middle(z_min, filled, hw)
+    return points(xyz, valid, opened, params), diag
