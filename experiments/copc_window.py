@@ -39,7 +39,7 @@ def main():
 
     from gfjax import smrf, survey
     from gfjax.io import copc
-    from gfjax.io.tiles import Frame
+    from gfjax.io.tiles import Frame, Tiling
     from gfjax.survey.halo import tiles_region
 
     rows = []
@@ -49,14 +49,15 @@ def main():
         written.write(tmp / "bcts_2.las")
         n = len(written.points)
         full_s = median_time(lambda: laspy.read(tmp / "bcts_2.copc.laz"), repeats=3)
-        config = smrf.Config(tile_size_m=args.tile, buffer_m=args.buffer)
+        tiling = Tiling(tile_size_m=args.tile, buffer_m=args.buffer)
+        lattice = tiling.lattice(smrf.Config().cell_m)
         xy = np.column_stack([written.x, written.y])
         frame = Frame(np.array([*xy.min(axis=0), 0.0]), xy.max(axis=0))
         last = np.floor((xy.max(axis=0) - xy.min(axis=0)) / args.tile).astype(int)
         with copc.Reader(tmp / "bcts_2.copc.laz") as reader:
             for col in range(last[0] + 1):
                 for row in range(last[1] + 1):
-                    lo, hi = tiles_region(np.array([col, row]), np.array([col, row]), frame, config)
+                    lo, hi = tiles_region(np.array([col, row]), np.array([col, row]), frame, lattice)
                     before = reader.read_points
                     start = time.perf_counter()
                     index, _ = reader.within(lo, hi)
@@ -67,7 +68,7 @@ def main():
         for name in ("bcts_2.copc.laz", "bcts_2.las"):
             folder = tmp / f"stores_{name}"
             folder.mkdir()
-            (_, result), = survey.filtered([tmp / name], smrf, folder, config=config)
+            (_, result), = survey.filtered([tmp / name], smrf, folder, tiling=tiling)
             labels[name] = np.asarray(result.ground)
     same = np.array_equal(labels["bcts_2.copc.laz"], labels["bcts_2.las"])
 

@@ -89,15 +89,16 @@ def serial_rates(paths: list[Path], method: str) -> dict:
         def filter_fn(points, returns):
             return module.filter(points, config=config, returns=returns)
 
-        tiles = TileLabels(catalog, filter_fn, config, folder)
+        lattice = methods.lattice(module, config)
+        tiles = TileLabels(catalog, filter_fn, lattice, folder)
         keys = sorted(set().union(*tiles.keys))
         out["tiles"] = len(keys)
         sample = [keys[i] for i in np.linspace(0, len(keys) - 1, 8).round().astype(int)]
-        tile_labels(catalog, filter_fn, config, sample[0])            # compiled (or loaded) before timing
+        tile_labels(catalog, filter_fn, lattice, sample[0])            # compiled (or loaded) before timing
         times, points = [], []
         for key in sample:
             start = time.perf_counter()
-            parts = tile_labels(catalog, filter_fn, config, key)
+            parts = tile_labels(catalog, filter_fn, lattice, key)
             times.append(time.perf_counter() - start)
             points.append(sum(len(index) for _, index, _ in parts))
         out["tile_s"] = float(np.median(times))

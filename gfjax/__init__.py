@@ -23,7 +23,7 @@ __version__ = "0.1.0"
 _cache.setup()
 
 _LAZY = {"data", "bench", "smrf", "dmf", "masf", "pmf", "csf", "sparsegf", "raster", "dtm", "metrics", "tune", "io", "methods", "cache", "aot"}
-_LAZY_FUNCS = {"read": "gfjax.io.las", "write": "gfjax.io.las"}
+_LAZY_FUNCS = {"read": "gfjax.io.las", "write": "gfjax.io.las", "Tiling": "gfjax.io.tiles"}
 
 
 def __getattr__(name: str):
@@ -34,4 +34,4 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'gfjax' has no attribute {name!r}")
 
 
-__all__ = ["Cloud", "Result", "__version__", "read", "write", *sorted(_LAZY)]
+__all__ = ["Cloud", "Result", "Tiling", "__version__", "read", "write", *sorted(_LAZY)]

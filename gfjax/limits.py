@@ -133,20 +133,6 @@ def check_fields(obj: Any, ranges: Mapping[str, Range]) -> None:
         check_value(name, value, allowed)
 
 
-# The tiling options of the methods that filter tile by tile (SMRF, PMF): one range each.
-TILING_RANGES: dict[str, Range] = {
-    "tile_size_m": Range(0, 100_000, low_open=True, unit="m", extra=">= cell_m"),
-    "buffer_m": Range(0, 10_000, unit="m"),
-}
-
-
-def check_tiling(config: Any) -> None:
-    """A tiled method's `tile_size_m` must hold at least one cell (`cell_m`); the ranges of
-    `TILING_RANGES` are checked with the method's own (`check_fields`)."""
-    if config.tile_size_m < config.cell_m:
-        raise SettingError(f"tile_size_m must be >= cell_m, got {config.tile_size_m!r}", "tile_size_m", "cell_m")
-
-
 class Estimate(NamedTuple):
     """A memory estimate of one allocation: what it is (naming the options whose product sets
     it, e.g. "a tile raster of 6,001 x 6,001 cells (tile_size_m + 2 buffer_m) / cell_m, 8 tiles
@@ -214,26 +200,35 @@ TABLE_SOURCES: dict[str, str] = {
     "dmf": "gfjax.dmf.config",
     "masf": "gfjax.masf.config",
     "sparsegf": "gfjax.sparsegf.config",
+    "tiling (`--tile-size`, `--buffer`)": "gfjax.io.tiles",
     "dtm (`--cell`, `--max-edge`)": "gfjax.dtm.build",
     "commands (tune, train, bench, eval, dtm)": "gfjax.cli._common",
 }
 
 
-def tiled_estimates(config: Any, extent_m: tuple[float, float] | None, *, max_batch: int,
-                    tile_bytes_per_cell: float, mosaic_bytes_per_cell: float) -> list[Estimate]:
-    """The largest allocations of a tiled raster method (`config` with `tile_size_m`,
-    `buffer_m`, `cell_m`): a batch of tile rasters, and with `extent_m` (the cloud's x, y
-    extent [m]) the whole-cloud mosaic of its diagnostics."""
-    side = raster_side(config.tile_size_m + 2 * config.buffer_m, config.cell_m)
-    tiles = tiles_per_batch(extent_m, config.tile_size_m, max_batch=max_batch)
-    out = [Estimate(f"a batch of {tiles} tile raster(s) of {side:,} x {side:,} cells "
-                    "((tile_size_m + 2 buffer_m) / cell_m)", float(side) ** 2 * tiles * tile_bytes_per_cell,
-                    ("cell_m", "tile_size_m", "buffer_m"))]
-    if extent_m is not None:
-        w, h = (raster_side(e, config.cell_m) for e in extent_m)
-        out.append(Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / cell_m)",
-                            float(h) * float(w) * mosaic_bytes_per_cell, ("cell_m",)))
-    return out
+def tiled_estimator(*, max_batch: int, tile_bytes_per_cell: float, mosaic_bytes_per_cell: float):
+    """The `memory_estimates(extent_m=None, tiling=None)` method of a `Config` whose method
+    filters tile by tile (with a `cell_m`): a batch of up to `max_batch` tile rasters of
+    `tile_bytes_per_cell` bytes a cell (the tiling's largest window: `tiling` a
+    `gfjax.io.tiles.Tiling`, default its defaults), and with `extent_m` (the cloud's x, y
+    extent [m]) the whole-cloud mosaic of its diagnostics, `mosaic_bytes_per_cell` a cell."""
+
+    def memory_estimates(self, extent_m: tuple[float, float] | None = None, tiling: Any = None) -> list[Estimate]:
+        from gfjax.io.tiles import Tiling        # not at the top: `gfjax.io` imports laspy
+
+        tiling = Tiling() if tiling is None else tiling
+        side = raster_side(tiling.tile_size_m + 2 * tiling.buffer_m, self.cell_m)
+        tiles = tiles_per_batch(extent_m, tiling.tile_size_m, max_batch=max_batch)
+        out = [Estimate(f"a batch of {tiles} tile raster(s) of {side:,} x {side:,} cells "
+                        "((tile_size_m + 2 buffer_m) / cell_m)", float(side) ** 2 * tiles * tile_bytes_per_cell,
+                        ("cell_m", "tile_size_m", "buffer_m"))]
+        if extent_m is not None:
+            w, h = (raster_side(e, self.cell_m) for e in extent_m)
+            out.append(Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / cell_m)",
+                                float(h) * float(w) * mosaic_bytes_per_cell, ("cell_m",)))
+        return out
+
+    return memory_estimates
 
 
 def markdown_table() -> str:
@@ -242,7 +237,7 @@ def markdown_table() -> str:
     for method, module_name in TABLE_SOURCES.items():
         module = importlib.import_module(module_name)
         defaults = dict(getattr(module, "DEFAULTS", {}))
-        for cls_name in ("Config", "Params"):
+        for cls_name in ("Config", "Params", "Tiling"):
             cls = getattr(module, cls_name, None)
             if cls is not None and dataclasses.is_dataclass(cls):
                 for field in dataclasses.fields(cls):

@@ -2,13 +2,20 @@
 
 Every method package (`gfjax.smrf`, `gfjax.dmf`, ...) exposes, at its top level:
 
-- `filter(cloud, *, config=None, params=None, returns="all", progress=False) -> Result`
-- `Config`: a frozen dataclass of static values (shapes, loop counts, cell sizes) [metres].
+- `filter(cloud, *, config=None, params=None, returns="all", progress=False) -> Result`; a
+  method that cuts its work into buffered tiles (SMRF, PMF: the cloud; DMF: its NGNEM raster)
+  also takes `tiling=None`, a `gfjax.Tiling` (`gfjax.io.tiles`): an option of the run, never a
+  field of `Config` (`tiles`).
+- `Config`: a frozen dataclass of static values (shapes, loop counts, cell sizes) [metres],
+  with `memory_estimates(extent_m=None)` (and `tiling=None` for a method that tiles): the
+  largest allocations its values imply (`gfjax.limits`).
 - `Params`: traced scalars (thresholds optax may tune) [metres]: a subclass of
   `gfjax.params.Params` whose fields are `gfjax.params.param(default)`; or None.
 - `PRESETS`: dict of preset name -> dict of overrides (may be empty).
 - optionally `warm(config=None, params=None, *, progress=False) -> int`: load or compile the
   programs `filter` runs for every canonical input shape (`gfjax warmup`).
+- optionally `TILE_LABELS = True`: a tile's core labels depend on the tile's window only, so
+  a survey runs each tile of its lattice once (`lattice`; `gfjax.survey`).
 - optionally `survey_config(config, clouds) -> Config`: `config` with the estimates a method
   makes per cloud fixed once for a whole survey (`clouds`: each file's points filtered,
   float64 `(n_i, 3)` [m]), so every file and halo shares them (DMF's voxel size W;
@@ -21,7 +28,8 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from collections.abc import Mapping, Sequence
+import inspect
+from collections.abc import Mapping
 from types import ModuleType
 from typing import Any
 
@@ -70,6 +78,22 @@ def get(name: str, *, option: str = "--method") -> ModuleType:
     return module
 
 
+def tiles(method: ModuleType) -> bool:
+    """Whether `method`'s `filter` takes a `tiling` (it cuts its work into buffered tiles)."""
+    return "tiling" in inspect.signature(method.filter).parameters
+
+
+def lattice(method: ModuleType, config: Any, tiling: Any = None) -> Any:
+    """The tile lattice a survey runs `method` on tile by tile (`gfjax.io.tiles.Lattice`:
+    `tiling`, None for its defaults, at `config.cell_m`), for a method whose tiles' labels
+    depend on their windows only (`TILE_LABELS`); None for any other method."""
+    if not getattr(method, "TILE_LABELS", False):
+        return None
+    from gfjax.io.tiled import lattice_of
+
+    return lattice_of(tiling, config.cell_m)
+
+
 def _parse_value(text: str, current: Any) -> Any:
     if isinstance(current, bool):
         if text.lower() in ("1", "true", "yes", "on"):
@@ -113,15 +137,16 @@ def _as_field_value(value: Any, current: Any) -> Any:
 
 def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | None = None,
                            preset: str | None = None, *, values: Mapping[str, float] | None = None,
-                           values_source: str = "--params", base_config: Any = None,
-                           after: Sequence[tuple[str, Mapping[str, Any]]] = ()) -> tuple[Any, Any]:
+                           values_source: str = "--params", base_config: Any = None, tiling: Any = None,
+                           tiling_sources: Mapping[str, str] | None = None) -> tuple[Any, Any]:
     """Build a method's `Config` and `Params` from a preset, fitted values and `key=value`s.
 
     Precedence, lowest first: the defaults (or `base_config`, e.g. the settings a SparseGF
     model was trained with), `preset`, `values` (e.g. the `values` of a
-    `gfjax tune` params.json, named by `values_source` in errors), `overrides` (`--set`),
-    then each `(option, {key: value})` of `after` (options of their own such as
-    `--tile-size`). Keys are matched against the fields of `Config` and of `Params`. An
+    `gfjax tune` params.json, named by `values_source` in errors), then `overrides`
+    (`--set`). `tiling`, a `gfjax.Tiling` for a method that tiles (`tiles`), joins the checks
+    of the rasters the values set (its core must hold a cell; `tiling_sources` names the
+    option that gave each of its fields). Keys are matched against the fields of `Config` and of `Params`. An
     unknown key, an unknown preset, a value that does not parse or that the method's own
     checks reject (`Config.__post_init__`: ranges and memory budget, `gfjax.limits`;
     `Params.check()` when it exists) raises `InputError` naming the option and the key.
@@ -139,7 +164,6 @@ def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | No
         layers.append((f"--preset {preset}", presets[preset]))
     layers.append((values_source, values or {}))
     layers.append(("--set", overrides or {}))
-    layers.extend(after)
     config_fields = {f.name for f in dataclasses.fields(config)}
     params_fields = {f.name for f in dataclasses.fields(params)} if params is not None else set()
     config_updates: dict[str, Any] = {}
@@ -151,6 +175,9 @@ def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | No
                 current, updates = getattr(config, key), config_updates
             elif key in params_fields:
                 current, updates = getattr(params, key), params_updates
+            elif key in ("tile_size_m", "buffer_m"):
+                raise InputError(f"{source}: {key} is a tiling option, not a setting of method {method_name}: "
+                                 "give --tile-size / --buffer (in Python: `tiling=gfjax.Tiling(...)`)")
             else:
                 known = ", ".join(sorted(config_fields | params_fields))
                 raise InputError(f"{source}: unknown key {key!r} for method {method_name}; known keys: {known}")
@@ -167,14 +194,17 @@ def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | No
             params = dataclasses.replace(params, **params_updates)
         if params is not None and hasattr(params, "check"):
             params.check()
+        if tiling is not None and hasattr(config, "cell_m"):
+            tiling.lattice(config.cell_m)
         estimates = getattr(config, "memory_estimates", None)
         if estimates is not None:               # the rasters and loops the values set fit the budget
-            limits.check_memory(estimates())
+            limits.check_memory(estimates() if tiling is None else estimates(tiling=tiling))
     except (ValueError, TypeError) as err:
         # the options that gave the keys concerned, the key to change first first; a key left
         # at its default (or a check that names no key) points at every option given, or at
         # --set when none was
         keys = err.keys if isinstance(err, SettingError) else ()
+        source_of.update(tiling_sources or {})
         sources = list(dict.fromkeys(source_of[k] for k in keys if k in source_of))
         if not sources:
             sources = ["--set"] if not source_of else sorted(set(source_of.values()))

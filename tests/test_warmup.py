@@ -15,8 +15,8 @@ pytestmark = pytest.mark.slow          # tens of seconds per test: run first (co
 REPO = Path(__file__).resolve().parents[1]
 
 # 100 m tiles with 10 m buffers: one canonical side (128 cells), so warming is one raster program
-_SMALL = "smrf.Config(tile_size_m=100.0, buffer_m=10.0)"
-_WARM = f"from gfjax import smrf; print(smrf.warm({_SMALL}))"
+_SMALL = "gfjax.Tiling(tile_size_m=100.0, buffer_m=10.0)"
+_WARM = f"import gfjax; from gfjax import smrf; print(smrf.warm(tiling={_SMALL}))"
 _FILTER = f"""
 import numpy as np, jax, gfjax
 from gfjax import aot, smrf
@@ -27,7 +27,7 @@ jax.monitoring.register_event_listener(
 rng = np.random.default_rng(1)
 xy = rng.uniform(0, [77, 53], (5000, 2))               # a window of 98 x 74 cells: never warmed as such
 cloud = gfjax.Cloud.from_xyz(np.column_stack([xy + 5e5, 100 + 0.1 * xy[:, 0]]))
-ground = smrf.filter(cloud, config={_SMALL}).ground
+ground = smrf.filter(cloud, tiling={_SMALL}).ground
 print(len(compiled), int(ground.sum()))
 """
 

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import functools
 import math
 import os
@@ -139,8 +138,7 @@ def add_method_options(parser: argparse.ArgumentParser, *, method_help: str, def
 def method_table(*, default_method: bool = False, tiling: bool = False) -> str:
     """The end of `--help` for the commands that run a method: each method's presets (its
     `PRESETS`), the default method marked when `default_method`, and with `tiling` the methods
-    that take `--tile-size` / `--buffer` (a `Config` with `tile_size_m` and `buffer_m`), with
-    their defaults.
+    that take `--tile-size` / `--buffer` (`gfjax.methods.tiles`), with the defaults.
 
     Imports every method package, and so JAX (about a second): called only to print help.
     """
@@ -159,13 +157,15 @@ def method_table(*, default_method: bool = False, tiling: bool = False) -> str:
         presets = ", ".join(getattr(module, "PRESETS", None) or {}) or "none"
         lines.append(textwrap.fill(f"{label}: {presets}", width=width, subsequent_indent=" " * 6,
                                    break_on_hyphens=False))
-        defaults = {f.name: f.default for f in dataclasses.fields(module.Config)}
-        if "tile_size_m" in defaults and "buffer_m" in defaults:
-            tiled.append(f"{name} (default {defaults['tile_size_m']:g} m, buffer {defaults['buffer_m']:g} m)")
+        if methods.tiles(module):
+            tiled.append(name)
     if tiling:
+        from gfjax.io.tiles import Tiling
+
         taken = ", ".join(tiled) if tiled else "none"
-        lines.append(textwrap.fill(f"--tile-size and --buffer apply to the methods that tile: {taken}; "
-                                   "the other methods refuse them.", width=width, break_on_hyphens=False))
+        lines.append(textwrap.fill(f"--tile-size and --buffer apply to the methods that tile: {taken} (default "
+                                   f"{Tiling.tile_size_m:g} m tiles, {Tiling.buffer_m:g} m buffers); the other "
+                                   "methods refuse them.", width=width, break_on_hyphens=False))
     return "\n".join(lines)
 
 
@@ -258,7 +258,7 @@ def load_params_file(path: str | os.PathLike) -> dict[str, Any]:
 
 class MethodSetup(NamedTuple):
     """A method package, the Config/Params the options give it, and further keyword
-    arguments of its `filter` (SparseGF's `model`)."""
+    arguments of its `filter` (SparseGF's `model`, a tiled method's `tiling`)."""
 
     name: str
     module: ModuleType
@@ -269,14 +269,33 @@ class MethodSetup(NamedTuple):
     def filter(self, cloud, **kwargs):
         return self.module.filter(cloud, config=self.config, params=self.params, **(self.options or {}), **kwargs)
 
+    @property
+    def tiling(self):
+        """The `--tile-size` / `--buffer` tiling (`gfjax.Tiling`), None for the method's default."""
+        return (self.options or {}).get("tiling")
 
-def method_setup(args: argparse.Namespace, *, after=None) -> MethodSetup:
+    @property
+    def lattice(self):
+        """The lattice a survey runs tile by tile (`gfjax.methods.lattice`), or None."""
+        from gfjax import methods
+
+        return methods.lattice(self.module, self.config, self.tiling)
+
+    def memory_estimates(self) -> list:
+        """The method's `Config.memory_estimates()` with its tiling (`gfjax.limits`)."""
+        estimates = getattr(self.config, "memory_estimates", None)
+        if estimates is None:
+            return []
+        return estimates() if self.tiling is None else estimates(tiling=self.tiling)
+
+
+def method_setup(args: argparse.Namespace, *, tiling: tuple[float | None, float | None] = (None, None)) -> MethodSetup:
     """Resolve --method / --params / --preset / --set into a method and its Config/Params.
 
-    The method is `--method`, else the params file's method, else `DEFAULT_METHOD`.
-    `after(module)`, when given, returns further `(option, {key: value})` layers that win over
-    `--set` (e.g. `--tile-size`); every value is range-checked (`gfjax.limits`) before any
-    file is read.
+    The method is `--method`, else the params file's method, else `DEFAULT_METHOD`. `tiling`:
+    the `--tile-size` and `--buffer` values (None: not given), for a method that tiles
+    (`gfjax.methods.tiles`). Every value is range-checked (`gfjax.limits`) before any file is
+    read.
     """
     from gfjax import methods
 
@@ -293,10 +312,32 @@ def method_setup(args: argparse.Namespace, *, after=None) -> MethodSetup:
     if name == "sparsegf":
         net, base = module.load_model(model)          # a bad model file fails here, before any output
         options = {"model": net}
+    given = {key: value for key, value in zip(_TILING_OPTIONS, tiling) if value is not None}
+    tiling_ = _tiling(name, module, given) if given else None
     config, params = methods.make_config_and_params(
         module, parse_set_values(args.set_values), args.preset, values=params_file["values"] if params_file else None,
-        values_source=f"--params {args.params}", base_config=base, after=after(module) if after else ())
+        values_source=f"--params {args.params}", base_config=base, tiling=tiling_,
+        tiling_sources={key: _TILING_OPTIONS[key] for key in given})
+    if tiling_ is not None:
+        options = {**(options or {}), "tiling": tiling_}
     return MethodSetup(name, module, config, params, options)
+
+
+_TILING_OPTIONS = {"tile_size_m": "--tile-size", "buffer_m": "--buffer"}
+
+
+def _tiling(name: str, module: ModuleType, given: dict[str, float]):
+    """The `gfjax.Tiling` of `--tile-size` / `--buffer` (`given`: their fields), range-checked;
+    against the method's cell and the memory budget by `make_config_and_params`."""
+    from gfjax import methods
+    from gfjax.io.tiles import Tiling
+
+    if not methods.tiles(module):
+        raise InputError(f"{_TILING_OPTIONS[next(iter(given))]}: method {name} does not tile")
+    try:
+        return Tiling(**given)
+    except ValueError as err:
+        raise InputError(f"{_TILING_OPTIONS[err.keys[0]]}: {err}") from None
 
 
 def output_targets(inputs: Sequence[Path], output: str, *, option: str = "-o",

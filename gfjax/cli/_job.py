@@ -84,7 +84,8 @@ def check_outputs(outputs: Sequence[tuple[str, str | os.PathLike, tuple[str, ...
 
 
 def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Sequence[Path | None], *,
-             units: str | None, config: Any, dtm_cell_m: float | None, extra_bytes_per_point: int = 0,
+             units: str | None, estimates: Callable[[], list] | None, dtm_cell_m: float | None,
+             extra_bytes_per_point: int = 0,
              trust_data: bool = False) -> list[Planned]:
     """Check every input and output of a job before any file is filtered.
 
@@ -93,8 +94,9 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
         were checked by `check_outputs` already.
       units: the `--units` override, or None (the CRS decides).
       trust_data: `--trust-data` (a header whose point count disagrees with the data passes).
-      config: the method's Config; its `memory_estimates()` (when it has one: the rasters its
-        settings fix, such as a batch of tiles) are checked against the memory budget. Those
+      estimates: the method's memory estimates with its settings (`MethodSetup.memory_estimates`:
+        the rasters its settings fix, such as a batch of tiles), checked against the memory
+        budget; None: no check. Those
         over a cloud's extent are not: every method first moves groups of points far apart
         side by side (`gfjax.io.tiled.laid_out`), so the header's box says little of them;
         the method checks them once it has read the points, before anything is written.
@@ -112,7 +114,6 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
     from gfjax import dtm as dtm_lib
 
     planned = []
-    estimates = getattr(config, "memory_estimates", None)
     for source, target, dtm_target in zip(inputs, targets, dtm_targets):
         header = las_io.read_header(source, trust_data=trust_data)
         found = las_io.header_crs_units(header, name=str(source), units=units)

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import functools
 import os
 import sys
@@ -103,20 +102,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
-def _tiling_layers(args: argparse.Namespace, module) -> list[tuple[str, dict[str, float]]]:
-    """`--tile-size` / `--buffer` as `(option, {key: value})` layers of `method_setup`."""
-    fields = {f.name for f in dataclasses.fields(module.Config)}
-    layers = []
-    for option, key, value in (("--tile-size", "tile_size_m", args.tile_size),
-                               ("--buffer", "buffer_m", args.buffer)):
-        if value is None:
-            continue
-        if key not in fields:
-            raise InputError(f"{option}: method {module.__name__.split('.')[-1]} does not tile (no {key})")
-        layers.append((option, {key: value}))
-    return layers
-
-
 def run(args: argparse.Namespace) -> int:
     inputs = las_io.expand_inputs(args.inputs)
     targets = output_targets(inputs, args.output, suffixes=las_io.LAS_SUFFIXES)
@@ -140,9 +125,9 @@ def run(args: argparse.Namespace) -> int:
 
         dtm_lib.check_options("", cell_m=args.cell)
     # Options before files: every value in range, the rasters they set within the memory budget.
-    setup = method_setup(args, after=lambda module: _tiling_layers(args, module))
+    setup = method_setup(args, tiling=(args.tile_size, args.buffer))
     # Every input and output before the first file is filtered.
-    planned = _job.precheck(inputs, targets, dtm_targets, units=args.units, config=setup.config,
+    planned = _job.precheck(inputs, targets, dtm_targets, units=args.units, estimates=setup.memory_estimates,
                             dtm_cell_m=args.cell if args.dtm else None,
                             extra_bytes_per_point=4 if args.instances else 0, trust_data=args.trust_data)
     say_crs_warning([(job.source, job.crs_units) for job in planned])
@@ -162,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
                                    trust_data=args.trust_data, client=client)
             setup = setup._replace(config=survey.survey_config(setup.module, setup.config, catalog,
                                                                returns=args.returns))
-            runner = survey.Runner(catalog, functools.partial(_filter, setup, client is None), setup.config, folder,
+            runner = survey.Runner(catalog, functools.partial(_filter, setup, client is None), setup.lattice, folder,
                                    returns=args.returns, context=args.dtm is not None, client=client)
         return _run(args, setup, inputs, planned, runner)
 
@@ -182,7 +167,7 @@ def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
     catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data,
                            client=client)
     setup = setup._replace(config=survey.survey_config(setup.module, setup.config, catalog, returns=args.returns))
-    runner = survey.Runner(catalog, functools.partial(_filter, setup, False), setup.config, folder,
+    runner = survey.Runner(catalog, functools.partial(_filter, setup, False), setup.lattice, folder,
                            returns=args.returns, context=False, client=client)
     position = {source: i for i, source in enumerate(inputs)}
     # temporaries named here: this process's id in their names keeps other sweeps off them
@@ -301,8 +286,6 @@ def _out_of_core(args, setup, planned) -> bool:
     """Whether to filter tile by tile from disk: `--out-of-core`, or a file whose points, filtered
     in memory, would take more than the memory budget (`limits.IN_MEMORY_BYTES_PER_POINT`)."""
     from gfjax import limits
-    from gfjax.survey.halo import is_tiled
-
     budget = limits.memory_budget_bytes()
     need = [(job, job.header.point_count * (job.header.point_format.size + limits.IN_MEMORY_BYTES_PER_POINT))
             for job in planned]
@@ -313,7 +296,7 @@ def _out_of_core(args, setup, planned) -> bool:
         f"{large[0][0].source}: {large[0][0].header.point_count:,} points need about {large[0][1] / 2**30:.1f} "
         f"GiB filtered in memory, more than the budget of {budget / 2**30:.1f} GiB (set {limits.BUDGET_ENV} to "
         "change it)")
-    if not is_tiled(setup.config):
+    if setup.lattice is None:
         raise InputError(f"{why}: method {setup.name} filters a file in memory only; smrf and pmf filter it "
                          "out of core, a tile at a time")
     for option, given in (("--dtm", args.dtm is not None), ("--instances", args.instances)):
@@ -335,7 +318,7 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
     if client is not None or (len(inputs) > 1 and not args.independent):
         catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data,
                                client=client)
-        shared = (survey.Runner(catalog, filter_fn, setup.config, folder, returns=args.returns, context=False,
+        shared = (survey.Runner(catalog, filter_fn, setup.lattice, folder, returns=args.returns, context=False,
                                 client=client),
                   {source: i for i, source in enumerate(inputs)})
 
@@ -345,7 +328,7 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
         with tempfile.TemporaryDirectory(prefix="file-", dir=folder) as own:      # this file's index only
             catalog = survey.index([job.source], own, returns=args.returns, units=args.units,
                                    trust_data=args.trust_data)
-            write(job, survey.Runner(catalog, filter_fn, setup.config, own, returns=args.returns, context=False), 0)
+            write(job, survey.Runner(catalog, filter_fn, setup.lattice, own, returns=args.returns, context=False), 0)
 
     def write(job: _job.Planned, runner, i: int) -> None:
         start_s = time.perf_counter()

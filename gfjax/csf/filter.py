@@ -160,7 +160,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
                                           params_type=Params, package="gfjax.csf")
     if not use.any():
         return Result(ground=np.zeros(cloud.n_points, bool), diagnostics=None)
-    xyz_m, layout = laid_out(cloud, use, config)
+    xyz_m, layout = laid_out(cloud, use, config.memory_estimates)
     origin = xyz_m[use].min(axis=0)
     anchor = None
     if cloud.frame is not None and layout is None:

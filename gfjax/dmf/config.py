@@ -43,8 +43,6 @@ RANGES: dict[str, Range] = {
     "close_max_px": Range(3, 1001, integer=True, unit="cells", extra="odd"),
     "rc_min_share": Range(0, 1, low_open=True),
     "fill_neighbours": Range(1, 1000, integer=True),
-    "raster_tile_m": Range(0, 100_000, low_open=True, unit="m"),
-    "raster_buffer_m": Range(0, 10_000, unit="m"),
     "height_threshold_m": Range(-1000, 1000, unit="m"),
     "height_threshold_w": Range(-1000, 1000, unit="W"),
 }
@@ -109,8 +107,6 @@ class Config:
         only when both rules say so (the M-nearest points of Sec. 2.6, cut at the height
         threshold: the paper's Sec. 5.2 names understory taken by the M-nearest search as
         its main error on vegetated slopes).
-      raster_tile_m, raster_buffer_m: the NGNEM is cut into tiles of this core size and buffer
-        for the batched (vmap) raster stages [m].
     """
 
     v0: float = 2.0
@@ -133,8 +129,6 @@ class Config:
     support_z: str = "ndng"
     support_elevation: str = "centroid"
     final_rule: str = "height"
-    raster_tile_m: float = 500.0
-    raster_buffer_m: float = 50.0
 
     def __post_init__(self):
         limits.check_fields(self, RANGES)
@@ -154,18 +148,21 @@ class Config:
         if self.close_max_px % 2 == 0:
             raise SettingError(f"close_max_px must be an odd int >= 3, got {self.close_max_px!r}", "close_max_px")
 
-    def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
+    def memory_estimates(self, extent_m: tuple[float, float] | None = None, tiling=None) -> list[limits.Estimate]:
         """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a
         job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`) at the
         smallest voxel size W they allow (`voxel_m`, else 1 m: Eq. 1 rounds W up to whole
-        metres): a batch of NGNEM tiles, and with `extent_m` (the cloud's x, y extent [m]) the
-        whole-cloud rasters."""
+        metres): a batch of NGNEM tiles (`tiling` a `gfjax.io.tiles.Tiling`, None: its
+        defaults), and with `extent_m` (the cloud's x, y extent [m]) the whole-cloud rasters."""
+        from gfjax.io.tiles import Tiling        # not at the top: `gfjax.io` imports laspy
+
         cell = self.voxel_m if self.voxel_m is not None else _MIN_DATA_VOXEL_M
-        side = limits.raster_side(self.raster_tile_m + 2 * self.raster_buffer_m, cell)
+        tiling = Tiling() if tiling is None else tiling
+        side = limits.raster_side(tiling.tile_size_m + 2 * tiling.buffer_m, cell)
         tiles = MAX_BATCH                       # every batch is padded to MAX_BATCH tiles (one compile)
-        out = [limits.Estimate(f"a batch of {tiles} NGNEM tiles of {side:,} x {side:,} cells ((raster_tile_m + "
-                               "2 raster_buffer_m) / W)", float(side) ** 2 * tiles * _TILE_BYTES_PER_CELL,
-                               ("voxel_m", "raster_tile_m", "raster_buffer_m"))]
+        out = [limits.Estimate(f"a batch of {tiles} NGNEM tiles of {side:,} x {side:,} cells ((tile_size_m + "
+                               "2 buffer_m) / W)", float(side) ** 2 * tiles * _TILE_BYTES_PER_CELL,
+                               ("voxel_m", "tile_size_m", "buffer_m"))]
         if extent_m is not None:
             w, h = (limits.raster_side(e, cell) for e in extent_m)
             out.append(limits.Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / W)",

@@ -33,7 +33,7 @@ from gfjax import aot
 from gfjax.dmf.config import Config, Params
 from gfjax.dmf.voxels import Voxels
 from gfjax.dmf.shapes import raster_shape
-from gfjax.io.tiles import canonical_capacity
+from gfjax.io.tiles import Tiling, canonical_capacity
 from gfjax.raster import inpaint_nearest, replicate_edges, sample_bilinear
 
 __all__ = ["extract_ground", "SupportNodes", "support_nodes", "column_lowest_z", "m_nearest_ground", "height_ground",
@@ -173,14 +173,15 @@ def prefetch_height_rule(n_points: int, shape: tuple[int, int]) -> None:
                  spec((), np.float32), spec((), np.float32))
 
 
-def height_ground(points: np.ndarray, nodes: SupportNodes, vox: Voxels, threshold_m, config: Config) -> np.ndarray:
+def height_ground(points: np.ndarray, nodes: SupportNodes, vox: Voxels, threshold_m,
+                  tiling: Tiling | None = None) -> np.ndarray:
     """Alternative final rule: ground when `z - S(x, y) <= threshold_m`, S the support surface
     (not lowered) sampled bilinearly between cell centres. Returns bool `(n,)`.
 
-    The raster is padded to a canonical shape (`shapes.raster_shape`, with `config`'s NGNEM
-    tiling) and the points to a canonical capacity: a handful of programs per machine."""
+    The raster is padded to a canonical shape (`shapes.raster_shape`, with the NGNEM's
+    `tiling`) and the points to a canonical capacity: a handful of programs per machine."""
     h, w = vox.shape
-    rows, cols = raster_shape((h, w), vox.cell_m, config)
+    rows, cols = raster_shape((h, w), vox.cell_m, tiling)
     surface = np.zeros((rows, cols), np.float32)
     valid = np.zeros((rows, cols), bool)
     flat_s, flat_v = np.zeros(h * w, np.float32), np.zeros(h * w, bool)
@@ -198,7 +199,8 @@ def height_ground(points: np.ndarray, nodes: SupportNodes, vox: Voxels, threshol
 
 
 def extract_ground(points: np.ndarray, vox: Voxels, object_cell: np.ndarray, in_ndng: np.ndarray, config: Config,
-                   params: Params, *, points_tree: cKDTree | None = None) -> tuple[SupportNodes, np.ndarray, int]:
+                   params: Params, *, points_tree: cKDTree | None = None,
+                   tiling: Tiling | None = None) -> tuple[SupportNodes, np.ndarray, int]:
     """Step 7 (Sec. 2.6) as `config` reads it: support nodes, then the final rule.
 
     Args:
@@ -207,6 +209,7 @@ def extract_ground(points: np.ndarray, vox: Voxels, object_cell: np.ndarray, in_
       config: `v1`, `fill_neighbours`, `support_z`, `support_elevation`, `final_rule`.
       params: the height rule's threshold (`Params.threshold_m(W)`).
       points_tree: a `cKDTree` of `points`, reused if given.
+      tiling: the NGNEM's tiling (it sets the support surface's padded shape).
 
     Returns: `(nodes, ground bool (n,), M)`; M = 0 when the M-nearest rule is not used.
     """
@@ -218,5 +221,5 @@ def extract_ground(points: np.ndarray, vox: Voxels, object_cell: np.ndarray, in_
         ground, m_points = m_nearest_ground(points, nodes, points_tree=points_tree)
     if config.final_rule in ("height", "both"):
         host = jax.tree.map(np.asarray, params)           # numpy arithmetic: no tiny JAX programs
-        ground = ground & height_ground(points, nodes, vox, host.threshold_m(vox.cell_m), config)
+        ground = ground & height_ground(points, nodes, vox, host.threshold_m(vox.cell_m), tiling)
     return nodes, ground, m_points

@@ -27,7 +27,8 @@ from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import extract, neighbours, shapes, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params
 from gfjax.io.cloud import CloudView
-from gfjax.io.tiled import checked_options, laid_out
+from gfjax.io.tiled import checked_options, checked_tiling, laid_out
+from gfjax.io.tiles import Tiling
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
 
@@ -90,32 +91,33 @@ def _check(cloud, config, params, returns) -> tuple[Config, Params, np.ndarray]:
 
 
 def run_raster_stages(z: np.ndarray, layer: np.ndarray, valid: np.ndarray, cell_m: float, config: Config,
-                      *, progress: bool = False) -> stages.RasterStages:
+                      *, tiling: Tiling | None = None, progress: bool = False) -> stages.RasterStages:
     """Steps 4-6 on the whole NGNEM: one tile, or a vmapped batch of buffered, padded tiles.
 
     Args:
       z, layer, valid: ND_CE elevation (float32, local m), layer index (int32), valid (bool),
         each `(h, w)`.
-      cell_m: W [m]; config: tile core `raster_tile_m` and buffer `raster_buffer_m` [m].
+      cell_m: W [m]; config: the stages' static options.
+      tiling: the NGNEM's tile cores and buffers (None: `Tiling()`).
 
     Returns: `RasterStages` of the whole raster (host numpy); a tile's core comes from that
     tile; instance ids are relabelled over the whole raster.
     """
-    return _dispatch_raster_stages(z, layer, valid, cell_m, config, progress=progress)()
+    return _dispatch_raster_stages(z, layer, valid, cell_m, config, tiling or Tiling(), progress=progress)()
 
 
-def _dispatch_raster_stages(z, layer, valid, cell_m, config, *, progress=False):
+def _dispatch_raster_stages(z, layer, valid, cell_m, config, tiling: Tiling, *, progress=False):
     """`run_raster_stages` in two halves: this call starts the work, the returned function
     waits for it and returns the host `RasterStages`. A raster that fits one tile is one
     asynchronous jitted call, so host work between the halves overlaps its execution; a tiled
     raster (host steps between batches) is done at once."""
     h, w = z.shape
-    core = _tile_core_px(cell_m, config)
-    buf = math.ceil(config.raster_buffer_m / cell_m)
+    core = _tile_core_px(cell_m, tiling)
+    buf = math.ceil(tiling.buffer_m / cell_m)
     kwargs = stage_options(config)
     w_m = np.float32(cell_m)                 # host scalars and arrays go to the jitted calls as
     share = np.float32(config.rc_min_share)  # numpy: no conversion program compiles or runs
-    shape = _one_tile_shape((h, w), cell_m, config)
+    shape = _one_tile_shape((h, w), cell_m, tiling)
     if shape is not None:
         out = aot.call(stages.raster_stages, *_pad_tile(z, layer, valid, shape), w_m, share, **kwargs)
         return lambda: stages.RasterStages(*[np.asarray(a)[:h, :w] if np.ndim(a) == 2 else np.asarray(a) for a in out])
@@ -125,7 +127,7 @@ def _dispatch_raster_stages(z, layer, valid, cell_m, config, *, progress=False):
             rows = (max(0, r0 - buf), min(h, r0 + core + buf))
             cols = (max(0, c0 - buf), min(w, c0 + core + buf))
             windows.append((r0, c0, rows, cols))
-    side = shapes.raster_sides(cell_m, config)[-1]          # every window fits the largest: one program per W
+    side = shapes.raster_sides(cell_m, tiling)[-1]          # every window fits the largest: one program per W
     shape = (side, side)
     fields = {name: np.zeros((h, w), dtype) for name, dtype in
               (("ngnem", np.float32), ("layer", np.int32), ("rhc", bool), ("ngnem_bi", bool),
@@ -166,18 +168,18 @@ def stage_options(config: Config) -> dict:
                 border_patches=config.border_patches, hole_test=config.hole_test, close_all=config.close_all)
 
 
-def _tile_core_px(cell_m: float, config: Config) -> int:
+def _tile_core_px(cell_m: float, tiling: Tiling) -> int:
     """Side of a raster tile's core [px]."""
-    return max(1, math.ceil(config.raster_tile_m / cell_m))
+    return max(1, math.ceil(tiling.tile_size_m / cell_m))
 
 
-def _one_tile_shape(shape: tuple[int, int], cell_m: float, config: Config) -> tuple[int, int] | None:
+def _one_tile_shape(shape: tuple[int, int], cell_m: float, tiling: Tiling) -> tuple[int, int] | None:
     """The padded shape of an NGNEM of `shape` that fits one tile, or None (it is tiled)."""
     h, w = shape
-    core = _tile_core_px(cell_m, config)
+    core = _tile_core_px(cell_m, tiling)
     if h > core or w > core:
         return None
-    return shapes.raster_shape((h, w), cell_m, config)
+    return shapes.raster_shape((h, w), cell_m, tiling)
 
 
 def _pad_tile(z, layer, valid, shape):
@@ -188,7 +190,7 @@ def _pad_tile(z, layer, valid, shape):
             np.pad(valid, pad).astype(bool), inside)
 
 
-def _voxels(local: np.ndarray, config: Config, worker) -> tuple[cKDTree | None, float, float, voxels.Voxels]:
+def _voxels(local: np.ndarray, config: Config, tiling: Tiling, worker) -> tuple[cKDTree | None, float, float, voxels.Voxels]:
     """Steps 1-2 (host): W, voxel columns, ND_CE. Returns `(tree, W, D_m, voxels)`.
 
     A KD-tree of every point serves W's nearest-neighbour sample and the M-nearest rule
@@ -213,15 +215,15 @@ def _voxels(local: np.ndarray, config: Config, worker) -> tuple[cKDTree | None, 
                                               minimum=config.sample_min, tree=tree, sample=sample)
     # The raster's shape is known from W: its stored program loads while the voxels are binned.
     shape = tuple(int(v) for v in np.floor(local[:, 1::-1].max(axis=0) / cell_m) + 1)
-    worker.submit(_prefetch_raster_program, shape, cell_m, config)
+    worker.submit(_prefetch_raster_program, shape, cell_m, config, tiling)
     if config.final_rule in ("height", "both"):
-        worker.submit(extract.prefetch_height_rule, len(local), shapes.raster_shape(shape, cell_m, config))
+        worker.submit(extract.prefetch_height_rule, len(local), shapes.raster_shape(shape, cell_m, tiling))
     return tree, cell_m, mean_nn, voxels.bin_voxels(local, cell_m)
 
 
-def _prefetch_raster_program(shape: tuple[int, int], cell_m: float, config: Config) -> None:
+def _prefetch_raster_program(shape: tuple[int, int], cell_m: float, config: Config, tiling: Tiling) -> None:
     """`gfjax.aot.prefetch` of the raster stages for an NGNEM of `shape` (one tile only)."""
-    padded = _one_tile_shape(shape, cell_m, config)
+    padded = _one_tile_shape(shape, cell_m, tiling)
     if padded is None:
         return
     spec = jax.ShapeDtypeStruct
@@ -229,23 +231,24 @@ def _prefetch_raster_program(shape: tuple[int, int], cell_m: float, config: Conf
                  spec(padded, np.bool_), spec((), np.float32), spec((), np.float32), **stage_options(config))
 
 
-def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False) -> int:
+def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False,
+         tiling: Tiling | None = None) -> int:
     """Load, or compile and store (`gfjax.aot`), the programs `filter` runs on a cloud of any
     size at W of `shapes.WARM_VOXELS_M` (1 and 2 m): the raster stages on every canonical
     side of one tile and on a batch of the largest, the basal loop on every node capacity up to
     `shapes.NODE_WARM_MAX_CAPACITY`, and the height rule on every side with every canonical
     point capacity. Nothing runs; nothing is kept when the program cache is off. Returns the
     number of programs prepared (`gfjax warmup`)."""
-    from gfjax.io import tiles as tiling
+    from gfjax.io.tiles import canonical_capacities
 
-    config = config or Config()
+    config, tiling = config or Config(), tiling or Tiling()
     spec = jax.ShapeDtypeStruct
     options = stage_options(config)
     one_tile, batched = set(), set()
     for cell_m in shapes.WARM_VOXELS_M:
-        core = _tile_core_px(cell_m, config)
-        sides = shapes.raster_sides(cell_m, config)
-        one_tile.update(s for s in sides if s <= shapes.raster_shape((core, core), cell_m, config)[0])
+        core = _tile_core_px(cell_m, tiling)
+        sides = shapes.raster_sides(cell_m, tiling)
+        one_tile.update(s for s in sides if s <= shapes.raster_shape((core, core), cell_m, tiling)[0])
         batched.add(sides[-1])
 
     def tile_specs(batch, side):
@@ -265,7 +268,7 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
         cap *= 2
     if config.final_rule in ("height", "both"):
         for side in sorted(one_tile):
-            for n in tiling.canonical_capacities():
+            for n in canonical_capacities():
                 jobs.append((extract.prefetch_height_rule, (n, (side, side)), None))
     if progress:
         from tqdm.auto import tqdm
@@ -294,7 +297,7 @@ def _padded_nodes(centroid: np.ndarray, table: neighbours.NeighbourTable, width:
     return xyz, index, valid
 
 
-def _layers(vox: voxels.Voxels, cell_m: float, config: Config, worker, lap, progress: bool):
+def _layers(vox: voxels.Voxels, cell_m: float, config: Config, tiling: Tiling, worker, lap, progress: bool):
     """Steps 3 and 4-6, which are independent. The raster stages (steps 4-6) are dispatched on
     `worker`, so loading their program (a new process) and running them overlap the host work
     of step 3 here: the cylinder table, the basal loop (asynchronous JAX), then ND_NG (host
@@ -306,7 +309,7 @@ def _layers(vox: voxels.Voxels, cell_m: float, config: Config, worker, lap, prog
     v_r = np.zeros(h * w, bool)
     z_r[vox.cell], k_r[vox.cell], v_r[vox.cell] = vox.centroid[:, 2], vox.layer, True
     raster_future = worker.submit(_dispatch_raster_stages, z_r.reshape(h, w), k_r.reshape(h, w), v_r.reshape(h, w),
-                                  cell_m, config, progress=progress)
+                                  cell_m, config, tiling, progress=progress)
     table = neighbours.cylinder_table(vox.centroid[:, :2], radius_m=config.basal_radius_w * cell_m,
                                       k=config.basal_neighbours, max_width=config.basal_table_width)
     cap = np.inf if config.basal_sink_cap_w is None else config.basal_sink_cap_w * cell_m
@@ -356,6 +359,7 @@ class Prepared(NamedTuple):
 
     Attributes:
       config: the settings the steps ran with (`voxel_m` set on a survey's window).
+      tiling: the NGNEM's tiles.
       use: bool `(n,)` the cloud's points filtered; the arrays below hold those only.
       layout: how far groups were moved together (`gfjax.io.groups`), or None.
       local: float64 `(u, 3)` used points less `origin` [m]; origin: float64 `(3,)` [m].
@@ -367,6 +371,7 @@ class Prepared(NamedTuple):
     """
 
     config: Config
+    tiling: Tiling
     use: np.ndarray
     layout: object
     local: np.ndarray
@@ -388,9 +393,13 @@ class Prepared(NamedTuple):
         return np.asarray(self.rs.ngnem_rc).reshape(-1)
 
 
-def prepare(cloud: CloudView, use: np.ndarray, config: Config, *, progress: bool = False) -> Prepared:
-    """Steps 1-6 on the points `use` (bool `(n,)`, at least one) of `cloud` (`config` checked)."""
-    xyz, layout = laid_out(cloud, use, config, reach_m=config.raster_buffer_m)
+def prepare(cloud: CloudView, use: np.ndarray, config: Config, *, tiling: Tiling | None = None,
+            progress: bool = False) -> Prepared:
+    """Steps 1-6 on the points `use` (bool `(n,)`, at least one) of `cloud` (`config` checked;
+    `tiling`: the NGNEM's tiles, None: `Tiling()`)."""
+    tiling = tiling or Tiling()
+    xyz, layout = laid_out(cloud, use, functools.partial(config.memory_estimates, tiling=tiling),
+                           reach_m=tiling.buffer_m)
     xyz = xyz if use.all() else xyz[use]          # no 20 MB copy when every point is used
     clock = [time.perf_counter()]
     seconds: dict[str, float] = {}
@@ -413,16 +422,16 @@ def prepare(cloud: CloudView, use: np.ndarray, config: Config, *, progress: bool
         origin = cloud.frame.snap(origin, config.voxel_m)
     local = xyz - origin
     with concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="gfjax-dmf") as worker:
-        tree, cell_m, mean_nn, vox = _voxels(local, config, worker)
+        tree, cell_m, mean_nn, vox = _voxels(local, config, tiling, worker)
         mean_nn = window_nn if np.isnan(mean_nn) else mean_nn
         lap("voxels")
-        in_ndng, basal, rs, ngnem_valid, overflowed = _layers(vox, cell_m, config, worker, lap, progress)
-    return Prepared(config, use, layout, local, origin, tree, cell_m, mean_nn, vox, in_ndng, basal, rs, ngnem_valid,
+        in_ndng, basal, rs, ngnem_valid, overflowed = _layers(vox, cell_m, config, tiling, worker, lap, progress)
+    return Prepared(config, tiling, use, layout, local, origin, tree, cell_m, mean_nn, vox, in_ndng, basal, rs, ngnem_valid,
                     overflowed, seconds)
 
 
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,  # noqa: A001
-           returns: str = "all", progress: bool = False) -> Result:
+           returns: str = "all", progress: bool = False, tiling: Tiling | None = None) -> Result:
     """Classify ground points with DMF (Wu et al. 2025; our readings: SPEC section 3).
 
     Args:
@@ -430,6 +439,8 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       config: static options (`Config`); params: traced thresholds (`Params`).
       returns: "all" or "last" returns.
       progress: show a progress bar over NGNEM tile batches.
+      tiling: the tile cores and buffers the NGNEM raster is cut into for the batched raster
+        stages (default `Tiling()`: 500 m, 50 m; `gfjax.io.tiles.Tiling`).
 
     Returns:
       `Result(ground, diagnostics, instance_id)`: ground bool `(n,)`; `Diagnostics` (None
@@ -438,16 +449,17 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       point's cell, 0 for ground points and points outside every object region.
     """
     config, params, use = _check(cloud, config, params, returns)
+    tiling = checked_tiling(tiling)
     n_all = cloud.n_points
     ground_all = np.zeros(n_all, bool)
     instance_all = np.zeros(n_all, np.uint32)
     if not use.any():
         return Result(ground=ground_all, diagnostics=None, instance_id=instance_all)
-    prep = prepare(cloud, use, config, progress=progress)
+    prep = prepare(cloud, use, config, tiling=tiling, progress=progress)
     clock = time.perf_counter()
     # Step 7: support nodes and the final rule.
     nodes, ground, m_points = extract.extract_ground(prep.local, prep.vox, prep.object_cell, prep.in_ndng,
-                                                     prep.config, params, points_tree=prep.tree)
+                                                     prep.config, params, points_tree=prep.tree, tiling=prep.tiling)
     instance = np.asarray(prep.rs.instances).reshape(-1)[prep.vox.point_cell].astype(np.uint32)
     instance[ground] = 0
     seconds = {**prep.seconds, "extract": time.perf_counter() - clock}

@@ -1,7 +1,7 @@
 """The canonical shapes DMF's compiled programs run on: raster sides and node capacities.
 
 Every raster DMF hands to a compiled program (an NGNEM tile, the support surface) is padded to
-a square of one of a few sides (`gfjax.io.tiles.canonical_sides` of the NGNEM tiling at W),
+a square of one of a few sides (`gfjax.io.tiles.canonical_sides` of the NGNEM's tiling at W),
 every array of ND_CE to a power-of-two capacity and every array of points to a canonical
 capacity (`gfjax.io.tiles.canonical_capacity`): a machine compiles DMF's programs a handful
 of times in its life, not once per file size (`gfjax warmup` does it ahead). The stages are
@@ -10,25 +10,25 @@ nodes have no neighbours, padded points are sliced off), so the labels are the s
 """
 from __future__ import annotations
 
-from gfjax.dmf.config import Config
-from gfjax.io import tiles as tiling
+from gfjax.io.tiles import Tiling, canonical_sides
 
 NODE_MIN_CAPACITY = 1 << 12        # the smallest ND_CE capacity [nodes]
 NODE_WARM_MAX_CAPACITY = 1 << 18   # the largest ND_CE capacity `warm` compiles ahead (a 500 m tile at W = 1 m)
 WARM_VOXELS_M = (1.0, 2.0)         # the W whose raster sides `warm` compiles (W >= 1 m, whole metres)
 
 
-def raster_sides(cell_m: float, config: Config) -> tuple[int, ...]:
+def raster_sides(cell_m: float, tiling: Tiling | None = None) -> tuple[int, ...]:
     """The canonical square sides [cells] of NGNEM tiles of W = `cell_m` [m]: 128, 192, 256,
-    ... up to the largest buffered tile of `config.raster_tile_m` and `raster_buffer_m`."""
-    return tiling.canonical_sides(config.raster_tile_m, config.raster_buffer_m, cell_m)
+    ... up to the largest buffered tile of `tiling` (None: `Tiling()`)."""
+    tiling = Tiling() if tiling is None else tiling
+    return canonical_sides(tiling.tile_size_m, tiling.buffer_m, cell_m)
 
 
-def raster_shape(shape: tuple[int, int], cell_m: float, config: Config) -> tuple[int, int]:
+def raster_shape(shape: tuple[int, int], cell_m: float, tiling: Tiling | None = None) -> tuple[int, int]:
     """The padded shape of a raster of `shape` cells: the smallest canonical square holding it,
     or, for a raster larger than every canonical side (a whole-cloud surface), each axis
     rounded up to a multiple of the largest side."""
-    sides = raster_sides(cell_m, config)
+    sides = raster_sides(cell_m, tiling)
     need = max(shape)
     side = next((s for s in sides if s >= need), None)
     if side is not None:

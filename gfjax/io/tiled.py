@@ -6,13 +6,13 @@ batches of one raster shape (`tiles.batches`), run each batch through one jitted
 `classify_batch` (one compile per batch shape), keep the core points' labels (`tiles.merge`),
 and paste each tile's core out of its per-tile rasters into whole-cloud rasters (row 0 =
 north, docs/ARCHITECTURE.md) (the padded tile layout is `gfjax.raster.domain_mask`). Also the
-option checks at the top of every method's `filter`, and `without_tiling`.
+option checks at the top of every method's `filter`.
 
 Host-side numpy around the jitted batch function.
 """
 from __future__ import annotations
 
-import dataclasses
+import functools
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple, TypeVar
 
@@ -22,15 +22,18 @@ from jaxtyping import Array, Bool, Float
 from gfjax import limits
 from gfjax.errors import InputError
 from gfjax.io import groups
-from gfjax.io import tiles as tiling
+from gfjax.io import tiles as tiles_lib
 from gfjax.io.cloud import CloudView
 
-__all__ = ["checked_options", "check_memory", "laid_out", "without_tiling", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
+__all__ = ["checked_options", "check_memory", "laid_out", "checked_tiling", "lattice_of", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
            "classify_cloud", "TiledRun"]
 
 ConfigT = TypeVar("ConfigT")
 
 ParamsT = TypeVar("ParamsT")
+
+Estimates = Callable[[tuple[float, float] | None], list[limits.Estimate]]
+"""`estimates(extent_m)`: a method's `Config.memory_estimates` with its settings bound."""
 
 ClassifyBatch = Callable[..., tuple[Bool[Array, "b n"], tuple]]
 """`classify_batch(xyz (b, n, 3) float32, valid (b, n) bool, hw (b, 2) int32, params, *, config,
@@ -38,11 +41,22 @@ shape=(h, w)) -> (ground (b, n) bool, diagnostics)`, every diagnostics field a `
 raster whose tile data sit in the south-west corner (`gfjax.raster.domain_mask`)."""
 
 
-def without_tiling(config: ConfigT) -> ConfigT:
-    """`config` with its tiling fields (`tile_size_m`, `buffer_m`, which never reach a stage)
-    at their defaults, so configs that differ only there share one compiled program."""
-    cls = type(config)
-    return dataclasses.replace(config, tile_size_m=cls.tile_size_m, buffer_m=cls.buffer_m)
+def checked_tiling(tiling: tiles_lib.Tiling | None) -> tiles_lib.Tiling:
+    """A method's `tiling` argument: `Tiling()` for None; not a `Tiling` raises `InputError`."""
+    tiling = tiles_lib.Tiling() if tiling is None else tiling
+    if not isinstance(tiling, tiles_lib.Tiling):
+        raise InputError(f"tiling must be a gfjax.Tiling, got {type(tiling).__name__}")
+    return tiling
+
+
+def lattice_of(tiling: tiles_lib.Tiling | None, cell_m: float, *, name: str = "") -> tiles_lib.Lattice:
+    """`tiling` (`checked_tiling`) at a method's raster cell `cell_m` [m]; a core smaller than
+    a cell raises `InputError` (naming `name`, a cloud)."""
+    tiling = checked_tiling(tiling)
+    try:
+        return tiling.lattice(cell_m)
+    except ValueError as err:
+        raise InputError(f"{name}: {err}" if name else str(err)) from None
 
 
 def checked_options(cloud: object, config: ConfigT | None, params: ParamsT | None, returns: str, *,
@@ -81,23 +95,23 @@ def checked_options(cloud: object, config: ConfigT | None, params: ParamsT | Non
     return config, params, use
 
 
-def laid_out(cloud: CloudView, use: np.ndarray, config: Any, *, reach_m: float = 0.0,
+def laid_out(cloud: CloudView, use: np.ndarray, estimates: Estimates | None, *, reach_m: float = 0.0,
              keep_frame: bool = False) -> tuple[np.ndarray, groups.Layout | None]:
     """`(coordinates (n, 3) [m], layout)`: `cloud.xyz_m` with the used points' groups that lie
     `max(groups.GAP_M, reach_m)` or more apart moved side by side (`gfjax.io.groups`;
     `reach_m`: how far the method looks around a point; layout None, the cloud's own array,
     when that wins nothing or `keep_frame`: a tiled method on a survey's frame), then the
-    rasters over the used points checked against the memory budget (`check_memory`)."""
+    rasters over the used points checked against the memory budget (`check_memory`:
+    `estimates`, the method's `Config.memory_estimates` with its settings bound)."""
     gap_m = max(groups.GAP_M, reach_m)
     xyz_m, layout = (cloud.xyz_m, None) if keep_frame else groups.compacted(cloud.xyz_m, gap_m, use=use)
-    check_memory(cloud.name, config, xyz_m[use, :2])
+    check_memory(cloud.name, estimates, xyz_m[use, :2])
     return xyz_m, layout
 
 
-def check_memory(name: str, config: Any, xy_m: np.ndarray) -> None:
-    """Raise `InputError` naming `name` when `config.memory_estimates` (if it has one) puts the
-    rasters over points `xy_m` `(n, 2)` [m] over the memory budget (`gfjax.limits`)."""
-    estimates = getattr(config, "memory_estimates", None)
+def check_memory(name: str, estimates: Estimates | None, xy_m: np.ndarray) -> None:
+    """Raise `InputError` naming `name` when `estimates` (None: no check) puts the rasters over
+    points `xy_m` `(n, 2)` [m] over the memory budget (`gfjax.limits`)."""
     if estimates is None or len(xy_m) == 0:
         return
     extent = xy_m.max(axis=0) - xy_m.min(axis=0)
@@ -107,8 +121,8 @@ def check_memory(name: str, config: Any, xy_m: np.ndarray) -> None:
         raise InputError(f"{name}: {err}") from None
 
 
-def run_batches(tiles: Sequence[tiling.Tile], classify_batch: ClassifyBatch, params: Any, config: Any, *,
-                max_batch: int, progress: bool = False, desc: str = "tiles",
+def run_batches(tiles: Sequence[tiles_lib.Tile], classify_batch: ClassifyBatch, params: Any, config: Any, *,
+                lattice: tiles_lib.Lattice, max_batch: int, progress: bool = False, desc: str = "tiles",
                 keep_diagnostics: bool = True) -> tuple[list[np.ndarray], list[tuple | None]]:
     """Classify tiles batch by batch (`tiles.batches`, one `classify_batch` call per batch).
 
@@ -116,6 +130,7 @@ def run_batches(tiles: Sequence[tiling.Tile], classify_batch: ClassifyBatch, par
       tiles: from `tiles.split`.
       classify_batch: the method's vmapped batch function (`ClassifyBatch`).
       params, config: passed through (`config` static).
+      lattice: the tiling the tiles were cut with (it sets the canonical raster sides).
       max_batch: most tiles per call.
       progress: show a progress bar over batches, labelled `desc`.
       keep_diagnostics: crop and keep the per-tile rasters (else None per tile).
@@ -128,8 +143,8 @@ def run_batches(tiles: Sequence[tiling.Tile], classify_batch: ClassifyBatch, par
     position = {id(tile): i for i, tile in enumerate(tiles)}
     labels: list[np.ndarray | None] = [None] * len(tiles)
     diagnostics: list[tuple | None] = [None] * len(tiles)
-    sides = tiling.canonical_sides(config.tile_size_m, config.buffer_m, config.cell_m)
-    groups = list(tiling.batches(tiles, max_batch=max_batch, sides=sides))
+    sides = tiles_lib.canonical_sides(*lattice)
+    groups = list(tiles_lib.batches(tiles, max_batch=max_batch, sides=sides))
     if progress:
         from tqdm.auto import tqdm
         groups = tqdm(groups, desc=desc, unit="batch")
@@ -161,9 +176,10 @@ class Mosaic(NamedTuple):
     origin_m: np.ndarray
 
 
-def warm(classify_batch: ClassifyBatch, params: Any, config: Any, *, progress: bool = False, desc: str = "programs") -> int:
+def warm(classify_batch: ClassifyBatch, params: Any, config: Any, *, tiling: tiles_lib.Tiling | None = None,
+         progress: bool = False, desc: str = "programs") -> int:
     """Load, or compile and store (`gfjax.aot`), every program `run_batches` runs for a
-    one-tile batch of this tiling: each canonical raster side (`tiles.canonical_sides`) with
+    one-tile batch of `tiling` (None: `Tiling()`) at `config.cell_m`: each canonical raster side (`tiles.canonical_sides`) with
     each canonical point capacity (`tiles.canonical_capacities`). Nothing runs; batches of
     `max_batch` tiles (surveys of many tiles) still compile on first use. Nothing is kept
     when the program cache is off. Returns the number of shape pairs prepared."""
@@ -172,8 +188,8 @@ def warm(classify_batch: ClassifyBatch, params: Any, config: Any, *, progress: b
     from gfjax import aot
 
     spec = jax.ShapeDtypeStruct
-    pairs = [(side, cap) for side in tiling.canonical_sides(config.tile_size_m, config.buffer_m, config.cell_m)
-             for cap in tiling.canonical_capacities()]
+    pairs = [(side, cap) for side in tiles_lib.canonical_sides(*lattice_of(tiling, config.cell_m))
+             for cap in tiles_lib.canonical_capacities()]
     if progress:
         from tqdm.auto import tqdm
         pairs = tqdm(pairs, desc=desc, unit="shape")
@@ -184,7 +200,7 @@ def warm(classify_batch: ClassifyBatch, params: Any, config: Any, *, progress: b
     return len(pairs)
 
 
-def mosaic(tiles: Sequence[tiling.Tile], diagnostics: Sequence[tuple], *, names: Sequence[str],
+def mosaic(tiles: Sequence[tiles_lib.Tile], diagnostics: Sequence[tuple], *, names: Sequence[str],
            heights: Sequence[str] = (), cell_m: float) -> Mosaic:
     """Paste each tile's core cells of its cropped rasters into whole-cloud rasters.
 
@@ -234,33 +250,32 @@ class TiledRun(NamedTuple):
     """
 
     ground: np.ndarray
-    tiles: list[tiling.Tile]
+    tiles: list[tiles_lib.Tile]
     diagnostics: list[tuple | None]
 
 
 def classify_cloud(xyz_m: Float[np.ndarray, "n 3"], use: Bool[np.ndarray, " n"], classify_batch: ClassifyBatch,
-                   params: Any, config: Any, *, max_batch: int, progress: bool = False,
-                   desc: str = "tiles", frame: tiling.Frame | None = None) -> TiledRun:
+                   params: Any, config: Any, *, lattice: tiles_lib.Lattice, max_batch: int, progress: bool = False,
+                   desc: str = "tiles", frame: tiles_lib.Frame | None = None) -> TiledRun:
     """Split a cloud into buffered tiles, run `classify_batch` over them, merge the core labels.
 
     Args:
       xyz_m: float64 `(n, 3)` coordinates [m].
       use: bool `(n,)` points to classify.
       classify_batch, params, max_batch, progress, desc: as `run_batches`.
-      config: the method's static config; its `tile_size_m`, `buffer_m` and `cell_m` [m] set
-        the tiling.
+      config: the method's static config.
+      lattice: the tiling at the method's cell (`lattice_of`).
       frame: the tiling's box (`tiles.split`; default the used points' own).
 
     Returns:
       `TiledRun(ground, tiles, diagnostics)`.
     """
-    tiles = tiling.split(xyz_m, tile_size_m=config.tile_size_m, buffer_m=config.buffer_m,
-                         cell_m=config.cell_m, use=use, frame=frame)
+    tiles = tiles_lib.split(xyz_m, **lattice._asdict(), use=use, frame=frame)
     if not tiles:
         return TiledRun(ground=np.zeros(len(use), bool), tiles=[], diagnostics=[])
-    labels, diagnostics = run_batches(tiles, classify_batch, params, config, max_batch=max_batch,
+    labels, diagnostics = run_batches(tiles, classify_batch, params, config, lattice=lattice, max_batch=max_batch,
                                       progress=progress, desc=desc)
-    ground = tiling.merge(len(use), tiles, labels) & use
+    ground = tiles_lib.merge(len(use), tiles, labels) & use
     return TiledRun(ground=ground, tiles=tiles, diagnostics=diagnostics)
 
 
@@ -282,18 +297,21 @@ class Filtered(NamedTuple):
     n_tiles: int
 
 
-def filter_cloud(cloud: Any, config: Any, params: Any, returns: str, *, config_type: type, params_type: type,
-                 package: str, classify_batch: ClassifyBatch, max_batch: int, rasters: Sequence[str],
-                 heights: Sequence[str], progress: bool = False) -> Filtered:
-    """A tiled method's `filter` up to its diagnostics: options checked (`checked_options`),
+def filter_cloud(cloud: Any, config: Any, params: Any, returns: str, *, tiling: tiles_lib.Tiling | None,
+                 config_type: type, params_type: type, package: str, classify_batch: ClassifyBatch, max_batch: int,
+                 rasters: Sequence[str], heights: Sequence[str], progress: bool = False) -> Filtered:
+    """A tiled method's `filter` up to its diagnostics: options checked (`checked_options`,
+    `lattice_of`: `tiling` None is `Tiling()`),
     far groups laid out (`laid_out`; not on a survey's frame), tiles classified
     (`classify_cloud`) and their diagnostics `rasters` mosaicked (`heights`: those shifted to
     the cloud's vertical frame)."""
     config, params, use = checked_options(cloud, config, params, returns, config_type=config_type,
                                           params_type=params_type, package=package)
-    xyz_m, layout = laid_out(cloud, use, config, reach_m=config.buffer_m, keep_frame=cloud.frame is not None)
-    run = classify_cloud(xyz_m, use, classify_batch, params, config, max_batch=max_batch, frame=cloud.frame,
-                         progress=progress, desc=f"{package.rsplit('.', 1)[-1]} tiles")
+    lattice = lattice_of(tiling, config.cell_m, name=cloud.name)
+    estimates = functools.partial(config.memory_estimates, tiling=tiling)
+    xyz_m, layout = laid_out(cloud, use, estimates, reach_m=lattice.buffer_m, keep_frame=cloud.frame is not None)
+    run = classify_cloud(xyz_m, use, classify_batch, params, config, lattice=lattice, max_batch=max_batch,
+                         frame=cloud.frame, progress=progress, desc=f"{package.rsplit('.', 1)[-1]} tiles")
     cores = None
     if run.tiles and layout is None:
         cores = mosaic(run.tiles, run.diagnostics, names=rasters, heights=heights, cell_m=config.cell_m)

@@ -33,7 +33,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Frame", "Tile", "TileBatch", "split", "capacity_bucket", "shape_bucket", "canonical_sides",
+from gfjax import limits
+from gfjax.errors import SettingError
+from gfjax.limits import Range
+
+__all__ = ["Tiling", "Lattice", "RANGES", "Frame", "Tile", "TileBatch", "split", "capacity_bucket", "shape_bucket", "canonical_sides",
            "canonical_capacities", "canonical_capacity", "batches", "merge"]
 
 MIN_CAPACITY = 256
@@ -43,6 +47,54 @@ CANONICAL_MIN_CAPACITY = 1 << 14
 CANONICAL_MAX_CAPACITY = 1 << 22   # the largest capacity `gfjax warmup` compiles ahead
 CROP_SAVING = 4.0             # a window shrinks to its core points' box + buffer when that is this many times smaller
 FEW_CORES = 4                 # `split` finds the points of at most this many named tiles by masks
+
+
+# The valid range of each tiling option (`Tiling`; `--tile-size`, `--buffer`).
+RANGES: dict[str, Range] = {
+    "tile_size_m": Range(0, 100_000, low_open=True, unit="m", extra=">= the method's cell"),
+    "buffer_m": Range(0, 10_000, unit="m"),
+}
+
+
+class Lattice(NamedTuple):
+    """A tiling at a method's raster cell: the three numbers `split` and `canonical_sides` take.
+
+    Attributes:
+      tile_size_m: side of a tile core [m].
+      buffer_m: context around each core [m].
+      cell_m: the raster cell the windows snap to [m].
+    """
+
+    tile_size_m: float
+    buffer_m: float
+    cell_m: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Tiling:
+    """How a cloud is cut into buffered square tiles: an option of the driver that runs a
+    method, never of the method's stages (a tile's raster shape is the only thing they see).
+
+    SMRF and PMF cut the cloud, DMF its NGNEM raster; whatever the tiling, a point's label
+    comes from the tile whose core holds it, with `buffer_m` of context around the core.
+
+    Attributes:
+      tile_size_m: side of a tile core [m] (`--tile-size`).
+      buffer_m: context kept around each core [m] (`--buffer`; rounded out to whole cells).
+    """
+
+    tile_size_m: float = 500.0
+    buffer_m: float = 50.0
+
+    def __post_init__(self) -> None:
+        limits.check_fields(self, RANGES)
+
+    def lattice(self, cell_m: float) -> Lattice:
+        """This tiling at a raster cell of `cell_m` [m]; a core must hold at least one cell."""
+        if self.tile_size_m < cell_m:
+            raise SettingError(f"tile_size_m must be >= the cell ({cell_m:g} m), got {self.tile_size_m!r}",
+                               "tile_size_m", "cell_m")
+        return Lattice(float(self.tile_size_m), float(self.buffer_m), float(cell_m))
 
 
 class Frame(NamedTuple):

@@ -230,7 +230,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     except ValueError as err:
         raise InputError(f"{cloud.name}: masf params: {err}") from None
     used_index = np.flatnonzero(used)
-    xyz, layout = laid_out(cloud, used, config, reach_m=config.reach_m)
+    xyz, layout = laid_out(cloud, used, config.memory_estimates, reach_m=config.reach_m)
     frame = cloud.frame if layout is None else None
     ground_used, diagnostics = filter_points(xyz[used_index], config, params, frame)
     ground = np.zeros(cloud.n_points, dtype=bool)

@@ -11,4 +11,7 @@ from gfjax.pmf.config import PRESETS, Config, Params
 from gfjax.pmf.filter import PMFDiagnostics, filter, warm
 from gfjax.pmf.stages import Diagnostics
 
-__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "Diagnostics", "PMFDiagnostics"]
+# A tile's core labels depend on its window only: a survey runs each tile once (`gfjax.methods`).
+TILE_LABELS = True
+
+__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "TILE_LABELS", "Diagnostics", "PMFDiagnostics"]

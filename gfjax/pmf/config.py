@@ -21,18 +21,12 @@ RANGES: dict[str, Range] = {
     "cell_m": Range(0, 100, low_open=True, unit="m"),
     "max_window_m": Range(0, 10_000, low_open=True, unit="m", extra="<= 1000 cell_m"),
     "base": Range(2, 16, integer=True),
-    **limits.TILING_RANGES,
     "slope": Range(0, 100),
     "initial_distance_m": Range(0, 1000, unit="m"),
     "max_distance_m": Range(0, 1000, unit="m"),
 }
 MAX_WINDOW_PX = 1000          # max_window_m / cell_m: the largest window, in cells
 MAX_BATCH = 8                 # tiles per vmap call of `gfjax.pmf.filter`
-# Memory of one padded tile of a batch, per cell: about 16 float32 / int32 rasters (stage inputs,
-# work arrays, diagnostics) [bytes]: an estimate, not a measurement.
-_TILE_BYTES_PER_CELL = 16 * 4
-_MOSAIC_BYTES_PER_CELL = 3 * 8          # three whole-cloud float64 diagnostics rasters
-
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,32 +39,27 @@ class Config:
       exponential: window sizes `2 b^k + 1` cells (Zhang et al. 2003, Eq. 5) if True, else
         linear `2 k b + 1` cells (Eq. 4).
       base: b of the window series [-].
-      tile_size_m: side of a tile core for large clouds [m].
-      buffer_m: context around each tile core [m]; labels come from the core only.
     """
 
     cell_m: float = 1.0
     max_window_m: float = 33.0
     exponential: bool = True
     base: int = 2
-    tile_size_m: float = 500.0
-    buffer_m: float = 50.0
 
     def __post_init__(self) -> None:
         limits.check_fields(self, RANGES)
         if not isinstance(self.exponential, bool):
             raise SettingError(f"exponential must be a bool, got {self.exponential!r}", "exponential")
-        limits.check_tiling(self)
         if self.max_window_m > MAX_WINDOW_PX * self.cell_m:
             raise SettingError(f"max_window_m must be <= {MAX_WINDOW_PX} cell_m (max_window_m / cell_m sets the "
                                f"largest window), got {self.max_window_m!r}", "max_window_m", "cell_m")
 
-    def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
-        """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a
-        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): a batch of
-        tile rasters, and with `extent_m` (the cloud's x, y extent [m]) the whole-cloud mosaic."""
-        return limits.tiled_estimates(self, extent_m, max_batch=MAX_BATCH, tile_bytes_per_cell=_TILE_BYTES_PER_CELL,
-                                      mosaic_bytes_per_cell=_MOSAIC_BYTES_PER_CELL)
+    # The largest allocations these settings imply with a tiling (`gfjax.io.tiles.Tiling`),
+    # checked against the memory budget where a job starts: per tile cell about 16 float32 or
+    # int32 rasters (stage inputs, work arrays, diagnostics: an estimate, not a measurement),
+    # per cloud cell three float64 diagnostics rasters.
+    memory_estimates = limits.tiled_estimator(max_batch=MAX_BATCH, tile_bytes_per_cell=16 * 4,
+                                              mosaic_bytes_per_cell=3 * 8)
 
     @property
     def windows_px(self) -> tuple[int, ...]:

@@ -19,6 +19,7 @@ import numpy as np
 
 from gfjax.io import tiled
 from gfjax.io.cloud import CloudView
+from gfjax.io.tiles import Tiling
 from gfjax.pmf import programs
 from gfjax.pmf.config import MAX_BATCH, Config, Params
 from gfjax.result import Result
@@ -48,7 +49,7 @@ class PMFDiagnostics(NamedTuple):
 
 
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
-           returns: str = "all", progress: bool = False) -> Result:  # noqa: A001 (the package API name)
+           returns: str = "all", progress: bool = False, tiling: Tiling | None = None) -> Result:  # noqa: A001 (the package API name)
     """Classify a cloud's ground points with PMF (Zhang et al. 2003).
 
     Args:
@@ -57,13 +58,15 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       params: thresholds (default: slope 1, initial distance 0.15 m, max distance 2.5 m).
       returns: "all" or "last": which returns are filtered.
       progress: show a progress bar over tile batches.
+      tiling: how the cloud is cut into buffered tiles (default `Tiling()`: 500 m cores,
+        50 m buffers; `gfjax.io.tiles.Tiling`).
 
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points;
       `diagnostics` a `PMFDiagnostics` (None for a cloud with no usable point, and for one whose
       groups of points far apart were moved side by side: `gfjax.io.tiled.laid_out`).
     """
-    done = tiled.filter_cloud(cloud, config, params, returns, config_type=Config, params_type=Params,
+    done = tiled.filter_cloud(cloud, config, params, returns, tiling=tiling, config_type=Config, params_type=Params,
                               package="gfjax.pmf", classify_batch=programs.classify_batch, max_batch=MAX_BATCH,
                               rasters=("zimin", "surface", "empty"), heights=("zimin", "surface"), progress=progress)
     if done.cores is None:
@@ -73,8 +76,9 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
         windows_px=done.config.windows_px, n_tiles=done.n_tiles))
 
 
-def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False) -> int:
+def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False,
+         tiling: Tiling | None = None) -> int:
     """Prepare the programs `filter` runs on a file of one tile of any size (`tiled.warm`):
     later first runs load them instead of compiling. Returns the number of shapes prepared."""
     config, params = config or Config(), params or Params()
-    return tiled.warm(programs.classify_batch, params, config, progress=progress, desc="pmf shapes")
+    return tiled.warm(programs.classify_batch, params, config, tiling=tiling, progress=progress, desc="pmf shapes")

@@ -30,18 +30,12 @@ RANGES: dict[str, Range] = {
     "low_outlier_radius_px": Range(1, 100, integer=True, unit="cells"),
     "inpaint_max_iter": Range(1, 1_000_000, integer=True),
     "inpaint_tol_m": Range(0, 100, low_open=True, unit="m"),
-    **limits.TILING_RANGES,
     "slope": Range(0, 100),
     "threshold_m": Range(0, 1000, unit="m"),
     "scalar": Range(0, 1000),
 }
 MAX_WINDOW_PX = 1000          # window_m / cell_m: the largest opening radius, in cells
 MAX_BATCH = 8                 # tiles per vmap call of `gfjax.smrf.filter`
-# Memory of one padded tile of a batch, per cell: about 32 float32 / int32 rasters (stage inputs,
-# work arrays, diagnostics) [bytes]: an estimate, not a measurement.
-_TILE_BYTES_PER_CELL = 32 * 4
-_MOSAIC_BYTES_PER_CELL = 6 * 8          # six whole-cloud float64 diagnostics rasters
-
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,8 +52,6 @@ class Config:
       inpaint: how empty and removed cells are filled, "harmonic" (Laplace) or "nearest".
       inpaint_max_iter: iteration cap of the harmonic fill.
       inpaint_tol_m: stopping tolerance of the harmonic fill (max update) [m].
-      tile_size_m: side of a tile core for large clouds [m].
-      buffer_m: context around each tile core [m]; labels come from the core only.
     """
 
     cell_m: float = 1.0
@@ -69,8 +61,6 @@ class Config:
     inpaint: str = "harmonic"
     inpaint_max_iter: int = 2000
     inpaint_tol_m: float = 1e-3
-    tile_size_m: float = 500.0
-    buffer_m: float = 50.0
 
     def __post_init__(self) -> None:
         limits.check_fields(self, RANGES)
@@ -84,14 +74,13 @@ class Config:
         for ok, message, keys in checks:
             if not ok:
                 raise SettingError(f"{message}, got {getattr(self, keys[0])!r}", *keys)
-        limits.check_tiling(self)
 
-    def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
-        """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a
-        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): a batch of
-        tile rasters, and with `extent_m` (the cloud's x, y extent [m]) the whole-cloud mosaic."""
-        return limits.tiled_estimates(self, extent_m, max_batch=MAX_BATCH, tile_bytes_per_cell=_TILE_BYTES_PER_CELL,
-                                      mosaic_bytes_per_cell=_MOSAIC_BYTES_PER_CELL)
+    # The largest allocations these settings imply with a tiling (`gfjax.io.tiles.Tiling`),
+    # checked against the memory budget where a job starts: per tile cell about 32 float32 or
+    # int32 rasters (stage inputs, work arrays, diagnostics: an estimate, not a measurement),
+    # per cloud cell six float64 diagnostics rasters.
+    memory_estimates = limits.tiled_estimator(max_batch=MAX_BATCH, tile_bytes_per_cell=32 * 4,
+                                              mosaic_bytes_per_cell=6 * 8)
 
     @property
     def max_radius_px(self) -> int:

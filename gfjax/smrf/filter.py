@@ -22,6 +22,7 @@ import numpy as np
 
 from gfjax.io import tiled
 from gfjax.io.cloud import CloudView
+from gfjax.io.tiles import Tiling
 from gfjax.result import Result
 from gfjax.smrf import programs
 from gfjax.smrf.config import MAX_BATCH, Config, Params
@@ -55,15 +56,17 @@ class SMRFDiagnostics(NamedTuple):
 
 
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
-           returns: str = "all", progress: bool = False) -> Result:  # noqa: A001 (the package API name)
+           returns: str = "all", progress: bool = False, tiling: Tiling | None = None) -> Result:  # noqa: A001 (the package API name)
     """Classify a cloud's ground points with SMRF (Pingel et al. 2013).
 
     Args:
       cloud: the point cloud (any units; filtered in metres).
-      config: static settings (default `Config()`: cell 1 m, window 18 m, tiles 500 m / 50 m).
+      config: static settings (default `Config()`: cell 1 m, window 18 m).
       params: thresholds (default `Params()`: slope 0.15, threshold 0.5 m, scalar 1.25).
       returns: "all" or "last": which returns are filtered.
       progress: show a progress bar over tile batches.
+      tiling: how the cloud is cut into buffered tiles (default `Tiling()`: 500 m cores,
+        50 m buffers; `gfjax.io.tiles.Tiling`).
 
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points (noise,
@@ -71,7 +74,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       `SMRFDiagnostics` (None for a cloud with no usable point, and for one whose groups of
       points far apart were moved side by side: `gfjax.io.tiled.laid_out`).
     """
-    done = tiled.filter_cloud(cloud, config, params, returns, config_type=Config, params_type=Params,
+    done = tiled.filter_cloud(cloud, config, params, returns, tiling=tiling, config_type=Config, params_type=Params,
                               package="gfjax.smrf", classify_batch=programs.classify_batch, max_batch=MAX_BATCH,
                               rasters=_RASTERS, heights=("zimin", "zipro"), progress=progress)
     if done.cores is None:
@@ -80,8 +83,9 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
         **done.cores.rasters, origin_m=done.cores.origin_m, cell_m=done.config.cell_m, n_tiles=done.n_tiles))
 
 
-def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False) -> int:
+def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False,
+         tiling: Tiling | None = None) -> int:
     """Prepare the programs `filter` runs on a file of one tile of any size (`tiled.warm`):
     later first runs load them instead of compiling. Returns the number of shapes prepared."""
     config, params = config or Config(), params or Params()
-    return tiled.warm(programs.classify_batch, params, config, progress=progress, desc="smrf shapes")
+    return tiled.warm(programs.classify_batch, params, config, tiling=tiling, progress=progress, desc="smrf shapes")

@@ -32,8 +32,7 @@ def smrf_heights(xyz_m: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 2"]:
     SMRF runs over the cloud's buffered tiles as `gfjax.smrf.filter` does (far groups of
     points laid side by side first, `gfjax.io.groups`), and each point is read off the
     rasters of the tile whose core holds it, sampled as SMRF's own point test samples them."""
-    from gfjax.io import groups, tiled
-    from gfjax.io import tiles as tiling
+    from gfjax.io import groups, tiled, tiles
     from gfjax.smrf import programs
     from gfjax.smrf.config import MAX_BATCH, Config, Params
 
@@ -41,9 +40,10 @@ def smrf_heights(xyz_m: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 2"]:
     if len(xyz_m) == 0:
         return np.zeros((0, N_SMRF_FEATURES), np.float32)
     config, params = Config(), Params()
-    xyz_m, _ = groups.compacted(xyz_m, max(groups.GAP_M, config.buffer_m))
+    lattice = tiled.lattice_of(None, config.cell_m)
+    xyz_m, _ = groups.compacted(xyz_m, max(groups.GAP_M, lattice.buffer_m))
     run = tiled.classify_cloud(xyz_m, np.ones(len(xyz_m), bool), programs.classify_batch, params, config,
-                               max_batch=MAX_BATCH)
+                               lattice=lattice, max_batch=MAX_BATCH)
     dzs, margins = [], []
     for tile, diag in zip(run.tiles, run.diagnostics):
         h, w = tile.shape
@@ -58,4 +58,4 @@ def smrf_heights(xyz_m: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 2"]:
         dzs.append(dz.astype(np.float32))
         margins.append(margin.astype(np.float32))
     n = len(xyz_m)
-    return np.stack([tiling.merge(n, run.tiles, dzs), tiling.merge(n, run.tiles, margins)], axis=1)
+    return np.stack([tiles.merge(n, run.tiles, dzs), tiles.merge(n, run.tiles, margins)], axis=1)

@@ -1,6 +1,6 @@
 """A file of a survey with its halo: the neighbours' points its tiles' windows can reach.
 
-A tiled method (a `Config` with `tile_size_m`, `buffer_m` and `cell_m`) lays its tiles on
+A tiled method (SMRF, PMF: `gfjax.methods.lattice` gives its tiling at its cell) lays its tiles on
 the survey's frame, so the windows of the tiles holding a file's points are known before
 filtering: the file's halo is every point of the other files inside them (plus a cell), and
 those windows then hold exactly the points they would hold in one file of the whole survey:
@@ -17,7 +17,7 @@ from types import ModuleType
 import numpy as np
 
 from gfjax.io.cloud import Cloud, use_mask
-from gfjax.io.tiles import Frame
+from gfjax.io.tiles import Frame, Lattice
 from gfjax.result import Result
 from gfjax.survey.catalog import Catalog
 
@@ -60,32 +60,28 @@ class Points:
         return use_mask(self.ignored, self.return_number, self.number_of_returns, returns)
 
 
-def is_tiled(config) -> bool:
-    """Whether `config` lays a tile lattice (`tile_size_m`, `buffer_m`, `cell_m`)."""
-    return all(hasattr(config, name) for name in ("tile_size_m", "buffer_m", "cell_m"))
-
-
-def halo_region(box: Frame, frame: Frame, config) -> tuple[np.ndarray, np.ndarray]:
+def halo_region(box: Frame, frame: Frame, lattice: Lattice | None) -> tuple[np.ndarray, np.ndarray]:
     """The x-y box `(lo (2,), hi (2,))` [m] whose points can share a window with a point of `box`.
 
-    Tiled methods: the windows of the tiles whose cores meet `box`, laid on `frame` as
-    `gfjax.io.tiles.split` lays them, grown by one cell; other methods: `box` grown by `HALO_M`.
+    A tiled method (`lattice`, its tiling at its cell): the windows of the tiles whose cores
+    meet `box`, laid on `frame` as `gfjax.io.tiles.split` lays them, grown by one cell; other
+    methods (None): `box` grown by `HALO_M`.
     """
     lo, hi = np.asarray(box.origin_m[:2], np.float64), np.asarray(box.upper_m, np.float64)
-    if not is_tiled(config):
+    if lattice is None:
         return lo - HALO_M, hi + HALO_M
     origin = np.asarray(frame.origin_m[:2], np.float64)
-    return tiles_region(np.floor((lo - origin) / config.tile_size_m), np.floor((hi - origin) / config.tile_size_m),
-                        frame, config)
+    return tiles_region(np.floor((lo - origin) / lattice.tile_size_m), np.floor((hi - origin) / lattice.tile_size_m),
+                        frame, lattice)
 
 
-def tiles_region(first: np.ndarray, last: np.ndarray, frame: Frame, config) -> tuple[np.ndarray, np.ndarray]:
+def tiles_region(first: np.ndarray, last: np.ndarray, frame: Frame, lattice: Lattice) -> tuple[np.ndarray, np.ndarray]:
     """The x-y box `(lo (2,), hi (2,))` [m] of the windows of the tiles with keys from `first`
     to `last` `(col, row)` of `frame`'s lattice, grown by one cell."""
-    tile, cell = config.tile_size_m, config.cell_m
+    tile, cell = lattice.tile_size_m, lattice.cell_m
     origin = np.asarray(frame.origin_m[:2], np.float64)
     core_px = tile / cell
-    buffer_px = math.ceil(config.buffer_m / cell - 1e-9)
+    buffer_px = math.ceil(lattice.buffer_m / cell - 1e-9)
     lo_px = np.floor(np.asarray(first) * core_px) - buffer_px - 1
     hi_px = np.ceil((np.asarray(last) + 1) * core_px) + buffer_px + 1
     return origin + lo_px * cell, origin + hi_px * cell
@@ -96,13 +92,13 @@ def overlaps(frame: Frame | None, lo: np.ndarray, hi: np.ndarray) -> bool:
     return frame is not None and not (np.any(frame.origin_m[:2] > hi) or np.any(frame.upper_m < lo))
 
 
-def window(catalog: Catalog, i: int, cloud: Cloud, config) -> Points:
+def window(catalog: Catalog, i: int, cloud: Cloud, lattice: Lattice | None) -> Points:
     """File `i` of the catalog (read as `cloud`) followed by its halo, on the survey's frame."""
     entry = catalog.entries[i]
     parts = [dict(xyz_m=cloud.xyz_m, classification=cloud.classification, return_number=cloud.return_number,
                   number_of_returns=cloud.number_of_returns, ignored=cloud.ignored)]
     if entry.frame is not None:
-        lo, hi = halo_region(entry.frame, catalog.frame, config)
+        lo, hi = halo_region(entry.frame, catalog.frame, lattice)
         for j, other in enumerate(catalog.entries):
             if j == i or not overlaps(other.frame, lo, hi):
                 continue
@@ -130,7 +126,7 @@ def survey_config(method: ModuleType, config, catalog: Catalog, *, returns: str 
     return hook(config, clouds())
 
 
-def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, config, *,
+def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, lattice: Lattice | None, *,
                 returns: str = "all") -> tuple[Result, np.ndarray]:
     """File `i` of the catalog (read as `cloud`) filtered with its halo (`filtered`'s step).
 
@@ -140,7 +136,7 @@ def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, con
       points labelled ground, float64 `(k, 3)` [m] (they give the file's DTM its border
       cells: `gfjax.dtm.build(context_xyz=...)`).
     """
-    points = window(catalog, i, cloud, config)
+    points = window(catalog, i, cloud, lattice)
     result = filter_fn(points, returns=returns)
     n = cloud.n_points
     ground = np.asarray(result.ground)

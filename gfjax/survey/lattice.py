@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from gfjax.io.cloud import use_mask
+from gfjax.io.tiles import Lattice
 from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog
@@ -29,13 +30,14 @@ class TileLabels:
     Args:
       catalog: the survey (`gfjax.survey.index`; its frame is not None).
       filter_fn: `filter_fn(points, returns) -> Result` on a `Points` window.
-      config: the method's config (`gfjax.survey.halo.is_tiled`).
+      lattice: the method's tiling at its cell (`gfjax.methods.lattice`).
       folder: the catalog's private folder (the label stores go there).
       returns: "all" or "last".
     """
 
-    def __init__(self, catalog: Catalog, filter_fn: Callable, config, folder: str | Path, *, returns: str = "all"):
-        self.catalog, self.filter_fn, self.config, self.returns = catalog, filter_fn, config, returns
+    def __init__(self, catalog: Catalog, filter_fn: Callable, lattice: Lattice, folder: str | Path, *,
+                 returns: str = "all"):
+        self.catalog, self.filter_fn, self.lattice, self.returns = catalog, filter_fn, lattice, returns
         self.labels_of, self.keys, self.done, self.pending = [], [], set(), {}
         for i, entry in enumerate(catalog.entries):
             self.labels_of.append(np.lib.format.open_memmap(Path(folder) / f"{i}.ground.npy", mode="w+",
@@ -52,7 +54,7 @@ class TileLabels:
 
     def key_of(self, xy_m: np.ndarray) -> np.ndarray:
         """`tile_key` on this survey."""
-        return tile_key(xy_m, self.catalog, self.config)
+        return tile_key(xy_m, self.catalog, self.lattice)
 
     def _box(self, i: int, margin_m: float) -> tuple[np.ndarray, np.ndarray] | None:
         """File `i`'s bounding box grown by `margin_m` [m], `(lo (2,), hi (2,))`, or None."""
@@ -93,31 +95,31 @@ class TileLabels:
         """Filter tile `key` (here, or on the cluster that `submit` sent it to) and store its
         core points' labels."""
         future = self.pending.pop(key, None)
-        parts = cluster.result(future, f"survey tile {key}") if future is not None else tile_labels(self.catalog, self.filter_fn, self.config,
+        parts = cluster.result(future, f"survey tile {key}") if future is not None else tile_labels(self.catalog, self.filter_fn, self.lattice,
                                                                         key, returns=self.returns)
         for j, index, ground in parts:
             self.labels_of[j][index] = ground
         self.done.add(key)
 
     def submit(self, submit: Callable) -> None:
-        """Send every tile not yet done to a cluster: `submit(tile_labels, config, key,
-        returns=...)` returns a future of `tile_labels(catalog, filter_fn, config, key, ...)`
+        """Send every tile not yet done to a cluster: `submit(tile_labels, lattice, key,
+        returns=...)` returns a future of `tile_labels(catalog, filter_fn, lattice, key, ...)`
         (`gfjax.survey.run`'s submitter, over `dask.distributed.Client.submit`); `labels`
         then waits for the tiles it needs instead of running them here. Files come first in
         catalog order, so the first file's tiles finish first."""
         for i in range(len(self.catalog.entries)):
             for key in sorted(self.keys[i] - self.done - self.pending.keys(), key=lambda k: (k[1], k[0])):
-                self.pending[key] = submit(tile_labels, self.config, key, returns=self.returns)
+                self.pending[key] = submit(tile_labels, self.lattice, key, returns=self.returns)
 
 
-def tile_key(xy_m: np.ndarray, catalog: Catalog, config) -> np.ndarray:
+def tile_key(xy_m: np.ndarray, catalog: Catalog, lattice: Lattice) -> np.ndarray:
     """Tile key `(col, row)` int64 `(n, 2)` of points `xy_m` `(n, 2)` [m] on the survey's
     lattice, as `gfjax.io.tiles.split` computes it."""
     origin = np.asarray(catalog.frame.origin_m[:2], np.float64)
-    return np.floor((np.asarray(xy_m, np.float64) - origin) / config.tile_size_m).astype(np.int64)
+    return np.floor((np.asarray(xy_m, np.float64) - origin) / lattice.tile_size_m).astype(np.int64)
 
 
-def tile_labels(catalog: Catalog, filter_fn: Callable, config, key: tuple[int, int], *,
+def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tuple[int, int], *,
                 returns: str = "all") -> list[tuple[int, np.ndarray, np.ndarray]]:
     """Tile `key` filtered from its window's points, gathered from every file it meets.
 
@@ -128,7 +130,7 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, config, key: tuple[int, i
       `(j, index, ground)` per file `j` with points in the tile's core: `index` uint32 or
       int64 `(k,)` of those points in file `j`, `ground` bool `(k,)` their labels.
     """
-    lo, hi = tiles_region(np.asarray(key), np.asarray(key), catalog.frame, config)
+    lo, hi = tiles_region(np.asarray(key), np.asarray(key), catalog.frame, lattice)
     parts, owners = [], []
     for j, entry in enumerate(catalog.entries):
         if not overlaps(entry.frame, lo, hi):
@@ -143,7 +145,7 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, config, key: tuple[int, i
     points = Points.from_records(chosen, f"survey tile {key}", catalog.frame.only([key]))
     result: Result = filter_fn(points, returns=returns)
     ground = np.asarray(result.ground, bool)
-    in_core = np.all(tile_key(chosen["xyz_m"][:, :2], catalog, config) == np.asarray(key)[None], axis=1)
+    in_core = np.all(tile_key(chosen["xyz_m"][:, :2], catalog, lattice) == np.asarray(key)[None], axis=1)
     out, start = [], 0
     for j, take in owners:
         stop = start + take.size

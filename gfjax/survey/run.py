@@ -20,7 +20,8 @@ from gfjax.io.cloud import Cloud
 from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog, index
-from gfjax.survey.halo import HALO_M, Points, filter_file, is_tiled, survey_config
+from gfjax.io.tiles import Lattice, Tiling
+from gfjax.survey.halo import HALO_M, Points, filter_file, survey_config
 from gfjax.survey.lattice import TileLabels
 
 
@@ -30,30 +31,32 @@ class Runner:
     Args:
       catalog: the survey (`gfjax.survey.index`).
       filter_fn: `filter_fn(points, returns) -> Result`, the method with its settings.
-      config: the method's config (its tiling, if any, chooses the path).
+      lattice: the method's tiling at its cell when it labels tile by tile (`gfjax.methods.lattice`;
+        the survey then runs each tile once), else None (each file with its halo).
       folder: the catalog's private folder.
       returns: "all" or "last".
       context: whether each call also gives the ground points around the file (a tiled
         method gathers them apart; a DTM needs them).
       client: a `dask.distributed.Client` (`gfjax.survey.cluster.client`), or None: every
         tile (a tiled method) or file (any other) is sent to its cluster at once, and each
-        call waits for the tasks its file needs. `filter_fn` and `config` travel to the
+        call waits for the tasks its file needs. `filter_fn` and `lattice` travel to the
         workers (pickled), and the catalog's folder must be one they reach.
     """
 
-    def __init__(self, catalog: Catalog, filter_fn: Callable, config, folder: str | Path, *, returns: str = "all",
+    def __init__(self, catalog: Catalog, filter_fn: Callable, lattice: Lattice | None, folder: str | Path, *,
+                 returns: str = "all",
                  context: bool = True, client=None):
-        self.catalog, self.filter_fn, self.config, self.returns = catalog, filter_fn, config, returns
+        self.catalog, self.filter_fn, self.lattice, self.returns = catalog, filter_fn, lattice, returns
         self.context = context
         self.tiles, self.pending, self.submit = None, {}, None
         if client is not None:
             self.submit = _submitter(client, catalog, filter_fn)
-        if is_tiled(config) and catalog.frame is not None:
-            self.tiles = TileLabels(catalog, filter_fn, config, folder, returns=returns)
+        if lattice is not None and catalog.frame is not None:
+            self.tiles = TileLabels(catalog, filter_fn, lattice, folder, returns=returns)
             if client is not None:
                 self.tiles.submit(self.submit)
         elif client is not None:
-            self.pending = {i: self.submit(file_labels, config, i, returns=returns)
+            self.pending = {i: self.submit(file_labels, lattice, i, returns=returns)
                             for i in range(len(catalog.entries))}
 
     def write(self, i: int, target: str | Path, staged: str | Path, **options):
@@ -104,19 +107,19 @@ class Runner:
             future = self.pending.pop(i, None)
             if future is not None:
                 return cluster.result(future, f"{self.catalog.entries[i].path}")
-            return filter_file(self.catalog, i, cloud, self.filter_fn, self.config, returns=self.returns)
+            return filter_file(self.catalog, i, cloud, self.filter_fn, self.lattice, returns=self.returns)
         margin_m = HALO_M if self.context else 0.0
         ground = np.array(self.tiles.labels(i, margin_m))
         return Result(ground=ground), self.tiles.near_ground(i, margin_m)
 
 
-def file_labels(catalog: Catalog, filter_fn: Callable, config, i: int, *,
+def file_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | None, i: int, *,
                 returns: str = "all") -> tuple[Result, np.ndarray]:
     """`filter_file` on file `i` read from its catalog store, not from the file (a Dask task:
     the points are those the file's read gives, in metres)."""
     records = catalog.entries[i].records()
     own = Points.from_records(records, str(catalog.entries[i].path))
-    result, halo_ground_m = filter_file(catalog, i, own, filter_fn, config, returns=returns)
+    result, halo_ground_m = filter_file(catalog, i, own, filter_fn, lattice, returns=returns)
     return result._replace(diagnostics=None), halo_ground_m
 
 
@@ -151,7 +154,8 @@ def _submitter(client, catalog: Catalog, filter_fn: Callable) -> Callable:
 
 
 def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str | Path, *, config=None, params=None,
-             returns: str = "all", units: str | None = None, client=None, **options) -> Iterator[tuple[Cloud, Result]]:
+             tiling: Tiling | None = None, returns: str = "all", units: str | None = None, client=None,
+             **options) -> Iterator[tuple[Cloud, Result]]:
     """Each file of a survey and its `Result`, filtered as a part of the whole survey.
 
     ```python
@@ -163,8 +167,10 @@ def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str 
       paths: the survey's files.
       method: a method name (`gfjax.methods.METHODS`) or package (`gfjax.dmf`).
       folder: a private temporary folder for the catalog's stores.
-      config, params: the method's settings (default: its defaults); `config`'s tiling sets
-        the halo, and its per-cloud estimates are made once for the survey (`survey_config`).
+      config, params: the method's settings (default: its defaults); its per-cloud estimates
+        are made once for the survey (`survey_config`).
+      tiling: a tiled method's tiles (`gfjax.Tiling`, None: its defaults); they also set the
+        windows each file is filtered with.
       returns: "all" or "last".
       units: `--units` override.
       client: a `dask.distributed.Client` whose cluster filters the tiles (`Runner`), or None
@@ -177,10 +183,15 @@ def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str 
     """
     module = methods.get(method) if isinstance(method, str) else method
     config = module.Config() if config is None else config
+    if tiling is not None:
+        if not methods.tiles(module):
+            raise InputError(f"tiling: method {module.__name__} does not tile")
+        options = {**options, "tiling": tiling}
     catalog = index(paths, folder, returns=returns, units=units, client=client)
     config = survey_config(module, config, catalog, returns=returns)
     filter_fn = functools.partial(_method_filter, module, config, params, options)
-    run = Runner(catalog, filter_fn, config, folder, returns=returns, context=False, client=client)
+    run = Runner(catalog, filter_fn, methods.lattice(module, config, tiling), folder, returns=returns, context=False,
+                 client=client)
     for i, entry in enumerate(catalog.entries):
         cloud = las_io.read(entry.path, units=units)
         yield cloud, run(i, cloud)[0]
@@ -191,7 +202,8 @@ def _method_filter(module: ModuleType, config, params, options: dict, points: Po
 
 
 def filter(paths: Sequence[str | Path], out: str | Path, *, method: str | ModuleType = methods.DEFAULT_METHOD,
-           config=None, params=None, returns: str = "all", units: str | None = None, client=None,
+           config=None, params=None, tiling: Tiling | None = None, returns: str = "all", units: str | None = None,
+           client=None,
            reset_nonground: bool = False, force: bool = False, **options) -> list[Path]:
     """Filter a survey as one and write each file's copy, classified, into the folder `out`.
 
@@ -208,7 +220,7 @@ def filter(paths: Sequence[str | Path], out: str | Path, *, method: str | Module
     Args:
       paths: the survey's LAS/LAZ files.
       out: an existing folder; each output has its input's name.
-      method, config, params, returns, units, client, options: as `filtered`.
+      method, config, params, tiling, returns, units, client, options: as `filtered`.
       reset_nonground: every non-ground point becomes class 1 (default: only former class 2).
       force: overwrite existing outputs.
 
@@ -222,7 +234,7 @@ def filter(paths: Sequence[str | Path], out: str | Path, *, method: str | Module
         raise InputError(f"{out}: not an existing folder")
     written = []
     with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder:
-        for cloud, result in filtered(paths, method, folder, config=config, params=params, returns=returns,
+        for cloud, result in filtered(paths, method, folder, config=config, params=params, tiling=tiling, returns=returns,
                                       units=units, client=client, **options):
             labelled = cloud.with_ground(result.ground, reset_nonground=reset_nonground,
                                          used=cloud.filter_mask(returns))

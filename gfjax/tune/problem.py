@@ -19,7 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import tiles as tiling
+from gfjax.io import tiles as tiling_lib
+from gfjax.io.tiled import lattice_of
 from gfjax.io.cloud import Cloud
 from gfjax.tune import methods as tmethods
 
@@ -122,7 +123,7 @@ class Problem:
 
     Args:
       samples: labelled clouds.
-      config: the method's static settings (cell, tiling; SMRF's window is replaced by
+      config: the method's static settings (SMRF's window is replaced by
         `max(max_window_m, config.window_m)`).
       max_window_m: SMRF: the largest window tried (openings are computed up to it);
         ignored by methods without a static grid (PMF).
@@ -130,12 +131,15 @@ class Problem:
       max_batch: tiles per vmapped batch.
       grid: the static grid to prepare (CSF: cloth codes, default `gfjax.tune.csf.GRID`;
         SMRF: openings up to its largest value); overrides `max_window_m`.
+      tiling: the tiles a tiled method's samples are cut into (`gfjax.io.tiles.Tiling`, None:
+        its defaults), as its `filter` cuts them.
     """
 
     method: tmethods.Method = tmethods.SMRF      # also for problems pickled before methods existed
 
     def __init__(self, samples: Sequence[Sample], *, config, max_window_m: float | None = None,
-                 method: tmethods.Method = tmethods.SMRF, max_batch: int = 8, grid: tuple[float, ...] | None = None):
+                 method: tmethods.Method = tmethods.SMRF, max_batch: int = 8, grid: tuple[float, ...] | None = None,
+                 tiling: tiling_lib.Tiling | None = None):
         if not samples:
             raise InputError("no labelled samples to tune on")
         if not isinstance(config, method.config_type):
@@ -151,15 +155,15 @@ class Problem:
                             method.prepare_samples(self.samples, self.config, max_batch=max_batch)]
             return
         tiles, owner = [], {}
+        lattice = lattice_of(tiling, config.cell_m)
         for i, s in enumerate(self.samples):
-            for tile in tiling.split(s.xyz_m, tile_size_m=config.tile_size_m, buffer_m=config.buffer_m,
-                                     cell_m=config.cell_m, use=s.use):
+            for tile in tiling_lib.split(s.xyz_m, **lattice._asdict(), use=s.use):
                 owner[id(tile)] = i
                 tiles.append(tile)
         if not tiles:
             raise InputError("the labelled samples hold no usable point")
         self.buckets: list[Bucket] = []
-        for batch in tiling.batches(tiles, max_batch=max_batch):
+        for batch in tiling_lib.batches(tiles, max_batch=max_batch):
             prep = _prepare_batch(batch.xyz, batch.valid, batch.hw, method=method, config=self.config,
                                   shape=batch.shape)
             b, cap = batch.valid.shape

@@ -44,8 +44,6 @@ def write_scene(path: Path, *, crs: pyproj.CRS | None = pyproj.CRS.from_epsg(326
 @dataclasses.dataclass(frozen=True)
 class FakeConfig:
     cell_m: float = 1.0
-    tile_size_m: float = 500.0
-    buffer_m: float = 50.0
 
     def __post_init__(self):
         if not self.cell_m > 0:
@@ -65,10 +63,11 @@ def _fake_module(name: str, *, instances: bool, crash: bool = False) -> types.Mo
     module = types.ModuleType(name)
     module.Config, module.Params = FakeConfig, FakeParams
     module.PRESETS = {"generous": {"threshold_m": 100.0}}
+    module.TILE_LABELS = True         # labels point by point: a survey may run it tile by tile
     module.calls = []
 
-    def filter(cloud, *, config=None, params=None, returns="all", progress=False):  # noqa: A001
-        module.calls.append({"cloud": cloud, "config": config, "params": params, "returns": returns})
+    def filter(cloud, *, config=None, params=None, returns="all", progress=False, tiling=None):  # noqa: A001
+        module.calls.append({"cloud": cloud, "config": config, "params": params, "returns": returns, "tiling": tiling})
         if crash:
             raise RuntimeError("fake method crashed")
         use = cloud.filter_mask(returns)

@@ -51,7 +51,7 @@ CASES = {
     "zero points": (["filter", "{empty}", "-o", "{dir}/out.laz", "--method", "fake"],
                     "empty.las: the file holds no points"),
     "unknown --set key": (["filter", "{good}", "-o", "{dir}/out.laz", "--method", "fake", "--set", "bogus=1"],
-                          "--set: unknown key 'bogus' for method fake; known keys: buffer_m, cell_m"),
+                          "--set: unknown key 'bogus' for method fake; known keys: cell_m, threshold_m"),
     "--set without =": (["filter", "{good}", "-o", "{dir}/out.laz", "--method", "fake", "--set", "cell_m"],
                         "--set 'cell_m': expected KEY=VALUE"),
     "--set not a number": (["filter", "{good}", "-o", "{dir}/out.laz", "--method", "fake", "--set", "cell_m=big"],

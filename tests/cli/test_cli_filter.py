@@ -81,7 +81,7 @@ def test_tiling_returns_and_units_reach_the_method(tmp_path, capsys, fake_method
                            "--tile-size", "250", "--buffer", "20", "--returns", "last", "--units", "ft")
     assert code == 0, err
     call = fake_methods["fake"].calls[-1]
-    assert (call["config"].tile_size_m, call["config"].buffer_m, call["returns"]) == (250.0, 20.0, "last")
+    assert (call["tiling"].tile_size_m, call["tiling"].buffer_m, call["returns"]) == (250.0, 20.0, "last")
     assert call["cloud"].horizontal_unit_m == 0.3048
     # first returns (0, 3, 4) are not filtered and keep their classes
     classes = _classes(tmp_path / "out.laz")

@@ -1,7 +1,7 @@
 """`gfjax COMMAND --help`: what it says is what the command does, with nothing users cannot read."""
 from __future__ import annotations
 
-import dataclasses
+import inspect
 import re
 
 import pytest
@@ -40,11 +40,12 @@ def test_help_lists_every_methods_presets(capsys, fake_methods, command):
 def test_filter_help_says_which_methods_take_tile_size_and_buffer(capsys):
     out = _one_line(_help(capsys, "filter"))
     tiling = out.split("--tile-size and --buffer apply to the methods that tile:")[1]
-    tiling = tiling.split(";")[0]
+    tiling, defaults = tiling.split(";")[0].split("(default")
     for name in methods.METHODS:
-        fields = {f.name for f in dataclasses.fields(methods.get(name).Config)}
-        assert (re.search(rf"\b{name} \(default", tiling) is not None) == ({"tile_size_m", "buffer_m"} <= fields), name
-    assert re.search(r"\bsmrf \(default 500 m, buffer 50 m\)", tiling)
+        takes = "tiling" in inspect.signature(methods.get(name).filter).parameters
+        assert (re.search(rf"\b{name}\b", tiling) is not None) == takes, name
+    assert re.search(r"\bsmrf\b", tiling) and re.search(r"\bdmf\b", tiling) and not re.search(r"\bcsf\b", tiling)
+    assert defaults.strip() == "500 m tiles, 50 m buffers)"
 
 
 @pytest.mark.parametrize("command", [None, *cli_main.SUBCOMMANDS])

@@ -133,7 +133,7 @@ def test_tiled_raster_stages_equal_one_tile(box):
     """Multi-tile path: 2 x 2 NGNEM tiles (core 24 m, buffer 14 m, padded to 48 x 48) run as one
     vmapped batch, stitched by core; every window holds the whole building: equals one tile."""
     cloud, _, _, single = box
-    tiled = dmf.filter(cloud, config=dmf.Config(raster_tile_m=24.0, raster_buffer_m=14.0))
+    tiled = dmf.filter(cloud, tiling=gfjax.Tiling(tile_size_m=24.0, buffer_m=14.0))
     for name in ("rhc", "ngnem_bi", "ngnem_rc", "instances"):
         np.testing.assert_array_equal(getattr(tiled.diagnostics, name), getattr(single.diagnostics, name), err_msg=name)
     np.testing.assert_array_equal(tiled.ground, single.ground)

@@ -11,11 +11,12 @@ from gfjax.cli.main import main
 from gfjax.errors import InputError
 from gfjax.io import copc
 from gfjax.io.cloud import Cloud
+from gfjax.io.tiles import Tiling
 
 pytest.importorskip("copclib")
 from copc_writer import write_copc  # noqa: E402
 
-SMALL_TILES = {"tile_size_m": 40.0, "buffer_m": 8.0}
+SMALL_TILES = Tiling(tile_size_m=40.0, buffer_m=8.0)
 
 
 def hills(seed=0, n=20_000, size=(160.0, 120.0), origin=(300_000.0, 4_100_000.0)):
@@ -72,14 +73,13 @@ def test_a_survey_of_copc_files_labels_as_its_las_copies(tmp_path):
         written.write(tmp_path / f"part{k}.las")
         copcs.append(tmp_path / f"part{k}.copc.laz")
         plain.append(tmp_path / f"part{k}.las")
-    config = smrf.Config(**SMALL_TILES)
     stores = tmp_path / "stores"
     stores.mkdir()
     catalog = survey.index(copcs, stores)
     assert all(entry.store is None for entry in catalog.entries) and not list(stores.iterdir())
-    got = [r.ground for _, r in survey.filtered(copcs, smrf, tmp_path / "stores", config=config)]
+    got = [r.ground for _, r in survey.filtered(copcs, smrf, tmp_path / "stores", tiling=SMALL_TILES)]
     (tmp_path / "stores2").mkdir()
-    want = [r.ground for _, r in survey.filtered(plain, smrf, tmp_path / "stores2", config=config)]
+    want = [r.ground for _, r in survey.filtered(plain, smrf, tmp_path / "stores2", tiling=SMALL_TILES)]
     for a, b in zip(got, want):
         np.testing.assert_array_equal(a, b)
     assert any(np.any(g) for g in got) and any(np.any(~g) for g in got)

@@ -1,8 +1,12 @@
 """Buffered tiles: each point labelled once, seamless merge, vmap == tile by tile, invariances."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
+
+from gfjax.errors import InputError, SettingError
 
 from gfjax.io import tiles as tiling
 from gfjax.io.cloud import Cloud
@@ -29,8 +33,9 @@ def dense_scene(seed=0, size_m=64, boxes=6):
     return np.column_stack([xy, z]) + ORIGIN, ~building
 
 
-TILED = Config(window_m=3.0, tile_size_m=32.0, buffer_m=16.0)
-WHOLE = Config(window_m=3.0, tile_size_m=500.0, buffer_m=16.0)
+CONFIG = Config(window_m=3.0)
+TILED = tiling.Tiling(tile_size_m=32.0, buffer_m=16.0)
+WHOLE = tiling.Tiling(tile_size_m=500.0, buffer_m=16.0)
 
 
 @pytest.fixture(scope="module")
@@ -134,9 +139,29 @@ def test_bad_options_raise():
     assert tiling.split(np.zeros((3, 3)), use=np.zeros(3, bool)) == []
 
 
+@pytest.mark.parametrize("kwargs, key", [({"tile_size_m": 0.0}, "tile_size_m"), ({"tile_size_m": float("nan")}, "tile_size_m"),
+                                         ({"buffer_m": -1.0}, "buffer_m"), ({"buffer_m": 1e6}, "buffer_m")])
+def test_a_tiling_out_of_range_names_its_field(kwargs, key):
+    with pytest.raises(SettingError, match=rf"^{key} must be") as err:
+        tiling.Tiling(**kwargs)
+    assert err.value.keys == (key,)
+
+
+def test_a_tiling_is_an_option_of_the_run_not_of_the_method(scene, unchecked):
+    """A core smaller than the method's cell, or something else than a Tiling, is refused by
+    the filter naming the cloud; the tiling never enters the compiled programs' settings."""
+    assert tiling.Tiling(tile_size_m=30.0, buffer_m=5.0).lattice(2.0) == tiling.Lattice(30.0, 5.0, 2.0)
+    cloud = Cloud.from_xyz(scene)
+    with pytest.raises(InputError, match=r"^<memory>: tile_size_m must be >= the cell \(2 m\), got 1.0$"):
+        smrf_filter(cloud, config=Config(cell_m=2.0, window_m=6.0), tiling=tiling.Tiling(tile_size_m=1.0))
+    with pytest.raises(InputError, match="^tiling must be a gfjax.Tiling, got dict$"):
+        smrf_filter(cloud, tiling={"tile_size_m": 100.0})
+    assert not any(f.name in ("tile_size_m", "buffer_m") for f in dataclasses.fields(Config))
+
+
 @pytest.fixture(scope="module")
 def whole(scene):
-    return smrf_filter(Cloud.from_xyz(scene), config=WHOLE)
+    return smrf_filter(Cloud.from_xyz(scene), config=CONFIG, tiling=WHOLE)
 
 
 @pytest.fixture(scope="module")
@@ -147,7 +172,7 @@ def whole_labels(whole):
 def test_smrf_whole_equals_tiled(scene, whole, whole_labels):
     """SMRF is local (openings up to 3 cells, enclosed holes): a 16 m buffer makes the tiled
     labels identical to the whole-cloud labels everywhere, seams included."""
-    tiled = smrf_filter(Cloud.from_xyz(scene), config=TILED)
+    tiled = smrf_filter(Cloud.from_xyz(scene), config=CONFIG, tiling=TILED)
     assert tiled.diagnostics.n_tiles == 4
     np.testing.assert_array_equal(tiled.ground, whole_labels)
     _, truth = dense_scene()
@@ -165,17 +190,17 @@ def test_vmap_batch_equals_tile_by_tile(scene):
     tiles = tiling.split(scene, tile_size_m=32.0, buffer_m=16.0, cell_m=1.0)
     batch = next(tiling.batches(tiles))
     assert len(batch.tiles) == 4
-    ground, diag = programs.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=TILED, shape=batch.shape)
+    ground, diag = programs.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=CONFIG, shape=batch.shape)
     for i in range(4):
         one, one_diag = programs.classify_tile(batch.xyz[i], batch.valid[i], batch.hw[i], Params(),
-                                             config=TILED, shape=batch.shape)
+                                             config=CONFIG, shape=batch.shape)
         np.testing.assert_array_equal(np.asarray(ground[i]), np.asarray(one))
         np.testing.assert_array_equal(np.asarray(diag.object_cells[i]), np.asarray(one_diag.object_cells))
 
 
 def test_point_order_invariance(scene, whole_labels):
     perm = np.random.default_rng(2).permutation(len(scene))
-    shuffled = smrf_filter(Cloud.from_xyz(scene[perm]), config=WHOLE).ground
+    shuffled = smrf_filter(Cloud.from_xyz(scene[perm]), config=CONFIG, tiling=WHOLE).ground
     np.testing.assert_array_equal(shuffled, whole_labels[perm])
 
 
@@ -183,9 +208,10 @@ def test_padding_invariance(scene, whole_labels):
     """More point capacity and a larger shape bucket (padding cells outside the tile's domain)
     change no label when every domain cell holds a point."""
     tiles = tiling.split(scene, tile_size_m=500.0, buffer_m=16.0, cell_m=1.0)
-    labels, _ = tiled.run_batches(tiles, programs.classify_batch, Params(), WHOLE, max_batch=8, keep_diagnostics=False)
+    labels, _ = tiled.run_batches(tiles, programs.classify_batch, Params(), CONFIG, lattice=WHOLE.lattice(1.0),
+                                  max_batch=8, keep_diagnostics=False)
     np.testing.assert_array_equal(tiling.merge(len(scene), tiles, labels), whole_labels)
     batch = next(tiling.batches(tiles, shape=(96, 80), capacity=2 * tiling.capacity_bucket(tiles[0].n_points)))
-    ground = np.asarray(programs.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=WHOLE,
+    ground = np.asarray(programs.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=CONFIG,
                                               shape=batch.shape)[0])[0]
     np.testing.assert_array_equal(tiling.merge(len(scene), tiles, [ground]), whole_labels)

@@ -17,6 +17,7 @@ from cli_helpers import error_line, fake_methods, no_compilation_cache, run_cli,
 from gfjax import limits, methods
 from gfjax.errors import InputError, SettingError
 from gfjax.io import las as las_io
+from gfjax.io.tiles import Tiling
 
 REPO = Path(__file__).resolve().parents[2]
 METHOD_NAMES = [name for name in methods.METHODS if name in limits.TABLE_SOURCES]
@@ -122,7 +123,7 @@ def test_tile_size_out_of_range_names_the_option(scene, tmp_path, capsys):
     code, _, err = run_cli(capsys, "filter", scene, "-o", tmp_path / "out.laz", "--method", "smrf",
                            "--tile-size", "1e6")
     assert code == 2
-    assert error_line(err) == "gfjax: error: --tile-size: tile_size_m must be > 0 and <= 1e5 m (>= cell_m), got 1000000.0"
+    assert error_line(err) == "gfjax: error: --tile-size: tile_size_m must be > 0 and <= 1e5 m (>= the method's cell), got 1000000.0"
 
 
 def test_tile_raster_over_the_memory_budget_exits_2_with_the_estimate(scene, tmp_path, capsys, monkeypatch):
@@ -140,7 +141,7 @@ def test_tile_raster_over_the_memory_budget_exits_2_with_the_estimate(scene, tmp
 SETTING_ERRORS = [
     ("smrf", {"cell_m": 5.0, "window_m": 1.0}, ("window_m", "cell_m")),
     ("smrf", {"inpaint": "nearest-ish"}, ("inpaint",)),
-    ("pmf", {"cell_m": 10.0, "tile_size_m": 5.0}, ("tile_size_m", "cell_m")),
+    ("pmf", {"cell_m": 0.01, "max_window_m": 100.0}, ("max_window_m", "cell_m")),
     ("masf", {"alpha_max_m": 0.01}, ("alpha_max_m",)),
     ("dmf", {"final_rule": "nope"}, ("final_rule",)),
     ("csf", {"slope_smooth": 1}, ("slope_smooth",)),
@@ -161,9 +162,9 @@ def test_an_error_names_the_options_that_gave_its_keys_not_those_that_did_not():
     smrf = methods.get("smrf")
     with pytest.raises(InputError, match=r"^--set, params\.json: window_m must be >= cell_m, got 1\.0$"):
         methods.make_config_and_params(smrf, {"window_m": "1"}, values={"cell_m": 5.0}, values_source="params.json")
-    with pytest.raises(InputError, match=r"^--tile-size, --set: tile_size_m must be >= cell_m, got 0\.5$"):
-        methods.make_config_and_params(smrf, {"cell_m": "1", "threshold_m": "1"},
-                                       after=[("--tile-size", {"tile_size_m": 0.5})])
+    with pytest.raises(InputError, match=r"^--tile-size, --set: tile_size_m must be >= the cell \(1 m\), got 0\.5$"):
+        methods.make_config_and_params(smrf, {"cell_m": "1", "threshold_m": "1"}, tiling=Tiling(tile_size_m=0.5),
+                                       tiling_sources={"tile_size_m": "--tile-size"})
     with pytest.raises(InputError, match=r"^--set: inpaint must be one of"):       # a key left at its default
         methods.make_config_and_params(smrf, {"inpaint": "bogus"})
 
@@ -173,8 +174,11 @@ def test_smaller_tiles_bring_the_same_cell_within_the_budget(tmp_path, monkeypat
     smrf = methods.get("smrf")
     with pytest.raises(Exception, match="memory budget"):
         methods.make_config_and_params(smrf, {"cell_m": "0.1"})
-    config, _ = methods.make_config_and_params(smrf, {"cell_m": "0.1", "tile_size_m": "50", "buffer_m": "10"})
-    assert config.tile_size_m == 50.0
+    config, _ = methods.make_config_and_params(smrf, {"cell_m": "0.1"}, tiling=Tiling(tile_size_m=50.0, buffer_m=10.0))
+    assert config.cell_m == 0.1
+    with pytest.raises(InputError, match=r"^--set: tile_size_m is a tiling option, not a setting of method smrf: "
+                                         r"give --tile-size / --buffer"):
+        methods.make_config_and_params(smrf, {"tile_size_m": "50"})
 
 
 @pytest.mark.parametrize("method", ["csf", "smrf"])
@@ -283,16 +287,6 @@ def test_python_api_filter_checks_the_budget_for_the_cloud_it_is_given(monkeypat
     cloud = Cloud.from_xyz(np.column_stack([steps, steps, np.zeros_like(steps)]))
     with pytest.raises(InputError, match=r"the whole-cloud rasters of 199,9\d\d x 199,9\d\d cells .* memory budget"):
         smrf.filter(cloud)
-
-
-def test_configs_rebuilt_inside_the_stages_are_not_refused(monkeypatch):
-    from gfjax.io.tiled import without_tiling
-
-    monkeypatch.setenv(limits.BUDGET_ENV, "1")
-    for name in ("smrf", "pmf"):
-        method = methods.get(name)
-        config, _ = methods.make_config_and_params(method, {"cell_m": "0.1", "tile_size_m": "50", "buffer_m": "10"})
-        assert without_tiling(config).tile_size_m == 500.0     # the default tiling, never checked alone
 
 
 def test_batch_estimate_counts_the_tiles_the_extent_holds():

@@ -49,20 +49,20 @@ def in_process(grid, tmp_path_factory):
     """Each method's classes of every file of `grid`, filtered as one survey in this process."""
     done = {}
 
-    def classes(method, config) -> list[np.ndarray]:
+    def classes(method, tiling) -> list[np.ndarray]:
         if method not in done:
             out = tmp_path_factory.mktemp("one")
-            done[method] = labels(survey.filter(grid, out, method=method, config=config))
+            done[method] = labels(survey.filter(grid, out, method=method, tiling=tiling))
         return done[method]
 
     return classes
 
 
-@pytest.mark.parametrize("method, config", [(smrf, smrf.Config(**SMALL_TILES)), (dmf, None)], ids=["smrf", "dmf"])
-def test_the_cluster_labels_every_file_as_one_process(grid, client, in_process, method, config, tmp_path):
-    want = in_process(method, config)
+@pytest.mark.parametrize("method, tiling", [(smrf, SMALL_TILES), (dmf, None)], ids=["smrf", "dmf"])
+def test_the_cluster_labels_every_file_as_one_process(grid, client, in_process, method, tiling, tmp_path):
+    want = in_process(method, tiling)
     (tmp_path / "many").mkdir()
-    written = survey.filter(grid, tmp_path / "many", method=method, config=config, client=client)
+    written = survey.filter(grid, tmp_path / "many", method=method, tiling=tiling, client=client)
     assert [p.name for p in written] == [p.name for p in grid]
     for a, b in zip(labels(written), want):
         np.testing.assert_array_equal(a, b)
@@ -111,11 +111,11 @@ def test_one_file_on_the_cluster_labels_as_in_process(grid, client, tmp_path, mo
 def _dies_once(marker: str) -> types.ModuleType:
     """SMRF, except that the first tile to run kills its worker process (SIGKILL, mid-task)."""
 
-    def filter(points, **kwargs):
+    def filter(points, *, tiling=None, **kwargs):
         try:
             os.close(os.open(marker, os.O_CREAT | os.O_EXCL))
         except FileExistsError:
-            return smrf.filter(points, **kwargs)
+            return smrf.filter(points, tiling=tiling, **kwargs)
         os.kill(os.getpid(), signal.SIGKILL)
 
     return _method("dies_once", filter)
@@ -124,16 +124,15 @@ def _dies_once(marker: str) -> types.ModuleType:
 def _method(name: str, filter) -> types.ModuleType:
     """A method package made here: SMRF's Config with `filter`."""
     module = types.ModuleType(name)
-    module.Config, module.filter = smrf.Config, filter
+    module.Config, module.filter, module.TILE_LABELS = smrf.Config, filter, True
     return module
 
 
 def test_a_killed_worker_has_its_tile_run_again(grid, client, in_process, tmp_path):
-    config = smrf.Config(**SMALL_TILES)
-    want = in_process(smrf, config)
+    want = in_process(smrf, SMALL_TILES)
     marker = tmp_path / "killed"
     (tmp_path / "many").mkdir()
-    written = survey.filter(grid, tmp_path / "many", method=_dies_once(str(marker)), config=config, client=client)
+    written = survey.filter(grid, tmp_path / "many", method=_dies_once(str(marker)), tiling=SMALL_TILES, client=client)
     assert marker.exists()                       # a worker did die mid-task
     for a, b in zip(labels(written), want):
         np.testing.assert_array_equal(a, b)
@@ -141,17 +140,17 @@ def test_a_killed_worker_has_its_tile_run_again(grid, client, in_process, tmp_pa
 
 
 def _fails_on_tile(bad_key):
-    def filter(points, **kwargs):
+    def filter(points, *, tiling=None, **kwargs):
         if points.name == f"survey tile {bad_key}":
             raise InputError(f"{points.name}: a bad tile")
-        return smrf.filter(points, **kwargs)
+        return smrf.filter(points, tiling=tiling, **kwargs)
 
     return _method("fails_on_tile", filter)
 
 
 def test_a_failing_task_is_named_and_nothing_is_written(grid, client, tmp_path):
     with pytest.raises(InputError, match=r"survey tile \(0, 0\): a bad tile"):
-        survey.filter(grid, tmp_path, method=_fails_on_tile((0, 0)), config=smrf.Config(**SMALL_TILES), client=client)
+        survey.filter(grid, tmp_path, method=_fails_on_tile((0, 0)), tiling=SMALL_TILES, client=client)
     assert not list(tmp_path.glob("*.laz"))           # the first file needs tile (0, 0): none written
 
 

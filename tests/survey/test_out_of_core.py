@@ -15,7 +15,7 @@ from test_survey import SMALL_TILES, town, write_grid
 
 pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
 
-TILING = ["--tile-size", str(SMALL_TILES["tile_size_m"]), "--buffer", str(SMALL_TILES["buffer_m"])]
+TILING = ["--tile-size", str(SMALL_TILES.tile_size_m), "--buffer", str(SMALL_TILES.buffer_m)]
 
 
 @pytest.fixture(scope="module")

@@ -10,12 +10,12 @@ from gfjax.csf.config import BUFFER_PX
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 from gfjax.io.cloud import Cloud
-from gfjax.io.tiles import Frame, split
+from gfjax.io.tiles import Frame, Tiling, split
 from gfjax.survey.halo import HALO_M
 
 pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
 
-SMALL_TILES = {"tile_size_m": 40.0, "buffer_m": 8.0}     # several tiles, seams inside each file
+SMALL_TILES = Tiling(tile_size_m=40.0, buffer_m=8.0)     # several tiles, seams inside each file
 
 
 def town(seed=0, size=(150.0, 110.0)):
@@ -67,22 +67,21 @@ def grid(tmp_path_factory):
 @pytest.mark.parametrize("method", [smrf, pmf], ids=["smrf", "pmf"])
 def test_a_catalog_labels_every_point_as_the_union_in_one_file(grid, method, tmp_path):
     paths, members, union = grid
-    config = method.Config(**SMALL_TILES)
     whole = las_io.read(union)
-    want = method.filter(whole, config=config).ground
+    want = method.filter(whole, tiling=SMALL_TILES).ground
     got = np.zeros(whole.n_points, bool)
     alone = np.zeros(whole.n_points, bool)
     halos = []
-    for (cloud, result), keep in zip(survey.filtered(paths, method, tmp_path, config=config), members):
+    for (cloud, result), keep in zip(survey.filtered(paths, method, tmp_path, tiling=SMALL_TILES), members):
         assert result.ground.shape == (cloud.n_points,) == keep.shape
         got[keep] = result.ground
-        alone[keep] = method.filter(cloud, config=config).ground
+        alone[keep] = method.filter(cloud, tiling=SMALL_TILES).ground
     np.testing.assert_array_equal(got, want)
     assert np.any(alone != want)                  # the seams the halo removes are real here
     (tmp_path / "again").mkdir()
     catalog = survey.index(paths, tmp_path / "again")
     for i, path in enumerate(paths):
-        halos.append(survey.window(catalog, i, las_io.read(path), config).n_points - len(members[i]))
+        halos.append(survey.window(catalog, i, las_io.read(path), SMALL_TILES.lattice(1.0)).n_points - len(members[i]))
     assert min(halos) > 0
 
 
@@ -91,7 +90,6 @@ def test_a_tiled_method_runs_each_tile_of_the_survey_once(grid, method, tmp_path
     """Tiles of 40 m over four files of about 75 x 55 m: most tiles meet two or four files, and
     each still runs once, from a window gathered across the files, for its own core only."""
     paths, members, union = grid
-    config = method.Config(**SMALL_TILES)
     whole = las_io.read(union)
     use = whole.filter_mask()
     occupied = {tile.key for tile in split(whole.xyz_m, tile_size_m=40.0, buffer_m=8.0, use=use)}
@@ -102,9 +100,9 @@ def test_a_tiled_method_runs_each_tile_of_the_survey_once(grid, method, tmp_path
         made = split(points.xyz_m, tile_size_m=40.0, buffer_m=8.0, use=points.filter_mask(returns),
                      frame=points.frame)
         runs.append([tile.key for tile in made])
-        return method.filter(points, config=config, returns=returns)
+        return method.filter(points, tiling=SMALL_TILES, returns=returns)
 
-    run = survey.Runner(catalog, filter_fn, config, tmp_path, context=False)
+    run = survey.Runner(catalog, filter_fn, SMALL_TILES.lattice(1.0), tmp_path, context=False)
     got = np.zeros(whole.n_points, bool)
     for i, (path, keep) in enumerate(zip(paths, members)):
         result, near = run(i, las_io.read(path))
@@ -112,7 +110,7 @@ def test_a_tiled_method_runs_each_tile_of_the_survey_once(grid, method, tmp_path
         assert near.shape == (0, 3)
     assert sorted(key for made in runs for key in made) == sorted(occupied)
     assert all(len(made) == 1 for made in runs)
-    np.testing.assert_array_equal(got, method.filter(whole, config=config).ground)
+    np.testing.assert_array_equal(got, method.filter(whole, tiling=SMALL_TILES).ground)
 
 
 def test_split_makes_only_the_tiles_its_frame_names():
@@ -156,7 +154,7 @@ def test_files_with_different_crs_are_refused_naming_both(tmp_path):
 
 def test_halo_of_a_method_that_does_not_tile_is_a_margin():
     box = Frame(np.asarray([10.0, 20.0, 0.0]), np.asarray([30.0, 40.0]))
-    lo, hi = survey.halo_region(box, box, object())
+    lo, hi = survey.halo_region(box, box, None)
     np.testing.assert_array_equal(lo, [10.0 - HALO_M, 20.0 - HALO_M])
     np.testing.assert_array_equal(hi, [30.0 + HALO_M, 40.0 + HALO_M])
 
@@ -174,8 +172,7 @@ def test_split_refuses_points_outside_its_frame():
 def test_cli_filters_several_files_as_one_survey_or_independently(grid, tmp_path, capsys):
     paths, members, union = grid
     whole = las_io.read(union)
-    config = smrf.Config(**SMALL_TILES)
-    want = smrf.filter(whole, config=config).ground
+    want = smrf.filter(whole, tiling=SMALL_TILES).ground
     for flags, folder in (([], tmp_path / "survey"), (["--independent"], tmp_path / "alone")):
         folder.mkdir()
         (folder / "dtm").mkdir()

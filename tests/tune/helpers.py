@@ -37,8 +37,7 @@ def crop_sample() -> Sample:
 @functools.cache
 def crop_batch() -> tiling.TileBatch:
     s = crop_sample()
-    tiles = tiling.split(s.xyz_m, tile_size_m=CONFIG.tile_size_m, buffer_m=CONFIG.buffer_m,
-                         cell_m=CONFIG.cell_m, use=s.use)
+    tiles = tiling.split(s.xyz_m, **tiling.Tiling().lattice(CONFIG.cell_m)._asdict(), use=s.use)
     (batch,) = list(tiling.batches(tiles))
     return batch
 

@@ -66,8 +66,7 @@ def test_every_parameter_has_a_nonzero_gradient_on_labelled_crop():
     b = crop_batch()
     ref = np.zeros(b.valid.shape[1], bool)
     # The single tile holds every used point, in the tiler's order (`Tile.index`).
-    (tile,) = tiling.split(crop_sample().xyz_m, tile_size_m=CONFIG.tile_size_m, buffer_m=CONFIG.buffer_m,
-                           cell_m=CONFIG.cell_m, use=crop_sample().use)
+    (tile,) = tiling.split(crop_sample().xyz_m, **tiling.Tiling().lattice(CONFIG.cell_m)._asdict(), use=crop_sample().use)
     ref[:tile.n_points] = crop_sample().ref_ground[tile.index]
     # At the defaults (slope 1) slope sets only dh_1 = 2.15 m, which is rarely the binding
     # window: its gradient is ~1e-6. At slope 0.3 (dh = 0.15, 0.75, 2.25, 2.5 capped) every
