@@ -131,6 +131,30 @@ def separate(xy_m: Float[np.ndarray, "n 2"], gap_m: float) -> tuple[Int[np.ndarr
     return cell_group[cells.point_cell()], n_groups
 
 
+def far_apart(xy_m: Float[np.ndarray, "n 2"], gap_m: float = GAP_M, *,
+              min_saving: float = MIN_SAVING) -> tuple[Int[np.ndarray, " n"], int] | None:
+    """The groups of `separate`, or None when the points fill their box (their occupied `gap_m`
+    cells are more than `1 / min_saving` of it) or are one group: a cloud of groups far apart,
+    which a tiled method filters group by group (`gfjax.io.tiled`)."""
+    found = _far_groups(xy_m, gap_m, min_saving)
+    if found is None:
+        return None
+    cells, cell_group, n_groups = found
+    return cell_group[cells.point_cell()], n_groups
+
+
+def _far_groups(xy_m: np.ndarray, gap_m: float, min_saving: float) -> tuple[_Cells, np.ndarray, int] | None:
+    """`(cells, group of each cell, number of groups)` of `far_apart`, or None."""
+    xy_m = np.asarray(xy_m, np.float64)
+    if len(xy_m) == 0:
+        return None
+    cells = _cells(xy_m, gap_m)
+    if len(cells.keys) * min_saving > float(cells.span[0]) * float(cells.span[1]):
+        return None                                  # the points fill their box: no layout is smaller
+    cell_group, n_groups = _components(cells)
+    return None if n_groups == 1 else (cells, cell_group, n_groups)
+
+
 def compact(xy_m: Float[np.ndarray, "n 2"], gap_m: float = GAP_M, *,
             min_saving: float = MIN_SAVING) -> Layout | None:
     """A layout that moves the groups of `xy_m` `(n, 2)` [m] together, or None when the cloud
@@ -141,16 +165,11 @@ def compact(xy_m: Float[np.ndarray, "n 2"], gap_m: float = GAP_M, *,
     an empty cell between any two, so no moved point falls below or west of group 0's minimum
     and every group keeps `gap_m` of emptiness around it.
     """
-    xy_m = np.asarray(xy_m, np.float64)
-    if len(xy_m) == 0:
+    found = _far_groups(xy_m, gap_m, min_saving)
+    if found is None:
         return None
-    cells = _cells(xy_m, gap_m)
+    cells, cell_group, n_groups = found
     box = float(cells.span[0]) * float(cells.span[1])
-    if len(cells.keys) * min_saving > box:
-        return None                                  # the points fill their box: no layout is smaller
-    cell_group, n_groups = _components(cells)
-    if n_groups == 1:
-        return None
     first = np.full((n_groups, 2), np.iinfo(np.int64).max)
     last = np.full((n_groups, 2), -1, np.int64)
     ij = cells.ij

@@ -12,6 +12,7 @@ Host-side numpy around the jitted batch function.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple, TypeVar
@@ -26,11 +27,17 @@ from gfjax.io import tiles as tiles_lib
 from gfjax.io.cloud import CloudView
 
 __all__ = ["checked_options", "check_memory", "laid_out", "checked_tiling", "lattice_of", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
-           "classify_cloud", "TiledRun"]
+           "classify_cloud", "classify_groups", "TiledRun"]
 
 ConfigT = TypeVar("ConfigT")
 
 ParamsT = TypeVar("ParamsT")
+
+# A cloud whose groups of points at least this far apart (or a tiling's buffer, if larger) fill a
+# quarter of its box or less is filtered group by group, each group as a cloud of its own
+# (`classify_groups`): a tile's context reaches its buffer (50 m by default), so no group's
+# points are another's context, and the empty box between groups costs nothing [m].
+GROUP_GAP_M = 50.0
 
 Estimates = Callable[[tuple[float, float] | None], list[limits.Estimate]]
 """`estimates(extent_m)`: a method's `Config.memory_estimates` with its settings bound."""
@@ -95,35 +102,38 @@ def checked_options(cloud: object, config: ConfigT | None, params: ParamsT | Non
     return config, params, use
 
 
-def laid_out(cloud: CloudView, use: np.ndarray, estimates: Estimates | None, *, reach_m: float = 0.0,
-             keep_frame: bool = False) -> tuple[np.ndarray, groups.Layout | None]:
-    """`(coordinates (n, 3) [m], layout)`: `cloud.xyz_m` with the used points' groups that lie
-    `max(groups.GAP_M, reach_m)` or more apart moved side by side (`gfjax.io.groups`;
-    `reach_m`: how far the method looks around a point; layout None, the cloud's own array,
-    when that wins nothing or `keep_frame`: a tiled method on a survey's frame), then the
-    rasters over the used points checked against the memory budget (`check_memory`:
-    `estimates`, the method's `Config.memory_estimates` with its settings bound)."""
-    gap_m = max(groups.GAP_M, reach_m)
-    xyz_m, layout = (cloud.xyz_m, None) if keep_frame else groups.compacted(cloud.xyz_m, gap_m, use=use)
+def laid_out(cloud: CloudView, use: np.ndarray, estimates: Estimates | None, *,
+             reach_m: float = 0.0) -> tuple[np.ndarray, groups.Layout | None]:
+    """`(coordinates (n, 3) [m], layout)` for a method that builds rasters over a whole cloud:
+    `cloud.xyz_m` with the used points' groups that lie `max(groups.GAP_M, reach_m)` or more
+    apart moved side by side (`gfjax.io.groups`; `reach_m`: how far the method looks around a
+    point; layout None, the cloud's own array, when that wins nothing), then the rasters over
+    the used points checked against the memory budget (`check_memory`: `estimates`, the
+    method's `Config.memory_estimates` with its settings bound)."""
+    xyz_m, layout = groups.compacted(cloud.xyz_m, max(groups.GAP_M, reach_m), use=use)
     check_memory(cloud.name, estimates, xyz_m[use, :2])
     return xyz_m, layout
 
 
-def check_memory(name: str, estimates: Estimates | None, xy_m: np.ndarray) -> None:
+def check_memory(name: str, estimates: Estimates | None, xy_m: np.ndarray | None) -> None:
     """Raise `InputError` naming `name` when `estimates` (None: no check) puts the rasters over
-    points `xy_m` `(n, 2)` [m] over the memory budget (`gfjax.limits`)."""
-    if estimates is None or len(xy_m) == 0:
+    points `xy_m` `(n, 2)` [m] (None: only those the settings fix, such as a batch of tiles)
+    over the memory budget (`gfjax.limits`)."""
+    if estimates is None or (xy_m is not None and len(xy_m) == 0):
         return
-    extent = xy_m.max(axis=0) - xy_m.min(axis=0)
+    extent = None
+    if xy_m is not None:
+        span = xy_m.max(axis=0) - xy_m.min(axis=0)
+        extent = (float(span[0]), float(span[1]))
     try:
-        limits.check_memory(estimates((float(extent[0]), float(extent[1]))))
+        limits.check_memory(estimates(extent))
     except ValueError as err:
         raise InputError(f"{name}: {err}") from None
 
 
 def run_batches(tiles: Sequence[tiles_lib.Tile], classify_batch: ClassifyBatch, params: Any, config: Any, *,
                 lattice: tiles_lib.Lattice, max_batch: int, progress: bool = False, desc: str = "tiles",
-                keep_diagnostics: bool = True) -> tuple[list[np.ndarray], list[tuple | None]]:
+                keep_diagnostics: bool = True, small: bool = False) -> tuple[list[np.ndarray], list[tuple | None]]:
     """Classify tiles batch by batch (`tiles.batches`, one `classify_batch` call per batch).
 
     Args:
@@ -134,6 +144,9 @@ def run_batches(tiles: Sequence[tiles_lib.Tile], classify_batch: ClassifyBatch, 
       max_batch: most tiles per call.
       progress: show a progress bar over batches, labelled `desc`.
       keep_diagnostics: crop and keep the per-tile rasters (else None per tile).
+      small: windows of at most `tiles.SMALL_SIDES_PX[-1]` cells a side run in
+        `tiles.small_batches` when there are more than `max_batch` of them (a cloud of small
+        groups far apart, `classify_groups`).
 
     Returns:
       `(labels, diagnostics)` in the order of `tiles`: per tile a bool `(tile.n_points,)`
@@ -144,7 +157,16 @@ def run_batches(tiles: Sequence[tiles_lib.Tile], classify_batch: ClassifyBatch, 
     labels: list[np.ndarray | None] = [None] * len(tiles)
     diagnostics: list[tuple | None] = [None] * len(tiles)
     sides = tiles_lib.canonical_sides(*lattice)
-    groups = list(tiles_lib.batches(tiles, max_batch=max_batch, sides=sides))
+    fits = [small and max(tile.shape) <= tiles_lib.SMALL_SIDES_PX[-1] for tile in tiles]
+    if sum(fits) <= max_batch:
+        # a few run as canonical windows, padded to the side of the others' smallest if there are
+        # others: no program beyond those the others (or `gfjax warmup`) compiled
+        fits = [False] * len(tiles)
+        if small:
+            floor = min((max(t.shape) for t in tiles if max(t.shape) > tiles_lib.SMALL_SIDES_PX[-1]), default=0)
+            sides = tuple(s for s in sides if s >= floor) or sides[-1:]
+    groups = [*tiles_lib.small_batches([t for t, f in zip(tiles, fits) if f], max_batch=max_batch),
+              *tiles_lib.batches([t for t, f in zip(tiles, fits) if not f], max_batch=max_batch, sides=sides)]
     if progress:
         from tqdm.auto import tqdm
         groups = tqdm(groups, desc=desc, unit="batch")
@@ -279,6 +301,37 @@ def classify_cloud(xyz_m: Float[np.ndarray, "n 3"], use: Bool[np.ndarray, " n"],
     return TiledRun(ground=ground, tiles=tiles, diagnostics=diagnostics)
 
 
+def classify_groups(xyz_m: Float[np.ndarray, "n 3"], use: Bool[np.ndarray, " n"], group: np.ndarray, n_groups: int,
+                    classify_batch: ClassifyBatch, params: Any, config: Any, *, lattice: tiles_lib.Lattice,
+                    max_batch: int, progress: bool = False, desc: str = "tiles") -> TiledRun:
+    """`classify_cloud` on each group of points far apart (`groups.far_apart`) as a cloud of its
+    own: its lattice starts at its own corner and its windows end at its own box, so a group
+    is labelled as it would be alone, and the empty box between groups costs nothing (a cloud
+    spread over kilometres runs about its points' tiles, most of them a few cells wide:
+    `run_batches(small=True)`). All groups' tiles share the batches.
+
+    Args:
+      xyz_m, use, classify_batch, params, config, lattice, max_batch, progress, desc: as
+        `classify_cloud` (`frame` is each group's own).
+      group: int `(u,)` the group of each used point (in the order of `np.flatnonzero(use)`);
+        n_groups: how many.
+
+    Returns:
+      `TiledRun(ground, tiles, diagnostics)`: tiles index the whole cloud; no diagnostics kept.
+    """
+    used = np.flatnonzero(use)
+    order = np.argsort(group, kind="stable")
+    bounds = np.searchsorted(group[order], np.arange(n_groups + 1))
+    tiles = []
+    for g in range(n_groups):
+        members = used[order[bounds[g]:bounds[g + 1]]]
+        tiles += [dataclasses.replace(tile, index=members[tile.index])
+                  for tile in tiles_lib.split(xyz_m[members], **lattice._asdict())]
+    labels, diagnostics = run_batches(tiles, classify_batch, params, config, lattice=lattice, max_batch=max_batch,
+                                      progress=progress, desc=desc, keep_diagnostics=False, small=True)
+    return TiledRun(ground=tiles_lib.merge(len(use), tiles, labels) & use, tiles=tiles, diagnostics=diagnostics)
+
+
 class Filtered(NamedTuple):
     """What `filter_cloud` gives a tiled method's `filter`.
 
@@ -286,8 +339,7 @@ class Filtered(NamedTuple):
       ground: bool `(n,)`, False for points not used.
       config: the config the cloud was filtered with (defaults filled in).
       cores: the tiles' diagnostics pasted into whole-cloud rasters (`mosaic`), or None when no
-        tile ran or the cloud's far groups were moved side by side (the rasters would map the
-        layout, not the cloud).
+        tile ran or the cloud was filtered group by group (its box is mostly empty).
       n_tiles: tiles run.
     """
 
@@ -301,19 +353,28 @@ def filter_cloud(cloud: Any, config: Any, params: Any, returns: str, *, tiling: 
                  config_type: type, params_type: type, package: str, classify_batch: ClassifyBatch, max_batch: int,
                  rasters: Sequence[str], heights: Sequence[str], progress: bool = False) -> Filtered:
     """A tiled method's `filter` up to its diagnostics: options checked (`checked_options`,
-    `lattice_of`: `tiling` None is `Tiling()`),
-    far groups laid out (`laid_out`; not on a survey's frame), tiles classified
-    (`classify_cloud`) and their diagnostics `rasters` mosaicked (`heights`: those shifted to
-    the cloud's vertical frame)."""
+    `lattice_of`: `tiling` None is `Tiling()`), tiles classified (`classify_cloud`) and their
+    diagnostics `rasters` mosaicked (`heights`: those shifted to the cloud's vertical frame);
+    a cloud of groups far apart (`groups.far_apart`; not a survey's window) is classified
+    group by group instead (`classify_groups`), without a mosaic."""
     config, params, use = checked_options(cloud, config, params, returns, config_type=config_type,
                                           params_type=params_type, package=package)
     lattice = lattice_of(tiling, config.cell_m, name=cloud.name)
     estimates = functools.partial(config.memory_estimates, tiling=tiling)
-    xyz_m, layout = laid_out(cloud, use, estimates, reach_m=lattice.buffer_m, keep_frame=cloud.frame is not None)
-    run = classify_cloud(xyz_m, use, classify_batch, params, config, lattice=lattice, max_batch=max_batch,
-                         frame=cloud.frame, progress=progress, desc=f"{package.rsplit('.', 1)[-1]} tiles")
+    desc = f"{package.rsplit('.', 1)[-1]} tiles"
+    apart = None
+    if cloud.frame is None:                 # a survey's window keeps the survey's lattice
+        apart = groups.far_apart(cloud.xyz_m[use, :2], max(GROUP_GAP_M, lattice.buffer_m))
+    if apart is not None:
+        check_memory(cloud.name, estimates, None)
+        run = classify_groups(cloud.xyz_m, use, *apart, classify_batch, params, config, lattice=lattice,
+                              max_batch=max_batch, progress=progress, desc=desc)
+        return Filtered(ground=run.ground, config=config, cores=None, n_tiles=len(run.tiles))
+    check_memory(cloud.name, estimates, cloud.xyz_m[use, :2])
+    run = classify_cloud(cloud.xyz_m, use, classify_batch, params, config, lattice=lattice, max_batch=max_batch,
+                         frame=cloud.frame, progress=progress, desc=desc)
     cores = None
-    if run.tiles and layout is None:
+    if run.tiles:
         cores = mosaic(run.tiles, run.diagnostics, names=rasters, heights=heights, cell_m=config.cell_m)
     return Filtered(ground=run.ground, config=config, cores=cores, n_tiles=len(run.tiles))
 

@@ -37,12 +37,13 @@ from gfjax import limits
 from gfjax.errors import SettingError
 from gfjax.limits import Range
 
-__all__ = ["Tiling", "Lattice", "RANGES", "Frame", "Tile", "TileBatch", "split", "capacity_bucket", "shape_bucket", "canonical_sides",
+__all__ = ["Tiling", "Lattice", "RANGES", "Frame", "Tile", "TileBatch", "split", "small_batches", "capacity_bucket", "shape_bucket", "canonical_sides",
            "canonical_capacities", "canonical_capacity", "batches", "merge"]
 
 MIN_CAPACITY = 256
 SHAPE_QUANTUM_PX = 64
 SMALLEST_SIDE_PX = 128        # the smallest canonical raster side (`canonical_sides`)
+SMALL_SIDES_PX = (8, 16, 32, 64)   # the sides of `small_batches`, below the canonical ones
 CANONICAL_MIN_CAPACITY = 1 << 14
 CANONICAL_MAX_CAPACITY = 1 << 22   # the largest capacity `gfjax warmup` compiles ahead
 CROP_SAVING = 4.0             # a window shrinks to its core points' box + buffer when that is this many times smaller
@@ -440,6 +441,34 @@ def batches(tiles: Sequence[Tile], *, max_batch: int = 8, capacity: int | None =
         for chunk in chunks:
             cap = capacity if capacity is not None else bucket(max(t.n_points for t in chunk))
             yield _pad(chunk, cap, group_shape)
+
+
+def small_batches(tiles: Sequence[Tile], *, max_batch: int = 8) -> Iterator[TileBatch]:
+    """Batches of windows of at most `SMALL_SIDES_PX[-1]` cells a side (a cloud of small groups
+    far apart: `gfjax.io.tiled`), each padded to the smallest of `SMALL_SIDES_PX` holding it.
+
+    A batch holds the cells of `max_batch` windows of the smallest canonical side, so more
+    tiles when they are smaller (2,048 tiles of 8 x 8 cells for `max_batch` 8), and every batch
+    is full: the last one is padded with copies of its last tile, whose outputs are not read
+    (`TileBatch.tiles` holds the real ones), so each side compiles one program and a lone tile
+    none of its own. Capacities are `capacity_bucket`s: a few points need no 16,384 slots.
+    """
+    if max_batch < 1:
+        raise ValueError(f"max_batch must be >= 1, got {max_batch}")
+    groups: dict[tuple[int, int], list[Tile]] = {}
+    for tile in tiles:
+        groups.setdefault(_canonical_shape(tile.shape, SMALL_SIDES_PX), []).append(tile)
+    for shape, members in sorted(groups.items()):
+        size = max_batch * (SMALLEST_SIDE_PX // shape[0]) ** 2
+        members = sorted(members, key=lambda t: t.n_points)
+        for start in range(0, len(members), size):
+            chunk = members[start:start + size]
+            batch = _pad(chunk, capacity_bucket(max(t.n_points for t in chunk)), shape)
+            extra = size - len(chunk)
+            if extra:
+                batch = batch._replace(**{name: np.concatenate([a, np.repeat(a[-1:], extra, axis=0)])
+                                          for name, a in (("xyz", batch.xyz), ("valid", batch.valid), ("hw", batch.hw))})
+            yield batch
 
 
 def merge(n_points: int, tiles: Sequence[Tile], labels: Sequence[np.ndarray], *,

@@ -64,7 +64,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points;
       `diagnostics` a `PMFDiagnostics` (None for a cloud with no usable point, and for one whose
-      groups of points far apart were moved side by side: `gfjax.io.tiled.laid_out`).
+      groups of points far apart were filtered one by one: `gfjax.io.tiled.classify_groups`).
     """
     done = tiled.filter_cloud(cloud, config, params, returns, tiling=tiling, config_type=Config, params_type=Params,
                               package="gfjax.pmf", classify_batch=programs.classify_batch, max_batch=MAX_BATCH,

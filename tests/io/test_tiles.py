@@ -215,3 +215,24 @@ def test_padding_invariance(scene, whole_labels):
     ground = np.asarray(programs.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=CONFIG,
                                               shape=batch.shape)[0])[0]
     np.testing.assert_array_equal(tiling.merge(len(scene), tiles, [ground]), whole_labels)
+
+
+def test_small_batches_are_full_and_hold_every_small_tile_once():
+    """Windows of a few cells (groups far apart) pad to 8-64 cells a side, many to a batch;
+    every batch is full (copies of its last tile pad it), and each tile is in exactly one."""
+    rng = np.random.default_rng(4)
+    xyz = np.column_stack([rng.uniform(0, 30, (500, 2)), rng.normal(0, 1, 500)])
+    tiles = [t for k in range(500) for t in tiling.split(xyz[k:k + 1] if k % 7 else xyz[k:k + 20],
+                                                           tile_size_m=500.0, buffer_m=50.0)]
+    seen = []
+    for batch in tiling.small_batches(tiles, max_batch=2):
+        side = batch.shape[0]
+        assert batch.shape == (side, side) and side in tiling.SMALL_SIDES_PX
+        assert batch.xyz.shape[0] == batch.valid.shape[0] == batch.hw.shape[0] == 2 * (128 // side) ** 2
+        assert batch.xyz.shape[1] == tiling.capacity_bucket(max(t.n_points for t in batch.tiles))
+        for i, tile in enumerate(batch.tiles):
+            assert batch.valid[i].sum() == tile.n_points and max(tile.shape) <= side
+        np.testing.assert_array_equal(batch.xyz[len(batch.tiles):], np.broadcast_to(
+            batch.xyz[len(batch.tiles) - 1], batch.xyz[len(batch.tiles):].shape))
+        seen += [id(t) for t in batch.tiles]
+    assert sorted(seen) == sorted(map(id, tiles))

@@ -1,7 +1,9 @@
 """A stray point kilometres from the others must not cost memory for the empty box between
-them: every method moves groups of points far apart side by side (`gfjax.io.groups`), and
-where it cannot (SMRF and PMF on a survey's frame) the tiles skip empty ground and the
-whole-cloud diagnostic rasters only touch the pages of the tiles' cores."""
+them: the whole-cloud methods move groups of points far apart side by side
+(`gfjax.io.groups`), the tiled ones (SMRF, PMF) filter each group as a cloud of its own
+(`gfjax.io.tiled.classify_groups`), and on a survey's frame, where the lattice may not move,
+the tiles skip empty ground and the whole-cloud diagnostic rasters only touch the pages of
+the tiles' cores."""
 from __future__ import annotations
 
 import dataclasses
@@ -75,6 +77,28 @@ def test_far_points_leave_the_labels_of_the_others_as_they_are_alone(method):
     agree = np.mean(alone.ground == with_strays.ground[:len(main)])
     assert agree >= 0.995                                                 # CSF's cloth and MASF's TIN span
     assert 0.5 < np.mean(alone.ground) < 0.95                             # every group: not bit-equal
+    if method in (smrf, pmf):                                             # each group filtered alone
+        np.testing.assert_array_equal(with_strays.ground[:len(main)], alone.ground)
+        for k, stray in enumerate(strays):
+            assert method.filter(Cloud.from_xyz(stray[None])).ground[0] == with_strays.ground[len(main) + k]
+
+
+@pytest.mark.parametrize("method, n, side_m", [(pmf, 20_000, 100_000.0), (smrf, 600, 10_000.0)], ids=["pmf", "smrf"])
+def test_points_spread_over_a_large_box_cost_their_tiles_not_the_box(method, n, side_m):
+    """20,000 points over 100 x 100 km (40,000 tiles of 500 m, 10^10 cells of 1 m): each group
+    of points within 50 m of each other is filtered as a cloud of its own, in small windows
+    batched together; a group's labels are those it gets alone."""
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(0, side_m, (n, 2))
+    xy[:40] = xy[0] + rng.uniform(0, 30, (40, 2))                       # one group of 40 points
+    z = 100 + rng.normal(0, 1.0, n)
+    z[1] += 6.0                                                           # a roof in it
+    cloud = Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], z]))
+    result = method.filter(cloud)
+    assert result.diagnostics is None and result.ground.shape == (n,)
+    assert np.mean(result.ground) > 0.9 and not result.ground[1]
+    group = method.filter(Cloud.from_xyz(cloud.xyz_m[:40]))
+    np.testing.assert_array_equal(result.ground[:40], group.ground)
 
 
 @pytest.mark.parametrize("method", [smrf, pmf])
