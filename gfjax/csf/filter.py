@@ -33,11 +33,12 @@ from gfjax.io.cloud import CloudView
 from gfjax.io.tiled import checked_options, laid_out
 from gfjax.result import Result
 
-__all__ = ["filter", "filter_points", "grid_shape", "Anchor", "Diagnostics", "CSFDiagnostics"]
+__all__ = ["filter", "filter_points", "grid_shape", "Anchor", "TileDiagnostics", "Diagnostics"]
 
 
-class Diagnostics(NamedTuple):
-    """Per-cloud arrays of the jitted pipeline, particle grid `[j, i]` (row 0 = SOUTH).
+class TileDiagnostics(NamedTuple):
+    """The arrays of the jitted pipeline on one padded buffer (CSF's one tile: `filter_points`),
+    particle grid `[j, i]` (row 0 = SOUTH); `Diagnostics` is what `filter` makes of them.
 
     Attributes:
       cloth_u: final cloth in the inverted frame `(h, w)` [m].
@@ -54,7 +55,7 @@ class Diagnostics(NamedTuple):
     steps: Int[Array, ""]
 
 
-class CSFDiagnostics(NamedTuple):
+class Diagnostics(NamedTuple):
     """What `filter` returns beside the labels (host numpy, row 0 = NORTH).
 
     Attributes:
@@ -101,7 +102,7 @@ def grid_shape(xyz: np.ndarray | jax.Array, valid: np.ndarray | jax.Array, *, ce
 
 @functools.partial(jax.jit, static_argnames=("config", "shape"))
 def filter_points(xyz: Points, valid: PointMask, params: Params, anchor: Anchor | None = None, *, config: Config,
-                  shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
+                  shape: tuple[int, int]) -> tuple[PointMask, TileDiagnostics]:
     """CSF on one padded buffer of points.
 
     Args:
@@ -114,7 +115,7 @@ def filter_points(xyz: Points, valid: PointMask, params: Params, anchor: Anchor 
       shape: static particle grid `(h, w)`, at least `grid_shape(xyz, valid)` (larger pads).
 
     Returns:
-      `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and `Diagnostics`.
+      `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and `TileDiagnostics`.
     """
     cell = jnp.float32(config.cell_m)
     xy, u = xyz[:, :2], -xyz[:, 2]
@@ -135,7 +136,7 @@ def filter_points(xyz: Points, valid: PointMask, params: Params, anchor: Anchor 
         cloth_u, movable = stages.smooth_slopes(cloth_u, movable, exists, surface)
     gap = stages.height_above_cloth(rel, u, cloth_u, cell_m=config.cell_m)
     ground = valid & stages.is_ground(gap, params.class_threshold_m)
-    return ground, Diagnostics(cloth_u, surface, movable, exists, state.steps)
+    return ground, TileDiagnostics(cloth_u, surface, movable, exists, state.steps)
 
 
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
@@ -152,7 +153,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
 
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points;
-      `diagnostics` a `CSFDiagnostics` (None for a cloud with no usable point, and for one
+      `diagnostics` a `Diagnostics` (None for a cloud with no usable point, and for one
       whose groups of points far apart were moved together: `gfjax.io.groups`).
     """
     del progress
@@ -176,7 +177,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     if layout is not None:                  # the cloth lies under the moved groups: no map of the cloud
         return Result(ground=ground, diagnostics=None)
     xy0 = origin[:2] - BUFFER_PX * config.cell_m
-    return Result(ground=ground, diagnostics=CSFDiagnostics(
+    return Result(ground=ground, diagnostics=Diagnostics(
         cloth_z=origin[2] - np.asarray(diag.cloth_u, np.float64)[::-1],
         surface_z=origin[2] - np.asarray(diag.surface_u, np.float64)[::-1],
         movable=np.asarray(diag.movable)[::-1], steps=int(diag.steps), origin_m=xy0,

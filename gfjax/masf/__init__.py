@@ -8,6 +8,6 @@ result = gfjax.masf.filter(cloud, config=config, params=params)
 ```
 """
 from gfjax.masf.config import PAPER_TABLE3, PRESETS, Config, Params
-from gfjax.masf.filter import MASFDiagnostics, filter, filter_points
+from gfjax.masf.filter import Diagnostics, filter, filter_points
 
-__all__ = ["filter", "filter_points", "Config", "Params", "PRESETS", "PAPER_TABLE3", "MASFDiagnostics"]
+__all__ = ["filter", "filter_points", "Config", "Params", "PRESETS", "PAPER_TABLE3", "Diagnostics"]

@@ -44,10 +44,10 @@ from gfjax.masf import alpha_shape, densify as densify_mod, preprocess, tin
 from gfjax.masf.config import Config, Params
 from gfjax.result import Result
 
-__all__ = ["filter", "MASFDiagnostics", "filter_points", "Prepared", "prepare", "pyramid", "densify"]
+__all__ = ["filter", "Diagnostics", "filter_points", "Prepared", "prepare", "pyramid", "densify"]
 
 
-class MASFDiagnostics(NamedTuple):
+class Diagnostics(NamedTuple):
     """What MASF computed on the way (host numpy).
 
     Attributes:
@@ -167,7 +167,7 @@ def densify(prep: Prepared, layers: np.ndarray, config: Config, params: Params) 
 
 
 def filter_points(xyz_m: np.ndarray, config: Config, params: Params,
-                  frame: Frame | None = None) -> tuple[np.ndarray, MASFDiagnostics]:
+                  frame: Frame | None = None) -> tuple[np.ndarray, Diagnostics]:
     """MASF on an array of points: `prepare`, `pyramid`, `densify`.
 
     Args:
@@ -176,14 +176,14 @@ def filter_points(xyz_m: np.ndarray, config: Config, params: Params,
       frame: as for `prepare`.
 
     Returns:
-      `(ground, diagnostics)`: bool `(n,)` and a `MASFDiagnostics` (indices into `xyz_m`).
+      `(ground, diagnostics)`: bool `(n,)` and a `Diagnostics` (indices into `xyz_m`).
     """
     prep = prepare(xyz_m, config, frame)
     alphas = config.alphas_m()
     empty_diag = dict(potential_ground=prep.pre.index, alphas_m=alphas, occupied_cells=int(prep.pre.occupied.sum()),
                       neighbour_outliers=prep.pre.neighbour_outliers, origin_m=prep.origin, seconds=prep.seconds)
     if len(prep.pre.index) == 0:
-        return np.zeros(len(prep.local), dtype=bool), MASFDiagnostics(
+        return np.zeros(len(prep.local), dtype=bool), Diagnostics(
             layers=np.zeros((len(alphas), 0), dtype=bool), added_per_layer=np.zeros(len(alphas), dtype=np.int64),
             bottom_z_m=np.zeros(prep.pre.shape), n_triangles=0, tin_rebuilds=0, **empty_diag)
     clock = time.perf_counter()
@@ -192,7 +192,7 @@ def filter_points(xyz_m: np.ndarray, config: Config, params: Params,
     clock = time.perf_counter()
     result = densify(prep, layers, config, params)
     prep.seconds["densify"] = time.perf_counter() - clock
-    return result.ground, MASFDiagnostics(layers=layers, added_per_layer=result.added_per_layer,
+    return result.ground, Diagnostics(layers=layers, added_per_layer=result.added_per_layer,
                                           bottom_z_m=prep.bottom_z + prep.origin[2],
                                           n_triangles=0 if prep.faces is None else len(prep.faces[0]),
                                           tin_rebuilds=result.tin_rebuilds, **empty_diag)
@@ -211,7 +211,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
 
     Returns:
       `Result(ground, diagnostics)`: bool `(n,)` over the whole cloud (unused points False) and
-      a `MASFDiagnostics` whose `potential_ground` indexes the whole cloud (None when groups of
+      a `Diagnostics` whose `potential_ground` indexes the whole cloud (None when groups of
       points far apart were moved together: `gfjax.io.groups`).
 
     Raises:

@@ -8,10 +8,10 @@ result = gfjax.pmf.filter(cloud, config=gfjax.pmf.Config(max_window_m=17.0),
 ```
 """
 from gfjax.pmf.config import PRESETS, Config, Params
-from gfjax.pmf.filter import PMFDiagnostics, filter, warm
-from gfjax.pmf.stages import Diagnostics
+from gfjax.pmf.filter import Diagnostics, filter, warm
+from gfjax.pmf.stages import TileDiagnostics
 
 # A tile's core labels depend on its window only: a survey runs each tile once (`gfjax.methods`).
 TILE_LABELS = True
 
-__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "TILE_LABELS", "Diagnostics", "PMFDiagnostics"]
+__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "TILE_LABELS", "Diagnostics", "TileDiagnostics"]

@@ -24,11 +24,11 @@ from gfjax.pmf import programs
 from gfjax.pmf.config import MAX_BATCH, Config, Params
 from gfjax.result import Result
 
-__all__ = ["filter", "warm", "PMFDiagnostics", "MAX_BATCH"]
+__all__ = ["filter", "warm", "Diagnostics", "MAX_BATCH"]
 
 
 
-class PMFDiagnostics(NamedTuple):
+class Diagnostics(NamedTuple):
     """The PMF rasters of the whole cloud (tile cores mosaicked), host numpy, row 0 = north.
 
     Attributes:
@@ -63,7 +63,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
 
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points;
-      `diagnostics` a `PMFDiagnostics` (None for a cloud with no usable point, and for one whose
+      `diagnostics` a `Diagnostics` (None for a cloud with no usable point, and for one whose
       groups of points far apart were filtered one by one: `gfjax.io.tiled.classify_groups`).
     """
     done = tiled.filter_cloud(cloud, config, params, returns, tiling=tiling, config_type=Config, params_type=Params,
@@ -71,7 +71,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
                               rasters=("zimin", "surface", "empty"), heights=("zimin", "surface"), progress=progress)
     if done.cores is None:
         return Result(ground=done.ground, diagnostics=None)
-    return Result(ground=done.ground, diagnostics=PMFDiagnostics(
+    return Result(ground=done.ground, diagnostics=Diagnostics(
         **done.cores.rasters, origin_m=done.cores.origin_m, cell_m=done.config.cell_m,
         windows_px=done.config.windows_px, n_tiles=done.n_tiles))
 

@@ -13,7 +13,7 @@ from jaxtyping import Array, Bool, Float, Int
 from gfjax import aot
 from gfjax._types import Host, PointMask
 from gfjax.pmf.config import Config, Params
-from gfjax.pmf.stages import Diagnostics, classify_points, rasterize_min, surfaces
+from gfjax.pmf.stages import TileDiagnostics, classify_points, rasterize_min, surfaces
 
 __all__ = ["classify_tile", "classify_batch"]
 
@@ -29,7 +29,7 @@ def _programs(config: Config, shape: tuple[int, int], batched: bool):
 
 
 def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host, " 2"], params: Params, *,
-                  config: Config, shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
+                  config: Config, shape: tuple[int, int]) -> tuple[PointMask, TileDiagnostics]:
     """PMF on one tile (Zhang et al. 2003).
 
     Args:
@@ -40,13 +40,13 @@ def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host
       params: traced thresholds; config: static settings; shape: static raster `(h, w)`.
 
     Returns:
-      `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and `Diagnostics`.
+      `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and `TileDiagnostics`.
     """
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=False)
 
 
 def classify_batch(xyz: Float[Host, "b n 3"], valid: Bool[Host, "b n"], hw: Int[Host, "b 2"],
-                   params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Array, "b n"], Diagnostics]:
+                   params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Array, "b n"], TileDiagnostics]:
     """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared)."""
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=True)
 

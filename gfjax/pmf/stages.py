@@ -26,11 +26,11 @@ from gfjax.raster.grid import cell_index, domain_mask
 from gfjax.raster.morphology import opening
 from gfjax.raster.rasterize import rasterize
 
-__all__ = ["Diagnostics", "thresholds_m", "is_ground_point", "minimum_surface", "rasterize_min", "fill_minimum",
+__all__ = ["TileDiagnostics", "thresholds_m", "is_ground_point", "minimum_surface", "rasterize_min", "fill_minimum",
            "progressive_openings", "surfaces", "classify_points"]
 
 
-class Diagnostics(NamedTuple):
+class TileDiagnostics(NamedTuple):
     """Intermediate rasters of one tile, `(h, w)` each (row 0 = north), for plots.
 
     Attributes:
@@ -106,10 +106,10 @@ def classify_points(xyz: Points, valid: PointMask, opened: Float[Array, "k h w"]
     return ground
 
 
-def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, " 2"], *, config: Config) -> tuple[Float[Array, "k h w"], Diagnostics]:
+def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, " 2"], *, config: Config) -> tuple[Float[Array, "k h w"], TileDiagnostics]:
     """The raster part of a tile: ZImin filled, then the progressive openings. Returns the
-    opened stack `(k, h, w)` and the tile's `Diagnostics`."""
+    opened stack `(k, h, w)` and the tile's `TileDiagnostics`."""
     domain = domain_mask(hw, z_min.shape)
     zimin, filled = fill_minimum(z_min, filled, domain)
     opened = progressive_openings(zimin, domain, windows_px=config.windows_px)
-    return opened, Diagnostics(zimin=zimin, empty=domain & ~filled, surface=opened[-1], domain=domain)
+    return opened, TileDiagnostics(zimin=zimin, empty=domain & ~filled, surface=opened[-1], domain=domain)

@@ -9,10 +9,10 @@ result = gfjax.smrf.filter(cloud, tiling=gfjax.Tiling(tile_size_m=250.0, buffer_
 ```
 """
 from gfjax.smrf.config import PRESETS, Config, Params
-from gfjax.smrf.filter import SMRFDiagnostics, filter, warm
-from gfjax.smrf.stages import Diagnostics
+from gfjax.smrf.filter import Diagnostics, filter, warm
+from gfjax.smrf.stages import TileDiagnostics
 
 # A tile's core labels depend on its window only: a survey runs each tile once (`gfjax.methods`).
 TILE_LABELS = True
 
-__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "TILE_LABELS", "Diagnostics", "SMRFDiagnostics"]
+__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "TILE_LABELS", "Diagnostics", "TileDiagnostics"]

@@ -27,12 +27,12 @@ from gfjax.result import Result
 from gfjax.smrf import programs
 from gfjax.smrf.config import MAX_BATCH, Config, Params
 
-__all__ = ["filter", "warm", "SMRFDiagnostics"]
+__all__ = ["filter", "warm", "Diagnostics"]
 
 _RASTERS = ("zimin", "zipro", "slope", "empty", "low_outliers", "object_cells")
 
 
-class SMRFDiagnostics(NamedTuple):
+class Diagnostics(NamedTuple):
     """The SMRF rasters of the whole cloud (tile cores mosaicked), host numpy, row 0 = north.
 
     Attributes:
@@ -71,7 +71,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points (noise,
       withheld, and non-last returns with `returns="last"`); `diagnostics` an
-      `SMRFDiagnostics` (None for a cloud with no usable point, and for one whose groups of
+      `Diagnostics` (None for a cloud with no usable point, and for one whose groups of
       points far apart were filtered one by one: `gfjax.io.tiled.classify_groups`).
     """
     done = tiled.filter_cloud(cloud, config, params, returns, tiling=tiling, config_type=Config, params_type=Params,
@@ -79,7 +79,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
                               rasters=_RASTERS, heights=("zimin", "zipro"), progress=progress)
     if done.cores is None:
         return Result(ground=done.ground, diagnostics=None)
-    return Result(ground=done.ground, diagnostics=SMRFDiagnostics(
+    return Result(ground=done.ground, diagnostics=Diagnostics(
         **done.cores.rasters, origin_m=done.cores.origin_m, cell_m=done.config.cell_m, n_tiles=done.n_tiles))
 
 

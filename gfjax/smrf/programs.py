@@ -14,7 +14,7 @@ from jaxtyping import Array, Bool, Float, Int
 from gfjax import aot
 from gfjax._types import Host, PointMask
 from gfjax.smrf.config import Config, Params
-from gfjax.smrf.stages import Diagnostics, classify_points, rasterize_min, surfaces
+from gfjax.smrf.stages import TileDiagnostics, classify_points, rasterize_min, surfaces
 
 __all__ = ["classify_tile", "classify_batch"]
 
@@ -30,7 +30,7 @@ def _programs(config: Config, shape: tuple[int, int], batched: bool):
 
 
 def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host, "2"], params: Params, *,
-                  config: Config, shape: tuple[int, int]) -> tuple[PointMask, Diagnostics]:
+                  config: Config, shape: tuple[int, int]) -> tuple[PointMask, TileDiagnostics]:
     """SMRF on one tile (Pingel et al. 2013, Sec. 2.1-2.4).
 
     Args:
@@ -42,13 +42,13 @@ def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host
       config: static settings; shape: static raster `(h, w)` (a padding bucket).
 
     Returns:
-      `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and the tile's `Diagnostics`.
+      `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and the tile's `TileDiagnostics`.
     """
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=False)
 
 
 def classify_batch(xyz: Float[Host, "b n 3"], valid: Bool[Host, "b n"], hw: Int[Host, "b 2"],
-                   params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Array, "b n"], Diagnostics]:
+                   params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Array, "b n"], TileDiagnostics]:
     """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared); the
     diagnostics gain a leading batch axis."""
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=True)

@@ -29,12 +29,12 @@ from gfjax.raster.rasterize import rasterize
 from gfjax.smrf.config import Config, Params
 
 __all__ = [
-    "Diagnostics", "is_object", "is_ground_point", "progressive_filter", "low_outliers", "inpaint",
+    "TileDiagnostics", "is_object", "is_ground_point", "progressive_filter", "low_outliers", "inpaint",
     "gradient_magnitude", "rasterize_min", "surfaces", "classify_points",
 ]
 
 
-class Diagnostics(NamedTuple):
+class TileDiagnostics(NamedTuple):
     """Intermediate rasters of one tile, each `(h, w)` (row 0 = north), for plots.
 
     Attributes:
@@ -154,7 +154,7 @@ def rasterize_min(xyz: Points, valid: PointMask, *, cell_m: float, shape: tuple[
     return cells.z_min, cells.valid
 
 
-def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, "2"], params: Params, *, config: Config) -> Diagnostics:
+def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, "2"], params: Params, *, config: Config) -> TileDiagnostics:
     """The raster part of SMRF (Sec. 2.1-2.3) on one tile: ZImin, low outliers, the progressive
     opening, ZIpro and its slope.
 
@@ -177,7 +177,7 @@ def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, "2"], params: Params, *
     # 4. ZIpro: ZImin without empty, low-outlier and object cells, inpainted.
     zipro = inpaint(zimin, filled & ~low & ~objects, config=config, domain=domain)
     slope = gradient_magnitude(zipro, domain, cell_m=config.cell_m)
-    return Diagnostics(zimin=zimin, empty=domain & ~filled, low_outliers=low, object_cells=objects,
+    return TileDiagnostics(zimin=zimin, empty=domain & ~filled, low_outliers=low, object_cells=objects,
                        zipro=zipro, slope=slope, domain=domain)
 
 
