@@ -266,6 +266,21 @@ def test_the_same_tile_twice_is_refused(tmp_path):
         survey.index([a, b], tmp_path)
 
 
+def test_only_methods_whose_tiles_label_alone_run_a_survey_tile_by_tile(grid, tmp_path):
+    """SMRF and PMF lay the survey's lattice at their cell; DMF tiles its NGNEM but labels
+    from the whole window (no lattice); CSF does not tile at all, so a tiling is refused."""
+    from gfjax import csf, dmf
+    from gfjax.io.tiles import Lattice
+
+    assert methods.lattice(smrf, smrf.Config(cell_m=2.0), Tiling(tile_size_m=100.0, buffer_m=10.0)) == Lattice(100.0, 10.0, 2.0)
+    assert methods.lattice(pmf, pmf.Config()) == Lattice(500.0, 50.0, 1.0)
+    assert methods.lattice(dmf, dmf.Config()) is None and methods.tiles(dmf)
+    assert methods.lattice(csf, csf.Config()) is None and not methods.tiles(csf)
+    with pytest.raises(InputError, match="^tiling: method gfjax.csf does not tile$"):
+        next(survey.filtered(grid[0], csf, tmp_path, tiling=SMALL_TILES))
+    assert not list(tmp_path.iterdir())                     # refused before any file was indexed
+
+
 def test_a_filter_refuses_what_is_not_a_cloud(unchecked):
     from gfjax import dmf
 
