@@ -31,6 +31,7 @@ from gfjax.csf.cloth import simulate
 from gfjax.csf.config import BUFFER_PX, CLOTH_START_M, Config, Params
 from gfjax.io.cloud import CloudView
 from gfjax.io.tiled import checked_options, laid_out
+from gfjax.io.tiles import canonical_capacity
 from gfjax.result import Result
 
 __all__ = ["filter", "filter_points", "grid_shape", "Anchor", "TileDiagnostics", "Diagnostics"]
@@ -88,6 +89,43 @@ class Anchor(NamedTuple):
 
     corner_m: Float[Array, "2"]
     top_u: Float[Array, ""]
+
+
+# Up to this many particles a side, grids are rounded to few sides (compiling dominates a small
+# cloud's run); beyond, to multiples of `_LARGE_STEP` (a large cloud's run dominates its compile,
+# and each padded particle costs every step of the simulation).
+_FEW_SIDES_UP_TO = 512
+_LARGE_STEP = 64
+_FEW_POINTS_UP_TO = 1 << 18
+_LARGE_POINT_STEP = 1 << 16
+
+
+def canonical_grid(shape: tuple[int, int]) -> tuple[int, int]:
+    """A particle grid `(h, w)` padded to a canonical one, so a machine compiles CSF for a few
+    grids in its life, not one per cloud size: each side up to 512 rounded up to the next of
+    64, 80, 96, 112, 128, 160, ... (`2^k` times 1, 1.25, 1.5, 1.75: at most a quarter more
+    particles a side; squares would pad an elongated cloud twice over, and every padded
+    particle costs every step), a larger side to a multiple of 64. The particles beyond the
+    cloud's own grid do not exist for the simulation (`filter_points`): the labels are the
+    unpadded grid's."""
+    return tuple(_canonical_side(int(side)) for side in shape)
+
+
+def _canonical_side(side: int) -> int:
+    if side > _FEW_SIDES_UP_TO:
+        return -(-side // _LARGE_STEP) * _LARGE_STEP
+    octave = 64
+    while True:
+        for quarter in (4, 5, 6, 7):
+            if side <= octave * quarter // 4:
+                return octave * quarter // 4
+        octave *= 2
+
+
+def canonical_points(n: int) -> int:
+    """The point capacity a cloud of `n` points is padded to: `tiles.canonical_capacity` up to
+    2^18 points, then a multiple of 2^16 (padded points are not valid: they change nothing)."""
+    return canonical_capacity(n) if n <= _FEW_POINTS_UP_TO else -(-n // _LARGE_POINT_STEP) * _LARGE_POINT_STEP
 
 
 def grid_shape(xyz: np.ndarray | jax.Array, valid: np.ndarray | jax.Array, *, cell_m: float,
@@ -171,9 +209,17 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
         origin[2] = cloud.frame.origin_m[2]
         anchor = Anchor(np.zeros(2, np.float32), np.float32(0.0))
     local = (xyz_m - origin).astype(np.float32)
-    shape = grid_shape(local, use, cell_m=config.cell_m, anchor=anchor)
-    ground, diag = aot.call(filter_points, local, use, params, anchor, config=config, shape=shape)
-    ground = np.asarray(ground) & use
+    h, w = grid_shape(local, use, cell_m=config.cell_m, anchor=anchor)
+    n = len(local)
+    capacity = canonical_points(n)
+    points = np.zeros((capacity, 3), np.float32)
+    points[:n] = local
+    valid = np.zeros(capacity, bool)
+    valid[:n] = use
+    ground, diag = aot.call(filter_points, points, valid, params, anchor, config=config, shape=canonical_grid((h, w)))
+    ground = np.asarray(ground)[:n] & use
+    diag = diag._replace(**{name: np.asarray(getattr(diag, name))[:h, :w]
+                            for name in ("cloth_u", "surface_u", "movable", "exists")})
     if layout is not None:                  # the cloth lies under the moved groups: no map of the cloud
         return Result(ground=ground, diagnostics=None)
     xy0 = origin[:2] - BUFFER_PX * config.cell_m

@@ -144,10 +144,11 @@ def smooth_slopes(u: Raster, movable: Mask, exists: Mask, heights: Raster) -> tu
     Returns:
       `(u, movable)` after smoothing.
     """
-    labels, _ = label_components(movable, connectivity=4)
+    here = movable & exists              # particles of a padded grid's margin join no component
+    labels, _ = label_components(here, connectivity=4)
     size = jax.ops.segment_sum(jnp.ones(labels.size, jnp.int32), labels.reshape(-1),
                                num_segments=labels.size + 1)
-    big = movable & (size[labels] > MIN_SMOOTH_COMPONENT)
+    big = here & (size[labels] > MIN_SMOOTH_COMPONENT)
     fixed = exists & ~movable
     links = [(dj, di, jnp.abs(heights - _shift4(heights, dj, di, jnp.inf)) < SMOOTH_THRESHOLD_M)
              for dj, di in _NEIGHBOURS_4]

@@ -270,3 +270,28 @@ def test_filter_ignores_noise_and_checks_input():
         csf.Config(rigidness=0)
     with pytest.raises(ValueError, match="cell_m"):
         csf.Config(cell_m=-1.0)
+
+
+def test_canonical_grids_and_capacities_bound_the_padding():
+    from gfjax.csf.filter import canonical_grid, canonical_points
+
+    sides = sorted({canonical_grid((s, s))[0] for s in range(1, 513)})
+    assert sides == [64, 80, 96, 112, 128, 160, 192, 224, 256, 320, 384, 448, 512]
+    for h, w in [(1, 1), (65, 300), (511, 513), (1106, 1104), (4000, 70)]:
+        ch, cw = canonical_grid((h, w))
+        assert h <= ch <= max(64, 1.25 * h, h + 63) and w <= cw <= max(64, 1.25 * w, w + 63)
+    assert canonical_points(10) == 1 << 14 and canonical_points(345_966) == 393_216
+
+
+def test_filter_on_canonical_shapes_labels_as_on_the_cloud_own_grid():
+    """`csf.filter` pads the points and the particle grid to canonical shapes: the labels and
+    the cloth are those of `filter_points` on the cloud's own arrays and grid."""
+    cloud = Cloud.from_xyz(scene("plane_box", seed=3)[:2345] + [5e5, 5e6, 0.0])
+    result = csf.filter(cloud, config=FAST)
+    local = (cloud.xyz_m - cloud.xyz_m.min(axis=0)).astype(np.float32)
+    valid = np.ones(len(local), bool)
+    shape = csf.grid_shape(local, valid, cell_m=FAST.cell_m)
+    ground, diag = csf.filter_points(local, valid, csf.Params(), config=FAST, shape=shape)
+    np.testing.assert_array_equal(result.ground, np.asarray(ground))
+    np.testing.assert_array_equal(result.diagnostics.movable, np.asarray(diag.movable)[::-1])
+    assert result.diagnostics.cloth_z.shape == shape
