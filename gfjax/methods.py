@@ -94,6 +94,15 @@ def lattice(method: ModuleType, config: Any, tiling: Any = None) -> Any:
     return lattice_of(tiling, config.cell_m)
 
 
+def memory_estimates(config: Any, tiling: Any = None) -> list[limits.Estimate]:
+    """`config.memory_estimates()` (none when it has no such method), with `tiling` for a
+    method that tiles (only those take one)."""
+    estimates = getattr(config, "memory_estimates", None)
+    if estimates is None:
+        return []
+    return estimates() if tiling is None else estimates(tiling=tiling)
+
+
 def _parse_value(text: str, current: Any) -> Any:
     if isinstance(current, bool):
         if text.lower() in ("1", "true", "yes", "on"):
@@ -196,9 +205,7 @@ def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | No
             params.check()
         if tiling is not None and hasattr(config, "cell_m"):
             tiling.lattice(config.cell_m)
-        estimates = getattr(config, "memory_estimates", None)
-        if estimates is not None:               # the rasters and loops the values set fit the budget
-            limits.check_memory(estimates() if tiling is None else estimates(tiling=tiling))
+        limits.check_memory(memory_estimates(config, tiling))   # the rasters and loops the values set fit the budget
     except (ValueError, TypeError) as err:
         # the options that gave the keys concerned, the key to change first first; a key left
         # at its default (or a check that names no key) points at every option given, or at

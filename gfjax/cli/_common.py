@@ -282,11 +282,10 @@ class MethodSetup(NamedTuple):
         return methods.lattice(self.module, self.config, self.tiling)
 
     def memory_estimates(self) -> list:
-        """The method's `Config.memory_estimates()` with its tiling (`gfjax.limits`)."""
-        estimates = getattr(self.config, "memory_estimates", None)
-        if estimates is None:
-            return []
-        return estimates() if self.tiling is None else estimates(tiling=self.tiling)
+        """The method's `Config.memory_estimates()` with its tiling (`gfjax.methods.memory_estimates`)."""
+        from gfjax import methods
+
+        return methods.memory_estimates(self.config, self.tiling)
 
 
 def method_setup(args: argparse.Namespace, *, tiling: tuple[float | None, float | None] = (None, None)) -> MethodSetup:

@@ -362,15 +362,16 @@ def filter_cloud(cloud: Any, config: Any, params: Any, returns: str, *, tiling: 
     lattice = lattice_of(tiling, config.cell_m, name=cloud.name)
     estimates = functools.partial(config.memory_estimates, tiling=tiling)
     desc = f"{package.rsplit('.', 1)[-1]} tiles"
+    xy_m = cloud.xyz_m[use, :2]
     apart = None
     if cloud.frame is None:                 # a survey's window keeps the survey's lattice
-        apart = groups.far_apart(cloud.xyz_m[use, :2], max(GROUP_GAP_M, lattice.buffer_m))
+        apart = groups.far_apart(xy_m, max(GROUP_GAP_M, lattice.buffer_m))
     if apart is not None:
         check_memory(cloud.name, estimates, None)
         run = classify_groups(cloud.xyz_m, use, *apart, classify_batch, params, config, lattice=lattice,
                               max_batch=max_batch, progress=progress, desc=desc)
         return Filtered(ground=run.ground, config=config, cores=None, n_tiles=len(run.tiles))
-    check_memory(cloud.name, estimates, cloud.xyz_m[use, :2])
+    check_memory(cloud.name, estimates, xy_m)
     run = classify_cloud(cloud.xyz_m, use, classify_batch, params, config, lattice=lattice, max_batch=max_batch,
                          frame=cloud.frame, progress=progress, desc=desc)
     cores = None
