@@ -97,8 +97,8 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
       estimates: the method's memory estimates with its settings (`MethodSetup.memory_estimates`:
         the rasters its settings fix, such as a batch of tiles), checked against the memory
         budget; None: no check. Those
-        over a cloud's extent are not: every method first moves groups of points far apart
-        side by side (`gfjax.io.tiled.laid_out`), so the header's box says little of them;
+        over a cloud's extent are not: every method filters groups of points far apart
+        one by one (`gfjax.io.tiled`), so the header's box says little of them;
         the method checks them once it has read the points, before anything is written.
       dtm_cell_m: the DTM cell [m] when a DTM is written, else None.
       extra_bytes_per_point: bytes each output point gains (`--instances`: 4).

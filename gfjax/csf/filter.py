@@ -30,7 +30,8 @@ from gfjax.csf import stages
 from gfjax.csf.cloth import simulate
 from gfjax.csf.config import BUFFER_PX, CLOTH_START_M, Config, Params
 from gfjax.io.cloud import CloudView
-from gfjax.io.tiled import checked_options, laid_out
+from gfjax.io import groups
+from gfjax.io.tiled import check_memory, checked_options, filter_groups
 from gfjax.io.tiles import canonical_capacity
 from gfjax.result import Result
 
@@ -192,17 +193,22 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points;
       `diagnostics` a `Diagnostics` (None for a cloud with no usable point, and for one
-      whose groups of points far apart were moved together: `gfjax.io.groups`).
+      whose groups of points far apart were filtered one by one: `gfjax.io.tiled.filter_groups`).
     """
     del progress
     config, params, use = checked_options(cloud, config, params, returns, config_type=Config,
                                           params_type=Params, package="gfjax.csf")
     if not use.any():
         return Result(ground=np.zeros(cloud.n_points, bool), diagnostics=None)
-    xyz_m, layout = laid_out(cloud, use, config.memory_estimates)
+    apart = filter_groups(cloud, use, functools.partial(filter, config=config, params=params),
+                          gap_m=groups.GAP_M, estimates=config.memory_estimates)
+    if apart is not None:
+        return apart
+    xyz_m = cloud.xyz_m
+    check_memory(cloud.name, config.memory_estimates, xyz_m[use, :2])
     origin = xyz_m[use].min(axis=0)
     anchor = None
-    if cloud.frame is not None and layout is None:
+    if cloud.frame is not None:
         # A survey's window: the cloth lies on the survey's particle lattice and falls from the
         # survey's highest inverted point (its lowest z), as in one file of the whole survey.
         origin = cloud.frame.snap(origin, config.cell_m)
@@ -220,8 +226,6 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     ground = np.asarray(ground)[:n] & use
     diag = diag._replace(**{name: np.asarray(getattr(diag, name))[:h, :w]
                             for name in ("cloth_u", "surface_u", "movable", "exists")})
-    if layout is not None:                  # the cloth lies under the moved groups: no map of the cloud
-        return Result(ground=ground, diagnostics=None)
     xy0 = origin[:2] - BUFFER_PX * config.cell_m
     return Result(ground=ground, diagnostics=Diagnostics(
         cloth_z=origin[2] - np.asarray(diag.cloth_u, np.float64)[::-1],

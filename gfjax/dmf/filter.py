@@ -27,7 +27,8 @@ from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import extract, neighbours, shapes, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params
 from gfjax.io.cloud import CloudView
-from gfjax.io.tiled import checked_options, checked_tiling, laid_out
+from gfjax.io import groups
+from gfjax.io.tiled import check_memory, checked_options, checked_tiling, filter_groups
 from gfjax.io.tiles import Tiling
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
@@ -361,7 +362,6 @@ class Prepared(NamedTuple):
       config: the settings the steps ran with (`voxel_m` set on a survey's window).
       tiling: the NGNEM's tiles.
       use: bool `(n,)` the cloud's points filtered; the arrays below hold those only.
-      layout: how far groups were moved together (`gfjax.io.groups`), or None.
       local: float64 `(u, 3)` used points less `origin` [m]; origin: float64 `(3,)` [m].
       tree: a `cKDTree` of `local` (None when neither W nor the M-nearest rule needed one).
       cell_m, mean_nn: W and the sampled mean nearest-neighbour distance [m].
@@ -373,7 +373,6 @@ class Prepared(NamedTuple):
     config: Config
     tiling: Tiling
     use: np.ndarray
-    layout: object
     local: np.ndarray
     origin: np.ndarray
     tree: cKDTree | None
@@ -398,9 +397,9 @@ def prepare(cloud: CloudView, use: np.ndarray, config: Config, *, tiling: Tiling
     """Steps 1-6 on the points `use` (bool `(n,)`, at least one) of `cloud` (`config` checked;
     `tiling`: the NGNEM's tiles, None: `Tiling()`)."""
     tiling = tiling or Tiling()
-    xyz, layout = laid_out(cloud, use, functools.partial(config.memory_estimates, tiling=tiling),
-                           reach_m=tiling.buffer_m)
+    xyz = cloud.xyz_m
     xyz = xyz if use.all() else xyz[use]          # no 20 MB copy when every point is used
+    check_memory(cloud.name, functools.partial(config.memory_estimates, tiling=tiling), xyz[:, :2])
     clock = [time.perf_counter()]
     seconds: dict[str, float] = {}
 
@@ -411,7 +410,7 @@ def prepare(cloud: CloudView, use: np.ndarray, config: Config, *, tiling: Tiling
 
     origin = xyz.min(axis=0)
     window_nn = float("nan")
-    if cloud.frame is not None and layout is None:
+    if cloud.frame is not None:
         # A survey's window: its voxels (and so its NGNEM cells and layers) lie on the lattice
         # the whole survey in one file would have. W sets the lattice, so it is known first:
         # the survey's (`survey_config`), else estimated on the window.
@@ -426,7 +425,7 @@ def prepare(cloud: CloudView, use: np.ndarray, config: Config, *, tiling: Tiling
         mean_nn = window_nn if np.isnan(mean_nn) else mean_nn
         lap("voxels")
         in_ndng, basal, rs, ngnem_valid, overflowed = _layers(vox, cell_m, config, tiling, worker, lap, progress)
-    return Prepared(config, tiling, use, layout, local, origin, tree, cell_m, mean_nn, vox, in_ndng, basal, rs, ngnem_valid,
+    return Prepared(config, tiling, use, local, origin, tree, cell_m, mean_nn, vox, in_ndng, basal, rs, ngnem_valid,
                     overflowed, seconds)
 
 
@@ -444,7 +443,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
 
     Returns:
       `Result(ground, diagnostics, instance_id)`: ground bool `(n,)`; `Diagnostics` (None
-      when groups of points far apart were moved together: `gfjax.io.groups`);
+      when groups of points far apart were filtered one by one: `gfjax.io.tiled.filter_groups`);
       instance_id uint32 `(n,)`: the object region (NGNEM_RC instance) of each non-ground
       point's cell, 0 for ground points and points outside every object region.
     """
@@ -455,6 +454,11 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     instance_all = np.zeros(n_all, np.uint32)
     if not use.any():
         return Result(ground=ground_all, diagnostics=None, instance_id=instance_all)
+    apart = filter_groups(cloud, use, functools.partial(filter, config=config, params=params, tiling=tiling),
+                          gap_m=max(groups.GAP_M, tiling.buffer_m),
+                          estimates=functools.partial(config.memory_estimates, tiling=tiling))
+    if apart is not None:
+        return apart
     prep = prepare(cloud, use, config, tiling=tiling, progress=progress)
     clock = time.perf_counter()
     # Step 7: support nodes and the final rule.
@@ -465,8 +469,6 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     seconds = {**prep.seconds, "extract": time.perf_counter() - clock}
     ground_all[use] = ground
     instance_all[use] = instance
-    if prep.layout is not None:             # the rasters lie under the moved groups: no map of the cloud
-        return Result(ground=ground_all, diagnostics=None, instance_id=instance_all)
     rs, basal = prep.rs, prep.basal
     diagnostics = Diagnostics(
         cell_m=prep.cell_m, mean_nn_m=prep.mean_nn, origin_m=prep.origin, nd_ce=prep.vox.centroid, basal_z=basal.z,

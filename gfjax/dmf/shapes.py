@@ -19,9 +19,11 @@ WARM_VOXELS_M = (1.0, 2.0)         # the W whose raster sides `warm` compiles (W
 
 def raster_sides(cell_m: float, tiling: Tiling | None = None) -> tuple[int, ...]:
     """The canonical square sides [cells] of NGNEM tiles of W = `cell_m` [m]: 128, 192, 256,
-    ... up to the largest buffered tile of `tiling` (None: `Tiling()`)."""
+    ... up to the largest buffered tile of `tiling` (None: `Tiling()`). A W wider than the
+    tiles (a cloud of points hundreds of metres apart) makes each tile's core one cell, as
+    the batched stages cut it (`filter._tile_core_px`)."""
     tiling = Tiling() if tiling is None else tiling
-    return canonical_sides(tiling.tile_size_m, tiling.buffer_m, cell_m)
+    return canonical_sides(max(tiling.tile_size_m, cell_m), tiling.buffer_m, cell_m)
 
 
 def raster_shape(shape: tuple[int, int], cell_m: float, tiling: Tiling | None = None) -> tuple[int, int]:

@@ -51,6 +51,52 @@ def use_mask(ignored: np.ndarray, return_number: np.ndarray, number_of_returns: 
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
+class Points:
+    """The views a filter reads from a cloud (`Cloud.xyz_m`, `filter_mask`, ...), as plain arrays:
+    a survey's window (a file and its neighbours' points, `gfjax.survey`), or some points of a
+    cloud filtered as a cloud of their own (`gfjax.io.tiled.filter_groups`).
+
+    Attributes:
+      xyz_m: float64 `(n, 3)` [m].
+      classification, return_number, number_of_returns: uint8 `(n,)`.
+      ignored: bool `(n,)` noise or withheld.
+      name: for messages.
+      frame: the tiling frame (`Frame`), or None.
+    """
+
+    xyz_m: np.ndarray
+    classification: np.ndarray
+    return_number: np.ndarray
+    number_of_returns: np.ndarray
+    ignored: np.ndarray
+    name: str = "<memory>"
+    frame: Frame | None = None
+
+    @property
+    def n_points(self) -> int:
+        return int(self.xyz_m.shape[0])
+
+    @classmethod
+    def from_records(cls, records: np.ndarray, name: str, frame: Frame | None = None) -> Points:
+        """The points of a catalog's `STORE` records `(n,)` (`gfjax.survey.catalog`)."""
+        return cls(xyz_m=np.asarray(records["xyz_m"]), classification=np.asarray(records["classification"]),
+                   return_number=np.asarray(records["return_number"]),
+                   number_of_returns=np.asarray(records["number_of_returns"]),
+                   ignored=np.asarray(records["ignored"]), name=name, frame=frame)
+
+    @classmethod
+    def of_xyz(cls, xyz_m: np.ndarray, name: str = "<memory>") -> Points:
+        """Points `(n, 3)` [m], every one used (single returns, none ignored), with no frame."""
+        n = len(xyz_m)
+        ones = np.ones(n, np.uint8)
+        return cls(xyz_m=np.asarray(xyz_m, np.float64), classification=np.ones(n, np.uint8), return_number=ones,
+                   number_of_returns=ones, ignored=np.zeros(n, bool), name=name)
+
+    def filter_mask(self, returns: str = "all") -> np.ndarray:
+        return use_mask(self.ignored, self.return_number, self.number_of_returns, returns)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
 class Cloud:
     """A point cloud read from a LAS/LAZ file (or built in memory).
 

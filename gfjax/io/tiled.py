@@ -24,9 +24,10 @@ from gfjax import limits
 from gfjax.errors import InputError
 from gfjax.io import groups
 from gfjax.io import tiles as tiles_lib
-from gfjax.io.cloud import CloudView
+from gfjax.io.cloud import CloudView, Points
+from gfjax.result import Result
 
-__all__ = ["checked_options", "check_memory", "laid_out", "checked_tiling", "lattice_of", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
+__all__ = ["checked_options", "check_memory", "filter_groups", "checked_tiling", "lattice_of", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
            "classify_cloud", "classify_groups", "TiledRun"]
 
 ConfigT = TypeVar("ConfigT")
@@ -84,7 +85,7 @@ def checked_options(cloud: object, config: ConfigT | None, params: ParamsT | Non
     Raises:
       InputError: not a cloud, a config or params of the wrong type, a params out of range (the message
         names the cloud), a bad `returns`. The rasters are checked against the memory budget
-        once the points are laid out (`laid_out`).
+        once the points are known (`check_memory`, `filter_groups`).
     """
     if not isinstance(cloud, CloudView):
         raise InputError(f"{package}.filter: expected a gfjax Cloud (or survey.Points), got {type(cloud).__name__}")
@@ -102,17 +103,54 @@ def checked_options(cloud: object, config: ConfigT | None, params: ParamsT | Non
     return config, params, use
 
 
-def laid_out(cloud: CloudView, use: np.ndarray, estimates: Estimates | None, *,
-             reach_m: float = 0.0) -> tuple[np.ndarray, groups.Layout | None]:
-    """`(coordinates (n, 3) [m], layout)` for a method that builds rasters over a whole cloud:
-    `cloud.xyz_m` with the used points' groups that lie `max(groups.GAP_M, reach_m)` or more
-    apart moved side by side (`gfjax.io.groups`; `reach_m`: how far the method looks around a
-    point; layout None, the cloud's own array, when that wins nothing), then the rasters over
-    the used points checked against the memory budget (`check_memory`: `estimates`, the
-    method's `Config.memory_estimates` with its settings bound)."""
-    xyz_m, layout = groups.compacted(cloud.xyz_m, max(groups.GAP_M, reach_m), use=use)
-    check_memory(cloud.name, estimates, xyz_m[use, :2])
-    return xyz_m, layout
+def filter_groups(cloud: CloudView, use: np.ndarray, filter_one: Callable[[CloudView], Result], *,
+                  gap_m: float, estimates: Estimates | None) -> Result | None:
+    """A whole-cloud method's `filter` on a cloud of groups of points far apart: each group as
+    a cloud of its own, or None for a cloud to filter whole.
+
+    CSF, DMF and MASF build rasters over a cloud's box. When the used points' groups at least
+    `gap_m` apart (`groups.members`: no method's window reaches from one to the next) fill a
+    quarter of the box or less (a stray point kilometres away, flight lines far apart, points
+    spread thinly over a large area), each group is filtered alone by `filter_one`, so the empty
+    box costs nothing and each group gets exactly the labels it gets alone; a group of one
+    point is ground without a run (SPEC section 1: a single point is ground, as each method's
+    own run on it gives). A survey's window (`cloud.frame` set) is filtered whole: it keeps the
+    survey's lattice.
+
+    Args:
+      cloud: the cloud; use: bool `(n,)` its points to filter (`checked_options`).
+      filter_one: the method's `filter` on a cloud whose points are all used.
+      gap_m: the emptiness that separates groups (`groups.GAP_M` or the method's reach) [m].
+      estimates: the method's memory estimates, checked on the largest group's box first.
+
+    Returns:
+      `Result(ground, None, instance_id)` (instance ids, when the method gives them, are
+      numbered on across groups), or None: the cloud is one group, or its groups fill its box.
+    """
+    if cloud.frame is not None:
+        return None
+    xyz_m = cloud.xyz_m
+    used = np.flatnonzero(use)
+    members = groups.members(xyz_m[used, :2], gap_m, index=used)
+    if members is None:
+        return None
+    lo = np.stack([xyz_m[m, :2].min(axis=0) for m in members])
+    hi = np.stack([xyz_m[m, :2].max(axis=0) for m in members])
+    widest = int(np.argmax(np.prod(hi - lo + 1.0, axis=1)))
+    check_memory(cloud.name, estimates, xyz_m[members[widest], :2])
+    ground = np.zeros(len(use), bool)
+    instance_id = None
+    for index in members:
+        if len(index) == 1:
+            ground[index] = True
+            continue
+        result = filter_one(Points.of_xyz(xyz_m[index], name=cloud.name))
+        ground[index] = result.ground
+        if result.instance_id is not None:
+            instance_id = np.zeros(len(use), np.uint32) if instance_id is None else instance_id
+            ids = result.instance_id.astype(np.uint32)
+            instance_id[index] = np.where(ids > 0, ids + instance_id.max(), 0)
+    return Result(ground=ground, diagnostics=None, instance_id=instance_id)
 
 
 def check_memory(name: str, estimates: Estimates | None, xy_m: np.ndarray | None) -> None:
@@ -301,10 +339,11 @@ def classify_cloud(xyz_m: Float[np.ndarray, "n 3"], use: Bool[np.ndarray, " n"],
     return TiledRun(ground=ground, tiles=tiles, diagnostics=diagnostics)
 
 
-def classify_groups(xyz_m: Float[np.ndarray, "n 3"], use: Bool[np.ndarray, " n"], group: np.ndarray, n_groups: int,
+def classify_groups(xyz_m: Float[np.ndarray, "n 3"], use: Bool[np.ndarray, " n"], members: Sequence[np.ndarray],
                     classify_batch: ClassifyBatch, params: Any, config: Any, *, lattice: tiles_lib.Lattice,
-                    max_batch: int, progress: bool = False, desc: str = "tiles") -> TiledRun:
-    """`classify_cloud` on each group of points far apart (`groups.far_apart`) as a cloud of its
+                    max_batch: int, progress: bool = False, desc: str = "tiles",
+                    keep_diagnostics: bool = False) -> TiledRun:
+    """`classify_cloud` on each group of points far apart (`groups.members`) as a cloud of its
     own: its lattice starts at its own corner and its windows end at its own box, so a group
     is labelled as it would be alone, and the empty box between groups costs nothing (a cloud
     spread over kilometres runs about its points' tiles, most of them a few cells wide:
@@ -312,23 +351,18 @@ def classify_groups(xyz_m: Float[np.ndarray, "n 3"], use: Bool[np.ndarray, " n"]
 
     Args:
       xyz_m, use, classify_batch, params, config, lattice, max_batch, progress, desc: as
-        `classify_cloud` (`frame` is each group's own).
-      group: int `(u,)` the group of each used point (in the order of `np.flatnonzero(use)`);
-        n_groups: how many.
+        `classify_cloud` (`frame` is each group's own); keep_diagnostics: as `run_batches`.
+      members: the groups, each an int array of indices into `xyz_m` (`groups.members`).
 
     Returns:
-      `TiledRun(ground, tiles, diagnostics)`: tiles index the whole cloud; no diagnostics kept.
+      `TiledRun(ground, tiles, diagnostics)`: tiles index the whole cloud.
     """
-    used = np.flatnonzero(use)
-    order = np.argsort(group, kind="stable")
-    bounds = np.searchsorted(group[order], np.arange(n_groups + 1))
     tiles = []
-    for g in range(n_groups):
-        members = used[order[bounds[g]:bounds[g + 1]]]
-        tiles += [dataclasses.replace(tile, index=members[tile.index])
-                  for tile in tiles_lib.split(xyz_m[members], **lattice._asdict())]
+    for index in members:
+        tiles += [dataclasses.replace(tile, index=index[tile.index])
+                  for tile in tiles_lib.split(xyz_m[index], **lattice._asdict())]
     labels, diagnostics = run_batches(tiles, classify_batch, params, config, lattice=lattice, max_batch=max_batch,
-                                      progress=progress, desc=desc, keep_diagnostics=False, small=True)
+                                      progress=progress, desc=desc, keep_diagnostics=keep_diagnostics, small=True)
     return TiledRun(ground=tiles_lib.merge(len(use), tiles, labels) & use, tiles=tiles, diagnostics=diagnostics)
 
 
@@ -355,7 +389,7 @@ def filter_cloud(cloud: Any, config: Any, params: Any, returns: str, *, tiling: 
     """A tiled method's `filter` up to its diagnostics: options checked (`checked_options`,
     `lattice_of`: `tiling` None is `Tiling()`), tiles classified (`classify_cloud`) and their
     diagnostics `rasters` mosaicked (`heights`: those shifted to the cloud's vertical frame);
-    a cloud of groups far apart (`groups.far_apart`; not a survey's window) is classified
+    a cloud of groups far apart (`groups.members`; not a survey's window) is classified
     group by group instead (`classify_groups`), without a mosaic."""
     config, params, use = checked_options(cloud, config, params, returns, config_type=config_type,
                                           params_type=params_type, package=package)
@@ -365,10 +399,10 @@ def filter_cloud(cloud: Any, config: Any, params: Any, returns: str, *, tiling: 
     xy_m = cloud.xyz_m[use, :2]
     apart = None
     if cloud.frame is None:                 # a survey's window keeps the survey's lattice
-        apart = groups.far_apart(xy_m, max(GROUP_GAP_M, lattice.buffer_m))
+        apart = groups.members(xy_m, max(GROUP_GAP_M, lattice.buffer_m), index=np.flatnonzero(use))
     if apart is not None:
         check_memory(cloud.name, estimates, None)
-        run = classify_groups(cloud.xyz_m, use, *apart, classify_batch, params, config, lattice=lattice,
+        run = classify_groups(cloud.xyz_m, use, apart, classify_batch, params, config, lattice=lattice,
                               max_batch=max_batch, progress=progress, desc=desc)
         return Filtered(ground=run.ground, config=config, cores=None, n_tiles=len(run.tiles))
     check_memory(cloud.name, estimates, xy_m)

@@ -31,6 +31,7 @@ point and fewer than 4 points come out all ground.
 """
 from __future__ import annotations
 
+import functools
 import time
 from typing import NamedTuple
 
@@ -38,7 +39,8 @@ import numpy as np
 
 from gfjax.errors import InputError
 from gfjax.io.cloud import CloudView
-from gfjax.io.tiled import laid_out
+from gfjax.io import groups
+from gfjax.io.tiled import check_memory, filter_groups
 from gfjax.io.tiles import Frame
 from gfjax.masf import alpha_shape, densify as densify_mod, preprocess, tin
 from gfjax.masf.config import Config, Params
@@ -212,7 +214,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     Returns:
       `Result(ground, diagnostics)`: bool `(n,)` over the whole cloud (unused points False) and
       a `Diagnostics` whose `potential_ground` indexes the whole cloud (None when groups of
-      points far apart were moved together: `gfjax.io.groups`).
+      points far apart were filtered one by one: `gfjax.io.tiled.filter_groups`).
 
     Raises:
       InputError: a bad `returns`, `params` out of range, naming the option, or a grid over
@@ -230,12 +232,15 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     except ValueError as err:
         raise InputError(f"{cloud.name}: masf params: {err}") from None
     used_index = np.flatnonzero(used)
-    xyz, layout = laid_out(cloud, used, config.memory_estimates, reach_m=config.reach_m)
-    frame = cloud.frame if layout is None else None
-    ground_used, diagnostics = filter_points(xyz[used_index], config, params, frame)
+    if len(used_index):
+        apart = filter_groups(cloud, used, functools.partial(filter, config=config, params=params),
+                              gap_m=max(groups.GAP_M, config.reach_m), estimates=config.memory_estimates)
+        if apart is not None:
+            return apart
+    xyz = cloud.xyz_m
+    check_memory(cloud.name, config.memory_estimates, xyz[used_index, :2])
+    ground_used, diagnostics = filter_points(xyz[used_index], config, params, cloud.frame)
     ground = np.zeros(cloud.n_points, dtype=bool)
     ground[used_index] = ground_used
-    if layout is not None:                  # the grids lie under the moved groups: no map of the cloud
-        return Result(ground=ground, diagnostics=None)
     diagnostics = diagnostics._replace(potential_ground=used_index[diagnostics.potential_ground])
     return Result(ground=ground, diagnostics=diagnostics)

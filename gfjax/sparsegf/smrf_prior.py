@@ -29,9 +29,10 @@ from gfjax.sparsegf.features import N_SMRF_FEATURES
 def smrf_heights(xyz_m: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 2"]:
     """`(dz, margin)` `(n, 2)` float32 [m] of every point (module docstring), raw (not logged).
 
-    SMRF runs over the cloud's buffered tiles as `gfjax.smrf.filter` does (far groups of
-    points laid side by side first, `gfjax.io.groups`), and each point is read off the
-    rasters of the tile whose core holds it, sampled as SMRF's own point test samples them."""
+    SMRF runs over the cloud's buffered tiles as `gfjax.smrf.filter` does (groups of points
+    far apart each on tiles of its own, `gfjax.io.tiled.classify_groups`), and each point is
+    read off the rasters of the tile whose core holds it, sampled as SMRF's own point test
+    samples them."""
     from gfjax.io import groups, tiled, tiles
     from gfjax.smrf import programs
     from gfjax.smrf.config import MAX_BATCH, Config, Params
@@ -41,9 +42,14 @@ def smrf_heights(xyz_m: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 2"]:
         return np.zeros((0, N_SMRF_FEATURES), np.float32)
     config, params = Config(), Params()
     lattice = tiled.lattice_of(None, config.cell_m)
-    xyz_m, _ = groups.compacted(xyz_m, max(groups.GAP_M, lattice.buffer_m))
-    run = tiled.classify_cloud(xyz_m, np.ones(len(xyz_m), bool), programs.classify_batch, params, config,
-                               lattice=lattice, max_batch=MAX_BATCH)
+    use = np.ones(len(xyz_m), bool)
+    members = groups.members(xyz_m[:, :2], max(tiled.GROUP_GAP_M, lattice.buffer_m))
+    if members is None:
+        run = tiled.classify_cloud(xyz_m, use, programs.classify_batch, params, config, lattice=lattice,
+                                   max_batch=MAX_BATCH)
+    else:
+        run = tiled.classify_groups(xyz_m, use, members, programs.classify_batch, params, config, lattice=lattice,
+                                    max_batch=MAX_BATCH, keep_diagnostics=True)
     dzs, margins = [], []
     for tile, diag in zip(run.tiles, run.diagnostics):
         h, w = tile.shape

@@ -8,8 +8,9 @@ method runs each tile of the survey's lattice once from a window gathered across
 method's per-cloud estimates are made once for the survey (`survey_config`). The tiles (or
 files) can run as tasks on a Dask cluster (`cluster`, `filter(..., client=...)`).
 """
+from gfjax.io.cloud import Points
 from gfjax.survey.catalog import Catalog, Entry, index
-from gfjax.survey.halo import Points, filter_file, halo_region, survey_config, window
+from gfjax.survey.halo import filter_file, halo_region, survey_config, window
 from gfjax.survey.run import Runner, filter, filtered
 
 __all__ = ["Catalog", "Entry", "Points", "Runner", "filter", "filter_file", "filtered", "halo_region", "index",

@@ -9,55 +9,18 @@ the file's labels are the same. A method that does not tile gets the points with
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable, Iterator
 from types import ModuleType
 
 import numpy as np
 
-from gfjax.io.cloud import Cloud, use_mask
+from gfjax.io.cloud import Cloud, Points, use_mask
 from gfjax.io.tiles import Frame, Lattice
 from gfjax.result import Result
 from gfjax.survey.catalog import Catalog
 
 HALO_M = 50.0           # context around a file for methods that do not tile [m]
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class Points:
-    """The views a filter reads from a cloud (`Cloud.xyz_m`, `filter_mask`, ...), as plain arrays.
-
-    Attributes:
-      xyz_m: float64 `(n, 3)` [m].
-      classification, return_number, number_of_returns: uint8 `(n,)`.
-      ignored: bool `(n,)` noise or withheld.
-      name: for messages.
-      frame: the tiling frame (`Frame`), or None.
-    """
-
-    xyz_m: np.ndarray
-    classification: np.ndarray
-    return_number: np.ndarray
-    number_of_returns: np.ndarray
-    ignored: np.ndarray
-    name: str = "<memory>"
-    frame: Frame | None = None
-
-    @property
-    def n_points(self) -> int:
-        return int(self.xyz_m.shape[0])
-
-    @classmethod
-    def from_records(cls, records: np.ndarray, name: str, frame: Frame | None = None) -> Points:
-        """The points of a catalog's `STORE` records `(n,)` (`gfjax.survey.catalog`)."""
-        return cls(xyz_m=np.asarray(records["xyz_m"]), classification=np.asarray(records["classification"]),
-                   return_number=np.asarray(records["return_number"]),
-                   number_of_returns=np.asarray(records["number_of_returns"]),
-                   ignored=np.asarray(records["ignored"]), name=name, frame=frame)
-
-    def filter_mask(self, returns: str = "all") -> np.ndarray:
-        return use_mask(self.ignored, self.return_number, self.number_of_returns, returns)
 
 
 def halo_region(box: Frame, frame: Frame, lattice: Lattice | None) -> tuple[np.ndarray, np.ndarray]:

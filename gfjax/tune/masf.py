@@ -22,7 +22,7 @@ import numpy as np
 from gfjax.io import groups
 from gfjax.limits import Range
 from gfjax.masf.config import Config, Params
-from gfjax.masf.filter import densify, prepare, pyramid
+from gfjax.masf.filter import Prepared, densify, prepare, pyramid
 from gfjax.params import declared_defaults
 from gfjax.tune import search
 from gfjax.tune.problem import Sample
@@ -87,23 +87,33 @@ def _settings(config: Config, combo: Mapping[str, float]) -> tuple[Config, Param
 
 def labels(sample: Sample, config: Config, combos: Sequence[Mapping[str, float]]) -> Iterator[np.ndarray]:
     """MASF's ground (bool `(n,)`) on `sample` with each combination in turn, run as
-    `gfjax.masf.filter` runs a cloud (far groups moved together first, the same stages; unused
-    points are never ground): the defaults' labels are the plain filter's, point for point
-    (tested)."""
+    `gfjax.masf.filter` runs a cloud (groups of points far apart each alone, a lone point
+    ground: `gfjax.io.tiled.filter_groups`; the same stages; unused points are never ground):
+    the defaults' labels are the plain filter's, point for point (tested). Each group is
+    prepared once per separating gap; a group's pyramid is built again only when the alpha
+    settings change from one combination to the next."""
     used = np.flatnonzero(sample.use)
-    reach_m = max(_settings(config, c)[0].reach_m for c in combos)
-    xyz, _ = groups.compacted(sample.xyz_m, max(groups.GAP_M, reach_m), use=sample.use)
-    prep = prepare(xyz[used], config)
-    ground = np.zeros(len(sample.xyz_m), bool)
-    layers, pyramid_of = None, None
+    parts: dict[float, list[tuple[np.ndarray, Prepared | None]]] = {}
+    pyramids: dict[tuple[float, int], tuple[tuple, np.ndarray]] = {}
     for combo in combos:
         cfg, params = _settings(config, combo)
-        if len(prep.pre.index):
+        gap = max(groups.GAP_M, cfg.reach_m)
+        if gap not in parts:
+            found = groups.members(sample.xyz_m[used, :2], gap, index=used) if len(used) else None
+            parts[gap] = [(index, prepare(sample.xyz_m[index], config) if len(index) > 1 else None)
+                          for index in (found or [used])]
+        ground = np.zeros(len(sample.xyz_m), bool)
+        for part, (index, prep) in enumerate(parts[gap]):
+            if prep is None:                  # a lone point: a cloud of one point is ground
+                ground[index] = True
+                continue
+            if not len(prep.pre.index):
+                continue
             key = (cfg.alpha_max_m, cfg.alpha_step_m, cfg.alpha_top_m)
-            if key != pyramid_of:
-                layers, pyramid_of = pyramid(prep, cfg), key
-            ground[used] = densify(prep, layers, cfg, params).ground
-        yield ground.copy()
+            if pyramids.get((gap, part), (None,))[0] != key:
+                pyramids[(gap, part)] = key, pyramid(prep, cfg)
+            ground[index] = densify(prep, pyramids[(gap, part)][1], cfg, params).ground
+        yield ground
 
 
 METHOD = search.Searched("masf", Config, default_grid, candidates, labels, UNITS, NOTE, values=values,

@@ -1,5 +1,5 @@
-"""Groups of points far apart: found as scipy.ndimage labels the occupied cells, and laid out
-so that each keeps its emptiness around it and the largest stays where it is."""
+"""Groups of points far apart: found as scipy.ndimage labels the occupied cells, and split
+only where they leave most of their box empty."""
 from __future__ import annotations
 
 import numpy as np
@@ -57,33 +57,28 @@ def test_separate_of_no_point():
 
 
 @pytest.mark.parametrize("seed", range(5))
-def test_layout_keeps_every_group_a_gap_from_the_others_and_the_largest_in_place(seed):
+def test_members_of_groups_far_apart_hold_every_point_once_and_keep_the_gap(seed):
     rng = np.random.default_rng(seed)
     centres = rng.uniform(0, 20_000, (12, 2))
     xy = np.vstack([_clusters(rng, centres[:1], per=400, spread=300.0), _clusters(rng, centres[1:])])
-    layout = groups.compact(xy, 100.0)
-    assert layout is not None
-    moved = layout.apply(np.column_stack([xy, rng.normal(size=len(xy))]))
-    assert np.all(layout.shift_m[0] == 0) and np.all(moved[layout.group == 0, :2] == xy[layout.group == 0])
-    assert np.all(np.mod(layout.shift_m, 100.0) == 0)
-    assert np.allclose(moved.min(axis=0)[:2], xy[layout.group == 0].min(axis=0))    # the raster anchor
-    for g in range(1, layout.n_groups):
-        inside, outside = moved[layout.group == g, :2], moved[layout.group != g, :2]
-        nearest = np.min(np.linalg.norm(inside[:, None] - outside[None], axis=-1))
-        assert nearest >= 100.0
-    area = np.prod(np.ptp(moved[:, :2], axis=0))
-    assert area * groups.MIN_SAVING <= np.prod(np.ptp(xy, axis=0) + 100.0)
-    assert np.array_equal(moved[:, 2], layout.apply(moved)[:, 2])                   # z never moves
+    index = rng.permutation(len(xy)) + 7                         # members are given in these names
+    found = groups.members(xy, 100.0, index=index)
+    assert found is not None
+    assert np.array_equal(np.sort(np.concatenate(found)), np.sort(index))
+    assert [len(m) for m in found] == sorted((len(m) for m in found), reverse=True)
+    position = {name: k for k, name in enumerate(index)}
+    for g, names in enumerate(found):
+        inside = xy[[position[n] for n in names]]
+        outside = np.delete(xy, [position[n] for n in names], axis=0)
+        assert np.min(np.linalg.norm(inside[:, None] - outside[None], axis=-1)) >= 100.0
 
 
-def test_a_cloud_that_fills_its_box_is_left_alone():
+def test_a_cloud_that_fills_its_box_is_one_cloud():
     rng = np.random.default_rng(0)
     full = rng.uniform(0, 1000, (5000, 2))
-    assert groups.compact(full, 100.0) is None
+    assert groups.members(full, 100.0) is None
     lake = full[np.linalg.norm(full - 500, axis=1) > 300]        # one group round a lake
-    assert groups.compact(lake, 100.0) is None
-    two = np.vstack([full, full + [1200.0, 0.0]])                # two groups, little to win
-    assert groups.compact(two, 100.0) is None
-    xyz = np.column_stack([full, np.ones(len(full))])
-    same, layout = groups.compacted(xyz)
-    assert layout is None and same is xyz
+    assert groups.members(lake, 100.0) is None
+    two = np.vstack([full, full + [1200.0, 0.0]])                # two groups filling their box
+    assert groups.members(two, 100.0) is None
+    assert groups.members(np.zeros((0, 2)), 100.0) is None

@@ -182,9 +182,9 @@ def test_smaller_tiles_bring_the_same_cell_within_the_budget(tmp_path, monkeypat
 
 
 @pytest.mark.parametrize("method", ["csf", "smrf"])
-def test_two_points_far_apart_are_laid_out_small(method, tmp_path, capsys, monkeypatch):
-    """Two points 50 km apart are two groups moved together (`gfjax.io.groups`): the header's
-    box says nothing of the rasters, so it is not refused before reading."""
+def test_two_points_far_apart_are_filtered_apart(method, tmp_path, capsys, monkeypatch):
+    """Two points 50 km apart are two groups, each filtered alone (`gfjax.io.tiled`): the
+    header's box says nothing of the rasters, so it is not refused before reading."""
     las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
     las.x, las.y, las.z = np.array([0.0, 50_000.0]), np.array([0.0, 50_000.0]), np.array([0.0, 1.0])
     las.write(tmp_path / "far.las")
