@@ -8,7 +8,7 @@ result = gfjax.csf.filter(cloud, config=gfjax.csf.Config(rigidness=1),
 ```
 """
 from gfjax.csf.config import PRESETS, Config, Params
-from gfjax.csf.filter import Diagnostics, TileDiagnostics, filter, filter_points, grid_shape
+from gfjax.csf.filter import Diagnostics, TileDiagnostics, filter, filter_points, grid_shape, warm
 
-__all__ = ["filter", "Config", "Params", "PRESETS", "filter_points", "grid_shape", "Diagnostics",
+__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "filter_points", "grid_shape", "Diagnostics",
            "TileDiagnostics"]

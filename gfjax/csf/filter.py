@@ -35,7 +35,8 @@ from gfjax.io.tiled import check_memory, checked_options, filter_groups
 from gfjax.io.tiles import canonical_capacity
 from gfjax.result import Result
 
-__all__ = ["filter", "filter_points", "grid_shape", "Anchor", "TileDiagnostics", "Diagnostics"]
+__all__ = ["filter", "filter_points", "point_surface", "drop_cloth", "classify", "warm", "grid_shape", "Anchor",
+           "Surface", "TileDiagnostics", "Diagnostics"]
 
 
 class TileDiagnostics(NamedTuple):
@@ -93,9 +94,9 @@ class Anchor(NamedTuple):
 
 
 # Up to this many particles a side, grids are rounded to few sides (compiling dominates a small
-# cloud's run); beyond, to multiples of `_LARGE_STEP` (a large cloud's run dominates its compile,
-# and each padded particle costs every step of the simulation).
-_FEW_SIDES_UP_TO = 512
+# cloud's run, and `warm` compiles every pair of them); beyond, to multiples of `_LARGE_STEP` (a
+# large cloud's run dominates its compile, and each padded particle costs every step).
+WARM_SIDES = (64, 96, 128, 192, 256, 384, 512)
 _LARGE_STEP = 64
 _FEW_POINTS_UP_TO = 1 << 18
 _LARGE_POINT_STEP = 1 << 16
@@ -104,23 +105,17 @@ _LARGE_POINT_STEP = 1 << 16
 def canonical_grid(shape: tuple[int, int]) -> tuple[int, int]:
     """A particle grid `(h, w)` padded to a canonical one, so a machine compiles CSF for a few
     grids in its life, not one per cloud size: each side up to 512 rounded up to the next of
-    64, 80, 96, 112, 128, 160, ... (`2^k` times 1, 1.25, 1.5, 1.75: at most a quarter more
-    particles a side; squares would pad an elongated cloud twice over, and every padded
-    particle costs every step), a larger side to a multiple of 64. The particles beyond the
-    cloud's own grid do not exist for the simulation (`filter_points`): the labels are the
-    unpadded grid's."""
+    `WARM_SIDES` (64, 96, 128, 192, ...: at most half as many particles again a side; squares
+    would pad an elongated cloud many times over, and every padded particle costs every step),
+    a larger side to a multiple of 64. The particles beyond the cloud's own grid do not exist
+    for the simulation (`filter_points`): the labels are the unpadded grid's."""
     return tuple(_canonical_side(int(side)) for side in shape)
 
 
 def _canonical_side(side: int) -> int:
-    if side > _FEW_SIDES_UP_TO:
+    if side > WARM_SIDES[-1]:
         return -(-side // _LARGE_STEP) * _LARGE_STEP
-    octave = 64
-    while True:
-        for quarter in (4, 5, 6, 7):
-            if side <= octave * quarter // 4:
-                return octave * quarter // 4
-        octave *= 2
+    return next(s for s in WARM_SIDES if s >= side)
 
 
 def canonical_points(n: int) -> int:
@@ -139,10 +134,71 @@ def grid_shape(xyz: np.ndarray | jax.Array, valid: np.ndarray | jax.Array, *, ce
     return int(h), int(w)
 
 
+class Surface(NamedTuple):
+    """What a buffer's points give the cloth (`point_surface`), particle grid `[j, i]` (row 0 = SOUTH).
+
+    Attributes:
+      heights: inverted height of each particle's nearest point `(h, w)` [m], before gap filling.
+      has_point: particles that hold a point, bool `(h, w)`.
+      exists: particles of this cloud's grid (False on padding), bool `(h, w)`.
+      corner_m: float32 `(2,)` local x, y of the south-west particle [m].
+      start_u: the inverted height the cloth starts at [m].
+    """
+
+    heights: Raster
+    has_point: Mask
+    exists: Mask
+    corner_m: Float[Array, "2"]
+    start_u: Float[Array, ""]
+
+
+@functools.partial(jax.jit, static_argnames=("config", "shape"))
+def point_surface(xyz: Points, valid: PointMask, anchor: Anchor | None = None, *, config: Config,
+                  shape: tuple[int, int]) -> Surface:
+    """Steps 1-2 of the module docstring on one padded buffer (arguments as `filter_points`)."""
+    cell = jnp.float32(config.cell_m)
+    xy, u = xyz[:, :2], -xyz[:, 2]
+    big = jnp.asarray(jnp.inf, xyz.dtype)
+    lo = jnp.min(jnp.where(valid[:, None], xy, big), axis=0) if anchor is None else anchor.corner_m
+    hi = jnp.max(jnp.where(valid[:, None], xy, -big), axis=0)
+    w_h = stages.grid_size(hi - lo, cell_m=config.cell_m)
+    j, i = jnp.indices(shape)
+    corner = lo - BUFFER_PX * cell
+    heights, has_point = stages.particle_heights(xy - corner[None, :], u, valid, cell_m=config.cell_m, shape=shape)
+    top_u = jnp.max(jnp.where(valid, u, -big)) if anchor is None else anchor.top_u
+    return Surface(heights, has_point, (i < w_h[0]) & (j < w_h[1]), corner, top_u + jnp.float32(CLOTH_START_M))
+
+
+@functools.partial(jax.jit, static_argnames="config")
+def drop_cloth(surface: Surface, params: Params, *, config: Config) -> tuple[Raster, Raster, Mask, Int[Array, ""]]:
+    """Steps 2-4 on a particle grid: gaps filled, the cloth dropped and its slopes smoothed.
+    Reads no point, so one program serves every point count of a grid (`warm` compiles it for
+    each canonical grid).
+
+    Returns:
+      `(cloth_u, surface_u, movable, steps)`: as `TileDiagnostics`.
+    """
+    filled = stages.scanline_fill(surface.heights, surface.has_point)
+    state = simulate(filled, surface.exists, surface.start_u, params.time_step, config=config)
+    cloth_u, movable = state.u, state.movable
+    if config.slope_smooth:
+        cloth_u, movable = stages.smooth_slopes(cloth_u, movable, surface.exists, filled)
+    return cloth_u, filled, movable, state.steps
+
+
+@functools.partial(jax.jit, static_argnames="config")
+def classify(xyz: Points, valid: PointMask, corner_m: Float[Array, "2"], cloth_u: Raster, params: Params, *,
+             config: Config) -> PointMask:
+    """Step 5: ground where a valid point lies within `params.class_threshold_m` of the cloth
+    (`corner_m`: the south-west particle, `Surface.corner_m`)."""
+    gap = stages.height_above_cloth(xyz[:, :2] - corner_m[None, :], -xyz[:, 2], cloth_u, cell_m=config.cell_m)
+    return valid & stages.is_ground(gap, params.class_threshold_m)
+
+
 @functools.partial(jax.jit, static_argnames=("config", "shape"))
 def filter_points(xyz: Points, valid: PointMask, params: Params, anchor: Anchor | None = None, *, config: Config,
                   shape: tuple[int, int]) -> tuple[PointMask, TileDiagnostics]:
-    """CSF on one padded buffer of points.
+    """CSF on one padded buffer of points: `point_surface`, `drop_cloth`, `classify`.
 
     Args:
       xyz: local coordinates `(n, 3)` float32 [m]; rows with `~valid` are ignored.
@@ -156,26 +212,38 @@ def filter_points(xyz: Points, valid: PointMask, params: Params, anchor: Anchor 
     Returns:
       `(ground, diagnostics)`: bool `(n,)` (False where `~valid`) and `TileDiagnostics`.
     """
-    cell = jnp.float32(config.cell_m)
-    xy, u = xyz[:, :2], -xyz[:, 2]
-    big = jnp.asarray(jnp.inf, xyz.dtype)
-    lo = jnp.min(jnp.where(valid[:, None], xy, big), axis=0) if anchor is None else anchor.corner_m
-    hi = jnp.max(jnp.where(valid[:, None], xy, -big), axis=0)
-    w_h = stages.grid_size(hi - lo, cell_m=config.cell_m)
-    j, i = jnp.indices(shape)
-    exists = (i < w_h[0]) & (j < w_h[1])
-    rel = xy - (lo - BUFFER_PX * cell)[None, :]
-    heights, has_point = stages.particle_heights(rel, u, valid, cell_m=config.cell_m, shape=shape)
-    surface = stages.scanline_fill(heights, has_point)
-    top_u = jnp.max(jnp.where(valid, u, -big)) if anchor is None else anchor.top_u
-    start_u = top_u + jnp.float32(CLOTH_START_M)
-    state = simulate(surface, exists, start_u, params.time_step, config=config)
-    cloth_u, movable = state.u, state.movable
-    if config.slope_smooth:
-        cloth_u, movable = stages.smooth_slopes(cloth_u, movable, exists, surface)
-    gap = stages.height_above_cloth(rel, u, cloth_u, cell_m=config.cell_m)
-    ground = valid & stages.is_ground(gap, params.class_threshold_m)
-    return ground, TileDiagnostics(cloth_u, surface, movable, exists, state.steps)
+    surface = point_surface(xyz, valid, anchor, config=config, shape=shape)
+    cloth_u, filled, movable, steps = drop_cloth(surface, params, config=config)
+    ground = classify(xyz, valid, surface.corner_m, cloth_u, params, config=config)
+    return ground, TileDiagnostics(cloth_u, filled, movable, surface.exists, steps)
+
+
+def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False,
+         sides: tuple[int, ...] = WARM_SIDES) -> int:
+    """Load, or compile and store (`gfjax.aot`), `drop_cloth` (the program whose compile
+    dominates a run: about 1 s, against 0.1 s for `point_surface` and `classify`, which
+    compile on first use) on every grid `(h, w)` of two `sides` (default: every canonical
+    grid up to 512 particles a side). Two programs compile at once. Nothing runs; nothing is
+    kept when the program cache is off. Returns the number of programs prepared (`gfjax warmup`)."""
+    import concurrent.futures
+
+    config, params = config or Config(), params or Params()
+    spec = jax.ShapeDtypeStruct
+    grids = [(h, w) for h in sides for w in sides]
+
+    def one(grid):
+        surface = Surface(spec(grid, np.float32), spec(grid, np.bool_), spec(grid, np.bool_), spec((2,), np.float32),
+                          spec((), np.float32))
+        aot.prefetch(drop_cloth, surface, params, config=config)
+
+    with concurrent.futures.ThreadPoolExecutor(2, thread_name_prefix="gfjax-csf-warm") as pool:
+        done = pool.map(one, grids)
+        if progress:
+            from tqdm.auto import tqdm
+            done = tqdm(done, total=len(grids), desc="csf programs", unit="program")
+        for _ in done:
+            pass
+    return len(grids)
 
 
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
@@ -222,10 +290,11 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     points[:n] = local
     valid = np.zeros(capacity, bool)
     valid[:n] = use
-    ground, diag = aot.call(filter_points, points, valid, params, anchor, config=config, shape=canonical_grid((h, w)))
+    surface = aot.call(point_surface, points, valid, anchor, config=config, shape=canonical_grid((h, w)))
+    cloth_u, filled, movable, steps = aot.call(drop_cloth, surface, params, config=config)
+    ground = aot.call(classify, points, valid, surface.corner_m, cloth_u, params, config=config)
     ground = np.asarray(ground)[:n] & use
-    diag = diag._replace(**{name: np.asarray(getattr(diag, name))[:h, :w]
-                            for name in ("cloth_u", "surface_u", "movable", "exists")})
+    diag = TileDiagnostics(*(np.asarray(a)[:h, :w] for a in (cloth_u, filled, movable, surface.exists)), steps)
     xy0 = origin[:2] - BUFFER_PX * config.cell_m
     return Result(ground=ground, diagnostics=Diagnostics(
         cloth_z=origin[2] - np.asarray(diag.cloth_u, np.float64)[::-1],
