@@ -600,6 +600,20 @@ def prefetching():
         _state["prefetching"] = before
 
 
+def warm_all(jobs: Sequence[Callable[[], Any]], *, progress: bool = False, desc: str = "programs") -> int:
+    """Run `jobs` (each prepares one program: `prefetch`, or a driver under `prefetching`) in
+    turn, with a progress bar over them when `progress`. One at a time: XLA already compiles a
+    program on every core (two at once took as long on 2 cores). Returns `len(jobs)` (a
+    method's `warm`, `gfjax warmup`)."""
+    if progress:
+        from tqdm.auto import tqdm
+        jobs = tqdm(jobs, desc=desc, unit="program")
+    with prefetching():
+        for job in jobs:
+            job()
+    return len(jobs)
+
+
 def on_compile(callback: Callable[[str], None] | None) -> None:
     """Call `callback(module)` just before a program is compiled rather than loaded (`module`:
     the compiled function's module, e.g. `gfjax.smrf.stages`), so a command can say that it is

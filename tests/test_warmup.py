@@ -75,7 +75,7 @@ from gfjax import aot, csf
 compiled = []
 aot.on_compile(compiled.append)
 rng = np.random.default_rng(3)
-xy = rng.uniform(0, [83, 61], (4000, 2))                 # a cloth of 65 x 87 particles: grid (96, 96)
+xy = rng.uniform(0, [163, 141], (4000, 2))               # a cloth of 145 x 167 particles: grid (192, 192)
 cloud = gfjax.Cloud.from_xyz(np.column_stack([xy + 7e5, 20 + 0.2 * xy[:, 0]]))
 ground = csf.filter(cloud).ground
 print(len(compiled), int(ground.sum()))
@@ -86,6 +86,6 @@ def test_after_csf_warm_its_cloth_program_is_loaded_not_compiled(tmp_path):
     """CSF's cloth (`drop_cloth`) is warmed per grid; its two point programs compile on first use."""
     cold, warmed = tmp_path / "cold", tmp_path / "warm"
     compiled_cold, ground_cold = _python(_CSF_FILTER, cold).split()
-    assert _python("from gfjax import csf; print(csf.warm(sides=(64, 96)))", warmed) == "4"
+    assert _python("from gfjax import csf; print(csf.warm(sides=(128, 192)))", warmed) == "4"
     compiled, ground = _python(_CSF_FILTER, warmed).split()
     assert (compiled_cold, compiled) == ("3", "2") and ground == ground_cold and int(ground) > 0

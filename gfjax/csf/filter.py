@@ -96,7 +96,7 @@ class Anchor(NamedTuple):
 # Up to this many particles a side, grids are rounded to few sides (compiling dominates a small
 # cloud's run, and `warm` compiles every pair of them); beyond, to multiples of `_LARGE_STEP` (a
 # large cloud's run dominates its compile, and each padded particle costs every step).
-WARM_SIDES = (64, 96, 128, 192, 256, 384, 512)
+WARM_SIDES = (128, 192, 256, 384, 512)
 _LARGE_STEP = 64
 _FEW_POINTS_UP_TO = 1 << 18
 _LARGE_POINT_STEP = 1 << 16
@@ -105,8 +105,9 @@ _LARGE_POINT_STEP = 1 << 16
 def canonical_grid(shape: tuple[int, int]) -> tuple[int, int]:
     """A particle grid `(h, w)` padded to a canonical one, so a machine compiles CSF for a few
     grids in its life, not one per cloud size: each side up to 512 rounded up to the next of
-    `WARM_SIDES` (64, 96, 128, 192, ...: at most half as many particles again a side; squares
-    would pad an elongated cloud many times over, and every padded particle costs every step),
+    `WARM_SIDES` (128, 192, 256, 384, 512: at most half as many particles again a side above
+    128, where a cloth's run starts to count; squares would pad an elongated cloud many times
+    over, and every padded particle costs every step),
     a larger side to a multiple of 64. The particles beyond the cloud's own grid do not exist
     for the simulation (`filter_points`): the labels are the unpadded grid's."""
     return tuple(_canonical_side(int(side)) for side in shape)
@@ -223,27 +224,17 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
     """Load, or compile and store (`gfjax.aot`), `drop_cloth` (the program whose compile
     dominates a run: about 1 s, against 0.1 s for `point_surface` and `classify`, which
     compile on first use) on every grid `(h, w)` of two `sides` (default: every canonical
-    grid up to 512 particles a side). Two programs compile at once. Nothing runs; nothing is
-    kept when the program cache is off. Returns the number of programs prepared (`gfjax warmup`)."""
-    import concurrent.futures
-
+    grid up to 512 particles a side, 25 programs). Nothing runs; nothing is kept when the
+    program cache is off. Returns the number of programs prepared (`gfjax warmup`)."""
     config, params = config or Config(), params or Params()
     spec = jax.ShapeDtypeStruct
-    grids = [(h, w) for h in sides for w in sides]
 
-    def one(grid):
+    def job(grid):
         surface = Surface(spec(grid, np.float32), spec(grid, np.bool_), spec(grid, np.bool_), spec((2,), np.float32),
                           spec((), np.float32))
-        aot.prefetch(drop_cloth, surface, params, config=config)
+        return lambda: aot.prefetch(drop_cloth, surface, params, config=config)
 
-    with concurrent.futures.ThreadPoolExecutor(2, thread_name_prefix="gfjax-csf-warm") as pool:
-        done = pool.map(one, grids)
-        if progress:
-            from tqdm.auto import tqdm
-            done = tqdm(done, total=len(grids), desc="csf programs", unit="program")
-        for _ in done:
-            pass
-    return len(grids)
+    return aot.warm_all([job((h, w)) for h in sides for w in sides], progress=progress, desc="csf programs")
 
 
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,

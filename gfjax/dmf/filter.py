@@ -271,15 +271,10 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
         for side in sorted(one_tile):
             for n in canonical_capacities():
                 jobs.append((extract.prefetch_height_rule, (n, (side, side)), None))
-    if progress:
-        from tqdm.auto import tqdm
-        jobs = tqdm(jobs, desc="dmf programs", unit="program")
-    for fn, args, static in jobs:
-        if static is None:
-            fn(*args)
-        else:
-            aot.prefetch(fn, *args, **static)
-    return len(jobs)
+    def job(fn, args, static):
+        return lambda: fn(*args) if static is None else aot.prefetch(fn, *args, **static)
+
+    return aot.warm_all([job(*spec_) for spec_ in jobs], progress=progress, desc="dmf programs")
 
 
 def _padded_nodes(centroid: np.ndarray, table: neighbours.NeighbourTable, width: int):

@@ -248,16 +248,13 @@ def warm(classify_batch: ClassifyBatch, params: Any, config: Any, *, tiling: til
     from gfjax import aot
 
     spec = jax.ShapeDtypeStruct
-    pairs = [(side, cap) for side in tiles_lib.canonical_sides(*lattice_of(tiling, config.cell_m))
-             for cap in tiles_lib.canonical_capacities()]
-    if progress:
-        from tqdm.auto import tqdm
-        pairs = tqdm(pairs, desc=desc, unit="shape")
-    with aot.prefetching():
-        for side, cap in pairs:
-            classify_batch(spec((1, cap, 3), np.float32), spec((1, cap), np.bool_), spec((1, 2), np.int32), params,
-                           config=config, shape=(side, side))
-    return len(pairs)
+
+    def job(side, cap):
+        return lambda: classify_batch(spec((1, cap, 3), np.float32), spec((1, cap), np.bool_), spec((1, 2), np.int32),
+                                      params, config=config, shape=(side, side))
+
+    return aot.warm_all([job(side, cap) for side in tiles_lib.canonical_sides(*lattice_of(tiling, config.cell_m))
+                         for cap in tiles_lib.canonical_capacities()], progress=progress, desc=desc)
 
 
 def mosaic(tiles: Sequence[tiles_lib.Tile], diagnostics: Sequence[tuple], *, names: Sequence[str],

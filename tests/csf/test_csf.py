@@ -276,10 +276,10 @@ def test_canonical_grids_and_capacities_bound_the_padding():
     from gfjax.csf.filter import WARM_SIDES, canonical_grid, canonical_points
 
     sides = sorted({canonical_grid((s, s))[0] for s in range(1, 513)})
-    assert sides == list(WARM_SIDES) == [64, 96, 128, 192, 256, 384, 512]     # `warm` compiles every pair
+    assert sides == list(WARM_SIDES) == [128, 192, 256, 384, 512]     # `warm` compiles every pair
     for h, w in [(1, 1), (65, 300), (511, 513), (1106, 1104), (4000, 70)]:
         ch, cw = canonical_grid((h, w))
-        assert h <= ch <= max(64, 1.5 * h, h + 63) and w <= cw <= max(64, 1.5 * w, w + 63)
+        assert h <= ch <= max(128, 1.5 * h, h + 63) and w <= cw <= max(128, 1.5 * w, w + 63)
     assert canonical_points(10) == 1 << 14 and canonical_points(345_966) == 393_216
 
 
