@@ -10,6 +10,7 @@ import pytest
 import reference
 import scipy.ndimage as ndi
 import scipy.sparse
+import scipy.sparse.csgraph
 import scipy.sparse.linalg
 from reference import Case
 
@@ -268,3 +269,25 @@ def test_bad_shapes(unchecked):
         raster.inpaint_harmonic(jnp.zeros((3, 3)), jnp.zeros((3, 4), bool))
     with pytest.raises(ValueError, match="domain shape"):
         raster.inpaint_harmonic(jnp.zeros((3, 3)), jnp.zeros((3, 3), bool), domain=jnp.ones((3, 4), bool))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_coarsest_solve_matches_numpy_on_spd_systems(seed):
+    """The V-cycle's coarsest solve (no LAPACK call, so its programs store as executables)
+    against `numpy.linalg.solve`: random SPD systems of 1 to 64 unknowns, and a graph
+    Laplacian with Dirichlet rows, as the coarsest level builds."""
+    from gfjax.raster.harmonic import _spd_solve
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 65))
+    q = rng.normal(size=(n, n))
+    a = q @ q.T + n * np.eye(n)
+    b = rng.normal(size=n)
+    got = jax.jit(_spd_solve)(jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32))
+    np.testing.assert_allclose(np.asarray(got), np.linalg.solve(a, b), rtol=2e-4, atol=2e-5)
+    side = 8
+    lap = scipy.sparse.csgraph.laplacian(scipy.sparse.diags([1.0, 1.0], [1, side], shape=(side * side,) * 2),
+                                         symmetrized=True).toarray() + np.diag(rng.uniform(0.0, 1.0, side * side) > 0.7)
+    lap[0, 0] += 1.0                                            # at least one Dirichlet neighbour
+    got = jax.jit(_spd_solve)(jnp.asarray(lap, jnp.float32), jnp.asarray(b[:1].repeat(side * side), jnp.float32))
+    np.testing.assert_allclose(np.asarray(got), np.linalg.solve(lap, b[:1].repeat(side * side)), rtol=1e-3, atol=1e-4)
