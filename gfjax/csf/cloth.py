@@ -14,7 +14,9 @@ One step (Cloth.cpp `Cloth::timeStep`, `Cloth::terrCollision`; Particle.cpp):
 3. The largest height change of a movable particle over the step (Verlet plus springs).
 4. Collision: a movable particle below `h` is put on `h` and fixed.
 The loop stops after `iterations` steps, or after the collision of a step whose largest
-displacement is in (0, 0.005) m: the package's cap and rule (CSF.cpp `do_cloth`).
+displacement is in (0, 0.005) m: the package's cap and rule (CSF.cpp `do_cloth`). It also
+stops at a step that begins with no movable particle: the package runs on to its cap from
+there, but no later step changes anything (only `steps` differs).
 
 Pipelining. The sweep is a sequence of wavefronts `t = i + 4 j` (`gfjax.csf.wavefront`), and a
 particle's steps 3-4 and the next step's 1 depend on that particle alone. So step `s + 1` may
@@ -81,6 +83,7 @@ class _Carry(NamedTuple):
     hit_step: Array                           # phase-major int32, step of collision (cap: none)
     ring: Array                               # (groups + 1, PERIOD, groups, lanes) finished rows [m]
     max_step: Array                           # (groups,) running max displacement per step [m]
+    live: Array                               # (groups,) a particle was movable at the step's start
     stopped: Bool[Array, ""]
     last_step: Int[Array, ""]
     last_max: Float[Array, ""]
@@ -121,6 +124,7 @@ def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: 
     prev0, h0 = c.u_prev[phase], heights[phase]
     mov0 = (kind0 == MOVABLE) & active[:, None]
     moved = jnp.max(jnp.where(mov0, jnp.abs(u0 - prev0), 0.0), axis=1)
+    any_movable = jnp.any(mov0, axis=1)
     hit = mov0 & (u0 < h0)
     u0 = jnp.where(hit, h0, u0)
     free = mov0 & ~hit
@@ -139,12 +143,16 @@ def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: 
     # Per-step displacement maxima; a step is done when its last particle row is finished.
     max_step = jnp.where(phase == 0, c.max_step.at[slot].set(0.0), c.max_step)
     max_step = max_step.at[step % groups].max(moved)
+    live = jnp.where(phase == 0, c.live.at[slot].set(False), c.live)
+    live = live.at[step % groups].max(any_movable)
     done = block - lay.last_group
     check = (phase == lay.last_phase) & (done >= 0) & (done < iterations) & ~c.stopped
     done_max = max_step[done % groups]
-    stop = check & (_displacement_stops(done_max) | (done == iterations - 1))
+    # A step that began with no movable particle changes nothing, nor does any later one:
+    # stopping there gives the cloth of the cap (the package runs on to the cap).
+    stop = check & (_displacement_stops(done_max) | ~live[done % groups] | (done == iterations - 1))
     return _Carry(u=slots_u, kind=slots_kind, u_prev=u_prev, hit_step=hit_step,
-                  ring=ring, max_step=max_step, stopped=c.stopped | stop,
+                  ring=ring, max_step=max_step, live=live, stopped=c.stopped | stop,
                   last_step=jnp.where(stop, done, c.last_step),
                   last_max=jnp.where(stop, done_max, c.last_max))
 
@@ -160,6 +168,7 @@ def _init(u: Raster, u_prev: Raster, movable: Mask, present: Mask, heights: Rast
         u_prev=lay.by_phase(lay.to_slot_array(u_prev, 0.0)),
         hit_step=jnp.full((PERIOD, groups, lanes), iterations, jnp.int32),
         ring=jnp.zeros((groups + 1, PERIOD, groups, lanes), dtype), max_step=jnp.zeros(groups, dtype),
+        live=jnp.zeros(groups, bool),
         stopped=jnp.array(False), last_step=jnp.int32(iterations - 1),
         last_max=jnp.asarray(jnp.inf, dtype))
     return init, lay.by_phase(lay.to_slot_array(heights, -jnp.inf))

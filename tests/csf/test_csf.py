@@ -106,6 +106,18 @@ def test_simulate_matches_sequential_reference(kind):
     np.testing.assert_allclose(np.asarray(state.u), u, atol=1e-4)
 
 
+def test_a_cloth_resting_everywhere_stops_with_the_cloth_of_the_cap():
+    """Once no particle can move, the package runs on to the cap (its stop needs a displacement
+    above 0) without changing anything; gfjax stops there, with the same cloth."""
+    heights = np.zeros((9, 13), np.float32)
+    state = cloth.simulate(jnp.asarray(heights), jnp.ones(heights.shape, bool), jnp.float32(0.05),
+                           jnp.float32(0.65), config=csf.Config(iterations=300))
+    u, movable, steps = reference.simulate(heights.astype(np.float64), 0.05, iterations=300)
+    assert steps == 300 and int(state.steps) < 10
+    np.testing.assert_array_equal(np.asarray(state.movable), movable)
+    np.testing.assert_allclose(np.asarray(state.u), u, atol=1e-6)
+
+
 def test_simulate_vmap_runs_each_cloth_to_its_own_stop():
     """A batch shares the loop; a cloth that stops early is frozen at its own stopping step."""
     kinds = ["box", "ramp", "terrace"]
