@@ -10,7 +10,10 @@
    rounded up to 64 cells and point capacities of `capacity_bucket` (the former rule, which
    compiles once per new size). Runs alternate A B A B; the median of the per-pair ratios.
 2. First runs: a fresh `XDG_CACHE_HOME`, `gfjax warmup` (timed), then per method and file
-   two whole `gfjax filter` processes; the first against the second (same run).
+   two whole `gfjax filter` processes; the first against the second (same run); with
+   `--pysmrf-file`, SMRF's first process there against `pysmrf.classify(windows=18)`'s call
+   (the `.[bench]` extra); with `--api-file`, `gfjax.smrf.filter`'s first and second call in
+   one fresh Python process.
 """
 from __future__ import annotations
 
@@ -68,7 +71,37 @@ def _wall(command: list[str], env: dict) -> float:
     return time.perf_counter() - start
 
 
-def _first_runs(files: list[str], methods: list[str]) -> list[str]:
+_API = """
+import sys, time
+import gfjax
+cloud = gfjax.read(sys.argv[1])
+times = []
+for _ in range(2):
+    start = time.perf_counter()
+    gfjax.smrf.filter(cloud)
+    times.append(time.perf_counter() - start)
+print(*times)
+"""
+
+_PYSMRF = """
+import sys, time, warnings
+import numpy as np, laspy, pysmrf
+las = laspy.read(sys.argv[1])
+x, y, z = (np.asarray(a, np.float64) for a in (las.x, las.y, las.z))
+warnings.simplefilter("ignore")
+start = time.perf_counter()
+pysmrf.classify(x, y, z, cellsize=1.0, windows=18, slope_threshold=0.15, elevation_threshold=0.5,
+                elevation_scaler=1.25)
+print(time.perf_counter() - start)
+"""
+
+
+def _python(script: str, path: str, env: dict) -> list[float]:
+    done = subprocess.run([sys.executable, "-c", script, path], env=env, check=True, capture_output=True, text=True)
+    return [float(x) for x in done.stdout.split()]
+
+
+def _first_runs(files: list[str], methods: list[str], api_file: str | None, pysmrf_file: str | None) -> list[str]:
     gfjax_bin = str(Path(sys.executable).parent / "gfjax")
     with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
         env = {k: v for k, v in os.environ.items() if k not in ("GFJAX_CACHE", "GFJAX_EXPORT_CACHE",
@@ -78,6 +111,7 @@ def _first_runs(files: list[str], methods: list[str]) -> list[str]:
         rows = [f"`gfjax warmup` on empty caches: {warm:.0f} s.", "",
                 "| method | file | first run s | second run s | first / second |", "|---|---|---|---|---|"]
         print(rows[0], flush=True)
+        pysmrf_row = ""
         for name in methods:
             for path in files:
                 command = [gfjax_bin, "-q", "filter", path, "-o", str(Path(out) / "out.laz"), "--method", name,
@@ -85,20 +119,32 @@ def _first_runs(files: list[str], methods: list[str]) -> list[str]:
                 first, second = _wall(command, env), _wall(command, env)
                 rows.append(f"| {name} | {Path(path).name} | {first:.2f} | {second:.2f} | {first / second:.2f} |")
                 print(rows[-1], flush=True)
+                if name == "smrf" and path == pysmrf_file:
+                    peer = _python(_PYSMRF, path, env)[0]
+                    pysmrf_row = (f"SMRF's first `gfjax filter` process on {Path(path).name}: {first:.2f} s, "
+                                  f"{first / peer:.2f}x `pysmrf.classify(windows=18)`'s call ({peer:.2f} s, same run).")
+        rows += ["", pysmrf_row] if pysmrf_row else []
+        if api_file:
+            first, second = _python(_API, api_file, env)
+            rows += ["", f"Python API, a fresh process after the warmup: `gfjax.smrf.filter` on {Path(api_file).name} "
+                     f"{first:.2f} s, its second call {second:.2f} s ({first / second:.2f}x)."]
+            print(rows[-1], flush=True)
     return rows
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("files", nargs="+")
-    parser.add_argument("--methods", default="smrf,pmf", help="methods of the padding comparison (default smrf,pmf)")
-    parser.add_argument("--first-run-methods", default="smrf,pmf,dmf,csf")
+    parser.add_argument("--methods", default="smrf,pmf", help="methods of the padding comparison (default smrf,pmf; empty: skip it)")
+    parser.add_argument("--first-run-methods", default="smrf,pmf,dmf,csf,masf,sparsegf")
     parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--api-file", help="a file for the Python API's first and second call in a fresh process")
+    parser.add_argument("--pysmrf-file", help="one of FILES: SMRF's first process against pysmrf's call on it")
     parser.add_argument("-o", "--output", required=True)
     args = parser.parse_args()
     os.environ["GFJAX_CACHE"] = "0"           # this process: plain jit, compiled once per shape in memory
-    padding = _padding_cost(args.files, args.methods.split(","), args.runs)
-    first = _first_runs(args.files, args.first_run_methods.split(","))
+    padding = _padding_cost(args.files, args.methods.split(","), args.runs) if args.methods else ["(not run)"]
+    first = _first_runs(args.files, args.first_run_methods.split(","), args.api_file, args.pysmrf_file)
     text = ["# Canonical shapes and `gfjax warmup`", "",
             f"Command: `{' '.join([Path(sys.executable).name, *sys.argv])}` "
             f"({os.cpu_count()} cores, {time.strftime('%Y-%m-%d')}).", "",
