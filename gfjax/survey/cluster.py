@@ -14,10 +14,12 @@ a program once and keeps it in the persistent caches (`gfjax.cache`), like any p
 """
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import logging
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 from gfjax.errors import InputError
 
@@ -65,11 +67,18 @@ def client(workers: int | None = None, scheduler: str | None = None) -> Iterator
         yield c
 
 
-def result(future, what: str):
+def result(future, what: str, again: Callable[[], Any] | None = None):
     """`future.result()`; a task whose workers kept dying (Dask's `KilledWorker`, after
-    `distributed.scheduler.allowed-failures` tries) becomes a `RuntimeError` naming `what`."""
+    `distributed.scheduler.allowed-failures` tries) becomes a `RuntimeError` naming `what`.
+    A task the cluster lost (cancelled, "already forgotten": seen when a worker dies while
+    its tasks are rescheduled) is run here by `again` when given (the same pure function:
+    the same result)."""
     try:
         return future.result()
+    except concurrent.futures.CancelledError:
+        if again is None:
+            raise
+        return again()
     except Exception as err:
         if type(err).__name__ != "KilledWorker":
             raise

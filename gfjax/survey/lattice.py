@@ -95,8 +95,11 @@ class TileLabels:
         """Filter tile `key` (here, or on the cluster that `submit` sent it to) and store its
         core points' labels."""
         future = self.pending.pop(key, None)
-        parts = cluster.result(future, f"survey tile {key}") if future is not None else tile_labels(self.catalog, self.filter_fn, self.lattice,
-                                                                        key, returns=self.returns)
+
+        def here():
+            return tile_labels(self.catalog, self.filter_fn, self.lattice, key, returns=self.returns)
+
+        parts = here() if future is None else cluster.result(future, f"survey tile {key}", again=here)
         for j, index, ground in parts:
             self.labels_of[j][index] = ground
         self.done.add(key)

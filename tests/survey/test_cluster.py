@@ -170,3 +170,17 @@ def test_bad_cluster_options_are_one_line(grid, tmp_path, capsys, options, messa
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
     assert not list(tmp_path.iterdir())
+
+
+def test_a_task_the_cluster_lost_is_run_here():
+    """A future cancelled under the command ("already forgotten", seen when a worker dies while
+    its tasks are rescheduled) is computed here by the same function; other errors still raise."""
+    from distributed.client import FutureCancelledError
+
+    class Lost:
+        def result(self):
+            raise FutureCancelledError("tile_labels-1", "already forgotten")
+
+    assert cluster.result(Lost(), "survey tile (0, 0)", again=lambda: "labels") == "labels"
+    with pytest.raises(FutureCancelledError):
+        cluster.result(Lost(), "survey tile (0, 0)")
