@@ -107,9 +107,9 @@ def canonical_grid(shape: tuple[int, int]) -> tuple[int, int]:
     grids in its life, not one per cloud size: each side up to 512 rounded up to the next of
     `WARM_SIDES` (128, 192, 256, 384, 512: at most half as many particles again a side above
     128, where a cloth's run starts to count; squares would pad an elongated cloud many times
-    over, and every padded particle costs every step),
-    a larger side to a multiple of 64. The particles beyond the cloud's own grid do not exist
-    for the simulation (`filter_points`): the labels are the unpadded grid's."""
+    over, and every padded particle costs every step), a larger side to a multiple of 64. The
+    particles beyond the cloud's own grid do not exist for the simulation (`filter_points`):
+    the labels are the unpadded grid's."""
     return tuple(_canonical_side(int(side)) for side in shape)
 
 

@@ -134,12 +134,10 @@ def filter_groups(cloud: CloudView, use: np.ndarray, filter_one: Callable[[Cloud
     members = groups.members(xyz_m[used, :2], gap_m, index=used)
     if members is None:
         return None
-    lo = np.stack([xyz_m[m, :2].min(axis=0) for m in members])
-    hi = np.stack([xyz_m[m, :2].max(axis=0) for m in members])
-    widest = int(np.argmax(np.prod(hi - lo + 1.0, axis=1)))
-    check_memory(cloud.name, estimates, xyz_m[members[widest], :2])
+    widest = max(members, key=lambda m: float(np.prod(np.ptp(xyz_m[m, :2], axis=0) + 1.0)))
+    check_memory(cloud.name, estimates, xyz_m[widest, :2])
     ground = np.zeros(len(use), bool)
-    instance_id = None
+    instance_id, last_id = None, 0
     for index in members:
         if len(index) == 1:
             ground[index] = True
@@ -149,7 +147,8 @@ def filter_groups(cloud: CloudView, use: np.ndarray, filter_one: Callable[[Cloud
         if result.instance_id is not None:
             instance_id = np.zeros(len(use), np.uint32) if instance_id is None else instance_id
             ids = result.instance_id.astype(np.uint32)
-            instance_id[index] = np.where(ids > 0, ids + instance_id.max(), 0)
+            instance_id[index] = np.where(ids > 0, ids + np.uint32(last_id), 0)
+            last_id += int(ids.max(initial=0))
     return Result(ground=ground, diagnostics=None, instance_id=instance_id)
 
 

@@ -168,3 +168,19 @@ def test_warm_prepares_every_program_filter_runs(monkeypatch):
         aot.program_key(fn, specs, static, tag)))
     assert dmf.warm() > 0
     assert ran and ran <= prepared, f"{len(ran - prepared)} of {len(ran)} programs not warmed"
+
+
+def test_groups_far_apart_number_their_instances_on(box):
+    """Two copies of the box scene 10 km apart are filtered group by group: each copy gets the
+    labels it gets alone, and the second copy's object ids follow the first's."""
+    cloud, _, _, alone = box
+    xyz = cloud.xyz_m
+    both = dmf.filter(gfjax.Cloud.from_xyz(np.vstack([xyz, xyz + [10_000.0, 10_000.0, 0.0]])))
+    n = len(xyz)
+    assert both.diagnostics is None
+    np.testing.assert_array_equal(both.ground[:n], alone.ground)
+    np.testing.assert_array_equal(both.ground[n:], alone.ground)
+    first, second = both.instance_id[:n], both.instance_id[n:]
+    np.testing.assert_array_equal(first, alone.instance_id)
+    assert first.max() > 0
+    np.testing.assert_array_equal(second, np.where(alone.instance_id > 0, alone.instance_id + first.max(), 0))
