@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax import lax
 from jaxtyping import Array, Float, Int
 
 from gfjax._types import Heights, Mask, PointMask, Points, Raster
@@ -29,7 +30,7 @@ from gfjax.raster.rasterize import rasterize
 from gfjax.smrf.config import Config, Params
 
 __all__ = [
-    "TileDiagnostics", "is_object", "is_ground_point", "progressive_filter", "low_outliers", "inpaint",
+    "TileDiagnostics", "is_object", "is_ground_point", "next_opening", "progressive_filter", "low_outliers", "inpaint",
     "gradient_magnitude", "rasterize_min", "surfaces", "classify_points",
 ]
 
@@ -73,6 +74,14 @@ def is_ground_point(dz_m: Heights, slope: Heights, params: Params) -> PointMask:
     return jnp.abs(dz_m) <= params.threshold_m + params.scalar * slope
 
 
+def next_opening(surface: Raster, domain: Mask, radius_px: Int[Array, ""], *, max_radius_px: int) -> Raster:
+    """The progressive filter's step r (Sec. 2.2): `surface` opened by the disk of radius
+    `radius_px` cells (traced, `<= max_radius_px`) over the domain; cells off the domain keep
+    their height. `(h, w)` [m]."""
+    opened = opening(surface, domain, radius_px=radius_px, footprint="disk", max_radius_px=max_radius_px)
+    return jnp.where(domain, opened, surface)
+
+
 def progressive_filter(surface: Raster, domain: Mask, slope: Float[Array, ""], *,
                        cell_m: float, max_radius_px: int) -> Mask:
     """Pingel et al. (2013, Sec. 2.2): open the surface with disks of radius r = 1..max_radius_px
@@ -88,15 +97,16 @@ def progressive_filter(surface: Raster, domain: Mask, slope: Float[Array, ""], *
     Returns:
       Object cells, bool `(h, w)`.
     """
-    objects = jnp.zeros(surface.shape, dtype=jnp.bool_)
     cell = jnp.asarray(cell_m, surface.dtype)
-    for radius_px in range(1, max_radius_px + 1):
-        opened = opening(surface, domain, radius_px=radius_px, footprint="disk")
-        opened = jnp.where(domain, opened, surface)
-        threshold_m = slope * jnp.asarray(radius_px, surface.dtype) * cell
-        objects = objects | (domain & is_object(surface, opened, threshold_m))
-        surface = opened
-    return objects
+
+    def step(radius_px, carry):             # one loop body for every radius: a small program
+        surface, objects = carry
+        opened = next_opening(surface, domain, radius_px, max_radius_px=max_radius_px)
+        threshold_m = slope * radius_px.astype(surface.dtype) * cell
+        return opened, objects | (domain & is_object(surface, opened, threshold_m))
+
+    objects = jnp.zeros(surface.shape, dtype=jnp.bool_)
+    return lax.fori_loop(1, max_radius_px + 1, step, (surface, objects))[1]
 
 
 def low_outliers(zimin: Raster, domain: Mask, *, config: Config) -> Mask:

@@ -6,7 +6,7 @@ The tuned parameters act at two tests (SPEC section 7):
   some opening `r` lowers it by more than `slope * r * cell`. The openings themselves do not
   depend on any tuned parameter, so `prepare_tile` computes the surface sequence once per
   tile (`surfaces[0]` = ZImin, `surfaces[r]` = its r-th incremental opening, with
-  `gfjax.raster.morphology.opening` exactly as `stages.progressive_filter` does); each step
+  `stages.next_opening`, the step of `stages.progressive_filter`); each step
   then only re-tests the drops. The relaxed object weight is
   `o = sigmoid(max_r(drop_r - slope * r * cell) / T)` (`relax.soft_or_max`).
 * `threshold_m` and `scalar` at the final point test (Sec. 2.4): the relaxed ground
@@ -43,7 +43,6 @@ from jaxtyping import Array, Float, Int
 
 from gfjax._types import Mask, PointMask, Points, Raster
 from gfjax.raster.grid import domain_mask, replicate_edges, sample_bilinear
-from gfjax.raster.morphology import opening
 from gfjax.raster.rasterize import rasterize
 from gfjax.smrf import stages
 from gfjax.smrf.config import Config, Params
@@ -100,11 +99,13 @@ def prepare_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], *, config: 
     filled = cells.valid & domain
     zimin = stages.inpaint(cells.z_min, filled, config=config, domain=domain)
     low = stages.low_outliers(zimin, domain, config=config)
-    surfaces = [zimin]
-    for radius_px in range(1, config.max_radius_px + 1):      # as stages.progressive_filter
-        opened = opening(surfaces[-1], domain, radius_px=radius_px, footprint="disk")
-        surfaces.append(jnp.where(domain, opened, surfaces[-1]))
-    return Prepared(jnp.stack(surfaces), domain, filled & ~low, xyz, valid, hw)
+    def step(surface, radius_px):                           # as stages.progressive_filter
+        opened = stages.next_opening(surface, domain, radius_px, max_radius_px=config.max_radius_px)
+        return opened, opened
+
+    radii = jnp.arange(1, config.max_radius_px + 1, dtype=jnp.int32)
+    opened = lax.scan(step, zimin, radii)[1]
+    return Prepared(jnp.concatenate([zimin[None], opened]), domain, filled & ~low, xyz, valid, hw)
 
 
 def _object_cells(prep: Prepared, slope: Float[Array, ""], radius_px: Int[Array, ""], cell_m: float,

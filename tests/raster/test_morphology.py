@@ -128,6 +128,56 @@ def test_invalid_padding_never_changes_valid_cells(footprint):
         np.testing.assert_array_equal(np.asarray(big)[:h, :w], np.asarray(small))
 
 
+@functools.cache
+def jitted_traced(max_radius: int):
+    """Every op with a traced radius: one compile serves every radius up to `max_radius`."""
+    def run(z, valid, radius):
+        return [getattr(raster, op)(z, valid, radius_px=radius, footprint="disk", max_radius_px=max_radius)
+                for op in OPS]
+    return jax.jit(run)
+
+
+@pytest.mark.parametrize("case", CASES, ids=str)
+def test_traced_radius_matches_scipy_exactly(case):
+    """A traced radius (`max_radius_px`) gives scipy's bits for every radius up to the bound,
+    including 0 and a disk wider than the raster, from one program."""
+    z, valid = reference.random_raster(case, seed=6)
+    fn = jitted_traced(case.radius + 2)
+    for radius in sorted({0, 1, case.radius, case.radius + 2}):
+        got = fn(z, valid, jnp.int32(radius))
+        for op, result in zip(OPS, got):
+            np.testing.assert_array_equal(np.asarray(result), OPS[op](z, valid, "disk", radius),
+                                          err_msg=f"{op} r={radius}")
+
+
+def test_traced_radius_inside_a_loop_equals_static_radii():
+    """The use it is made for: incremental openings r = 1..R in one `fori_loop` equal R static
+    openings applied one after another, under `vmap` over tiles too."""
+    case = Case("loop", (37, 29), radius=6)
+    tiles = [reference.random_raster(case, seed=s) for s in range(3)]
+    z = np.stack([t[0] for t in tiles])
+    valid = np.stack([t[1] for t in tiles])
+
+    def looped(z, valid):
+        step = lambda r, s: raster.opening(s, valid, radius_px=r, max_radius_px=case.radius)  # noqa: E731
+        return jax.lax.fori_loop(1, case.radius + 1, step, z)
+
+    def unrolled(z, valid):
+        for r in range(1, case.radius + 1):
+            z = raster.opening(z, valid, radius_px=r)
+        return z
+
+    got = jax.jit(jax.vmap(looped))(z, valid)
+    for b in range(len(tiles)):
+        np.testing.assert_array_equal(np.asarray(got[b]), np.asarray(jax.jit(unrolled)(z[b], valid[b])))
+
+
+def test_traced_radius_beyond_the_bound_is_clipped():
+    z, valid = reference.random_raster(CASES[0], seed=7)
+    got = jitted_traced(2)(z, valid, jnp.int32(9))[0]
+    np.testing.assert_array_equal(np.asarray(got), reference.erosion(z, valid, "disk", 2))
+
+
 def test_integer_raster():
     z = np.random.default_rng(0).integers(-50, 50, size=(16, 16)).astype(np.int32)
     got = jax.jit(functools.partial(raster.min_filter, radius_px=3, footprint="disk"))(z)
@@ -159,3 +209,9 @@ def test_bad_arguments(unchecked):
         raster.min_filter(z, radius_px=1, algorithm="naive")
     with pytest.raises(ValueError, match="valid shape"):
         raster.min_filter(z, jnp.ones((3, 4), bool), radius_px=1)
+    with pytest.raises(ValueError, match="disk footprint"):
+        raster.min_filter(z, radius_px=jnp.int32(1), footprint="square", max_radius_px=2)
+    with pytest.raises(ValueError, match="0..max_radius_px=2"):
+        raster.opening(z, radius_px=3, max_radius_px=2)
+    with pytest.raises(ValueError, match="radius_px"):
+        raster.min_filter(z, radius_px=jnp.int32(1), max_radius_px=-1)
