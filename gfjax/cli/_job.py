@@ -111,8 +111,6 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
         a raster over the memory budget (naming the file and the estimate), or outputs that
         need more space than their folder has free.
     """
-    from gfjax import dtm as dtm_lib
-
     planned = []
     for source, target, dtm_target in zip(inputs, targets, dtm_targets):
         header = las_io.read_header(source, trust_data=trust_data)
@@ -122,6 +120,8 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
             if estimates is not None:
                 limits.check_memory(estimates())
             if dtm_cell_m is not None:
+                from gfjax import dtm as dtm_lib         # scipy and matplotlib: only for a DTM
+
                 limits.check_memory([dtm_lib.memory_estimate(extent, dtm_cell_m)])
         except ValueError as err:
             raise InputError(f"{source}: {err}") from None

@@ -299,9 +299,10 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         lo = np.maximum(core_lo - buffer_px, 0)
         hi = np.minimum(core_hi + buffer_px, extent_px)
         c = cell[candidates]
-        of_core = np.all(core[candidates] == k[None, :], axis=1)
+        cc = core[candidates]
+        of_core = (cc[:, 0] == ti) & (cc[:, 1] == tj)       # column by column: `all(axis=1)` is slow
         lo, hi = _cropped(c[of_core], buffer_px, lo, hi)
-        inside = np.all((c >= lo[None, :]) & (c < hi[None, :]), axis=1)
+        inside = (c[:, 0] >= lo[0]) & (c[:, 0] < hi[0]) & (c[:, 1] >= lo[1]) & (c[:, 1] < hi[1])
         members, in_core = candidates[inside], of_core[inside]
         local_cell = cell[members] - lo[None, :]
         shift = np.concatenate([lo * cell_m, [0.0]])

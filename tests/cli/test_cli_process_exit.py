@@ -109,3 +109,15 @@ def test_the_program_keeps_one_malloc_arena_per_core_unless_the_user_set_it(monk
     monkeypatch.setenv("MALLOC_ARENA_MAX", "4")
     cli_main._limit_heap_arenas()
     assert calls == []
+
+
+def test_filtering_without_a_dtm_imports_no_plotting_or_spatial_library(tmp_path):
+    """matplotlib and scipy.spatial (0.35 s of imports together) serve only the DTM: a
+    `filter` without `--dtm` leaves them out of the process, which every first run pays."""
+    src = write_scene(tmp_path / "in.las")
+    program = _SETUP + """
+code = cli_main.main(sys.argv[1:])
+print(code, "matplotlib" in sys.modules, "scipy.spatial" in sys.modules)
+"""
+    done = _program("filter", src, "-o", tmp_path / "out.las", "--method", "fake", "--quiet", program=program)
+    assert done.stdout.split()[-3:] == ["0", "False", "False"], done.stdout + done.stderr
