@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 import laspy
 import numpy as np
 
-from gfjax.io import asprs
+from gfjax.io import asprs, columns
 from gfjax.io.tiles import Frame
 
 if TYPE_CHECKING:
@@ -153,7 +153,7 @@ class Cloud:
         """
         xyz = self.xyz_m
         if origin_m is None:
-            origin_m = xyz.min(axis=0) if len(xyz) else np.zeros(3)
+            origin_m = columns.lows(xyz) if len(xyz) else np.zeros(3)
         return (xyz - origin_m).astype(np.float32), np.asarray(origin_m, dtype=np.float64)
 
     @property

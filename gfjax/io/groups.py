@@ -19,6 +19,8 @@ from typing import NamedTuple
 import numpy as np
 from jaxtyping import Float, Int
 
+from gfjax.io import columns
+
 GAP_M = 100.0        # emptiness that separates two groups, at least [m]
 MIN_SAVING = 4.0     # split only a cloud whose occupied cells are at most 1 / this of its box
 _DENSE_CELLS = 1 << 22   # up to this many cells, occupancy is counted on a dense grid
@@ -44,8 +46,8 @@ class _Cells(NamedTuple):
 
 
 def _cells(xy_m: np.ndarray, gap_m: float) -> _Cells:
-    cells = np.floor((xy_m - xy_m.min(axis=0)) * (1.0 / gap_m)).astype(np.int64)
-    span = cells.max(axis=0) + 1
+    cells = np.floor((xy_m - columns.lows(xy_m)) * (1.0 / gap_m)).astype(np.int64)
+    span = columns.highs(cells) + 1
     rows = int(span[1]) + 2
     key = cells[:, 0]
     key += 1

@@ -22,7 +22,7 @@ from jaxtyping import Array, Bool, Float
 
 from gfjax import limits
 from gfjax.errors import InputError
-from gfjax.io import groups
+from gfjax.io import columns, groups
 from gfjax.io import tiles as tiles_lib
 from gfjax.io.cloud import CloudView, Points
 from gfjax.result import Result
@@ -160,7 +160,7 @@ def check_memory(name: str, estimates: Estimates | None, xy_m: np.ndarray | None
         return
     extent = None
     if xy_m is not None:
-        span = xy_m.max(axis=0) - xy_m.min(axis=0)
+        span = columns.highs(xy_m) - columns.lows(xy_m)
         extent = (float(span[0]), float(span[1]))
     try:
         limits.check_memory(estimates(extent))

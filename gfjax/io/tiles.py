@@ -34,6 +34,7 @@ from typing import NamedTuple
 import numpy as np
 
 from gfjax import limits
+from gfjax.io import columns
 from gfjax.errors import SettingError
 from gfjax.limits import Range
 
@@ -117,7 +118,7 @@ class Frame(NamedTuple):
     def of(cls, xyz_m: np.ndarray) -> Frame:
         """The frame of points `(n, 3)` (n >= 1): their bounding box."""
         xyz_m = np.asarray(xyz_m, np.float64)
-        return cls(xyz_m.min(axis=0), xyz_m[:, :2].max(axis=0))
+        return cls(columns.lows(xyz_m), columns.highs(xyz_m[:, :2]))
 
     def union(self, other: Frame) -> Frame:
         return Frame(np.minimum(self.origin_m, other.origin_m), np.maximum(self.upper_m, other.upper_m))
@@ -201,7 +202,7 @@ def _clamp_into_cells(local: np.ndarray, cell: np.ndarray, cell_m: float) -> np.
     # others are left as they are (the clip would keep them), so the clip runs on few rows.
     margin = 4.0 * float(np.spacing(np.float32(np.abs(local).max(initial=0.0) + cell_m)))
     offset = local - cell * cell_m
-    near = np.flatnonzero(np.any((offset < margin) | (offset > cell_m - margin), axis=1))
+    near = np.flatnonzero(columns.some((offset < margin) | (offset > cell_m - margin)))
     if near.size:
         c = cell[near]
         lo = (c * cell_m).astype(np.float32)
@@ -215,8 +216,8 @@ def _cropped(core_cells: np.ndarray, reach_px: int, lo: np.ndarray, hi: np.ndarr
     """The window `[lo, hi)` (cells) cut to the box of its core points' cells `(m, 2)` grown
     by `reach_px`, when that box is at most `1 / CROP_SAVING` of it: a core of a few points
     in a mostly empty box rasterises their surroundings, not a whole tile."""
-    box_lo = np.maximum(core_cells.min(axis=0) - reach_px, lo)
-    box_hi = np.minimum(core_cells.max(axis=0) + 1 + reach_px, hi)
+    box_lo = np.maximum(columns.lows(core_cells) - reach_px, lo)
+    box_hi = np.minimum(columns.highs(core_cells) + 1 + reach_px, hi)
     if np.prod((box_hi - box_lo).astype(np.float64)) * CROP_SAVING > np.prod((hi - lo).astype(np.float64)):
         return lo, hi
     return box_lo, box_hi
@@ -247,12 +248,13 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     use = np.ones(len(xyz_m), bool) if use is None else np.asarray(use, dtype=bool)
     if use.shape != (len(xyz_m),):
         raise ValueError(f"use must have shape ({len(xyz_m)},), got {use.shape}")
-    if not np.isfinite(xyz_m[use]).all():
+    every_used = bool(use.all())
+    if not np.isfinite(xyz_m if every_used else xyz_m[use]).all():
         raise ValueError("xyz_m holds non-finite coordinates")
     used = np.flatnonzero(use)
     if used.size == 0:
         return []
-    rel = xyz_m[used]                                             # a copy: made relative in place
+    rel = xyz_m.copy() if every_used else xyz_m[used]            # a copy: made relative in place
     frame = Frame.of(rel) if frame is None else frame
     origin = np.asarray(frame.origin_m, np.float64)
     if np.any(rel < origin[None, :]) or np.any(rel[:, :2] > np.asarray(frame.upper_m)[None, :]):
@@ -271,22 +273,28 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
                   if np.any((core[:, 0] == k[0]) & (core[:, 1] == k[1]))]
 
         def candidates_of(ti: int, tj: int) -> np.ndarray:
-            return np.flatnonzero(np.all(np.abs(core - np.array([ti, tj])) <= reach, axis=1))
+            return np.flatnonzero((np.abs(core[:, 0] - ti) <= reach) & (np.abs(core[:, 1] - tj) <= reach))
     else:
         by_core: dict[tuple[int, int], np.ndarray] = {}
         rows = int(core[:, 1].max()) + 1
         packed = core[:, 0] * rows + core[:, 1]              # by col, then row; one int64 sorts fast
-        order = np.argsort(packed, kind="stable")
-        keys, starts = np.unique(packed[order], return_index=True)
-        for key, chunk in zip(keys, np.split(order, starts[1:])):
-            by_core[(int(key // rows), int(key % rows))] = chunk
+        if packed.min() == packed.max():                     # one core (a small file): no sort
+            by_core[(int(core[0, 0]), int(core[0, 1]))] = np.arange(len(packed))
+        else:
+            order = np.argsort(packed, kind="stable")
+            keys, starts = np.unique(packed[order], return_index=True)
+            for key, chunk in zip(keys, np.split(order, starts[1:])):
+                by_core[(int(key // rows), int(key % rows))] = chunk
         wanted = sorted(by_core, key=lambda k: (k[1], k[0]))
         if frame.cores is not None:
             wanted = [key for key in wanted if key in frame.cores]
 
         def candidates_of(ti: int, tj: int) -> np.ndarray:
-            found = np.concatenate([by_core.get((ti + di, tj + dj), np.empty(0, np.int64))
-                                    for dj in range(-reach, reach + 1) for di in range(-reach, reach + 1)])
+            parts = [by_core[key] for dj in range(-reach, reach + 1) for di in range(-reach, reach + 1)
+                     if (key := (ti + di, tj + dj)) in by_core]
+            if len(parts) == 1:
+                return parts[0]                              # sorted already
+            found = np.concatenate(parts)
             found.sort()
             return found
 
@@ -298,15 +306,19 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         core_hi = np.minimum(np.ceil((k + 1) * core_px).astype(np.int64), extent_px)
         lo = np.maximum(core_lo - buffer_px, 0)
         hi = np.minimum(core_hi + buffer_px, extent_px)
-        c = cell[candidates]
-        cc = core[candidates]
-        of_core = (cc[:, 0] == ti) & (cc[:, 1] == tj)       # column by column: `all(axis=1)` is slow
-        lo, hi = _cropped(c[of_core], buffer_px, lo, hi)
+        # A window of every point (a small file, a survey's window) gathers no copies: the
+        # copies of millions of rows cost more than the arithmetic on them.
+        every = len(candidates) == len(rel)              # candidates are sorted and distinct
+        c = cell if every else cell[candidates]
+        cc = core if every else core[candidates]
+        of_core = (cc[:, 0] == ti) & (cc[:, 1] == tj)
+        lo, hi = _cropped(c if every and of_core.all() else c[of_core], buffer_px, lo, hi)
         inside = (c[:, 0] >= lo[0]) & (c[:, 0] < hi[0]) & (c[:, 1] >= lo[1]) & (c[:, 1] < hi[1])
-        members, in_core = candidates[inside], of_core[inside]
-        local_cell = cell[members] - lo[None, :]
+        every = every and bool(inside.all())
+        members, in_core = (candidates, of_core) if every else (candidates[inside], of_core[inside])
+        local_cell = (cell if every else cell[members]) - lo[None, :]
         shift = np.concatenate([lo * cell_m, [0.0]])
-        local = rel[members] - shift[None, :]
+        local = (rel if every else rel[members]) - shift[None, :]
         local32 = local.astype(np.float32)
         local32[:, :2] = _clamp_into_cells(local[:, :2], local_cell, cell_m)
         shape = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))

@@ -19,7 +19,7 @@ import laspy
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import asprs, copc, stream
+from gfjax.io import asprs, columns, copc, stream
 from gfjax.io import las as las_io
 from gfjax.io.cloud import use_mask
 from gfjax.io.tiles import Frame
@@ -88,7 +88,7 @@ class Entry(NamedTuple):
         found = []
         for start, block in self.blocks():
             xy = block["xyz_m"][:, :2]
-            found.append(start + np.flatnonzero(np.all((xy >= lo[None, :]) & (xy <= hi[None, :]), axis=1)))
+            found.append(start + np.flatnonzero(columns.every((xy >= lo[None, :]) & (xy <= hi[None, :]))))
         index = np.concatenate(found) if found else np.empty(0, np.int64)
         return index, self.records()[index]
 
@@ -211,12 +211,12 @@ def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: 
             for start, chunk in points.chunks():
                 part = to_records(chunk, scale)
                 xyz = part["xyz_m"]
-                low = np.minimum(low, xyz.min(axis=0) / scale)
-                high = np.maximum(high, xyz.max(axis=0) / scale)
+                low = np.minimum(low, columns.lows(xyz) / scale)
+                high = np.maximum(high, columns.highs(xyz) / scale)
                 used = use_mask(part["ignored"], part["return_number"], part["number_of_returns"], returns)
                 if used.any():
-                    box_lo = np.minimum(box_lo, xyz[used].min(axis=0))
-                    box_hi = np.maximum(box_hi, xyz[used, :2].max(axis=0))
+                    box_lo = np.minimum(box_lo, columns.lows(xyz[used]))
+                    box_hi = np.maximum(box_hi, columns.highs(xyz[used, :2]))
                 if store is not None:
                     out.seek(offset + start * STORE.itemsize)
                     out.write(part.tobytes())

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gfjax.io import columns
 from gfjax.io.cloud import use_mask
 from gfjax.io.tiles import Lattice
 from gfjax.result import Result
@@ -148,7 +149,7 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tu
     points = Points.from_records(chosen, f"survey tile {key}", catalog.frame.only([key]))
     result: Result = filter_fn(points, returns=returns)
     ground = np.asarray(result.ground, bool)
-    in_core = np.all(tile_key(chosen["xyz_m"][:, :2], catalog, lattice) == np.asarray(key)[None], axis=1)
+    in_core = columns.every(tile_key(chosen["xyz_m"][:, :2], catalog, lattice) == np.asarray(key)[None])
     out, start = [], 0
     for j, take in owners:
         stop = start + take.size
