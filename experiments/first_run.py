@@ -13,7 +13,8 @@
    two whole `gfjax filter` processes; the first against the second (same run); with
    `--pysmrf-file`, SMRF's first process there against `pysmrf.classify(windows=18)`'s call
    (the `.[bench]` extra); with `--api-file`, `gfjax.smrf.filter`'s first and second call in
-   one fresh Python process.
+   one fresh Python process, once with `gfjax.smrf` imported by the first call and once
+   imported before it.
 """
 from __future__ import annotations
 
@@ -75,6 +76,8 @@ _API = """
 import sys, time
 import gfjax
 cloud = gfjax.read(sys.argv[1])
+if sys.argv[2:] == ["imported"]:
+    import gfjax.smrf
 times = []
 for _ in range(2):
     start = time.perf_counter()
@@ -96,8 +99,9 @@ print(time.perf_counter() - start)
 """
 
 
-def _python(script: str, path: str, env: dict) -> list[float]:
-    done = subprocess.run([sys.executable, "-c", script, path], env=env, check=True, capture_output=True, text=True)
+def _python(script: str, path: str, env: dict, *args: str) -> list[float]:
+    done = subprocess.run([sys.executable, "-c", script, path, *args], env=env, check=True, capture_output=True,
+                          text=True)
     return [float(x) for x in done.stdout.split()]
 
 
@@ -128,7 +132,10 @@ def _first_runs(files: list[str], methods: list[str], api_file: str | None, pysm
             first, second = _python(_API, api_file, env)
             rows += ["", f"Python API, a fresh process after the warmup: `gfjax.smrf.filter` on {Path(api_file).name} "
                      f"{first:.2f} s, its second call {second:.2f} s ({first / second:.2f}x)."]
-            print(rows[-1], flush=True)
+            first, second = _python(_API, api_file, env, "imported")
+            rows += [f"The same with `import gfjax.smrf` (JAX's import) before the first call: {first:.2f} s, "
+                     f"its second call {second:.2f} s ({first / second:.2f}x)."]
+            print(*rows[-2:], sep="\n", flush=True)
     return rows
 
 
