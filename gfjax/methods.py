@@ -16,6 +16,9 @@ Every method package (`gfjax.smrf`, `gfjax.dmf`, ...) exposes, at its top level:
   programs `filter` runs for every canonical input shape (`gfjax warmup`).
 - optionally `TILE_LABELS = True`: a tile's core labels depend on the tile's window only, so
   a survey runs each tile of its lattice once (`lattice`; `gfjax.survey`).
+- optionally `WHOLE_CLOUD = True`: a point's label depends on the whole cloud (CSF's cloth
+  settles over all of it), so a survey that fits the memory budget is filtered as one cloud
+  (`gfjax.survey.fits_whole`) and gets exactly the labels of one file of it.
 - optionally `survey_config(config, clouds) -> Config`: `config` with the estimates a method
   makes per cloud fixed once for a whole survey (`clouds`: each file's points filtered,
   float64 `(n_i, 3)` [m]), so every file and halo shares them (DMF's voxel size W;
@@ -81,6 +84,11 @@ def get(name: str, *, option: str = "--method") -> ModuleType:
 def tiles(method: ModuleType) -> bool:
     """Whether `method`'s `filter` takes a `tiling` (it cuts its work into buffered tiles)."""
     return "tiling" in inspect.signature(method.filter).parameters
+
+
+def whole_cloud(method: ModuleType) -> bool:
+    """Whether `method`'s labels depend on the whole cloud (`WHOLE_CLOUD`)."""
+    return bool(getattr(method, "WHOLE_CLOUD", False))
 
 
 def lattice(method: ModuleType, config: Any, tiling: Any = None) -> Any:

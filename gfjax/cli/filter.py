@@ -148,7 +148,8 @@ def run(args: argparse.Namespace) -> int:
             setup = setup._replace(config=survey.survey_config(setup.module, setup.config, catalog,
                                                                returns=args.returns))
             runner = survey.Runner(catalog, functools.partial(_filter, setup, client is None), setup.lattice, folder,
-                                   returns=args.returns, context=args.dtm is not None, client=client)
+                                   returns=args.returns, context=args.dtm is not None, client=client,
+                                   whole=_whole(setup, catalog))
         return _run(args, setup, inputs, planned, runner)
 
 
@@ -168,7 +169,7 @@ def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
                            client=client)
     setup = setup._replace(config=survey.survey_config(setup.module, setup.config, catalog, returns=args.returns))
     runner = survey.Runner(catalog, functools.partial(_filter, setup, False), setup.lattice, folder,
-                           returns=args.returns, context=False, client=client)
+                           returns=args.returns, context=False, client=client, whole=_whole(setup, catalog))
     position = {source: i for i, source in enumerate(inputs)}
     # temporaries named here: this process's id in their names keeps other sweeps off them
     # (absolute paths: workers resolve a relative one in their own working folder)
@@ -201,6 +202,20 @@ def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
             if source not in committed:
                 future.cancel()
                 Path(staged[source]).unlink(missing_ok=True)
+
+
+def _whole(setup, catalog) -> bool:
+    """Whether the survey runs as one cloud (`gfjax.survey.fits_whole`); when the method's labels
+    depend on the whole cloud but the survey does not fit, one line on stderr says so."""
+    from gfjax import methods, survey
+
+    if survey.fits_whole(setup.module, setup.config, catalog):
+        return True
+    if methods.whole_cloud(setup.module):
+        print(f"gfjax: warning: {setup.name}: the survey does not fit the memory budget as one cloud; each file "
+              f"is filtered with {survey.HALO_M:g} m of its neighbours' points, so labels near file borders may "
+              "differ from those of one file", file=sys.stderr)
+    return False
 
 
 def _filter(setup, progress: bool, points, returns: str):

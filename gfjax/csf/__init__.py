@@ -10,5 +10,9 @@ result = gfjax.csf.filter(cloud, config=gfjax.csf.Config(rigidness=1),
 from gfjax.csf.config import PRESETS, Config, Params
 from gfjax.csf.filter import Diagnostics, TileDiagnostics, filter, filter_points, grid_shape, warm
 
-__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "filter_points", "grid_shape", "Diagnostics",
-           "TileDiagnostics"]
+# The cloth settles over the whole cloud: a point's label can depend on points far away, so no
+# finite halo reproduces one file's labels; a survey runs as one cloud when it fits in memory.
+WHOLE_CLOUD = True
+
+__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "WHOLE_CLOUD", "filter_points", "grid_shape",
+           "Diagnostics", "TileDiagnostics"]

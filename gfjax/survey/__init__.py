@@ -4,14 +4,16 @@
 file is then filtered on the survey's own tiling frame, so a point gets the tile, cells and
 context it would get if the whole survey were one file (`filtered`, `Runner`): a tiled
 method runs each tile of the survey's lattice once from a window gathered across the files
-(`lattice`), any other method each file with a halo of its neighbours' points (`halo`); a
-method's per-cloud estimates are made once for the survey (`survey_config`). The tiles (or
-files) can run as tasks on a Dask cluster (`cluster`, `filter(..., client=...)`).
+(`lattice`), a method whose labels depend on the whole cloud (CSF) the whole survey at once
+when it fits in memory (`fits_whole`), any other method each file with a halo of its
+neighbours' points (`halo`); a method's per-cloud estimates are made once for the survey
+(`survey_config`). The tiles (or files) can run as tasks on a Dask cluster (`cluster`,
+`filter(..., client=...)`).
 """
 from gfjax.io.cloud import Points
 from gfjax.survey.catalog import Catalog, Entry, index
-from gfjax.survey.halo import filter_file, halo_region, survey_config, window
+from gfjax.survey.halo import HALO_M, filter_file, fits_whole, halo_region, survey_config, window
 from gfjax.survey.run import Runner, filter, filtered
 
-__all__ = ["Catalog", "Entry", "Points", "Runner", "filter", "filter_file", "filtered", "halo_region", "index",
-           "survey_config", "window"]
+__all__ = ["HALO_M", "Catalog", "Entry", "Points", "Runner", "filter", "filter_file", "filtered", "fits_whole",
+           "halo_region", "index", "survey_config", "window"]

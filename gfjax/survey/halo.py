@@ -1,11 +1,15 @@
-"""A file of a survey with its halo: the neighbours' points its tiles' windows can reach.
+"""A file of a survey with its halo: the neighbours' points its tiles' windows can reach; or the
+whole survey as one cloud.
 
 A tiled method (SMRF, PMF: `gfjax.methods.lattice` gives its tiling at its cell) lays its tiles on
 the survey's frame, so the windows of the tiles holding a file's points are known before
 filtering: the file's halo is every point of the other files inside them (plus a cell), and
 those windows then hold exactly the points they would hold in one file of the whole survey:
 the file's labels are the same. A method that does not tile gets the points within
-`HALO_M` of the file's bounding box as context, which removes most, not all, of the seam.
+`HALO_M` of the file's bounding box as context, which removes most, not all, of the seam. A
+method whose labels depend on the whole cloud (`WHOLE_CLOUD`: CSF) filters the whole survey as
+one cloud when it fits the memory budget (`fits_whole`, `survey_labels`), so its labels are
+exactly one file's.
 """
 from __future__ import annotations
 
@@ -15,10 +19,11 @@ from types import ModuleType
 
 import numpy as np
 
+from gfjax import limits, methods
 from gfjax.io.cloud import Cloud, Points, use_mask
 from gfjax.io.tiles import Frame, Lattice
 from gfjax.result import Result
-from gfjax.survey.catalog import Catalog
+from gfjax.survey.catalog import STORE, Catalog
 
 HALO_M = 50.0           # context around a file for methods that do not tile [m]
 
@@ -105,3 +110,44 @@ def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, lat
     ground = np.asarray(result.ground)
     instance_id = None if result.instance_id is None else np.asarray(result.instance_id)[:n]
     return result._replace(ground=ground[:n], instance_id=instance_id), points.xyz_m[n:][ground[n:]]
+
+
+def fits_whole(method: ModuleType, config, catalog: Catalog) -> bool:
+    """Whether the survey is filtered as one cloud: `method`'s labels depend on the whole cloud
+    (`WHOLE_CLOUD`), and the survey's points in memory and the method's rasters over the
+    survey's frame fit the memory budget (`gfjax.limits`)."""
+    if not methods.whole_cloud(method) or catalog.frame is None:
+        return False
+    span = np.asarray(catalog.frame.upper_m, np.float64) - np.asarray(catalog.frame.origin_m[:2], np.float64)
+    n_points = sum(entry.n_points for entry in catalog.entries)
+    needs = [estimate.n_bytes for estimate in config.memory_estimates((float(span[0]), float(span[1])))]
+    needs.append(n_points * (limits.IN_MEMORY_BYTES_PER_POINT + STORE.itemsize))
+    return max(needs) <= limits.memory_budget_bytes()
+
+
+def survey_labels(catalog: Catalog, filter_fn: Callable, *, returns: str = "all") -> Result:
+    """Every file's points, in catalog order, as one cloud on the survey's frame, filtered once:
+    the `Result` over all of them (`file_of_survey` cuts out a file's)."""
+    records = np.concatenate([entry.records() for entry in catalog.entries])
+    return filter_fn(Points.from_records(records, "the survey", catalog.frame), returns=returns)
+
+
+def file_of_survey(catalog: Catalog, filter_fn: Callable, whole: Result, i: int, *,
+                   context: bool = True) -> tuple[Result, np.ndarray]:
+    """File `i`'s part of `survey_labels`' result, as `filter_file` gives it: `(result,
+    halo_ground_m)`, the other files' ground points within `HALO_M` of its box, float64
+    `(k, 3)` [m] (none without `context`: a DTM needs them, and finding them reads the
+    neighbours' stores). (`filter_fn` is unused: the signature of a survey task.)"""
+    starts = np.cumsum([0, *(entry.n_points for entry in catalog.entries)])
+    ground = np.asarray(whole.ground, bool)
+    own = slice(starts[i], starts[i + 1])
+    instance_id = None if whole.instance_id is None else np.asarray(whole.instance_id)[own]
+    halo = [np.empty((0, 3), np.float64)]
+    entry = catalog.entries[i]
+    if context and entry.frame is not None:
+        lo, hi = halo_region(entry.frame, catalog.frame, None)
+        for j, other in enumerate(catalog.entries):
+            if j != i and overlaps(other.frame, lo, hi):
+                take, records = other.within(lo, hi)
+                halo.append(np.asarray(records["xyz_m"])[ground[starts[j] + take]])
+    return Result(ground=ground[own], diagnostics=None, instance_id=instance_id), np.concatenate(halo)

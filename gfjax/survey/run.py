@@ -1,7 +1,8 @@
 """A survey filtered file by file, each file labelled as a part of one file of the whole survey.
 
 A tiled method runs each tile of the survey's lattice once (`gfjax.survey.lattice`); any other
-method filters each file with its neighbours' points within `HALO_M` (`gfjax.survey.halo`).
+method filters each file with its neighbours' points within `HALO_M` (`gfjax.survey.halo`), or,
+one whose labels depend on the whole cloud, the whole survey at once when it fits in memory.
 """
 from __future__ import annotations
 
@@ -21,7 +22,8 @@ from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog, index
 from gfjax.io.tiles import Lattice, Tiling
-from gfjax.survey.halo import HALO_M, Points, filter_file, survey_config
+from gfjax.survey.halo import (HALO_M, Points, file_of_survey, filter_file, fits_whole, survey_config,
+                               survey_labels)
 from gfjax.survey.lattice import TileLabels
 
 
@@ -41,20 +43,27 @@ class Runner:
         tile (a tiled method) or file (any other) is sent to its cluster at once, and each
         call waits for the tasks its file needs. `filter_fn` and `lattice` travel to the
         workers (pickled), and the catalog's folder must be one they reach.
+      whole: filter the whole survey as one cloud, once, and give each file its part
+        (`fits_whole`; a method without `lattice`): exactly one file's labels.
     """
 
     def __init__(self, catalog: Catalog, filter_fn: Callable, lattice: Lattice | None, folder: str | Path, *,
                  returns: str = "all",
-                 context: bool = True, client=None):
+                 context: bool = True, client=None, whole: bool = False):
         self.catalog, self.filter_fn, self.lattice, self.returns = catalog, filter_fn, lattice, returns
         self.context = context
-        self.tiles, self.pending, self.submit = None, {}, None
+        self.whole = whole and lattice is None
+        self.tiles, self.pending, self.submit, self.survey = None, {}, None, None
         if client is not None:
             self.submit = _submitter(client, catalog, filter_fn)
         if lattice is not None and catalog.frame is not None:
             self.tiles = TileLabels(catalog, filter_fn, lattice, folder, returns=returns)
             if client is not None:
                 self.tiles.submit(self.submit)
+        elif client is not None and self.whole:
+            survey = self.submit(survey_labels, returns=returns)
+            self.pending = {i: self.submit(file_of_survey, survey, i, context=context)
+                            for i in range(len(catalog.entries))}
         elif client is not None:
             self.pending = {i: self.submit(file_labels, lattice, i, returns=returns)
                             for i in range(len(catalog.entries))}
@@ -100,13 +109,17 @@ class Runner:
           `(result, halo_ground_m)`: the `Result` for the file's own points (a tiled method's
           has no diagnostics: its tiles ran in windows of the survey, not of the file), and the
           ground points around the file, float64 `(k, 3)` [m] (they give the file's DTM its
-          border cells: `gfjax.dtm.build(context_xyz=...)`; none from a tiled method
-          without `context`).
+          border cells: `gfjax.dtm.build(context_xyz=...)`; none without `context` from a
+          tiled method or a survey run as one cloud).
         """
         if self.tiles is None:
             future = self.pending.pop(i, None)
             if future is not None:
                 return cluster.result(future, f"{self.catalog.entries[i].path}")
+            if self.whole:
+                if self.survey is None:
+                    self.survey = survey_labels(self.catalog, self.filter_fn, returns=self.returns)
+                return file_of_survey(self.catalog, self.filter_fn, self.survey, i, context=self.context)
             return filter_file(self.catalog, i, cloud, self.filter_fn, self.lattice, returns=self.returns)
         margin_m = HALO_M if self.context else 0.0
         ground = np.array(self.tiles.labels(i, margin_m))
@@ -191,7 +204,7 @@ def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str 
     config = survey_config(module, config, catalog, returns=returns)
     filter_fn = functools.partial(_method_filter, module, config, params, options)
     run = Runner(catalog, filter_fn, methods.lattice(module, config, tiling), folder, returns=returns, context=False,
-                 client=client)
+                 client=client, whole=fits_whole(module, config, catalog))
     for i, entry in enumerate(catalog.entries):
         cloud = las_io.read(entry.path, units=units)
         yield cloud, run(i, cloud)[0]

@@ -13,7 +13,7 @@ import pytest
 distributed = pytest.importorskip("distributed")
 import cloudpickle  # noqa: E402  (a dependency of distributed)
 
-from gfjax import dmf, smrf, survey  # noqa: E402
+from gfjax import csf, dmf, smrf, survey  # noqa: E402
 from gfjax.cli.main import main  # noqa: E402
 from gfjax.errors import InputError  # noqa: E402
 from gfjax.io import las as las_io  # noqa: E402
@@ -58,7 +58,8 @@ def in_process(grid, tmp_path_factory):
     return classes
 
 
-@pytest.mark.parametrize("method, tiling", [(smrf, SMALL_TILES), (dmf, None)], ids=["smrf", "dmf"])
+@pytest.mark.parametrize("method, tiling", [(smrf, SMALL_TILES), (dmf, None), (csf, None)],
+                         ids=["smrf", "dmf", "csf (the survey as one cloud)"])
 def test_the_cluster_labels_every_file_as_one_process(grid, client, in_process, method, tiling, tmp_path):
     want = in_process(method, tiling)
     (tmp_path / "many").mkdir()

@@ -11,6 +11,7 @@ from gfjax.errors import InputError
 from gfjax.io import las as las_io
 from gfjax.io.cloud import Cloud
 from gfjax.io.tiles import Frame, Tiling, split
+from gfjax.survey import run as survey_run
 from gfjax.survey.halo import HALO_M
 
 pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
@@ -198,6 +199,17 @@ def test_cli_filters_several_files_as_one_survey_or_independently(grid, tmp_path
     assert not list(tmp_path.glob("**/gfjax-survey-*"))
 
 
+def test_a_survey_run_as_one_cloud_gives_adjacent_dtms_equal_border_cells(grid, tmp_path):
+    """CSF's survey as one cloud still hands each file's DTM its neighbours' ground points
+    within 50 m, so the DTMs agree where they overlap."""
+    paths, _, _ = grid
+    (tmp_path / "dtm").mkdir()
+    assert main(["filter", *map(str, paths), "-o", str(tmp_path), "--method", "csf", "--dtm",
+                 str(tmp_path / "dtm"), "-q"]) == 0
+    shared, differ = shared_dtm_cells(sorted((tmp_path / "dtm").glob("*.tif")))
+    assert shared > 50 and differ == 0
+
+
 def valid_cells(path) -> int:
     import rasterio
 
@@ -289,11 +301,13 @@ def test_a_filter_refuses_what_is_not_a_cloud(unchecked):
 
 
 @pytest.mark.parametrize("name", ["dmf", "masf", "csf"])
-def test_methods_that_do_not_tile_grid_a_window_on_the_survey_lattice(grid, name, tmp_path):
+def test_methods_that_do_not_tile_grid_a_window_on_the_survey_lattice(grid, name, tmp_path, monkeypatch):
     """DMF's voxels, MASF's grid and CSF's cloth start at the survey's lattice, not at a
     window's corner (CSF's cloth also falls from the survey's height), so a file with its halo
     labels like the union, seams aside (before: 95.9 %, 98.6 % and 97.1 % on the bcts 3 x 3
-    grid of `experiments/survey_seams.py`)."""
+    grid of `experiments/survey_seams.py`). CSF takes halos only for a survey too large for
+    memory as one cloud, as here."""
+    monkeypatch.setattr(survey_run, "fits_whole", lambda *args: False)
     method = methods.get(name)
     paths, members, union = grid
     whole = las_io.read(union)
@@ -311,6 +325,48 @@ def test_methods_that_do_not_tile_grid_a_window_on_the_survey_lattice(grid, name
         steps = (origin - catalog_frame.origin_m[:len(origin)]) / cell
         np.testing.assert_allclose(steps, np.round(steps), atol=1e-6)
     assert np.mean(got == want) >= 0.999
+
+
+def test_a_whole_cloud_method_labels_a_survey_that_fits_exactly_as_one_file(tmp_path, monkeypatch):
+    """CSF's cloth settles over the whole cloud, so no halo reproduces one file's labels: a
+    survey that fits the memory budget runs as one cloud, and its files get the union's labels
+    bit for bit. The shipped sample cut into 2 x 2 files: with 50 m halos, 849 of its 52,119
+    points differ from the one file's."""
+    from gfjax import csf
+    from gfjax.data import demo_sample
+
+    sample = las_io.read(demo_sample())
+    paths, members, union = write_grid(tmp_path, sample.xyz_m, np.asarray(sample.classification))
+    want = csf.filter(las_io.read(union)).ground
+    found = {}
+    for whole in (True, False):
+        monkeypatch.setattr(survey_run, "fits_whole", lambda *args, whole=whole: whole)
+        (tmp_path / str(whole)).mkdir()
+        got = np.full(len(want), -1, np.int8)
+        for (cloud, result), keep in zip(survey.filtered(paths, csf, tmp_path / str(whole)), members):
+            assert result.ground.shape == (cloud.n_points,)
+            got[keep] = result.ground
+        found[whole] = got
+    np.testing.assert_array_equal(found[True], want)
+    assert np.count_nonzero(found[False] != want) > 100           # what the halos left
+
+
+def test_a_whole_cloud_survey_over_the_budget_says_it_takes_halos(grid, tmp_path, monkeypatch, capsys):
+    """A survey whose points do not fit the memory budget as one cloud (24,750 points need about
+    15 MB; the files alone 4 MB each) runs file by file with halos, and says so once."""
+    paths, _, _ = grid
+    monkeypatch.setenv("GFJAX_MEMORY_BUDGET_GB", "0.01")
+    assert main(["filter", *map(str, paths), "-o", str(tmp_path), "--method", "csf", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("csf: the survey does not fit the memory budget as one cloud") == 1, err
+    monkeypatch.setenv("GFJAX_MEMORY_BUDGET_GB", "4")
+    from gfjax import csf
+    from gfjax.survey import index
+
+    (tmp_path / "catalog").mkdir()
+    catalog = index(paths, tmp_path / "catalog")
+    assert survey.fits_whole(csf, csf.Config(), catalog)
+    assert not survey.fits_whole(smrf, smrf.Config(), catalog)     # tiled: its tiles agree already
 
 
 def test_snap_finds_the_lattice_cell_of_a_corner():
