@@ -18,7 +18,7 @@ Fast forms (SPEC section 9), all exact, chosen by `algorithm` (static):
   radii): one doubling table for the widest chord, `2 max_radius_px + 1`, then a loop over the
   `2r + 1` rows of the disk, each answered by two dynamic slices of the table. One small loop
   body serves every radius: SMRF's 18 openings of a 512-cell window compile in 0.3 s to a
-  0.11 MB program that loads in 6 ms and runs in 42 ms, against 3.6 s, 2.7 MB, 291 ms and 93 ms
+  0.11 MB program that loads in 6 ms and runs in 24 ms, against 3.5 s, 2.7 MB, 309 ms and 92 ms
   unrolled (`experiments/results/progressive_program.md`); a fresh process pays the load.
 * the 1-D running min/max: `"table"` (default) builds doubling levels
   `M_j[i] = max(x[i .. i + 2^j - 1])` once (log2(2r+1) passes) and answers every width with one
