@@ -200,8 +200,11 @@ def _clamp_into_cells(local: np.ndarray, cell: np.ndarray, cell_m: float) -> np.
     out = local.astype(np.float32)
     # Only a value within a few float32 steps of its cell's edge can round out of it; the
     # others are left as they are (the clip would keep them), so the clip runs on few rows.
-    margin = 4.0 * float(np.spacing(np.float32(np.abs(local).max(initial=0.0) + cell_m)))
-    offset = local - cell * cell_m
+    largest = max(float(np.abs(columns.lows(local)).max()), float(np.abs(columns.highs(local)).max())) \
+        if len(local) else 0.0
+    margin = 4.0 * float(np.spacing(np.float32(largest + cell_m)))
+    offset = cell * cell_m
+    np.subtract(local, offset, out=offset)
     near = np.flatnonzero(columns.some((offset < margin) | (offset > cell_m - margin)))
     if near.size:
         c = cell[near]
@@ -257,12 +260,17 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     rel = xyz_m.copy() if every_used else xyz_m[used]            # a copy: made relative in place
     frame = Frame.of(rel) if frame is None else frame
     origin = np.asarray(frame.origin_m, np.float64)
-    if np.any(rel < origin[None, :]) or np.any(rel[:, :2] > np.asarray(frame.upper_m)[None, :]):
+    if np.any(columns.lows(rel) < origin) or np.any(columns.highs(rel[:, :2]) > np.asarray(frame.upper_m)):
         raise ValueError("points lie outside the tiling frame")
     rel -= origin                                                 # float64, >= 0
-    cell = np.floor(rel[:, :2] / cell_m).astype(np.int64)        # global (col, row-from-south)
+    # Few temporaries of n rows: a window holds millions of points, and fresh pages cost more
+    # than the arithmetic on them.
+    scaled = rel[:, :2] / cell_m
+    cell = np.floor(scaled, out=scaled).astype(np.int64)         # global (col, row-from-south)
+    np.divide(rel[:, :2], tile_size_m, out=scaled)
+    core = np.floor(scaled, out=scaled).astype(np.int64)
+    del scaled
     extent_px = np.floor((np.asarray(frame.upper_m) - origin[:2]) / cell_m).astype(np.int64) + 1
-    core = np.floor(rel[:, :2] / tile_size_m).astype(np.int64)
     core_px = tile_size_m / cell_m
     buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
 
@@ -316,9 +324,14 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         inside = (c[:, 0] >= lo[0]) & (c[:, 0] < hi[0]) & (c[:, 1] >= lo[1]) & (c[:, 1] < hi[1])
         every = every and bool(inside.all())
         members, in_core = (candidates, of_core) if every else (candidates[inside], of_core[inside])
-        local_cell = (cell if every else cell[members]) - lo[None, :]
         shift = np.concatenate([lo * cell_m, [0.0]])
-        local = (rel if every else rel[members]) - shift[None, :]
+        if every and len(wanted) == 1:                   # the last use of `cell` and `rel`
+            local_cell, local = cell, rel
+            local_cell -= lo[None, :]
+            local -= shift[None, :]
+        else:
+            local_cell = (cell if every else cell[members]) - lo[None, :]
+            local = (rel if every else rel[members]) - shift[None, :]
         local32 = local.astype(np.float32)
         local32[:, :2] = _clamp_into_cells(local[:, :2], local_cell, cell_m)
         shape = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))
