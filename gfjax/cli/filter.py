@@ -9,8 +9,9 @@ OUT is an existing folder and each output has its input's name.
 Several inputs are filtered as one survey: every file is read once to index it, then each is
 filtered with a halo of its neighbours' points on the survey's tiling, so a point near a
 file border gets the label it would get if the survey were one file (exactly so for the
-tiled methods, SMRF and PMF). The files must share their CRS and units. `--independent`
-filters each file on its own instead.
+tiled methods, SMRF and PMF, and for CSF, which filters the whole survey at once when it
+fits the memory budget). The files must share their CRS and units. `--independent` filters
+each file on its own instead.
 
 `--workers N` runs the survey as tasks on a local Dask cluster of N worker processes, which
 share this machine's cores: each file's index and each tile (each file with its halo, for a
@@ -211,7 +212,7 @@ def _whole(setup, catalog) -> bool:
 
     if survey.fits_whole(setup.module, setup.config, catalog):
         return True
-    if methods.whole_cloud(setup.module):
+    if methods.whole_cloud(setup.module) and catalog.frame is not None:
         print(f"gfjax: warning: {setup.name}: the survey does not fit the memory budget as one cloud; each file "
               f"is filtered with {survey.HALO_M:g} m of its neighbours' points, so labels near file borders may "
               "differ from those of one file", file=sys.stderr)

@@ -151,7 +151,9 @@ def _reduce(z: Grey, valid: Mask | None, radius_px: Radius, footprint: str, op, 
     if max_radius_px is None:
         r = _check_radius(radius_px)
     else:
-        max_radius_px = _check_radius(max_radius_px)
+        if isinstance(max_radius_px, bool) or not isinstance(max_radius_px, (int, np.integer)) or max_radius_px < 0:
+            raise ValueError(f"max_radius_px must be an int >= 0, got {max_radius_px!r}")
+        max_radius_px = int(max_radius_px)
         if footprint != "disk":
             raise ValueError(f"a traced radius (max_radius_px) needs the disk footprint, got {footprint!r}")
         if isinstance(radius_px, (int, np.integer)) and not 0 <= radius_px <= max_radius_px:
@@ -192,7 +194,9 @@ def min_filter(
         1-D running min/max (static); results are identical.
       max_radius_px: None (`radius_px` static), or the largest radius a traced `radius_px` may
         take (static; disk only): one program for every radius up to it, e.g. inside a loop
-        over radii. A traced radius outside `0..max_radius_px` is clipped into it.
+        over radii. A traced radius outside `0..max_radius_px` is clipped into it; `algorithm`
+        does not apply. Its loop over the disk's rows has a traced length, so reverse-mode
+        derivatives (`jax.grad`) need the static form (`jvp` works with both).
 
     Returns:
       `(h, w)`, dtype of `z`; `+inf` (dtype max) where the window holds no valid cell.

@@ -4,7 +4,8 @@ The catalog's index is a task per file; each filtering task then reads what it n
 catalog's stores (or a COPC file's nodes), in a folder every worker reaches (a local cluster
 shares this machine's; a remote one needs the folder on shared storage, e.g. `TMPDIR` on a
 network file system), and returns one tile's core labels, or one file's labels for a method
-that does not tile. The command waits for the tasks that a file needs, then writes that file
+that does not tile (CSF's survey that fits in memory: one task labels the whole survey, and a
+task per file takes its part). The command waits for the tasks that a file needs, then writes that file
 as one process does (`gfjax.survey.Runner`); on a remote cluster the file's copy is a task too
 (`Runner.write`), renamed into place by the command.
 

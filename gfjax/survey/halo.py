@@ -114,22 +114,26 @@ def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, lat
 
 def fits_whole(method: ModuleType, config, catalog: Catalog) -> bool:
     """Whether the survey is filtered as one cloud: `method`'s labels depend on the whole cloud
-    (`WHOLE_CLOUD`), and the survey's points in memory and the method's rasters over the
-    survey's frame fit the memory budget (`gfjax.limits`)."""
+    (`WHOLE_CLOUD`), and the survey's points in memory together with the method's largest
+    raster over the survey's frame fit the memory budget (`gfjax.limits`; this machine's)."""
     if not methods.whole_cloud(method) or catalog.frame is None:
         return False
     span = np.asarray(catalog.frame.upper_m, np.float64) - np.asarray(catalog.frame.origin_m[:2], np.float64)
     n_points = sum(entry.n_points for entry in catalog.entries)
-    needs = [estimate.n_bytes for estimate in config.memory_estimates((float(span[0]), float(span[1])))]
-    needs.append(n_points * (limits.IN_MEMORY_BYTES_PER_POINT + STORE.itemsize))
-    return max(needs) <= limits.memory_budget_bytes()
+    rasters = [estimate.n_bytes for estimate in config.memory_estimates((float(span[0]), float(span[1])))]
+    points = n_points * (limits.IN_MEMORY_BYTES_PER_POINT + STORE.itemsize)
+    return points + max(rasters, default=0.0) <= limits.memory_budget_bytes()
 
 
 def survey_labels(catalog: Catalog, filter_fn: Callable, *, returns: str = "all") -> Result:
-    """Every file's points, in catalog order, as one cloud on the survey's frame, filtered once:
-    the `Result` over all of them (`file_of_survey` cuts out a file's)."""
+    """Every file's points, in catalog order, as one cloud, filtered once: the `Result` over all
+    of them, without diagnostics (`file_of_survey` cuts out a file's).
+
+    The cloud takes no frame: its own box is the survey's frame, and the method treats it
+    exactly as one file of the whole survey (groups of points far apart included)."""
     records = np.concatenate([entry.records() for entry in catalog.entries])
-    return filter_fn(Points.from_records(records, "the survey", catalog.frame), returns=returns)
+    result = filter_fn(Points.from_records(records, "the survey"), returns=returns)
+    return result._replace(diagnostics=None)
 
 
 def file_of_survey(catalog: Catalog, filter_fn: Callable, whole: Result, i: int, *,

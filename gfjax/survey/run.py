@@ -54,6 +54,7 @@ class Runner:
         self.context = context
         self.whole = whole and lattice is None
         self.tiles, self.pending, self.submit, self.survey = None, {}, None, None
+        self.survey_error: BaseException | None = None        # the whole survey's run failed
         if client is not None:
             self.submit = _submitter(client, catalog, filter_fn)
         if lattice is not None and catalog.frame is not None:
@@ -106,8 +107,9 @@ class Runner:
         """File `i` of the catalog, read as `cloud`, filtered.
 
         Returns:
-          `(result, halo_ground_m)`: the `Result` for the file's own points (a tiled method's
-          has no diagnostics: its tiles ran in windows of the survey, not of the file), and the
+          `(result, halo_ground_m)`: the `Result` for the file's own points (without
+          diagnostics from a tiled method or a survey run as one cloud: they ran in windows of
+          the survey, not of the file), and the
           ground points around the file, float64 `(k, 3)` [m] (they give the file's DTM its
           border cells: `gfjax.dtm.build(context_xyz=...)`; none without `context` from a
           tiled method or a survey run as one cloud).
@@ -117,8 +119,14 @@ class Runner:
             if future is not None:
                 return cluster.result(future, f"{self.catalog.entries[i].path}")
             if self.whole:
+                if self.survey_error is not None:                # every file needs that run: no retry
+                    raise self.survey_error
                 if self.survey is None:
-                    self.survey = survey_labels(self.catalog, self.filter_fn, returns=self.returns)
+                    try:
+                        self.survey = survey_labels(self.catalog, self.filter_fn, returns=self.returns)
+                    except Exception as err:
+                        self.survey_error = err
+                        raise
                 return file_of_survey(self.catalog, self.filter_fn, self.survey, i, context=self.context)
             return filter_file(self.catalog, i, cloud, self.filter_fn, self.lattice, returns=self.returns)
         margin_m = HALO_M if self.context else 0.0

@@ -96,6 +96,24 @@ def test_filter_workers_and_scheduler_write_the_single_process_files(grid, clien
             assert np.array_equal(got.las.points.array, want.las.points.array), name
 
 
+def test_a_survey_run_as_one_cloud_gives_the_workers_dtms_their_halo(grid, tmp_path):
+    """CSF's survey as one task on `--workers`, with `--dtm`: each file's part comes back with
+    its neighbours' ground points, so the classes and DTMs equal one process's."""
+    import rasterio
+
+    runs = {"one": [], "workers": ["--workers", "2"]}
+    for name, options in runs.items():
+        (tmp_path / name / "dtm").mkdir(parents=True)
+        assert main(["filter", *map(str, grid), "-o", str(tmp_path / name), "--method", "csf", "-q",
+                     "--dtm", str(tmp_path / name / "dtm"), *options]) == 0
+    for path in grid:
+        want, got = (las_io.read(tmp_path / name / path.name).classification for name in runs)
+        np.testing.assert_array_equal(got, want)
+        with rasterio.open(tmp_path / "one" / "dtm" / path.with_suffix(".tif").name) as a, \
+                rasterio.open(tmp_path / "workers" / "dtm" / path.with_suffix(".tif").name) as b:
+            np.testing.assert_array_equal(a.read(1), b.read(1))
+
+
 def test_one_file_on_the_cluster_labels_as_in_process(grid, client, tmp_path, monkeypatch):
     """Relative paths too: the workers' working folder is not the command's."""
     sets = ["--method", "smrf", "--tile-size", "40", "--buffer", "8"]

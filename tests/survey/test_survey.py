@@ -199,6 +199,24 @@ def test_cli_filters_several_files_as_one_survey_or_independently(grid, tmp_path
     assert not list(tmp_path.glob("**/gfjax-survey-*"))
 
 
+def test_a_survey_run_as_one_cloud_that_fails_is_not_run_again_for_each_file(grid, tmp_path):
+    """Every file needs the one run, so after it fails each file reports that failure (with
+    `--keep-going`) instead of filtering the whole survey once more."""
+    paths, _, _ = grid
+    catalog = survey.index(paths, tmp_path)
+    calls = []
+
+    def failing(points, returns):
+        calls.append(len(points.xyz_m))
+        raise RuntimeError("cloth torn")
+
+    runner = survey.Runner(catalog, failing, None, tmp_path, whole=True)
+    for i in range(len(paths)):
+        with pytest.raises(RuntimeError, match="cloth torn"):
+            runner(i, las_io.read(paths[i]))
+    assert calls == [sum(entry.n_points for entry in catalog.entries)]
+
+
 def test_a_survey_run_as_one_cloud_gives_adjacent_dtms_equal_border_cells(grid, tmp_path):
     """CSF's survey as one cloud still hands each file's DTM its neighbours' ground points
     within 50 m, so the DTMs agree where they overlap."""
