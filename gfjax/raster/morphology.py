@@ -66,9 +66,9 @@ def chord_half_widths(radius_px: int) -> list[int]:
     return [math.isqrt(r * r - dy * dy) for dy in range(-r, r + 1)]
 
 
-def _check_radius(radius_px) -> int:
+def _check_radius(radius_px, name: str = "radius_px") -> int:
     if isinstance(radius_px, bool) or not isinstance(radius_px, (int, np.integer)) or radius_px < 0:
-        raise ValueError(f"radius_px must be an int >= 0, got {radius_px!r}")
+        raise ValueError(f"{name} must be an int >= 0, got {radius_px!r}")
     return int(radius_px)
 
 
@@ -151,9 +151,7 @@ def _reduce(z: Grey, valid: Mask | None, radius_px: Radius, footprint: str, op, 
     if max_radius_px is None:
         r = _check_radius(radius_px)
     else:
-        if isinstance(max_radius_px, bool) or not isinstance(max_radius_px, (int, np.integer)) or max_radius_px < 0:
-            raise ValueError(f"max_radius_px must be an int >= 0, got {max_radius_px!r}")
-        max_radius_px = int(max_radius_px)
+        max_radius_px = _check_radius(max_radius_px, "max_radius_px")
         if footprint != "disk":
             raise ValueError(f"a traced radius (max_radius_px) needs the disk footprint, got {footprint!r}")
         if isinstance(radius_px, (int, np.integer)) and not 0 <= radius_px <= max_radius_px:

@@ -60,6 +60,27 @@ def overlaps(frame: Frame | None, lo: np.ndarray, hi: np.ndarray) -> bool:
     return frame is not None and not (np.any(frame.origin_m[:2] > hi) or np.any(frame.upper_m < lo))
 
 
+def within_box(catalog: Catalog, lo: np.ndarray, hi: np.ndarray, *,
+               skip: int | None = None) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """`(j, index, records)` of each file `j` of the catalog (but `skip`) with points inside the
+    x-y box `lo`..`hi` [m] (`Entry.within`); a file whose frame misses the box is not read."""
+    for j, entry in enumerate(catalog.entries):
+        if j != skip and overlaps(entry.frame, lo, hi):
+            index, records = entry.within(lo, hi)
+            if index.size:
+                yield j, index, records
+
+
+def ground_near(catalog: Catalog, i: int, lo: np.ndarray, hi: np.ndarray,
+                ground_of: Callable[[int], np.ndarray]) -> np.ndarray:
+    """The other files' ground points inside the x-y box `lo`..`hi`, float64 `(k, 3)` [m];
+    `ground_of(j)`: file `j`'s labels, bool `(n_j,)`."""
+    parts = [np.empty((0, 3), np.float64)]
+    for j, index, records in within_box(catalog, lo, hi, skip=i):
+        parts.append(np.asarray(records["xyz_m"])[ground_of(j)[index]])
+    return np.concatenate(parts)
+
+
 def window(catalog: Catalog, i: int, cloud: Cloud, lattice: Lattice | None) -> Points:
     """File `i` of the catalog (read as `cloud`) followed by its halo, on the survey's frame."""
     entry = catalog.entries[i]
@@ -67,12 +88,8 @@ def window(catalog: Catalog, i: int, cloud: Cloud, lattice: Lattice | None) -> P
                   number_of_returns=cloud.number_of_returns, ignored=cloud.ignored)]
     if entry.frame is not None:
         lo, hi = halo_region(entry.frame, catalog.frame, lattice)
-        for j, other in enumerate(catalog.entries):
-            if j == i or not overlaps(other.frame, lo, hi):
-                continue
-            take, chosen = other.within(lo, hi)
-            if take.size:
-                parts.append({name: np.asarray(chosen[name]) for name in parts[0]})
+        for _, _, chosen in within_box(catalog, lo, hi, skip=i):
+            parts.append({name: np.asarray(chosen[name]) for name in parts[0]})
     fields = {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
     return Points(**fields, name=cloud.name, frame=catalog.frame)
 
@@ -146,12 +163,9 @@ def file_of_survey(catalog: Catalog, filter_fn: Callable, whole: Result, i: int,
     ground = np.asarray(whole.ground, bool)
     own = slice(starts[i], starts[i + 1])
     instance_id = None if whole.instance_id is None else np.asarray(whole.instance_id)[own]
-    halo = [np.empty((0, 3), np.float64)]
+    halo = np.empty((0, 3), np.float64)
     entry = catalog.entries[i]
     if context and entry.frame is not None:
-        lo, hi = halo_region(entry.frame, catalog.frame, None)
-        for j, other in enumerate(catalog.entries):
-            if j != i and overlaps(other.frame, lo, hi):
-                take, records = other.within(lo, hi)
-                halo.append(np.asarray(records["xyz_m"])[ground[starts[j] + take]])
-    return Result(ground=ground[own], diagnostics=None, instance_id=instance_id), np.concatenate(halo)
+        halo = ground_near(catalog, i, *halo_region(entry.frame, catalog.frame, None),
+                           lambda j: ground[starts[j]:starts[j + 1]])
+    return Result(ground=ground[own], diagnostics=None, instance_id=instance_id), halo

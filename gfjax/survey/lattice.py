@@ -22,7 +22,7 @@ from gfjax.io.tiles import Lattice
 from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog
-from gfjax.survey.halo import Points, overlaps, tiles_region
+from gfjax.survey.halo import Points, ground_near, tiles_region, within_box
 
 
 class TileLabels:
@@ -83,14 +83,9 @@ class TileLabels:
         """The other files' ground points within `margin_m` of file `i`'s bounding box, float64
         `(k, 3)` [m] (after `labels(i, margin_m)`)."""
         box = self._box(i, margin_m)
-        parts = [np.empty((0, 3), np.float64)]
-        if box is not None:
-            for j, other in enumerate(self.catalog.entries):
-                if j == i or not overlaps(other.frame, *box):
-                    continue
-                take, records = other.within(*box)
-                parts.append(records["xyz_m"][self.labels_of[j][take]])
-        return np.concatenate(parts)
+        if box is None:
+            return np.empty((0, 3), np.float64)
+        return ground_near(self.catalog, i, *box, lambda j: self.labels_of[j])
 
     def _run(self, key: tuple[int, int]) -> None:
         """Filter tile `key` (here, or on the cluster that `submit` sent it to) and store its
@@ -136,13 +131,9 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tu
     """
     lo, hi = tiles_region(np.asarray(key), np.asarray(key), catalog.frame, lattice)
     parts, owners = [], []
-    for j, entry in enumerate(catalog.entries):
-        if not overlaps(entry.frame, lo, hi):
-            continue
-        take, records = entry.within(lo, hi)
-        if take.size:
-            parts.append(records)
-            owners.append((j, take))
+    for j, take, records in within_box(catalog, lo, hi):
+        parts.append(records)
+        owners.append((j, take))
     if not parts:
         return []
     chosen = np.concatenate(parts)
