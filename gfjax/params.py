@@ -16,7 +16,9 @@ from collections.abc import Mapping
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from gfjax import limits
@@ -26,7 +28,11 @@ __all__ = ["Params", "declared_defaults", "f32", "param"]
 
 def f32(value) -> Float[Array, "*batch"]:
     """`value` as a float32 JAX array: a scalar, or a batch of them to `vmap` over."""
-    return jnp.asarray(value, dtype=jnp.float32)
+    if isinstance(value, (jax.Array, jax.core.Tracer)):
+        return jnp.asarray(value, dtype=jnp.float32)
+    # A host value is rounded by numpy and put on the device as it is: no conversion program
+    # to compile, which a fresh process would otherwise do for its first Params (0.04 s).
+    return jax.device_put(np.asarray(value, dtype=np.float32))
 
 
 def param(default: float):
