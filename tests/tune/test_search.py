@@ -53,7 +53,7 @@ def test_a_candidate_better_in_every_block_is_kept_and_a_tie_keeps_the_defaults(
     assert tie.index == 0 and not tie.kept                       # no gain: the defaults stay
 
 
-def _one_se_brute(unit_err, default, distance):
+def _one_se_brute(unit_err, default, distance, margin=search.TIE_MARGIN):
     """The one-standard-error rule written out candidate by candidate."""
     total = unit_err.sum(axis=1)
     best = default if total[default] <= total.min() else int(np.argmin(total))
@@ -62,7 +62,7 @@ def _one_se_brute(unit_err, default, distance):
     for c in range(len(total)):
         d = unit_err[c] - unit_err[best]
         se = np.sqrt(u / (u - 1) * np.sum((d - d.mean()) ** 2)) if u > 1 else 0.0
-        if d.sum() <= se + 1e-12:
+        if d.sum() <= se + margin + 1e-12:
             near.append(c)
     pick = min(near, key=lambda c: (distance[c], total[c], c))
     return default if total[default] <= total[pick] else pick
@@ -91,7 +91,9 @@ def test_the_one_se_rule_equals_a_brute_force(seed):
     unit_err[3] = unit_err[0] - 0.001                                          # a near twin of the defaults
     distance = rng.integers(0, 4, 12)
     distance[0] = 0
-    assert search.one_se_choice(unit_err, 0, distance) == _one_se_brute(unit_err, 0, distance)
+    for margin in (0.0, search.TIE_MARGIN, 0.02):
+        assert (search.one_se_choice(unit_err, 0, distance, margin=margin)
+                == _one_se_brute(unit_err, 0, distance, margin))
 
 
 def test_the_one_se_rule_prefers_a_near_best_candidate_closer_to_the_defaults():
@@ -101,6 +103,17 @@ def test_the_one_se_rule_prefers_a_near_best_candidate_closer_to_the_defaults():
     assert search.one_se_choice(unit_err, 0, np.array([0, 3, 1])) == 2
     assert search.one_se_choice(unit_err, 0, np.array([0, 1, 1])) == 1       # as near: the lower error
     assert search.one_se_choice(unit_err[:, :1], 0, np.array([0, 3, 1])) == 1   # one unit: no spread, the lowest
+
+
+def test_a_steady_lead_below_the_margin_is_a_tie():
+    """A candidate far from the defaults that beats a near one by less than the margin in every
+    unit alike (no spread, so no standard error) does not win: the near one does."""
+    unit_err = np.array([[0.020, 0.020, 0.020],          # defaults
+                         [0.0010, 0.0010, 0.0010],       # lowest, five grid steps away
+                         [0.0013, 0.0013, 0.0013]])      # 0.09 points more in all, one step away
+    distance = np.array([0, 5, 1])
+    assert search.one_se_choice(unit_err, 0, distance) == 2
+    assert search.one_se_choice(unit_err, 0, distance, margin=0.0) == 1
 
 
 def test_grid_distance_counts_steps_on_each_axis():
