@@ -19,8 +19,9 @@ MASF alpha_max_m 10,15,20,25, alpha_step_m 1,2,4,9, alpha_top_m 0 (none),90,
 st 0.01,0.03,0.05,0.1,0.15, ft_m 0.3,0.5,0.7, 480 runs per file; DMF v0 1,1.5,2,2.5,3, max_filter_px 1,2,3, rc_min_share
 0.5,0.75,1, height_threshold_m 0,0.25,0.5, height_threshold_w 0,0.1,0.15,0.25,0.4, 675 final
 rules on 45 preparations per file). The candidate chosen is the nearest the defaults (in grid
-steps) among those within one standard error of the lowest total error (the one-standard-error
-rule; the standard error over the validation units below), and it is guarded as below with a
+steps) among those within one standard error of the lowest total error plus a margin of ties
+(the one-standard-error rule; the standard error over the validation units below; the margin,
+0.2 percentage points, is `gfjax.tune.search.TIE_MARGIN`), and it is guarded as below with a
 single level.
 
 Guard (tuned values are often worse than the defaults on other data): the labelled data are
@@ -211,8 +212,8 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
     """`--method masf|dmf`: every combination of the grid, then the guard (`gfjax.tune.search`)."""
     import importlib
 
-
     from gfjax import limits
+    from gfjax.tune import search
     from gfjax.tune.params import write_params
 
     method_config = importlib.import_module(f"gfjax.{args.method}.config")
@@ -254,7 +255,7 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
                   "best_on_all_labels": tmodule.METHOD.values(tuned.combos[v.best])}
     extra = {"fitted": fitted, "validation": validation, "search": "exhaustive grid",
              "choice": "one-standard-error rule: the candidate nearest the defaults within one standard error "
-                       "of the best" if args.folds >= 2 else "lowest training error",
+                       f"plus {search.TIE_MARGIN:g} of the best" if args.folds >= 2 else "lowest training error",
              "grid": {k: sorted({c[k] for c in tuned.combos}) for k in defaults},
              "not_differentiable": {k: tmodule.METHOD.note for k in defaults},
              "training_files": [str(p) for p in inputs]}
