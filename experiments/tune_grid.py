@@ -12,14 +12,16 @@ here on every sample); every protocol is then a choice over those tables (`gfjax
 (p) MASF: the paper's per-sample values (Table 3; `masf.PRESETS["paper-sampNN"]`, run by the filter);
 (b) the best candidate on the sample's own labels, scored on them (in-sample);
 (g) guarded: the one-standard-error rule's candidate (the nearest the defaults among those
-    within one standard error of the best), kept only where 3 folds of 50 m blocks of the
+    within one standard error plus a margin of ties of the best), kept only where 3 folds of 50 m blocks of the
     sample and the sign-flip test say it helps, scored on all its labels;
 (c) half split: tuned on the west half's labels (x below the median), guarded, scored on the
     east half, and the other way round; the filter always runs on the whole sample;
 (d) leave-one-out: tuned on the other 10 samples (guarded by sample, 3 folds), scored on the
     left-out one.
 
-Writes `experiments/results/tune_isprs_<method>.md` (and `.json`). Tables are cached in `--cache`.
+Then (g) and (c) again for each margin of ties in `--margins` (the rule's is
+`search.TIE_MARGIN`). Writes `experiments/results/tune_isprs_<method>.md` (and `.json`).
+Tables are cached in `--cache`.
 """
 from __future__ import annotations
 
@@ -74,6 +76,37 @@ def error(wrong_row: np.ndarray, mask: np.ndarray) -> float:
     return float(wrong_row[mask].mean())
 
 
+def halves(sample: Sample) -> tuple[np.ndarray, np.ndarray]:
+    """The sample's used points west and east of their median x."""
+    use = sample.use
+    west = use & (sample.xyz_m[:, 0] < np.median(sample.xyz_m[use, 0]))
+    return west, use & ~west
+
+
+def margin_sweep(samples, wrong, default: int, distance: np.ndarray, args, margins) -> list[dict]:
+    """(g) and (c) again for each margin of ties of the rule (`search.TIE_MARGIN`)."""
+    out = []
+    for margin in margins:
+        kw = dict(default=default, distance=distance, folds=args.folds, block_m=args.block, alpha=args.alpha,
+                  margin=margin)
+        own, tuned, base = [], [], []
+        for s, w in zip(samples, wrong):
+            own.append(error(w[search.validate([w], [s.xyz_m], [s.use], **kw).index], s.use))
+            west, east = halves(s)
+            pairs = [(error(w[search.validate([w], [s.xyz_m], [train], **kw).index], test), error(w[default], test))
+                     for train, test in ((west, east), (east, west))]
+            tuned.append([t for t, _ in pairs])
+            base.append([d for _, d in pairs])
+        tuned, base = np.array(tuned), np.array(base)
+        by_sample = tuned.mean(axis=1) - base.mean(axis=1)
+        out.append({"margin": margin, "own_guarded": float(np.mean(own)), "halves_tuned": float(tuned.mean()),
+                    "halves_default": float(base.mean()), "worst_sample": float(by_sample.max()),
+                    "worst_half": float((tuned - base).max()), "better": int(np.sum(by_sample < 0)),
+                    "worse": int(np.sum(by_sample > 0))})
+        print(f"margin {margin:g}: {out[-1]}", flush=True)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--method", choices=tuple(METHODS), default="masf")
@@ -82,6 +115,8 @@ def main(argv=None) -> int:
     ap.add_argument("--block", type=float, default=50.0)
     ap.add_argument("--alpha", type=float, default=0.05)
     ap.add_argument("--cache", default="/tmp/gfjax_tune_grid")
+    ap.add_argument("--margins", default="0,0.001,0.002,0.003,0.004,0.005,0.01",
+                    help="margins of ties for the sweep of (g) and (c) (the rule's default: search.TIE_MARGIN)")
     ap.add_argument("--out", default=None, help="default experiments/results/tune_isprs_<method>.md")
     args = ap.parse_args(argv)
     cache = Path(args.cache)
@@ -107,16 +142,15 @@ def main(argv=None) -> int:
     rows, choices = [], {}
     for i, (s, w) in enumerate(zip(samples, wrong)):
         use = s.use
-        west = use & (s.xyz_m[:, 0] < np.median(s.xyz_m[use, 0]))
-        east = use & ~west
+        west, east = halves(s)
         own = search.validate([w], [s.xyz_m], [use], default=default, folds=1)
         guarded = search.validate([w], [s.xyz_m], [use], default=default, distance=distance, folds=args.folds,
                                   block_m=args.block, alpha=args.alpha)
-        halves = {}
+        by_half = {}
         for train, test, label in ((west, east, "east"), (east, west, "west")):
             c = search.validate([w], [s.xyz_m], [train], default=default, distance=distance, folds=args.folds,
                                 block_m=args.block, alpha=args.alpha)
-            halves[label] = {"default": error(w[default], test), "guarded": error(w[c.index], test),
+            by_half[label] = {"default": error(w[default], test), "guarded": error(w[c.index], test),
                              "unguarded": error(w[c.best], test), "kept": c.kept, "p": c.p_value,
                              "choice": combos[c.index]}
         others = [j for j in range(len(samples)) if j != i]
@@ -130,9 +164,10 @@ def main(argv=None) -> int:
         rows.append({"sample": s.name, "default": error(w[default], use), "paper": paper.get(s.name),
                      "own": error(w[own.best], use), "own_choice": combos[own.best],
                      "guarded": error(w[guarded.index], use), "guarded_kept": guarded.kept, "guarded_p": guarded.p_value,
-                     "guarded_choice": combos[guarded.index], "halves": halves, "loo": loo})
+                     "guarded_choice": combos[guarded.index], "halves": by_half, "loo": loo})
         choices[s.name] = combos[own.best]
-    result = {"method": args.method, "grid": {k: sorted({c[k] for c in combos}) for k in combos[0]}, "candidates": len(combos),
+    sweep = margin_sweep(samples, wrong, default, distance, args, [float(m) for m in args.margins.split(",") if m])
+    result = {"method": args.method, "margin": search.TIE_MARGIN, "sweep": sweep, "grid": {k: sorted({c[k] for c in combos}) for k in combos[0]}, "candidates": len(combos),
               "folds": args.folds, "block_m": args.block, "alpha": args.alpha, "rows": rows,
               "table_seconds": table_s, "samples": args.samples}
     out = Path(args.out) if args.out else RESULTS / f"tune_isprs_{args.method}.md"
@@ -155,7 +190,8 @@ def report(res: dict, argv) -> str:
              + (" " + " ".join(argv) if argv else "") + "`  ",
              f"Grid ({res['candidates']} candidates, every combination): "
              + "; ".join(f"{k} {', '.join(f'{v:g}' for v in vals)}" for k, vals in res["grid"].items())
-             + f". Guarded choices (g, c, d): the one-standard-error rule toward the defaults (`gfjax.tune.search`), "
+             + f". Guarded choices (g, c, d): the one-standard-error rule toward the defaults with a margin of ties "
+             f"of {100 * res['margin']:g} points (`gfjax.tune.search`), "
              f"{res['folds']} folds of {res['block_m']:g} m blocks (one sample) or of samples (d), "
              f"sign-flip test at {res['alpha']:g}. Labelling every sample with every candidate took "
              f"{res['table_seconds']:.0f} s (2-core CPU, shared).", "",
@@ -199,6 +235,18 @@ def report(res: dict, argv) -> str:
               "", "(g) guard on own labels (p-value, kept): "
               + "; ".join(f"{r['sample']}: p={r['guarded_p']:.3g}{' kept' if r['guarded_kept'] else ''}" for r in rows),
               ""]
+    if res.get("sweep"):
+        lines += ["## The margin of ties", "",
+                  "(g) and (c) again with other margins of the rule (total errors within one standard error plus the "
+                  "margin of the lowest are ties; the nearest the defaults wins). Worst sample: the largest loss "
+                  "against the defaults of a sample's mean over its two test halves; worst half: of one test half.", "",
+                  "| margin (points) | (g) own, guarded | (c) both halves, guarded | (c) defaults | worst sample | "
+                  "worst half | samples better / worse |", "|---:|---:|---:|---:|---:|---:|---:|"]
+        for r in res["sweep"]:
+            lines.append(f"| {100 * r['margin']:g} | {pct(r['own_guarded'])} | {pct(r['halves_tuned'])} | "
+                         f"{pct(r['halves_default'])} | {100 * r['worst_sample']:+.2f} | {100 * r['worst_half']:+.2f} | "
+                         f"{r['better']} / {r['worse']} |")
+        lines.append("")
     return "\n".join(lines)
 
 

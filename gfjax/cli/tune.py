@@ -21,7 +21,7 @@ st 0.01,0.03,0.05,0.1,0.15, ft_m 0.3,0.5,0.7, 480 runs per file; DMF v0 1,1.5,2,
 rules on 45 preparations per file). The candidate chosen is the nearest the defaults (in grid
 steps) among those within one standard error of the lowest total error plus a margin of ties
 (the one-standard-error rule; the standard error over the validation units below; the margin,
-0.2 percentage points, is `gfjax.tune.search.TIE_MARGIN`), and it is guarded as below with a
+0.4 percentage points, is `gfjax.tune.search.TIE_MARGIN`), and it is guarded as below with a
 single level.
 
 Guard (tuned values are often worse than the defaults on other data): the labelled data are
