@@ -48,25 +48,40 @@ def test_after_warm_a_new_size_compiles_nothing(tmp_path):
 
 
 _SPARSEGF_FILTER = """
-import numpy as np, gfjax
+import logging
+import numpy as np, jax, gfjax
 from gfjax import aot, sparsegf
-compiled = []
+compiled, features = [], []
 aot.on_compile(lambda module: compiled.append(module) if not module.startswith("gfjax.smrf") else None)
+
+
+class Features(logging.Handler):
+    def emit(self, record):
+        if "PERSISTENT COMPILATION CACHE MISS" in record.getMessage() and "_point_inputs" in record.getMessage():
+            features.append(record.getMessage())
+
+
+jax.config.update("jax_explain_cache_misses", True)
+logging.getLogger("jax").addHandler(Features())
 rng = np.random.default_rng(2)
 xy = rng.uniform(0, [110, 70], (9000, 2))                # another size than the scene warm filters (SMRF: its side)
 cloud = gfjax.Cloud.from_xyz(np.column_stack([xy + 6e5, 50 + 0.05 * xy[:, 1]]))
 ground = sparsegf.filter(cloud).ground
-print(len(compiled), int(ground.sum()))
+print(len(compiled), len(features), int(ground.sum()))
 """
 
 
-def test_after_sparsegf_warm_its_network_is_loaded_not_compiled(tmp_path):
-    """The network program is the costly one; the per-patch feature and vote programs of a new
-    size still compile (through JAX's own cache), so only `gfjax.aot`'s compiles are counted,
-    less SMRF's, whose surface is an input of the shipped model (`smrf.warm` prepares those)."""
-    assert _python("from gfjax import sparsegf; print(sparsegf.warm())", tmp_path) == "1"
-    compiled, ground = _python(_SPARSEGF_FILTER, tmp_path).split()
-    assert compiled == "0" and int(ground) > 0
+def test_after_sparsegf_warm_its_network_and_feature_programs_are_loaded_not_compiled(tmp_path):
+    """The network program and the per-patch feature program of another patch size are loaded,
+    not compiled (the vote program of a new cloud size still compiles, through JAX's own cache);
+    SMRF's compiles are not counted: its surface is an input of the shipped model, and
+    `smrf.warm` prepares those."""
+    from gfjax.sparsegf.pipeline import WARM_KEPT, WARM_MEMBERS
+
+    sizes = sum(k <= m for m in WARM_MEMBERS for k in WARM_KEPT)
+    assert _python("from gfjax import sparsegf; print(sparsegf.warm())", tmp_path) == str(1 + sizes)
+    compiled, features, ground = _python(_SPARSEGF_FILTER, tmp_path).split()
+    assert compiled == "0" and features == "0" and int(ground) > 0
 
 
 _CSF_FILTER = """

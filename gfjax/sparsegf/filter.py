@@ -15,7 +15,8 @@ from gfjax.sparsegf.config import DECISION_FIELDS, Config
 from gfjax.sparsegf.features import cloud_features, n_features
 from gfjax.sparsegf.model import Model
 from gfjax.sparsegf.partition import PartitionConfig, partition
-from gfjax.sparsegf.pipeline import PACK_SLOTS, capacity, group, pack, predict, prepare, run_with_room, unpack
+from gfjax.sparsegf.pipeline import (PACK_SLOTS, WARM_KEPT, WARM_MEMBERS, capacity, group, pack, predict, prepare,
+                                     prepare_point_inputs, run_with_room, unpack)
 from gfjax.sparsegf.smrf_prior import smrf_heights
 from gfjax.sparsegf.vote import decide, soft_vote
 
@@ -102,20 +103,29 @@ WARM_POINTS = 30_000
 
 
 def warm(config: Config | None = None, params=None, *, progress: bool = False) -> int:
-    """Load or compile ahead the program every cloud's packs share: the shipped network on a
-    pack of the smallest capacity (`pipeline.PACK_VOXELS` voxels) with its standard plan, the
-    costly one (`gfjax warmup`; the command line keeps it in the program cache). It filters a
-    small generated scene; the cheap per-patch feature and vote programs of other sizes still
-    compile on first use, and so do SMRF's for a model that reads SMRF's surface, unless
-    `gfjax.smrf.warm` prepared them (`gfjax warmup` does both). Returns the number of network
-    shapes prepared (1)."""
+    """Load or compile ahead the programs a cloud's patches run (`gfjax warmup`; the command
+    line keeps them): the shipped network on a pack of the smallest capacity
+    (`pipeline.PACK_VOXELS` voxels) with its standard plan, the costly one, by filtering a small
+    generated scene; then the per-patch feature program at every padded patch size of
+    `pipeline.WARM_MEMBERS` x `pipeline.WARM_KEPT` (into JAX's cache). The vote program of
+    another cloud size still compiles on first use (0.1 s), and so do SMRF's programs for a
+    model that reads SMRF's surface, unless `gfjax.smrf.warm` prepared them (`gfjax warmup`
+    does both). Returns the number of programs prepared: 1 network and the feature programs."""
     from gfjax.io.cloud import Cloud
 
     rng = np.random.default_rng(0)
     xy = rng.uniform(0.0, WARM_SIDE_M, (WARM_POINTS, 2))
     z = 100.0 + 0.02 * xy[:, 0] + rng.normal(0.0, 0.05, WARM_POINTS)
     filter(Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], z])), config=config, params=params, progress=progress)
-    return 1
+    if config is None:
+        config = load_model()[1]
+    sizes = [(m, k) for m in WARM_MEMBERS for k in WARM_KEPT if k <= m]
+    if progress:
+        from tqdm.auto import tqdm
+        sizes = tqdm(sizes, desc="sparsegf patch sizes", unit="program")
+    for members, kept in sizes:
+        prepare_point_inputs(config, members, kept)
+    return 1 + len(sizes)
 
 
 def load_model(path=None) -> tuple[Model, Config]:

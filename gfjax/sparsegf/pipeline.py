@@ -43,6 +43,12 @@ from gfjax.sparsegf.model import Model, SparseGFNet
 DEPTH = 4                  # levels of the U-Net below the input
 PACK_VOXELS = 65_536       # voxel rows of a pack: patches are packed up to this many
 MIN_POINTS = 4_096         # smallest point capacity of the per-patch feature program
+# The padded sizes of a patch (its members, the points it keeps) whose feature program
+# `gfjax warmup` compiles ahead (`prepare_point_inputs`): members of a patch's 150 m cylinder
+# from 16,384 (0.23 points/m²) to 2,097,152 (30 points/m²), kept points up to 131,072; a cloud
+# sparser or denser than that compiles its own on first use (0.85 s each).
+WARM_MEMBERS = tuple(2 ** i for i in range(14, 22))
+WARM_KEPT = tuple(2 ** i for i in range(14, 18))
 POINTS_PER_VOXEL = 4       # central point rows of a pack per voxel row
 # Patches per network call at most when classifying. A pack costs about the same whatever it
 # holds, so small patches (a sparse cloud's, a cloud's edges) share one; the batch index only
@@ -104,6 +110,21 @@ def _point_inputs(local_xyz, valid, keep, keep_valid, angle, *, features, r_in, 
     return pts, out.central, f
 
 
+def _statics(config) -> dict:
+    """The static arguments of `_point_inputs` under `config`."""
+    return dict(features=config.features, r_in=config.r_in_m, r_oc=config.r_oc_m, r_oo=config.r_oo_m,
+                use_compression=config.compression)
+
+
+def prepare_point_inputs(config, members: int, kept: int) -> None:
+    """Compile, without running it, the feature program `prepare` runs for a patch padded to
+    `members` points of which `kept` are kept (powers of two, at least `MIN_POINTS`): JAX's
+    persistent cache keeps it (`gfjax warmup`)."""
+    spec = jax.ShapeDtypeStruct
+    _point_inputs.lower(spec((members, 3), np.float32), spec((members,), np.bool_), spec((kept,), np.int32),
+                        spec((kept,), np.bool_), spec((), np.float32), **_statics(config)).compile()
+
+
 def thin_context(central: np.ndarray, max_points: int | np.integer, seed: int | np.integer) -> np.ndarray:
     """Rows to keep: every central one, and at most `max_points` peripheral ones drawn at random."""
     rest = np.flatnonzero(~central)
@@ -154,8 +175,7 @@ def prepare(xyz_m: np.ndarray, members: np.ndarray, center_m: np.ndarray, patch_
     n, k = capacity(len(members), MIN_POINTS), capacity(len(keep), MIN_POINTS)
     pts, central, feats = jax.device_get(_point_inputs(
         _padded(local, n), np.arange(n) < len(members), _padded(keep.astype(np.int32), k), np.arange(k) < len(keep),
-        np.float32(angle), features=config.features, r_in=config.r_in_m, r_oc=config.r_oc_m, r_oo=config.r_oo_m,
-        use_compression=config.compression))
+        np.float32(angle), **_statics(config)))
     pts, central, feats = pts[:len(keep)], central[:len(keep)], feats[:len(keep)]
     if cloud_feats is not None:
         feats = np.concatenate([feats, cloud_feats[members[keep]]], axis=1)
