@@ -107,16 +107,21 @@ def warm(config: Config | None = None, params=None, *, progress: bool = False) -
     line keeps them): the shipped network on a pack of the smallest capacity
     (`pipeline.PACK_VOXELS` voxels) with its standard plan, the costly one, by filtering a small
     generated scene; then the per-patch feature program at every padded patch size of
-    `pipeline.WARM_MEMBERS` x `pipeline.WARM_KEPT` (into JAX's cache). The vote program of
-    another cloud size still compiles on first use (0.1 s), and so do SMRF's programs for a
-    model that reads SMRF's surface, unless `gfjax.smrf.warm` prepared them (`gfjax warmup`
-    does both). Returns the number of programs prepared: 1 network and the feature programs."""
+    `pipeline.WARM_MEMBERS` x `pipeline.WARM_KEPT`, into JAX's persistent cache (none when
+    that cache is off). The vote program of another cloud size still compiles on first use
+    (0.1 s), and so do SMRF's programs for a model that reads SMRF's surface, unless
+    `gfjax.smrf.warm` prepared them (`gfjax warmup` does both). Returns the number of
+    programs prepared: 1 network and the feature programs."""
+    import jax
+
     from gfjax.io.cloud import Cloud
 
     rng = np.random.default_rng(0)
     xy = rng.uniform(0.0, WARM_SIDE_M, (WARM_POINTS, 2))
     z = 100.0 + 0.02 * xy[:, 0] + rng.normal(0.0, 0.05, WARM_POINTS)
     filter(Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], z])), config=config, params=params, progress=progress)
+    if not jax.config.jax_compilation_cache_dir:       # JAX's cache is off: nothing would be kept
+        return 1
     if config is None:
         config = load_model()[1]
     sizes = [(m, k) for m in WARM_MEMBERS for k in WARM_KEPT if k <= m]

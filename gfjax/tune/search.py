@@ -23,7 +23,7 @@ when a few points, wrong in every block alike, separate two candidates: on the w
 ISPRS samp42, MASF's lowest error (0.49 %, ST 0.01 and four other changes) beat the defaults
 with only the 90 m top layer (0.59 %) by a tenth of a point, steadily across blocks, and then
 scored 4.48 % against 1.01 % on the east half. The margin was set on those ISPRS halves
-(`experiments/tune_grid.py`, its sweep of margins): with MASF, 0.05-0.25 points let a fit of
+(`experiments/tune_grid.py`, its sweep of margins): with MASF, 0.1-0.2 points let a fit of
 samp41's west half cost its east half 7.4 points, 0.3-0.5 points left no half of any sample
 worse than the defaults, and larger margins kept fewer fits; 0.4 is the middle of that range.
 
