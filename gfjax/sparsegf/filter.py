@@ -119,11 +119,12 @@ def warm(config: Config | None = None, params=None, *, progress: bool = False) -
     rng = np.random.default_rng(0)
     xy = rng.uniform(0.0, WARM_SIDE_M, (WARM_POINTS, 2))
     z = 100.0 + 0.02 * xy[:, 0] + rng.normal(0.0, 0.05, WARM_POINTS)
-    filter(Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], z])), config=config, params=params, progress=progress)
+    model, trained_with = load_model()
+    config = trained_with if config is None else config
+    filter(Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], z])), config=config, params=params, progress=progress,
+           model=model)
     if not jax.config.jax_compilation_cache_dir:       # JAX's cache is off: nothing would be kept
         return 1
-    if config is None:
-        config = load_model()[1]
     sizes = [(m, k) for m in WARM_MEMBERS for k in WARM_KEPT if k <= m]
     if progress:
         from tqdm.auto import tqdm
