@@ -289,8 +289,26 @@ def _write_las(las: laspy.LasData, f, *, compress: bool, backends) -> None:
     with laspy.LasWriter(f, header, do_compress=compress, laz_backend=backends, closefd=False,
                          encoding_errors="surrogateescape") as writer:
         writer.write_points(las.points)
+        _keep_extra_bytes_statistics(header, writer.header)
         if header.version.minor >= 4 and evlrs:
             writer.write_evlrs(evlrs)
+
+
+def _keep_extra_bytes_statistics(read: laspy.LasHeader, written: laspy.LasHeader) -> None:
+    """Give the Extra Bytes descriptors of `written` the min/max fields of `read`, byte for byte.
+
+    laspy recomputes them from the points it writes, so a file whose producer left them unset
+    or stale would come back with other bytes than it had: a change of metadata the user did
+    not ask for. The header is rewritten when the writer closes, so this runs before that.
+    """
+    try:
+        before = read.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs
+        after = written.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs
+    except IndexError:
+        return
+    for source, target in zip(before, after, strict=True):
+        target._min[:] = source._min
+        target._max[:] = source._max
 
 
 class _KeepWriteError:

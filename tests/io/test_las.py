@@ -23,6 +23,20 @@ SHARED_FILES = [
     "lasR_bcts/bcts_2.laz",
     "lidR_topography/Topography.laz",
     "pdal_autzen/autzen_trim.laz",
+    "corpus/IGNF_ign-pdal-tools/Semis_2022_0906_6665_LA93_IGN69_ok.laz",
+    "corpus/IGNF_ign-pdal-tools/las_with_several_extra_byte_bloc.laz",
+    "corpus/IGNF_ign-pdal-tools/test_data_77050_627755_LA93_IGN69.laz",
+    "corpus/IGNF_ign-pdal-tools/test_semis_2021_0382_6565_LA93_IGN69_cropped.laz",
+    "corpus/IGNF_ign-pdal-tools/test_semis_2023_0292_6833_LA93_IGN69.laz",
+    "corpus/IGNF_lidar-prod/St_Barth_RGAF09_UTM20N_IGN_1988_SB_subset_100m.laz",
+    "corpus/LAStools_LAStools/fusa.laz",
+    "corpus/PDAL_PDAL/4_6_crop.las",
+    "corpus/PDAL_PDAL/hexbin-crop.las",
+    "corpus/SDFIdk_DHMQC/1km_6076_548.laz",
+    "corpus/brycefrank_pyfor/test.laz",
+    "corpus/cran_lidaRtRee/las_chablais3.laz",
+    "corpus/eEcoLiDAR_laserchicken/AHN3.laz",
+    "corpus/tudelft3d_3dfier/ahn3_cropped_1.laz",
 ]
 # Point formats and the oldest LAS version that holds them.
 FORMAT_VERSIONS = [(0, "1.2"), (1, "1.2"), (2, "1.2"), (3, "1.2"), (4, "1.3"), (5, "1.3"),
@@ -121,6 +135,27 @@ def test_synthetic_round_trip_every_point_format(point_format, version, suffix, 
     assert_same_las(expected, las_io.read(out).las)
     if suffix == ".laz" and LASZIP.is_available() and point_format not in (4, 5):
         assert_same_las(expected, laspy.read(out, laz_backend=LASZIP))
+
+
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_extra_bytes_statistics_are_written_back_as_read(suffix, tmp_path):
+    """A producer's min/max of an extra-bytes dimension (here stale: not the points' range)
+    come back byte for byte; laspy alone would recompute them from the points."""
+    las = synthetic_las(3, "1.2")
+    src = tmp_path / "src.las"
+    las.write(src)
+    raw = bytearray(src.read_bytes())
+    stored = laspy.read(src).header.vlrs.get("ExtraBytesVlr")[0]
+    offset = raw.index(bytes(stored.extra_bytes_structs[0]))
+    stale = laspy.vlrs.known.ExtraBytesStruct.from_buffer_copy(bytes(stored.extra_bytes_structs[0]))
+    np.frombuffer(stale._min, dtype=np.float64)[0] = -123.5
+    np.frombuffer(stale._max, dtype=np.float64)[0] = 4567.25
+    raw[offset:offset + len(bytes(stale))] = bytes(stale)
+    src.write_bytes(bytes(raw))
+    out = las_io.write(las_io.read(src), tmp_path / f"out{suffix}")
+    back = laspy.read(out).header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs[0]
+    assert (np.frombuffer(back._min, dtype=np.float64)[0], np.frombuffer(back._max, dtype=np.float64)[0]) == (-123.5, 4567.25)
+    assert bytes(back) == bytes(stale)
 
 
 @pytest.mark.parametrize("point_format", [9, 10])
