@@ -40,6 +40,11 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from gfjax.errors import InputError
 
+# Classes left out of every score against a vendor's classification: noise (7, 18), which no
+# filter labels, and water (9) and overlap (12), which vendors keep apart from ground by rules
+# of their own (`../shared/data/corpus/README.md`). Everything else but class 2 is non-ground.
+UNSCORED_CLASSES = (7, 9, 12, 18)
+
 POINT_KEYS = ("oa", "total_error", "type1", "type2", "kappa", "f1", "iou_ground",
               "iou_nonground", "n_points", "tp", "fp", "fn", "tn")
 DTM_KEYS = ("rmse_m", "mean_diff_m", "r_o", "r_m", "share_lt_1m", "share_1_2m", "share_2_3m",
@@ -105,6 +110,12 @@ def metrics_from_confusion(tp: int, fp: int, fn: int, tn: int) -> dict:
         "iou_nonground": _ratio(tn, tn + fp + fn, 1.0),
         "n_points": n, "tp": tp, "fp": fp, "fn": fn, "tn": tn,
     }
+
+
+def scored_mask(classification) -> np.ndarray:
+    """Points a score counts, bool `(n,)`: those whose class (uint8 `(n,)`) is not in
+    `UNSCORED_CLASSES`."""
+    return ~np.isin(np.asarray(classification), UNSCORED_CLASSES)
 
 
 def point_metrics(pred_ground, ref_ground, mask=None) -> dict:
@@ -281,6 +292,6 @@ def soft_kappa(c: SoftConfusion) -> Float[Array, ""]:
     return jnp.where(ok, (tp + tn - chance) / safe_den, agree)
 
 
-__all__ = ["POINT_KEYS", "DTM_KEYS", "confusion", "point_metrics", "metrics_from_confusion",
+__all__ = ["UNSCORED_CLASSES", "POINT_KEYS", "DTM_KEYS", "scored_mask", "confusion", "point_metrics", "metrics_from_confusion",
            "dtm_metrics", "mean_over_samples", "SoftConfusion", "soft_confusion",
            "expected_total_error", "soft_kappa"]

@@ -14,8 +14,12 @@ class Result(NamedTuple):
         Points the filter ignores (noise classes 7 and 18, withheld) are False.
       diagnostics: a per-method NamedTuple of intermediate rasters/arrays (host numpy), or None.
       instance_id: optional uint32 `(n,)` object-instance id per point, 0 outside any object.
+      settled: the settings the run used where some followed the cloud
+        (`gfjax.adaptive.Settled`: the config, the params, what the rules chose and the
+        terrain they read), or None when every setting was given.
     """
 
     ground: np.ndarray
     diagnostics: Any = None
     instance_id: np.ndarray | None = None
+    settled: Any = None

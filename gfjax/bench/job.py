@@ -10,9 +10,9 @@ peak memory is its own. Protocol (STYLE.md "Benchmarks"):
    classified file to a temporary folder (`write_s`); `job_s` is their sum. Medians are
    reported, every time is kept;
 4. accuracy of the last job's labels where the file has reference labels (class 2 present):
-   point metrics on the points filters use (`~cloud.ignored`), DTM metrics at 2 m
-   (`gfjax.metrics`, SPEC section 8). Reference ground is class 2; everything else (ISPRS
-   class 0, vendor class 1, water 9) is non-ground.
+   point metrics on the scored points (`gfjax.metrics.scored_mask`: noise 7/18, water 9 and
+   overlap 12 left out), DTM metrics at 2 m (`gfjax.metrics`, SPEC section 8). Reference
+   ground is class 2; every other scored class (ISPRS class 0, vendor class 1) is non-ground.
 
 gfjax methods get the `Cloud` and use their defaults (`returns="all"`); peers get the used
 points in metres (`cloud.xyz_m[cloud.filter_mask()]`), and that conversion counts as part of
@@ -73,7 +73,7 @@ def _accuracy(cloud, ground: np.ndarray) -> tuple[dict | None, dict | None]:
     reference = cloud.classification == np.uint8(2)
     if not np.any(reference):
         return None, None
-    scored = ~cloud.ignored
+    scored = metrics.scored_mask(cloud.classification)
     return (metrics.point_metrics(ground, reference, mask=scored),
             metrics.dtm_metrics(cloud.xyz_m, ground, reference, cell_m=DTM_CELL_M, mask=scored))
 

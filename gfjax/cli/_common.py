@@ -265,9 +265,31 @@ class MethodSetup(NamedTuple):
     config: Any
     params: Any
     options: dict | None = None
+    fixed: frozenset[str] | None = None      # fields the options set; None: every field settled
+    settled: Any = None                      # what `settle` chose (`gfjax.adaptive.Settled`)
 
     def filter(self, cloud, **kwargs):
-        return self.module.filter(cloud, config=self.config, params=self.params, **(self.options or {}), **kwargs)
+        """The method on `cloud`; the values the options left open follow the cloud first
+        (`settle`), and the result carries them (`Result.settled`)."""
+        setup = self.settle(cloud, returns=kwargs.get("returns", "all"))
+        result = self.module.filter(cloud, config=setup.config, params=setup.params, **(self.options or {}), **kwargs)
+        return result._replace(settled=setup.settled) if setup.settled is not None else result
+
+    def settle(self, cloud, *, returns: str = "all") -> MethodSetup:
+        """This setup with the values the options left open set from `cloud` (the method's
+        `adapt`, `gfjax.adaptive`), and fixed from then on (a survey settles once, on all of
+        its points, so every tile shares the values); itself when nothing is left open."""
+        from gfjax import adaptive
+
+        rule = getattr(self.module, "adapt", None)
+        if self.fixed is None or rule is None:
+            return self
+        settled = adaptive.settle_cloud(rule, cloud, self.config, self.params, fixed=self.fixed, returns=returns)
+        return self.fixed_at(settled)
+
+    def fixed_at(self, settled) -> MethodSetup:
+        """This setup with `settled`'s config and params, nothing left open."""
+        return self._replace(config=settled.config, params=settled.params, fixed=None, settled=settled)
 
     @property
     def tiling(self):
@@ -296,7 +318,7 @@ def method_setup(args: argparse.Namespace, *, tiling: tuple[float | None, float 
     (`gfjax.methods.tiles`). Every value is range-checked (`gfjax.limits`) before any file is
     read.
     """
-    from gfjax import methods
+    from gfjax import adaptive, methods
 
     params_file = load_params_file(args.params) if args.params is not None else None
     name = args.method or (params_file["method"] if params_file else methods.DEFAULT_METHOD)
@@ -319,7 +341,11 @@ def method_setup(args: argparse.Namespace, *, tiling: tuple[float | None, float 
         tiling_sources={key: _TILING_OPTIONS[key] for key in given})
     if tiling_ is not None:
         options = {**(options or {}), "tiling": tiling_}
-    return MethodSetup(name, module, config, params, options)
+    fixed = None
+    if args.preset != adaptive.FIXED_PRESET:
+        fixed = frozenset(parse_set_values(args.set_values)) | frozenset(params_file["values"] if params_file else ())
+        fixed |= frozenset(getattr(module, "PRESETS", {}).get(args.preset, {}))
+    return MethodSetup(name, module, config, params, options, fixed)
 
 
 _TILING_OPTIONS = {"tile_size_m": "--tile-size", "buffer_m": "--buffer"}

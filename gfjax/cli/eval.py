@@ -9,8 +9,10 @@ Two ways to get the labels that are scored:
 - `--method NAME` alone: the method runs on labelled inputs and is scored against their own
   labels (ground = `--reference-class`), e.g. the ISPRS reference samples.
 
-Noise (7, 18) and withheld points are not scored (nor, with `--returns last`, non-last
-returns). With several inputs the last row is the unweighted mean over files.
+Noise (7, 18), water (9), overlap (12) and withheld points of the reference are not scored
+(`gfjax.metrics.UNSCORED_CLASSES`; a vendor keeps water and overlap apart from ground by rules
+of its own), unless one of them is `--reference-class`; nor, with `--returns last`, non-last
+returns. With several inputs the last row is the unweighted mean over files.
 """
 from __future__ import annotations
 
@@ -84,6 +86,8 @@ def match_points(cloud: Cloud, reference: Cloud) -> tuple[np.ndarray | None, str
 
 
 def _labels(args: argparse.Namespace, setup, source: Path, reference: Path | None) -> dict:
+    from gfjax import metrics
+
     cloud = las_io.read(source, units=args.units)
     if setup is not None:
         result = setup.filter(cloud, returns=args.returns, progress=False)
@@ -93,15 +97,16 @@ def _labels(args: argparse.Namespace, setup, source: Path, reference: Path | Non
         pred = cloud.classification == 2
         scored = ~cloud.ignored
     if reference is None:
-        ref, note = cloud.classification == np.uint8(args.reference_class), "own labels"
+        ref_class, note = cloud.classification, "own labels"
     else:
         ref_cloud = las_io.read(reference, units=args.units)
         index, note = match_points(cloud, ref_cloud)
         ref_class, ref_ignored = ref_cloud.classification, ref_cloud.ignored
         if index is not None:
             ref_class, ref_ignored = ref_class[index], ref_ignored[index]
-        ref = ref_class == np.uint8(args.reference_class)
         scored = scored & ~ref_ignored
+    ref = ref_class == np.uint8(args.reference_class)
+    scored = scored & (metrics.scored_mask(ref_class) | ref)
     return {"pred": pred, "ref": ref, "scored": scored, "match": note}
 
 

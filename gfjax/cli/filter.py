@@ -96,6 +96,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--trust-data", action="store_true",
                         help="when a header's point count disagrees with the points the file holds, "
                              "filter the points present (and say so) instead of stopping")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="say on stderr the values chosen from the data (cell sizes, thresholds) and "
+                             "the terrain statistics they follow from")
     parser.add_argument("--force", action="store_true",
                         help="overwrite existing output files, and input files given as outputs")
     parser.add_argument("--keep-going", action="store_true",
@@ -146,8 +149,7 @@ def run(args: argparse.Namespace) -> int:
 
             catalog = survey.index(inputs, folder, returns=args.returns, units=args.units,
                                    trust_data=args.trust_data, client=client)
-            setup = setup._replace(config=survey.survey_config(setup.module, setup.config, catalog,
-                                                               returns=args.returns))
+            setup = _survey_setup(setup, catalog, args)
             runner = survey.Runner(catalog, functools.partial(_filter, setup, client is None), setup.lattice, folder,
                                    returns=args.returns, context=args.dtm is not None, client=client,
                                    whole=_whole(setup, catalog))
@@ -168,7 +170,7 @@ def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
 
     catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data,
                            client=client)
-    setup = setup._replace(config=survey.survey_config(setup.module, setup.config, catalog, returns=args.returns))
+    setup = _survey_setup(setup, catalog, args)
     runner = survey.Runner(catalog, functools.partial(_filter, setup, False), setup.lattice, folder,
                            returns=args.returns, context=False, client=client, whole=_whole(setup, catalog))
     position = {source: i for i, source in enumerate(inputs)}
@@ -219,6 +221,29 @@ def _whole(setup, catalog) -> bool:
     return False
 
 
+def _survey_setup(setup, catalog, args):
+    """`setup` for a survey (or one file read from disk): the values that follow the data set
+    once from all of its points (`gfjax.survey.survey_terrain`), then the method's survey-wide
+    estimates (`gfjax.survey.survey_config`), so that every tile and halo shares them."""
+    from gfjax import adaptive, survey
+
+    rule = getattr(setup.module, "adapt", None)
+    if setup.fixed is not None and rule is not None:
+        terrain = survey.survey_terrain(catalog, returns=args.returns)
+        if terrain is not None:
+            setup = setup.fixed_at(adaptive.settle_terrain(rule, terrain, setup.config, setup.params,
+                                                           fixed=setup.fixed))
+            _say_settled(args, "the survey", setup.settled)
+    return setup._replace(config=survey.survey_config(setup.module, setup.config, catalog, returns=args.returns))
+
+
+def _say_settled(args, what: str, settled) -> None:
+    """With `-v`, the values chosen from the data and the terrain they came from, on stderr."""
+    if getattr(args, "verbose", False) and settled is not None:
+        text = settled.describe().replace("\n", "\n  ")
+        print(f"gfjax: {what}: {text}", file=sys.stderr)
+
+
 def _filter(setup, progress: bool, points, returns: str):
     """`setup`'s filter on a survey's window (a module-level function: it travels to Dask workers)."""
     return setup.filter(points, returns=returns, progress=progress)
@@ -263,6 +288,7 @@ def _run(args, setup, inputs, planned, runner) -> int:
         halo_ground_m = None
         if runner is None:
             result = setup.filter(cloud, returns=args.returns, progress=True)
+            _say_settled(args, str(job.source), result.settled)
         else:
             result, halo_ground_m = runner(position[job.source], cloud)
         ground = np.asarray(result.ground, dtype=bool)
@@ -329,13 +355,13 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
     from gfjax import survey
     from gfjax.io import stream
 
-    filter_fn = functools.partial(_filter, setup, False)
     shared = None
     if client is not None or (len(inputs) > 1 and not args.independent):
         catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data,
                                client=client)
-        shared = (survey.Runner(catalog, filter_fn, setup.lattice, folder, returns=args.returns, context=False,
-                                client=client),
+        settled = _survey_setup(setup, catalog, args)
+        shared = (survey.Runner(catalog, functools.partial(_filter, settled, False), settled.lattice, folder,
+                                returns=args.returns, context=False, client=client),
                   {source: i for i, source in enumerate(inputs)})
 
     def one(job: _job.Planned) -> None:
@@ -344,7 +370,9 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
         with tempfile.TemporaryDirectory(prefix="file-", dir=folder) as own:      # this file's index only
             catalog = survey.index([job.source], own, returns=args.returns, units=args.units,
                                    trust_data=args.trust_data)
-            write(job, survey.Runner(catalog, filter_fn, setup.lattice, own, returns=args.returns, context=False), 0)
+            settled = _survey_setup(setup, catalog, args)
+            write(job, survey.Runner(catalog, functools.partial(_filter, settled, False), settled.lattice, own,
+                                     returns=args.returns, context=False), 0)
 
     def write(job: _job.Planned, runner, i: int) -> None:
         start_s = time.perf_counter()

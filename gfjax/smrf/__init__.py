@@ -2,17 +2,18 @@
 
 ```python
 import gfjax
-result = gfjax.smrf.filter(gfjax.read("tile.laz"))          # defaults of PDAL filters.smrf
+result = gfjax.smrf.filter(gfjax.read("tile.laz"))   # PDAL filters.smrf's defaults, the cell from the spacing
+result.settled.chosen                                    # {"cell_m": 1.0}: what followed the cloud (`adapt`)
 result = gfjax.smrf.filter(cloud, config=gfjax.smrf.Config(window_m=12.0),
                            params=gfjax.smrf.Params(slope=0.2))
 result = gfjax.smrf.filter(cloud, tiling=gfjax.Tiling(tile_size_m=250.0, buffer_m=40.0))
 ```
 """
-from gfjax.smrf.config import PRESETS, Config, Params
+from gfjax.smrf.config import PRESETS, Config, Params, adapt
 from gfjax.smrf.filter import Diagnostics, filter, warm
 from gfjax.smrf.stages import TileDiagnostics
 
 # A tile's core labels depend on its window only: a survey runs each tile once (`gfjax.methods`).
 TILE_LABELS = True
 
-__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "TILE_LABELS", "Diagnostics", "TileDiagnostics"]
+__all__ = ["filter", "warm", "adapt", "Config", "Params", "PRESETS", "TILE_LABELS", "Diagnostics", "TileDiagnostics"]

@@ -20,12 +20,13 @@ from typing import NamedTuple
 
 import numpy as np
 
+from gfjax import adaptive
 from gfjax.io import tiled
 from gfjax.io.cloud import CloudView
 from gfjax.io.tiles import Tiling
 from gfjax.result import Result
 from gfjax.smrf import programs
-from gfjax.smrf.config import MAX_BATCH, Config, Params
+from gfjax.smrf.config import MAX_BATCH, Config, Params, adapt
 
 __all__ = ["filter", "warm", "Diagnostics"]
 
@@ -61,7 +62,9 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
 
     Args:
       cloud: the point cloud (any units; filtered in metres).
-      config: static settings (default `Config()`: cell 1 m, window 18 m).
+      config: static settings; default `Config()` (cell 1 m, window 18 m) with the values
+        that follow the cloud (`adapt`: a coarser cell for sparse clouds). A given Config is
+        used as it is.
       params: thresholds (default `Params()`: slope 0.15, threshold 0.5 m, scalar 1.25).
       returns: "all" or "last": which returns are filtered.
       progress: show a progress bar over tile batches.
@@ -74,13 +77,18 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       `Diagnostics` (None for a cloud with no usable point, and for one whose groups of
       points far apart were filtered one by one: `gfjax.io.tiled.classify_groups`).
     """
+    settled = adaptive.settle_defaults(adapt, cloud, config, params, config_type=Config, params_type=Params,
+                                       returns=returns)
+    config, params = settled.config, settled.params
+    settled = settled if settled.chosen else None
     done = tiled.filter_cloud(cloud, config, params, returns, tiling=tiling, config_type=Config, params_type=Params,
                               package="gfjax.smrf", classify_batch=programs.classify_batch, max_batch=MAX_BATCH,
                               rasters=_RASTERS, heights=("zimin", "zipro"), progress=progress)
     if done.cores is None:
-        return Result(ground=done.ground, diagnostics=None)
+        return Result(ground=done.ground, diagnostics=None, settled=settled)
     return Result(ground=done.ground, diagnostics=Diagnostics(
-        **done.cores.rasters, origin_m=done.cores.origin_m, cell_m=done.config.cell_m, n_tiles=done.n_tiles))
+        **done.cores.rasters, origin_m=done.cores.origin_m, cell_m=done.config.cell_m, n_tiles=done.n_tiles),
+        settled=settled)
 
 
 def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False,

@@ -19,7 +19,7 @@ from types import ModuleType
 
 import numpy as np
 
-from gfjax import limits, methods
+from gfjax import adaptive, limits, methods
 from gfjax.io.cloud import Cloud, Points, use_mask
 from gfjax.io.tiles import Frame, Lattice
 from gfjax.result import Result
@@ -109,6 +109,24 @@ def survey_config(method: ModuleType, config, catalog: Catalog, *, returns: str 
             yield np.concatenate(parts) if parts else np.empty((0, 3))
 
     return hook(config, clouds())
+
+
+def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrain | None:
+    """The statistics the method's rules read (`gfjax.adaptive`), of the whole survey: each
+    file measured on its used points and their last returns, then combined, so every file and
+    tile of the survey gets the same values. None when no point is used. Reads each file's
+    store once."""
+    terrains = []
+    for entry in catalog.entries:
+        used, last = [], []
+        for _, block in entry.blocks():
+            args = (block["ignored"], block["return_number"], block["number_of_returns"])
+            used.append(block["xyz_m"][use_mask(*args, returns)])
+            last.append(block["xyz_m"][use_mask(*args, "last")])
+        xyz = np.concatenate(used) if used else np.empty((0, 3))
+        if len(xyz):
+            terrains.append(adaptive.measure(xyz, np.concatenate(last)))
+    return adaptive.combine(terrains) if terrains else None
 
 
 def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, lattice: Lattice | None, *,

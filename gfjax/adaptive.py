@@ -1,0 +1,241 @@
+"""Defaults that follow the cloud: its statistics, and each method's rules on them.
+
+A method's fixed defaults (`Config()`, `Params()`) were chosen on the ISPRS samples, at about
+1 point/m²; on a thinned survey of 0.1 points/m² a 1 m raster is mostly empty and its minimum
+surface is the canopy. So the values that depend on the data are set from the cloud itself:
+
+- `measure(xyz_m) -> Terrain`: the point spacing over the area the points cover, and the
+  slopes of a coarse minimum surface (one pass over the points, numpy; no labels).
+- Each method package's `adapt(terrain) -> dict` (`gfjax.smrf.config.adapt`, ...): the values
+  of its `Config` / `Params` fields that follow from the terrain, each a documented function
+  of it. Rules were fitted on the training files of `experiments/common.LABELLED` only
+  (`experiments/corpus_eval.py` scores them on every labelled file).
+- `settle(method, xyz_m, config, params, fixed=...)`: the method's `Config` / `Params` with
+  the rules' values, except the fields in `fixed` (a user's `--set`, `--params` or preset
+  values, which always win), and what was chosen, for `gfjax filter -v` and diagnostics.
+
+A caller that wants the fixed values passes them: `filter(cloud, config=Config())` uses
+`Config()` as it is; `--preset fixed` does the same on the command line.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Iterable
+from typing import Any, NamedTuple
+
+import numpy as np
+
+__all__ = ["Terrain", "measure", "settle", "settle_defaults", "settle_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
+
+# The preset name that keeps a method's fixed defaults (no rule applied).
+FIXED_PRESET = "fixed"
+_POINTS_PER_COVER_CELL = 16      # mean points per cell of the cover grid, so cells are empty for want of data,
+_MIN_COVER_CELL_M = 2.0          # not by chance
+_SLOPE_CELLS_PER_SPACING = 4     # the slope grid's cell, in point spacings: a few points per cell, so its
+_MIN_SLOPE_CELL_M = 5.0          # minimum is mostly ground under canopy
+
+
+class Terrain(NamedTuple):
+    """What the rules know of a cloud (all from the points the method uses, metres).
+
+    Attributes:
+      n_points: points measured.
+      area_m2: area the points cover: the occupied cells of a grid of about 16 points a cell.
+      spacing_m: mean point spacing, `sqrt(area_m2 / n_points)` (1 / sqrt(density)).
+      last_spacing_m: the same of the last returns alone (what reaches the ground under
+        canopy; `spacing_m` where every return is a last one).
+      slope_cell_m: cell of the coarse minimum surface the slopes are measured on.
+      slope_p50, slope_p90: median and 90th percentile of that surface's slope (rise over
+        run) over its cells with four neighbours; 0 for a cloud of fewer than 2 × 2 cells.
+      relief_m: 98th minus 2nd percentile of the coarse minimum surface [m].
+    """
+
+    n_points: int
+    area_m2: float
+    spacing_m: float
+    last_spacing_m: float
+    slope_cell_m: float
+    slope_p50: float
+    slope_p90: float
+    relief_m: float
+
+    def describe(self) -> str:
+        """One line for `gfjax filter -v`."""
+        return (f"{self.n_points:,} points over {self.area_m2:,.0f} m², spacing {self.spacing_m:.2f} m "
+                f"(last returns {self.last_spacing_m:.2f} m); "
+                f"ground slope (minimum surface, {self.slope_cell_m:.1f} m cells) median {self.slope_p50:.2f}, "
+                f"90th percentile {self.slope_p90:.2f}; relief {self.relief_m:.1f} m")
+
+
+def _cells(xy: np.ndarray, cell_m: float) -> tuple[np.ndarray, tuple[int, int]]:
+    """Flat cell index of every point on a grid of `cell_m` from the points' minimum, and its shape."""
+    lo = xy.min(axis=0)
+    ij = np.floor((xy - lo) / cell_m).astype(np.int64)
+    shape = (int(ij[:, 1].max()) + 1, int(ij[:, 0].max()) + 1)
+    return ij[:, 1] * shape[1] + ij[:, 0], shape
+
+
+def _spacing(xy: np.ndarray) -> tuple[float, float]:
+    """`(area_m2, spacing_m)` of points `(n, 2)` [m], n >= 1 (`Terrain`)."""
+    n = xy.shape[0]
+    extent = np.maximum(np.ptp(xy, axis=0), 1.0)
+    cover_m = max(_MIN_COVER_CELL_M, math.sqrt(_POINTS_PER_COVER_CELL * float(extent.prod()) / n))
+    cover, _ = _cells(xy, cover_m)
+    area = np.unique(cover).size * cover_m * cover_m
+    return area, math.sqrt(area / n)
+
+
+def measure(xyz_m: np.ndarray, last_xyz_m: np.ndarray | None = None) -> Terrain:
+    """The statistics of `Terrain` for points `(n, 3)` [m] (float; the points a method uses)
+    and their last returns `(k, 3)` (None or empty: the same points).
+
+    Raises:
+      ValueError: fewer than one point.
+    """
+    xyz = np.asarray(xyz_m, dtype=np.float64)
+    n = xyz.shape[0]
+    if n == 0:
+        raise ValueError("measure needs at least one point")
+    xy = xyz[:, :2]
+    area, spacing = _spacing(xy)
+    last_spacing = spacing
+    if last_xyz_m is not None and len(last_xyz_m) and len(last_xyz_m) < n:
+        last_spacing = _spacing(np.asarray(last_xyz_m, dtype=np.float64)[:, :2])[1]
+    slope_cell = max(_MIN_SLOPE_CELL_M, _SLOPE_CELLS_PER_SPACING * spacing)
+    index, shape = _cells(xy, slope_cell)
+    z_min = np.full(shape[0] * shape[1], np.inf)
+    np.minimum.at(z_min, index, xyz[:, 2])
+    z_min = z_min.reshape(shape)
+    filled = np.isfinite(z_min)
+    slopes = np.empty(0)
+    if shape[0] >= 2 and shape[1] >= 2:
+        # central differences where a cell and its four neighbours hold points
+        core = filled[1:-1, 1:-1] & filled[:-2, 1:-1] & filled[2:, 1:-1] & filled[1:-1, :-2] & filled[1:-1, 2:]
+        with np.errstate(invalid="ignore"):
+            dz_dy = (z_min[2:, 1:-1] - z_min[:-2, 1:-1]) / (2 * slope_cell)
+            dz_dx = (z_min[1:-1, 2:] - z_min[1:-1, :-2]) / (2 * slope_cell)
+        slopes = np.hypot(dz_dx, dz_dy)[core]
+        if slopes.size == 0:       # two rows or columns: forward differences
+            right = filled[:, :-1] & filled[:, 1:]
+            down = filled[:-1, :] & filled[1:, :]
+            slopes = np.concatenate([np.abs(np.diff(z_min, axis=1))[right], np.abs(np.diff(z_min, axis=0))[down]])
+            slopes = slopes / slope_cell
+    p50, p90 = (float(v) for v in np.percentile(slopes, [50, 90])) if slopes.size else (0.0, 0.0)
+    lows = z_min[filled]
+    relief = float(np.percentile(lows, 98) - np.percentile(lows, 2))
+    return Terrain(n_points=n, area_m2=float(area), spacing_m=spacing, last_spacing_m=last_spacing,
+                   slope_cell_m=slope_cell,
+                   slope_p50=p50, slope_p90=p90, relief_m=relief)
+
+
+def combine(terrains: Iterable[Terrain]) -> Terrain:
+    """One `Terrain` of several clouds side by side (a survey's files): areas and points add,
+    spacings follow from their sums, slopes and relief are the medians of the clouds', weighted
+    by points. Raises ValueError for none."""
+    parts = list(terrains)
+    if not parts:
+        raise ValueError("combine needs at least one terrain")
+    if len(parts) == 1:
+        return parts[0]
+    n = sum(t.n_points for t in parts)
+    area = sum(t.area_m2 for t in parts)
+    n_last = sum(t.n_points * (t.spacing_m / t.last_spacing_m) ** 2 for t in parts)   # area / spacing²
+
+    def median(key: str) -> float:
+        values = np.array([getattr(t, key) for t in parts])
+        weights = np.array([t.n_points for t in parts], dtype=np.float64)
+        order = np.argsort(values)
+        cumulative = np.cumsum(weights[order])
+        return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+
+    return Terrain(n_points=n, area_m2=area, spacing_m=math.sqrt(area / n), last_spacing_m=math.sqrt(area / n_last),
+                   slope_cell_m=median("slope_cell_m"), slope_p50=median("slope_p50"),
+                   slope_p90=median("slope_p90"), relief_m=median("relief_m"))
+
+
+def settle_terrain(rule: Callable[[Terrain], dict[str, Any]] | None, terrain: Terrain, config: Any, params: Any, *,
+                   fixed: Iterable[str] = ()) -> Settled:
+    """`settle` on a terrain measured already (a survey's: `combine`)."""
+    if rule is None:
+        return Settled(config, params, {}, None)
+    keep = set(fixed)
+    chosen = {k: v for k, v in rule(terrain).items() if k not in keep}
+    config_fields = {f.name for f in dataclasses.fields(config)}
+    on_config = {k: v for k, v in chosen.items() if k in config_fields}
+    on_params = {k: v for k, v in chosen.items() if k not in config_fields}
+    if on_config:
+        config = dataclasses.replace(config, **on_config)
+    if on_params:
+        if params is None:
+            raise ValueError(f"rule sets {sorted(on_params)} but the method has no Params")
+        params = dataclasses.replace(params, **on_params)
+    return Settled(config, params, chosen, terrain)
+
+
+class Settled(NamedTuple):
+    """A method's settings for one cloud: `config`, `params`, and `chosen` (field -> value
+    the rules set; the fields kept fixed are not in it) with the `terrain` they came from."""
+
+    config: Any
+    params: Any
+    chosen: dict[str, Any]
+    terrain: Terrain | None
+
+    def describe(self) -> str:
+        """Lines for `gfjax filter -v`: the terrain, then each value the rules chose."""
+        if self.terrain is None:
+            return "fixed settings (no rule applied)"
+        values = ", ".join(f"{k}={_show(v)}" for k, v in self.chosen.items()) or "none (every value fixed)"
+        return f"terrain: {self.terrain.describe()}\nchosen from it: {values}"
+
+
+def _show(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
+
+
+def settle(rule: Callable[[Terrain], dict[str, Any]] | None, xyz_m: np.ndarray, config: Any, params: Any,
+           *, fixed: Iterable[str] = (), last_xyz_m: np.ndarray | None = None) -> Settled:
+    """`config` and `params` with the values `rule(measure(xyz_m, last_xyz_m))` gives, but for `fixed`.
+
+    Args:
+      rule: the method's `adapt` (None: nothing follows the data).
+      xyz_m: the points the method uses, float `(n, 3)` [m]; with none, nothing changes.
+      last_xyz_m: their last returns, float `(k, 3)` [m] (None: the same points).
+      config, params: the method's `Config` and `Params` (params may be None).
+      fixed: field names a user set, kept as they are.
+
+    Returns:
+      `Settled`. A rule's value is checked by the dataclass like any other (`SettingError`).
+    """
+    if rule is None or len(xyz_m) == 0:
+        return Settled(config, params, {}, None)
+    return settle_terrain(rule, measure(xyz_m, last_xyz_m), config, params, fixed=fixed)
+
+
+def settle_defaults(rule: Callable[[Terrain], dict[str, Any]] | None, cloud: Any, config: Any, params: Any, *,
+                    config_type: type, params_type: type | None, returns: str = "all") -> Settled:
+    """The settings of a `filter(cloud, config=..., params=...)` call: what the caller gave is
+    kept whole (a given `Config` fixes every config field, a given `Params` every threshold),
+    and the rest follows `cloud` (its points `cloud.filter_mask(returns)`) by `rule`."""
+    fixed = [f.name for f in dataclasses.fields(config_type)] if config is not None else []
+    if params is not None:
+        fixed += [f.name for f in dataclasses.fields(params)]
+    config = config_type() if config is None else config
+    if params is None and params_type is not None:
+        params = params_type()
+    if len(fixed) == len(dataclasses.fields(config_type)) + (len(dataclasses.fields(params)) if params is not None else 0):
+        return Settled(config, params, {}, None)
+    return settle_cloud(rule, cloud, config, params, fixed=fixed, returns=returns)
+
+
+def settle_cloud(rule: Callable[[Terrain], dict[str, Any]] | None, cloud: Any, config: Any, params: Any, *,
+                 fixed: Iterable[str] = (), returns: str = "all") -> Settled:
+    """`settle` on a cloud's used points (`cloud.filter_mask(returns)`) and their last returns."""
+    if rule is None:
+        return Settled(config, params, {}, None)
+    xyz = cloud.xyz_m
+    return settle(rule, xyz[cloud.filter_mask(returns)], config, params, fixed=fixed,
+                  last_xyz_m=xyz[cloud.filter_mask("last")])

@@ -1,0 +1,135 @@
+"""Defaults that follow the cloud: the terrain statistics on clouds whose answer is known, and
+the rules applied, reported and overridden."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gfjax import adaptive, smrf
+from gfjax.io.cloud import Cloud
+
+
+def grid_plane(spacing_m: float, size_m: float, *, slope: float = 0.0, noise_m: float = 0.0, seed: int = 0) -> np.ndarray:
+    """Points `(n, 3)` on a square lattice of `spacing_m` over `size_m` squared, z = slope * x."""
+    axis = np.arange(0.0, size_m, spacing_m)
+    x, y = np.meshgrid(axis, axis)
+    z = slope * x + np.random.default_rng(seed).normal(0.0, noise_m, x.shape)
+    return np.column_stack([x.ravel() + 500_000.0, y.ravel() + 5_000_000.0, z.ravel() + 200.0])
+
+
+@pytest.mark.parametrize("spacing_m", [0.25, 1.0, 3.0, 7.0])
+def test_spacing_of_a_lattice_is_its_pitch(spacing_m):
+    terrain = adaptive.measure(grid_plane(spacing_m, 60 * spacing_m))
+    assert terrain.spacing_m == pytest.approx(spacing_m, rel=0.08)
+    assert terrain.last_spacing_m == terrain.spacing_m
+
+
+def test_spacing_counts_the_covered_area_not_the_box():
+    """Two patches far apart: the empty land between them is no part of the density."""
+    patch = grid_plane(1.0, 50.0)
+    far = patch + np.array([2000.0, 0.0, 0.0])
+    terrain = adaptive.measure(np.concatenate([patch, far]))
+    assert terrain.spacing_m == pytest.approx(1.0, rel=0.2)       # the box's density would give 4.5 m
+
+
+@pytest.mark.parametrize("slope", [0.0, 0.1, 0.5, 1.0])
+def test_slope_of_a_tilted_plane(slope):
+    terrain = adaptive.measure(grid_plane(1.0, 200.0, slope=slope))
+    assert terrain.slope_p50 == pytest.approx(slope, abs=0.01)
+    assert terrain.slope_p90 == pytest.approx(slope, abs=0.01)
+    assert terrain.relief_m == pytest.approx(0.96 * 200.0 * slope, abs=0.1 * 200 * slope + 0.05)
+
+
+def test_a_step_is_seen_in_the_upper_slopes_only():
+    xyz = grid_plane(1.0, 200.0)
+    xyz[xyz[:, 0] - xyz[:, 0].min() >= 100.0, 2] += 5.0
+    terrain = adaptive.measure(xyz)
+    assert terrain.slope_p50 == pytest.approx(0.0, abs=1e-9)
+    assert terrain.relief_m == pytest.approx(5.0)
+
+
+def test_last_returns_give_their_own_spacing():
+    xyz = grid_plane(1.0, 100.0)
+    last = xyz[::16]                                  # one point in 16: four times the spacing
+    terrain = adaptive.measure(xyz, last)
+    assert terrain.last_spacing_m == pytest.approx(4.0, rel=0.1)
+
+
+def test_measure_of_one_point_and_of_none():
+    terrain = adaptive.measure(np.array([[1.0, 2.0, 3.0]]))
+    assert math.isfinite(terrain.spacing_m) and terrain.slope_p90 == 0.0
+    with pytest.raises(ValueError, match="at least one point"):
+        adaptive.measure(np.empty((0, 3)))
+
+
+def test_combine_of_two_halves_matches_the_whole():
+    xyz = grid_plane(2.0, 400.0, slope=0.2)
+    left = xyz[:, 0] < np.median(xyz[:, 0])
+    whole = adaptive.measure(xyz)
+    both = adaptive.combine([adaptive.measure(xyz[left]), adaptive.measure(xyz[~left])])
+    assert both.n_points == whole.n_points
+    assert both.spacing_m == pytest.approx(whole.spacing_m, rel=0.05)
+    assert both.slope_p50 == pytest.approx(whole.slope_p50, abs=0.01)
+
+
+def test_smrf_cell_follows_sparse_last_returns_only():
+    dense, sparse = adaptive.measure(grid_plane(1.0, 100.0)), adaptive.measure(grid_plane(5.0, 500.0))
+    assert smrf.adapt(dense) == {"cell_m": 1.0}
+    assert smrf.adapt(sparse) == {"cell_m": 5.0}
+    # the ISPRS samples' 2.4 m spacing keeps the 1 m cell the defaults were chosen with
+    assert smrf.adapt(adaptive.measure(grid_plane(2.4, 480.0))) == {"cell_m": 1.0}
+
+
+def test_smrf_filter_settles_what_the_caller_left_open():
+    cloud = Cloud.from_xyz(grid_plane(5.0, 500.0, noise_m=0.02))
+    open_ = smrf.filter(cloud)
+    assert open_.settled.chosen == {"cell_m": 5.0}
+    assert open_.diagnostics.cell_m == 5.0
+    given = smrf.filter(cloud, config=smrf.Config())          # a given Config is used as it is
+    assert given.settled is None and given.diagnostics.cell_m == 1.0
+    tuned = smrf.filter(cloud, params=smrf.Params(slope=0.2))  # given thresholds, the cell still follows
+    assert tuned.settled.chosen == {"cell_m": 5.0}
+
+
+def test_thinned_copy_of_a_flat_plane_stays_ground():
+    """A flat plane thinned to 0.04 points/m² is all ground with the settled cell."""
+    cloud = Cloud.from_xyz(grid_plane(5.0, 500.0, noise_m=0.02))
+    assert np.mean(smrf.filter(cloud).ground) >= 0.995
+
+
+def test_settle_keeps_fixed_fields():
+    terrain = adaptive.measure(grid_plane(5.0, 500.0))
+    kept = adaptive.settle_terrain(smrf.adapt, terrain, smrf.Config(cell_m=2.0), smrf.Params(), fixed={"cell_m"})
+    assert kept.config.cell_m == 2.0 and kept.chosen == {}
+    moved = adaptive.settle_terrain(smrf.adapt, terrain, smrf.Config(), smrf.Params())
+    assert moved.config.cell_m == 5.0 and "cell_m=5" in moved.describe()
+
+
+def _write_plane(path, spacing_m: float, size_m: float):
+    import laspy
+
+    xyz = grid_plane(spacing_m, size_m, noise_m=0.02)
+    header = laspy.LasHeader(point_format=1, version="1.2")
+    header.scales = np.array([0.01, 0.01, 0.01])
+    header.offsets = np.array([500_000.0, 5_000_000.0, 0.0])
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = xyz.T
+    las.write(path)
+    return path
+
+
+@pytest.mark.parametrize("options,said", [((), "chosen from it: cell_m=5"),
+                                          (("--set", "cell_m=2"), "chosen from it: none (every value fixed)"),
+                                          (("--preset", "fixed"), None)])
+def test_cli_says_what_it_chose_and_the_user_overrides_it(tmp_path, capsys, options, said):
+    from cli_helpers import run_cli
+
+    src = _write_plane(tmp_path / "sparse.las", 5.3, 320.0)
+    code, out, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.las", "-v", *options)
+    assert code == 0, err
+    if said is None:
+        assert "terrain:" not in err
+    else:
+        assert said in err and "spacing 5." in err
