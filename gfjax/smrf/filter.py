@@ -77,6 +77,8 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       `Diagnostics` (None for a cloud with no usable point, and for one whose groups of
       points far apart were filtered one by one: `gfjax.io.tiled.classify_groups`).
     """
+    tiled.checked_options(cloud, config, params, returns, config_type=Config, params_type=Params,
+                          package="gfjax.smrf")                   # before the cloud is measured
     settled = adaptive.settle_defaults(adapt, cloud, config, params, config_type=Config, params_type=Params,
                                        returns=returns)
     config, params = settled.config, settled.params
