@@ -32,6 +32,7 @@ __all__ = ["Terrain", "measure", "settle", "settle_defaults", "settle_cloud", "c
 FIXED_PRESET = "fixed"
 _POINTS_PER_COVER_CELL = 16      # mean points per cell of the cover grid, so cells are empty for want of data,
 _MIN_COVER_CELL_M = 2.0          # not by chance
+_COVER_PASSES = 4                # the cover cell from the box's density, then three times from the area's
 _SLOPE_CELLS_PER_SPACING = 4     # the slope grid's cell, in point spacings: a few points per cell, so its
 _MIN_SLOPE_CELL_M = 5.0          # minimum is mostly ground under canopy
 
@@ -77,12 +78,18 @@ def _cells(xy: np.ndarray, cell_m: float) -> tuple[np.ndarray, tuple[int, int]]:
 
 
 def _spacing(xy: np.ndarray) -> tuple[float, float]:
-    """`(area_m2, spacing_m)` of points `(n, 2)` [m], n >= 1 (`Terrain`)."""
+    """`(area_m2, spacing_m)` of points `(n, 2)` [m], n >= 1 (`Terrain`).
+
+    The cover grid's cell is set from the density, which is what is measured: start from the
+    box's, then the covered area's, a few times over, so a stray point kilometres away or an
+    L-shaped survey does not make the cells (and so the area) as large as the box.
+    """
     n = xy.shape[0]
-    extent = np.maximum(np.ptp(xy, axis=0), 1.0)
-    cover_m = max(_MIN_COVER_CELL_M, math.sqrt(_POINTS_PER_COVER_CELL * float(extent.prod()) / n))
-    cover, _ = _cells(xy, cover_m)
-    area = np.unique(cover).size * cover_m * cover_m
+    area = float(np.maximum(np.ptp(xy, axis=0), 1.0).prod())
+    for _ in range(_COVER_PASSES):
+        cover_m = max(_MIN_COVER_CELL_M, math.sqrt(_POINTS_PER_COVER_CELL * area / n))
+        cover, _ = _cells(xy, cover_m)
+        area = np.unique(cover).size * cover_m * cover_m
     return area, math.sqrt(area / n)
 
 
@@ -119,8 +126,9 @@ def measure(xyz_m: np.ndarray, last_xyz_m: np.ndarray | None = None) -> Terrain:
         if slopes.size == 0:       # two rows or columns: forward differences
             right = filled[:, :-1] & filled[:, 1:]
             down = filled[:-1, :] & filled[1:, :]
-            slopes = np.concatenate([np.abs(np.diff(z_min, axis=1))[right], np.abs(np.diff(z_min, axis=0))[down]])
-            slopes = slopes / slope_cell
+            with np.errstate(invalid="ignore"):
+                steps = [np.abs(np.diff(z_min, axis=1))[right], np.abs(np.diff(z_min, axis=0))[down]]
+            slopes = np.concatenate(steps) / slope_cell
     p50, p90 = (float(v) for v in np.percentile(slopes, [50, 90])) if slopes.size else (0.0, 0.0)
     lows = z_min[filled]
     relief = float(np.percentile(lows, 98) - np.percentile(lows, 2))

@@ -133,3 +133,16 @@ def test_cli_says_what_it_chose_and_the_user_overrides_it(tmp_path, capsys, opti
         assert "terrain:" not in err
     else:
         assert said in err and "spacing 5." in err
+
+
+def test_a_stray_point_far_away_does_not_change_the_spacing():
+    patch = grid_plane(1.0, 100.0)
+    stray = np.concatenate([patch, patch[:1] + np.array([10_000.0, 3_000.0, 0.0])])
+    assert adaptive.measure(stray).spacing_m == pytest.approx(adaptive.measure(patch).spacing_m, rel=0.05)
+
+
+def test_smrf_cell_of_scattered_points_stays_within_the_window():
+    """Two points kilometres apart: a spacing of kilometres, a cell of at most a third of the window."""
+    terrain = adaptive.measure(np.array([[0.0, 0.0, 0.0], [3000.0, 4000.0, 1.0]]))
+    assert smrf.adapt(terrain)["cell_m"] == smrf.config.MAX_ADAPTED_CELL_M
+    smrf.Config(**smrf.adapt(terrain))                     # a valid Config

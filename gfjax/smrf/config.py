@@ -121,12 +121,16 @@ PRESETS: dict[str, dict[str, object]] = {
 # (`experiments/corpus_eval.py`): on the IGN forest at 0.06 points/m² (last returns every
 # 5.1 m) type I falls from 56 % at 1 m to 3.6 % at 5 m.
 COARSE_SPACING_M = 2.5
+# The coarsest cell a rule sets: a third of the 18 m window, so the progressive opening still
+# grows over three radii. Scattered points farther apart are no surface a raster can model.
+MAX_ADAPTED_CELL_M = 6.0
 
 
 def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
     """SMRF's values that follow the cloud (`gfjax.adaptive`): `cell_m` is 1 m until the last
-    returns lie more than `COARSE_SPACING_M` apart, then their spacing, rounded down to 0.5 m."""
+    returns lie more than `COARSE_SPACING_M` apart, then their spacing, rounded down to 0.5 m,
+    at most `MAX_ADAPTED_CELL_M`."""
     spacing = terrain.last_spacing_m
     if spacing <= COARSE_SPACING_M:
         return {"cell_m": 1.0}
-    return {"cell_m": math.floor(spacing / 0.5) * 0.5}
+    return {"cell_m": min(MAX_ADAPTED_CELL_M, math.floor(spacing / 0.5) * 0.5)}

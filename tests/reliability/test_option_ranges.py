@@ -196,7 +196,7 @@ def test_two_points_far_apart_are_filtered_apart(method, tmp_path, capsys, monke
 
 @pytest.mark.parametrize("method, what", [("csf", "a cloth of 49,9"), ("masf", "a grid of 49,9"),
                                           ("dmf", "the whole-cloud rasters of 49,9"),
-                                          ("smrf", "the whole-cloud rasters of 49,9"),
+                                          ("smrf", "the whole-cloud rasters of 8,3"),   # 6 m cells: points 70 m apart
                                           ("pmf", "the whole-cloud rasters of 49,9")])
 def test_one_group_over_the_budget_is_refused_after_reading(method, what, tmp_path, capsys, monkeypatch):
     las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
@@ -286,7 +286,7 @@ def test_python_api_filter_checks_the_budget_for_the_cloud_it_is_given(monkeypat
     steps = np.arange(0.0, 200_000.0, 50.0)                          # one group: a chain 50 m apart
     cloud = Cloud.from_xyz(np.column_stack([steps, steps, np.zeros_like(steps)]))
     with pytest.raises(InputError, match=r"the whole-cloud rasters of 199,9\d\d x 199,9\d\d cells .* memory budget"):
-        smrf.filter(cloud)
+        smrf.filter(cloud, config=smrf.Config())            # 1 m cells as given (the spacing would coarsen them)
 
 
 def test_batch_estimate_counts_the_tiles_the_extent_holds():
