@@ -20,19 +20,26 @@ A caller that wants the fixed values passes them: `filter(cloud, config=Config()
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable, Iterable
 from typing import Any, NamedTuple
 
 import numpy as np
 
-__all__ = ["Terrain", "measure", "settle", "settle_defaults", "settle_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
+from gfjax import spikes
+from gfjax.io.cloud import CloudView
+
+RETURNS = ("all", "last")
+
+__all__ = ["Terrain", "measure", "settle", "follows", "finish", "settle_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
 
 # The preset name that keeps a method's fixed defaults (no rule applied).
 FIXED_PRESET = "fixed"
 _POINTS_PER_COVER_CELL = 16      # mean points per cell of the cover grid, so cells are empty for want of data,
 _MIN_COVER_CELL_M = 2.0          # not by chance
 _COVER_PASSES = 4                # the cover cell from the box's density, then three times from the area's
+_OBJECT_M = 30.0                 # objects narrower than this are taken off the minimum surface before slopes
 _SLOPE_CELLS_PER_SPACING = 4     # the slope grid's cell, in point spacings: a few points per cell, so its
 _MIN_SLOPE_CELL_M = 5.0          # minimum is mostly ground under canopy
 
@@ -48,8 +55,9 @@ class Terrain(NamedTuple):
         canopy; `spacing_m` where every return is a last one).
       slope_cell_m: cell of the coarse minimum surface the slopes are measured on.
       slope_p50, slope_p90: median and 90th percentile of that surface's slope (rise over
-        run) over its cells with four neighbours; 0 for a cloud of fewer than 2 × 2 cells.
-      relief_m: 98th minus 2nd percentile of the coarse minimum surface [m].
+        run) over its cells with four neighbours, once objects up to 30 m wide are eroded away
+        (`_ground_only`); 0 for a cloud of fewer than 2 × 2 cells.
+      relief_m: 98th minus 2nd percentile of that surface [m].
     """
 
     n_points: int
@@ -93,6 +101,18 @@ def _spacing(xy: np.ndarray) -> tuple[float, float]:
     return area, math.sqrt(area / n)
 
 
+def _ground_only(z_min: np.ndarray, cell_m: float) -> np.ndarray:
+    """The minimum surface `(h, w)` (+inf where empty) eroded by a square of about
+    `_OBJECT_M`: an erosion shifts a slope but keeps its gradient, and takes away the buildings
+    and tree crowns narrower than the square, whose walls would read as steep ground. The
+    square's 10th percentile, not its minimum, so a low outlier (multipath) does not spread."""
+    from scipy import ndimage
+
+    size = max(3, 2 * math.ceil(_OBJECT_M / (2 * cell_m)) + 1)
+    eroded = ndimage.percentile_filter(z_min, 10, size=size, mode="nearest")
+    return np.where(np.isfinite(z_min), eroded, np.inf)
+
+
 def measure(xyz_m: np.ndarray, last_xyz_m: np.ndarray | None = None) -> Terrain:
     """The statistics of `Terrain` for points `(n, 3)` [m] (float; the points a method uses)
     and their last returns `(k, 3)` (None or empty: the same points).
@@ -113,7 +133,7 @@ def measure(xyz_m: np.ndarray, last_xyz_m: np.ndarray | None = None) -> Terrain:
     index, shape = _cells(xy, slope_cell)
     z_min = np.full(shape[0] * shape[1], np.inf)
     np.minimum.at(z_min, index, xyz[:, 2])
-    z_min = z_min.reshape(shape)
+    z_min = _ground_only(z_min.reshape(shape), slope_cell)
     filled = np.isfinite(z_min)
     slopes = np.empty(0)
     if shape[0] >= 2 and shape[1] >= 2:
@@ -223,20 +243,39 @@ def settle(rule: Callable[[Terrain], dict[str, Any]] | None, xyz_m: np.ndarray, 
     return settle_terrain(rule, measure(xyz_m, last_xyz_m), config, params, fixed=fixed)
 
 
-def settle_defaults(rule: Callable[[Terrain], dict[str, Any]] | None, cloud: Any, config: Any, params: Any, *,
-                    config_type: type, params_type: type | None, returns: str = "all") -> Settled:
-    """The settings of a `filter(cloud, config=..., params=...)` call: what the caller gave is
-    kept whole (a given `Config` fixes every config field, a given `Params` every threshold),
-    and the rest follows `cloud` (its points `cloud.filter_mask(returns)`) by `rule`."""
-    fixed = [f.name for f in dataclasses.fields(config_type)] if config is not None else []
-    if params is not None:
-        fixed += [f.name for f in dataclasses.fields(params)]
-    config = config_type() if config is None else config
-    if params is None and params_type is not None:
-        params = params_type()
-    if len(fixed) == len(dataclasses.fields(config_type)) + (len(dataclasses.fields(params)) if params is not None else 0):
-        return Settled(config, params, {}, None)
-    return settle_cloud(rule, cloud, config, params, fixed=fixed, returns=returns)
+def follows(rule: Callable[[Terrain], dict[str, Any]], config_type: type, params_type: type | None):
+    """Decorate a method's `filter(cloud, *, config=None, params=None, returns="all", ...)` so
+    that a call without a `config` settles the method's values on the cloud (`rule`: the
+    method's `adapt`; a given `params` is kept whole), runs, and then drops ground spikes
+    (`finish`). A call with a `config` runs it as given: nothing follows the data.
+    """
+    def wrap(filter_fn: Callable[..., Any]) -> Callable[..., Any]:
+        @functools.wraps(filter_fn)
+        def filter(cloud, *, config=None, params=None, returns: str = "all", **kwargs):  # noqa: A001
+            settled = None
+            if config is None and isinstance(cloud, CloudView) and returns in RETURNS:
+                fixed = [f.name for f in dataclasses.fields(params)] if params is not None else []
+                if params is None and params_type is not None:
+                    params = params_type()
+                settled = settle_cloud(rule, cloud, config_type(), params, fixed=fixed, returns=returns)
+                if settled.terrain is None:                 # no point used: nothing to follow
+                    settled = None
+                else:
+                    config, params = settled.config, settled.params
+            result = filter_fn(cloud, config=config, params=params, returns=returns, **kwargs)
+            return finish(result, cloud, settled)
+        return filter
+    return wrap
+
+
+def finish(result: Any, cloud: Any, settled: Settled | None) -> Any:
+    """`result` (a `gfjax.result.Result` on `cloud`) with `settled` attached and its ground
+    spikes dropped (`gfjax.spikes.despike`), where the
+    values followed the data (`settled` with a terrain); `result` itself otherwise."""
+    if settled is None or settled.terrain is None:
+        return result
+    ground = spikes.despike(cloud.xyz_m, np.asarray(result.ground, dtype=bool))
+    return result._replace(ground=ground, settled=settled)
 
 
 def settle_cloud(rule: Callable[[Terrain], dict[str, Any]] | None, cloud: Any, config: Any, params: Any, *,

@@ -270,10 +270,13 @@ class MethodSetup(NamedTuple):
 
     def filter(self, cloud, **kwargs):
         """The method on `cloud`; the values the options left open follow the cloud first
-        (`settle`), and the result carries them (`Result.settled`)."""
+        (`settle`), ground spikes are dropped after (`gfjax.adaptive.finish`), and the result
+        carries what was chosen (`Result.settled`). With `--preset fixed`, neither."""
+        from gfjax import adaptive
+
         setup = self.settle(cloud, returns=kwargs.get("returns", "all"))
         result = self.module.filter(cloud, config=setup.config, params=setup.params, **(self.options or {}), **kwargs)
-        return result._replace(settled=setup.settled) if setup.settled is not None else result
+        return adaptive.finish(result, cloud, setup.settled)
 
     def settle(self, cloud, *, returns: str = "all") -> MethodSetup:
         """This setup with the values the options left open set from `cloud` (the method's

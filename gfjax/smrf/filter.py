@@ -56,6 +56,7 @@ class Diagnostics(NamedTuple):
     n_tiles: int
 
 
+@adaptive.follows(adapt, Config, Params)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False, tiling: Tiling | None = None) -> Result:  # noqa: A001 (the package API name)
     """Classify a cloud's ground points with SMRF (Pingel et al. 2013).
@@ -63,8 +64,8 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     Args:
       cloud: the point cloud (any units; filtered in metres).
       config: static settings; default `Config()` (cell 1 m, window 18 m) with the values
-        that follow the cloud (`adapt`: a coarser cell for sparse clouds). A given Config is
-        used as it is.
+        that follow the cloud (`adapt`: a coarser cell for sparse clouds), and ground spikes
+        dropped (`gfjax.spikes`). A given Config is used as it is, with no spike guard.
       params: thresholds (default `Params()`: slope 0.15, threshold 0.5 m, scalar 1.25).
       returns: "all" or "last": which returns are filtered.
       progress: show a progress bar over tile batches.
@@ -77,20 +78,13 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       `Diagnostics` (None for a cloud with no usable point, and for one whose groups of
       points far apart were filtered one by one: `gfjax.io.tiled.classify_groups`).
     """
-    tiled.checked_options(cloud, config, params, returns, config_type=Config, params_type=Params,
-                          package="gfjax.smrf")                   # before the cloud is measured
-    settled = adaptive.settle_defaults(adapt, cloud, config, params, config_type=Config, params_type=Params,
-                                       returns=returns)
-    config, params = settled.config, settled.params
-    settled = settled if settled.chosen else None
     done = tiled.filter_cloud(cloud, config, params, returns, tiling=tiling, config_type=Config, params_type=Params,
                               package="gfjax.smrf", classify_batch=programs.classify_batch, max_batch=MAX_BATCH,
                               rasters=_RASTERS, heights=("zimin", "zipro"), progress=progress)
     if done.cores is None:
-        return Result(ground=done.ground, diagnostics=None, settled=settled)
+        return Result(ground=done.ground, diagnostics=None)
     return Result(ground=done.ground, diagnostics=Diagnostics(
-        **done.cores.rasters, origin_m=done.cores.origin_m, cell_m=done.config.cell_m, n_tiles=done.n_tiles),
-        settled=settled)
+        **done.cores.rasters, origin_m=done.cores.origin_m, cell_m=done.config.cell_m, n_tiles=done.n_tiles))
 
 
 def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False,

@@ -7,6 +7,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from gfjax import spikes
 from gfjax.errors import InputError
 from gfjax.io.cloud import CloudView
 from gfjax.result import Result
@@ -168,7 +169,8 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
     Returns:
       `Result(ground, Diagnostics)`; ground by `config.decision` (`vote.decide`): by default
       SMRF's verdict (run once over the cloud) unless the network's mean vote is confident
-      against it; `decision="network"` is the paper's mean vote > `ground_probability`.
+      against it, then ground spikes dropped (`gfjax.spikes`); `decision="network"` is the
+      paper's mean vote > `ground_probability`, as it is.
     """
     if not isinstance(model, Model):
         model, trained_with = load_model(model)
@@ -196,6 +198,8 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
         return out
 
     ground = full(np.asarray(decide(prob, smrf_ground, config=config)), bool)
+    if config.decision == "network+smrf":         # the paper's bare decision stays bare
+        ground = spikes.despike(cloud.xyz_m, ground)
     diagnostics = Diagnostics(full(prob, np.float32), full(votes, np.int32), n_patches,
                               None if smrf_ground is None else full(smrf_ground, bool))
     return Result(ground=ground, diagnostics=diagnostics)

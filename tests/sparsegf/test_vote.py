@@ -139,10 +139,10 @@ def test_decide_matches_a_loop_under_jit_and_vmap(name):
 
 
 def test_decide_with_smrf_changes_labels_only_against_the_network_when_confident():
-    prob = np.array([0.35, 0.35, 0.75, 0.75, 0.95, 0.1], np.float32)
-    verdict = np.array([True, False, True, False, False, True])
+    prob = np.array([0.35, 0.35, 0.75, 0.75, 0.95, 0.1, 0.04], np.float32)
+    verdict = np.array([True, False, True, False, False, True, True])
     np.testing.assert_array_equal(np.asarray(decide(prob, verdict, config=Config())),
-                                  [True, False, True, False, True, False])
+                                  [True, False, True, False, True, True, False])
 
 
 def test_decide_refuses_a_missing_or_misshapen_verdict():
