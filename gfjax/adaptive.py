@@ -32,7 +32,7 @@ from gfjax.io.cloud import CloudView
 
 RETURNS = ("all", "last")
 
-__all__ = ["Terrain", "measure", "settle", "follows", "finish", "settle_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
+__all__ = ["Terrain", "measure", "settle", "follows", "finish", "raster_cell_m", "settle_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
 
 # The preset name that keeps a method's fixed defaults (no rule applied).
 FIXED_PRESET = "fixed"
@@ -42,6 +42,27 @@ _COVER_PASSES = 4                # the cover cell from the box's density, then t
 _OBJECT_M = 30.0                 # objects narrower than this are taken off the minimum surface before slopes
 _SLOPE_CELLS_PER_SPACING = 4     # the slope grid's cell, in point spacings: a few points per cell, so its
 _MIN_SLOPE_CELL_M = 5.0          # minimum is mostly ground under canopy
+
+
+# The 1 m raster cell of SMRF and PMF holds up to the ISPRS samples' 2.4 m spacing (empty cells
+# are filled); beyond it, where under canopy one cell in ten or more holds a last return, the
+# minimum surface is mostly canopy. Chosen on the training files of `experiments.common.LABELLED`
+# (on the IGN forest at 0.06 points/m², last returns 5.1 m apart, SMRF's type I falls from 56 %
+# at 1 m to 3.6 % at 5 m; `experiments/results/adaptive_rules_pmf.md` for PMF).
+COARSE_SPACING_M = 2.5
+# The coarsest cell the rule sets: a third of SMRF's 18 m window, so its opening still grows
+# over three radii. Scattered points farther apart are no surface a raster can model.
+MAX_CELL_M = 6.0
+
+
+def raster_cell_m(terrain: Terrain) -> float:
+    """A morphological filter's raster cell [m] for a cloud: 1 m until the last returns lie
+    more than `COARSE_SPACING_M` apart, then their spacing rounded down to 0.5 m, at most
+    `MAX_CELL_M`."""
+    spacing = terrain.last_spacing_m
+    if spacing <= COARSE_SPACING_M:
+        return 1.0
+    return min(MAX_CELL_M, math.floor(spacing / 0.5) * 0.5)
 
 
 class Terrain(NamedTuple):

@@ -24,11 +24,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from gfjax import aot
+from gfjax import adaptive, aot
 from gfjax._types import Mask, PointMask, Points, Raster
 from gfjax.csf import stages
 from gfjax.csf.cloth import simulate
-from gfjax.csf.config import BUFFER_PX, CLOTH_START_M, Config, Params
+from gfjax.csf.config import BUFFER_PX, CLOTH_START_M, Config, Params, adapt
 from gfjax.io.cloud import CloudView
 from gfjax.io import groups
 from gfjax.io.tiled import check_memory, checked_options, filter_groups
@@ -237,6 +237,7 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
     return aot.warm_all([job((h, w)) for h in sides for w in sides], progress=progress, desc="csf programs")
 
 
+@adaptive.follows(adapt, Config, Params)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False) -> Result:  # noqa: A001 (the package API name)
     """Classify a cloud's ground points with CSF (Zhang et al. 2016).

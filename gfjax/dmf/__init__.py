@@ -6,7 +6,7 @@ result = gfjax.dmf.filter(cloud)                         # Result(ground, diagno
 result = gfjax.dmf.filter(cloud, config=gfjax.dmf.Config(basal_stop="per_node"))
 ```
 """
-from gfjax.dmf.config import PRESETS, Config, Params
+from gfjax.dmf.config import PRESETS, Config, Params, adapt
 from gfjax.dmf.filter import Diagnostics, filter, survey_config, warm  # noqa: A004
 
-__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "Diagnostics", "survey_config"]
+__all__ = ["filter", "adapt", "warm", "Config", "Params", "PRESETS", "Diagnostics", "survey_config"]

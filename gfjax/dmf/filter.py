@@ -22,10 +22,10 @@ import jax
 import numpy as np
 from scipy.spatial import cKDTree
 
-from gfjax import aot
+from gfjax import adaptive, aot
 from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import extract, neighbours, shapes, stages, voxels
-from gfjax.dmf.config import MAX_BATCH, Config, Params
+from gfjax.dmf.config import MAX_BATCH, Config, Params, adapt
 from gfjax.io.cloud import CloudView
 from gfjax.io import groups
 from gfjax.io.tiled import check_memory, checked_options, checked_tiling, filter_groups
@@ -424,6 +424,7 @@ def prepare(cloud: CloudView, use: np.ndarray, config: Config, *, tiling: Tiling
                     overflowed, seconds)
 
 
+@adaptive.follows(adapt, Config, Params)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,  # noqa: A001
            returns: str = "all", progress: bool = False, tiling: Tiling | None = None) -> Result:
     """Classify ground points with DMF (Wu et al. 2025; our readings: SPEC section 3).

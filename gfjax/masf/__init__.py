@@ -7,7 +7,7 @@ config, params = gfjax.methods.make_config_and_params(gfjax.masf, preset="paper-
 result = gfjax.masf.filter(cloud, config=config, params=params)
 ```
 """
-from gfjax.masf.config import PAPER_TABLE3, PRESETS, Config, Params
+from gfjax.masf.config import PAPER_TABLE3, PRESETS, Config, Params, adapt
 from gfjax.masf.filter import Diagnostics, filter, filter_points
 
-__all__ = ["filter", "filter_points", "Config", "Params", "PRESETS", "PAPER_TABLE3", "Diagnostics"]
+__all__ = ["filter", "adapt", "filter_points", "Config", "Params", "PRESETS", "PAPER_TABLE3", "Diagnostics"]

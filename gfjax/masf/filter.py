@@ -39,11 +39,12 @@ import numpy as np
 
 from gfjax.errors import InputError
 from gfjax.io.cloud import CloudView
+from gfjax import adaptive
 from gfjax.io import groups
 from gfjax.io.tiled import check_memory, filter_groups
 from gfjax.io.tiles import Frame
 from gfjax.masf import alpha_shape, densify as densify_mod, preprocess, tin
-from gfjax.masf.config import Config, Params
+from gfjax.masf.config import Config, Params, adapt
 from gfjax.result import Result
 
 __all__ = ["filter", "Diagnostics", "filter_points", "Prepared", "prepare", "pyramid", "densify"]
@@ -200,6 +201,7 @@ def filter_points(xyz_m: np.ndarray, config: Config, params: Params,
                                           tin_rebuilds=result.tin_rebuilds, **empty_diag)
 
 
+@adaptive.follows(adapt, Config, Params)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False) -> Result:
     """Classify ground points with MASF (Cao et al. 2024).

@@ -2,16 +2,16 @@
 
 ```python
 import gfjax
-result = gfjax.pmf.filter(gfjax.read("tile.laz"))            # PDAL filters.pmf defaults
+result = gfjax.pmf.filter(gfjax.read("tile.laz"))     # values that follow the cloud (`adapt`)
 result = gfjax.pmf.filter(cloud, config=gfjax.pmf.Config(max_window_m=17.0),
                           params=gfjax.pmf.Params(slope=0.5))
 ```
 """
-from gfjax.pmf.config import PRESETS, Config, Params
+from gfjax.pmf.config import PRESETS, Config, Params, adapt
 from gfjax.pmf.filter import Diagnostics, filter, warm
 from gfjax.pmf.stages import TileDiagnostics
 
 # A tile's core labels depend on its window only: a survey runs each tile once (`gfjax.methods`).
 TILE_LABELS = True
 
-__all__ = ["filter", "warm", "Config", "Params", "PRESETS", "TILE_LABELS", "Diagnostics", "TileDiagnostics"]
+__all__ = ["filter", "warm", "adapt", "Config", "Params", "PRESETS", "TILE_LABELS", "Diagnostics", "TileDiagnostics"]

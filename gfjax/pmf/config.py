@@ -9,12 +9,12 @@ import dataclasses
 
 from jaxtyping import Array, Float
 
-from gfjax import limits, params
+from gfjax import adaptive, limits, params
 from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.params import param
 
-__all__ = ["Config", "Params", "PRESETS", "RANGES"]
+__all__ = ["Config", "Params", "PRESETS", "RANGES", "adapt"]
 
 # The valid range of every numeric Config / Params field (`gfjax.limits`).
 RANGES: dict[str, Range] = {
@@ -97,3 +97,21 @@ PRESETS: dict[str, dict[str, float]] = {
     "steep": {"max_window_m": 17.0, "slope": 1.5, "initial_distance_m": 0.3, "max_distance_m": 3.0},
     "flat": {"max_window_m": 65.0, "slope": 0.5, "initial_distance_m": 0.15, "max_distance_m": 2.0},
 }
+PRESETS[adaptive.FIXED_PRESET] = {"cell_m": 1.0, "initial_distance_m": 0.15, "max_distance_m": 2.5}
+
+# What follows the cloud, chosen among candidates on the training files of
+# `experiments.common.LABELLED` by leave-one-survey-out (`experiments/results/adaptive_rules_pmf.md`:
+# 18 of 21 files pass, 12 with the fixed values): the cell of SMRF's rule; a first threshold
+# of 0.5 m (0.15 m takes rough or noisy ground for objects: half the ground of a flat forest);
+# a threshold cap that lets the largest window follow the steep slopes (PDAL's 2.5 m cuts off
+# mountain ground once the window spans more than 2.5 m of rise).
+INITIAL_DISTANCE_M = 0.5
+
+
+def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
+    """PMF's values that follow the cloud (`gfjax.adaptive`): `cell_m` (`adaptive.raster_cell_m`),
+    `initial_distance_m` = 0.5 m, and `max_distance_m` = the rise of the 90th-percentile slope over
+    half the largest window, at least 2.5 m."""
+    half_window_m = Config().max_window_m / 2
+    return {"cell_m": adaptive.raster_cell_m(terrain), "initial_distance_m": INITIAL_DISTANCE_M,
+            "max_distance_m": max(2.5, round(terrain.slope_p90 * half_window_m, 2))}

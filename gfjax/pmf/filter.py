@@ -17,11 +17,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from gfjax import adaptive
 from gfjax.io import tiled
 from gfjax.io.cloud import CloudView
 from gfjax.io.tiles import Tiling
 from gfjax.pmf import programs
-from gfjax.pmf.config import MAX_BATCH, Config, Params
+from gfjax.pmf.config import MAX_BATCH, Config, Params, adapt
 from gfjax.result import Result
 
 __all__ = ["filter", "warm", "Diagnostics", "MAX_BATCH"]
@@ -48,6 +49,7 @@ class Diagnostics(NamedTuple):
     n_tiles: int
 
 
+@adaptive.follows(adapt, Config, Params)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False, tiling: Tiling | None = None) -> Result:  # noqa: A001 (the package API name)
     """Classify a cloud's ground points with PMF (Zhang et al. 2003).

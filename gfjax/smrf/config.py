@@ -115,22 +115,7 @@ PRESETS: dict[str, dict[str, object]] = {
     adaptive.FIXED_PRESET: {"cell_m": 1.0},
 }
 
-# The 1 m cell holds up to the ISPRS samples' 2.4 m spacing (inpainting fills the empty cells);
-# beyond it, where under canopy only one cell in ten or more holds a last return, the minimum
-# surface is mostly canopy. Chosen on the training files of `experiments/common.LABELLED`
-# (`experiments/corpus_eval.py`): on the IGN forest at 0.06 points/m² (last returns every
-# 5.1 m) type I falls from 56 % at 1 m to 3.6 % at 5 m.
-COARSE_SPACING_M = 2.5
-# The coarsest cell a rule sets: a third of the 18 m window, so the progressive opening still
-# grows over three radii. Scattered points farther apart are no surface a raster can model.
-MAX_ADAPTED_CELL_M = 6.0
-
-
 def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
-    """SMRF's values that follow the cloud (`gfjax.adaptive`): `cell_m` is 1 m until the last
-    returns lie more than `COARSE_SPACING_M` apart, then their spacing, rounded down to 0.5 m,
-    at most `MAX_ADAPTED_CELL_M`."""
-    spacing = terrain.last_spacing_m
-    if spacing <= COARSE_SPACING_M:
-        return {"cell_m": 1.0}
-    return {"cell_m": min(MAX_ADAPTED_CELL_M, math.floor(spacing / 0.5) * 0.5)}
+    """SMRF's values that follow the cloud (`gfjax.adaptive`): the cell, coarser for sparse
+    last returns (`adaptive.raster_cell_m`)."""
+    return {"cell_m": adaptive.raster_cell_m(terrain)}

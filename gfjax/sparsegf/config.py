@@ -21,6 +21,9 @@ DECISIONS = ("network", "network+smrf")
 # <= 10 % and DTM RMSE <= 0.30 m: 12 at 0.3, 16 at 0.1, 18 at 0.05 and 0.02, the lower total
 # error at 0.05; `experiments/results/sparsegf_decision_corpus.md`).
 SMRF_GROUND_PROBABILITY = 0.05
+# ... and a point it rejects that lies within this of the ground kept around it is ground all
+# the same [m] (a few times ALS's vertical noise; 0.05-0.1 m pass as many training files).
+LEVEL_TOLERANCE_M = 0.1
 SMRF_OBJECT_PROBABILITY = 0.9
 # How the mean votes become labels: settings of a run, not of a network. A model file does
 # not carry them (`filter.load_model`); they come from `Config`'s defaults or `--set`.

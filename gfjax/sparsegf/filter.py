@@ -12,7 +12,7 @@ from gfjax.errors import InputError
 from gfjax.io.cloud import CloudView
 from gfjax.result import Result
 from gfjax.sparsegf import checkpoint
-from gfjax.sparsegf.config import DECISION_FIELDS, Config
+from gfjax.sparsegf.config import DECISION_FIELDS, LEVEL_TOLERANCE_M, Config
 from gfjax.sparsegf.features import cloud_features, n_features
 from gfjax.sparsegf.model import Model
 from gfjax.sparsegf.partition import PartitionConfig, partition
@@ -152,6 +152,35 @@ def load_model(path=None) -> tuple[Model, Config]:
     return model, config
 
 
+def level_ground_kept(xyz_m: np.ndarray, ground: np.ndarray, smrf_ground: np.ndarray, *,
+                       k: int = spikes.NEIGHBOURS) -> np.ndarray:
+    """`ground` with SMRF's ground points that the network rejected given back where they lie
+    level with the ground it kept: within `LEVEL_TOLERANCE_M` of the median height of their `k`
+    nearest kept ground points (x, y). The network may take understory and low objects off
+    SMRF's ground, not ground that is level with ground: off the surveys it learned from it
+    rejects such points confidently (half of a flat plane of 20 points/m²).
+
+    Args:
+      xyz_m: float `(n, 3)` [m]; ground, smrf_ground: bool `(n,)`.
+
+    Returns:
+      bool `(n,)`.
+    """
+    from scipy.spatial import cKDTree
+
+    rejected = np.flatnonzero(smrf_ground & ~ground)
+    kept = np.flatnonzero(ground)
+    if rejected.size == 0 or kept.size < k:
+        return ground
+    xyz = np.asarray(xyz_m, dtype=np.float64)
+    origin = xyz[kept, :2].min(axis=0)
+    _, neighbour = cKDTree(xyz[kept, :2] - origin).query(xyz[rejected, :2] - origin, k=k)
+    level = np.abs(xyz[rejected, 2] - np.median(xyz[kept[neighbour], 2], axis=1)) <= LEVEL_TOLERANCE_M
+    out = ground.copy()
+    out[rejected[level]] = True
+    return out
+
+
 def filter(cloud: CloudView, *, config: Config | None = None, params=None, returns: str = "all",
            progress: bool = False, model: Model | str | None = None) -> Result:
     """Classify ground points with SparseGF.
@@ -169,7 +198,8 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
     Returns:
       `Result(ground, Diagnostics)`; ground by `config.decision` (`vote.decide`): by default
       SMRF's verdict (run once over the cloud) unless the network's mean vote is confident
-      against it, then ground spikes dropped (`gfjax.spikes`); `decision="network"` is the
+      against it and it stands off the ground kept around it (`level_ground_kept`), then
+      ground spikes dropped (`gfjax.spikes`); `decision="network"` is the
       paper's mean vote > `ground_probability`, as it is.
     """
     if not isinstance(model, Model):
@@ -199,7 +229,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
 
     ground = full(np.asarray(decide(prob, smrf_ground, config=config)), bool)
     if config.decision == "network+smrf":         # the paper's bare decision stays bare
-        ground = spikes.despike(cloud.xyz_m, ground)
+        ground = spikes.despike(cloud.xyz_m, level_ground_kept(cloud.xyz_m, ground, full(smrf_ground, bool)))
     diagnostics = Diagnostics(full(prob, np.float32), full(votes, np.int32), n_patches,
                               None if smrf_ground is None else full(smrf_ground, bool))
     return Result(ground=ground, diagnostics=diagnostics)
