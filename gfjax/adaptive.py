@@ -1,21 +1,25 @@
-"""Defaults that follow the cloud: its statistics, and each method's rules on them.
+"""Defaults that follow the cloud: its statistics, each method's rules on them, a spike guard.
 
 A method's fixed defaults (`Config()`, `Params()`) were chosen on the ISPRS samples, at about
 1 point/m²; on a thinned survey of 0.1 points/m² a 1 m raster is mostly empty and its minimum
 surface is the canopy. So the values that depend on the data are set from the cloud itself:
 
-- `measure(xyz_m) -> Terrain`: the point spacing over the area the points cover, and the
-  slopes of a coarse minimum surface (one pass over the points, numpy; no labels).
-- Each method package's `adapt(terrain) -> dict` (`gfjax.smrf.config.adapt`, ...): the values
-  of its `Config` / `Params` fields that follow from the terrain, each a documented function
-  of it. Rules were fitted on the training files of `experiments/common.LABELLED` only
-  (`experiments/corpus_eval.py` scores them on every labelled file).
-- `settle(method, xyz_m, config, params, fixed=...)`: the method's `Config` / `Params` with
-  the rules' values, except the fields in `fixed` (a user's `--set`, `--params` or preset
-  values, which always win), and what was chosen, for `gfjax filter -v` and diagnostics.
+- `measure(xyz_m, last_xyz_m) -> Terrain`: the point spacing over the area the points cover
+  (of all returns and of the last ones), and the slopes of a coarse minimum surface with the
+  objects eroded away (numpy and one scipy filter; no labels). `combine` joins a survey's files.
+- Each method package's `adapt(terrain) -> dict` (`gfjax.smrf.adapt`, `gfjax.pmf.adapt`, ...):
+  the values of its `Config` / `Params` fields that follow from the terrain, each a documented
+  function of it, chosen on the training files of `experiments/common.LABELLED` only
+  (`experiments/adaptive_rules.py`; `experiments/corpus_eval.py` scores every labelled file).
+- `settle_cloud` / `settle_terrain`: a method's `Config` / `Params` with the rules' values,
+  except the fields in `fixed` (a user's `--set`, `--params` or preset values, which always
+  win), and what was chosen (`Settled`: `gfjax filter -v`, `Result.settled`).
+- `finish`: a run whose values followed the cloud also drops ground spikes (`gfjax.spikes`).
+- `follows`: the decorator that gives a method's `filter` all of this when it is called
+  without a `config`.
 
 A caller that wants the fixed values passes them: `filter(cloud, config=Config())` uses
-`Config()` as it is; `--preset fixed` does the same on the command line.
+`Config()` as it is, with no spike guard; `--preset fixed` does the same on the command line.
 """
 from __future__ import annotations
 

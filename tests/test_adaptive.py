@@ -158,3 +158,35 @@ def test_a_flat_plane_is_ground_with_every_method(name, points_per_m2):
     cloud = Cloud.from_xyz(grid_plane(spacing, 100.0, noise_m=0.02, seed=3))
     ground = np.asarray(methods.get(name).filter(cloud).ground)
     assert np.mean(ground) >= 0.995
+
+
+def test_pmf_rule_follows_spacing_and_slope():
+    from gfjax import pmf
+
+    flat = pmf.adapt(adaptive.measure(grid_plane(1.0, 200.0)))
+    assert flat == {"cell_m": 1.0, "initial_distance_m": 0.5, "max_distance_m": 2.5}
+    steep = pmf.adapt(adaptive.measure(grid_plane(1.0, 200.0, slope=0.6)))
+    assert steep["max_distance_m"] == pytest.approx(0.6 * pmf.Config().max_window_m / 2, rel=0.02)
+    sparse = pmf.adapt(adaptive.measure(grid_plane(4.0, 800.0)))
+    assert sparse["cell_m"] == 4.0
+
+
+def test_dmf_masf_csf_rules_set_nothing_yet():
+    from gfjax import csf, dmf, masf
+
+    terrain = adaptive.measure(grid_plane(1.0, 100.0))
+    assert dmf.adapt(terrain) == masf.adapt(terrain) == csf.adapt(terrain) == {}
+
+
+def test_finish_drops_a_spike_only_where_the_values_followed_the_cloud():
+    from gfjax.result import Result
+
+    xyz = grid_plane(1.0, 50.0)
+    xyz[100, 2] += 7.0                                   # a chimney top a filter kept as ground
+    cloud = Cloud.from_xyz(xyz)
+    kept = Result(ground=np.ones(len(xyz), bool))
+    settled = adaptive.settle_cloud(smrf.adapt, cloud, smrf.Config(), smrf.Params())
+    finished = adaptive.finish(kept, cloud, settled)
+    assert not finished.ground[100] and finished.ground.sum() == len(xyz) - 1
+    assert finished.settled is settled
+    assert adaptive.finish(kept, cloud, None) is kept    # fixed values: labels as the filter gave them
