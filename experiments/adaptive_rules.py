@@ -60,6 +60,15 @@ CANDIDATES: dict[str, dict[str, Rule]] = {
                                              "max_distance_m": max(2.5, t.slope_p50 * 33.0 / 2)},
         "dh0 0.5+slope p50": lambda t: {"initial_distance_m": 0.5, "slope": max(1.0, 4 * t.slope_p50)},
     },
+    "smrf": {
+        "cell": lambda t: {"cell_m": _smrf_cell(t)},
+        "cell+slope p90": lambda t: {"cell_m": _smrf_cell(t), "slope": round(max(0.15, t.slope_p90), 3)},
+        "cell+slope p90/2": lambda t: {"cell_m": _smrf_cell(t), "slope": round(max(0.15, t.slope_p90 / 2), 3)},
+        "cell+slope 2 p50": lambda t: {"cell_m": _smrf_cell(t), "slope": round(max(0.15, 2 * t.slope_p50), 3)},
+        "cell+slope 0.1+p90/2": lambda t: {"cell_m": _smrf_cell(t), "slope": round(0.1 + t.slope_p90 / 2, 3)},
+        "cell+slope 0.2": lambda t: {"cell_m": _smrf_cell(t), "slope": 0.2},
+        "cell+slope 0.1": lambda t: {"cell_m": _smrf_cell(t), "slope": 0.1},
+    },
     "csf": {
         "fixed": lambda t: {},
         "slope_smooth": lambda t: {"slope_smooth": True},

@@ -197,7 +197,7 @@ def test_two_points_far_apart_are_filtered_apart(method, tmp_path, capsys, monke
 @pytest.mark.parametrize("method, what", [("csf", "a cloth of 49,9"), ("masf", "a grid of 49,9"),
                                           ("dmf", "the whole-cloud rasters of 49,9"),
                                           ("smrf", "the whole-cloud rasters of 8,3"),   # 6 m cells: points 70 m apart
-                                          ("pmf", "the whole-cloud rasters of 49,9")])
+                                          ("pmf", "the whole-cloud rasters of 8,3")])
 def test_one_group_over_the_budget_is_refused_after_reading(method, what, tmp_path, capsys, monkeypatch):
     las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
     steps = np.arange(0.0, 50_000.0, 50.0)                           # a chain of points 50 m apart

@@ -38,7 +38,7 @@ def _same_but_classification(a, b) -> None:
 def test_a_file_out_of_core_equals_the_file_in_memory(files, method, tmp_path, monkeypatch):
     *_, union = files
     monkeypatch.setattr(stream, "CHUNK_POINTS", 5_000)            # several chunks
-    args = ["filter", str(union), "--method", method, *TILING, "--reset-nonground"]
+    args = ["filter", str(union), "--method", method, *TILING, "--reset-nonground", "--preset", "fixed"]
     assert main([*args, "-o", str(tmp_path / "memory.laz")]) == 0
     assert main([*args, "-o", str(tmp_path / "disk.laz"), "--out-of-core"]) == 0
     memory, disk = laspy.read(tmp_path / "memory.laz"), laspy.read(tmp_path / "disk.laz")
