@@ -102,11 +102,15 @@ class Terrain(NamedTuple):
                 f"90th percentile {self.slope_p90:.2f}; relief {self.relief_m:.1f} m")
 
 
-def _cells(xy: np.ndarray, cell_m: float) -> tuple[np.ndarray, tuple[int, int]]:
-    """Flat cell index of every point on a grid of `cell_m` from the points' minimum, and its shape."""
-    lo = xy.min(axis=0)
-    ij = np.floor((xy - lo) / cell_m).astype(np.int64)
-    shape = (int(ij[:, 1].max()) + 1, int(ij[:, 0].max()) + 1)
+def _cells(xy: np.ndarray, cell_m: float, lo: np.ndarray | None = None,
+           hi: np.ndarray | None = None) -> tuple[np.ndarray, tuple[int, int]]:
+    """Flat cell index of every point `(n, 2)` on a grid of `cell_m` from `lo` (default: the
+    points' minimum; `hi` their maximum, passed when known), and the grid's shape."""
+    lo = xy.min(axis=0) if lo is None else lo
+    hi = xy.max(axis=0) if hi is None else hi
+    ij = ((xy - lo) / cell_m).astype(np.int64)            # >= 0: truncation is the floor
+    shape = (int((hi[1] - lo[1]) / cell_m) + 1, int((hi[0] - lo[0]) / cell_m) + 1)
+    np.minimum(ij, [shape[1] - 1, shape[0] - 1], out=ij)   # rounding at the far edge
     return ij[:, 1] * shape[1] + ij[:, 0], shape
 
 
@@ -118,11 +122,12 @@ def _spacing(xy: np.ndarray) -> tuple[float, float]:
     L-shaped survey does not make the cells (and so the area) as large as the box.
     """
     n = xy.shape[0]
-    area = float(np.maximum(np.ptp(xy, axis=0), 1.0).prod())
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    area = float(np.maximum(hi - lo, 1.0).prod())
     for _ in range(_COVER_PASSES):
         cover_m = max(_MIN_COVER_CELL_M, math.sqrt(_POINTS_PER_COVER_CELL * area / n))
-        cover, _ = _cells(xy, cover_m)
-        area = np.unique(cover).size * cover_m * cover_m
+        cover, shape = _cells(xy, cover_m, lo, hi)
+        area = np.count_nonzero(np.bincount(cover, minlength=shape[0] * shape[1])) * cover_m * cover_m
     return area, math.sqrt(area / n)
 
 

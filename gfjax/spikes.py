@@ -24,6 +24,14 @@ THRESHOLD_M = 1.0        # height off their median tolerated next to them [m]
 SLOPE = 0.5              # ... plus this rise over run, over the median distance to them
 
 
+def _median_rows(a: np.ndarray) -> np.ndarray:
+    """`np.median(a, axis=1)` of a float `(m, k)` array, by one partition (no sort)."""
+    k = a.shape[1]
+    middle = [(k - 1) // 2, k // 2]
+    part = np.partition(a, middle, axis=1)
+    return 0.5 * (part[:, middle[0]] + part[:, middle[1]])
+
+
 def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRESHOLD_M, slope: float = SLOPE,
             k: int = NEIGHBOURS) -> np.ndarray:
     """Ground labels without the spikes (see the module docstring).
@@ -46,10 +54,10 @@ def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRES
         return ground.copy()
     xyz = np.asarray(xyz_m, dtype=np.float64)[index]
     xy = xyz[:, :2] - xyz[:, :2].min(axis=0)
-    distance, neighbour = cKDTree(xy).query(xy, k=k + 1)
+    distance, neighbour = cKDTree(xy).query(xy, k=k + 1, workers=-1)
     distance, neighbour = distance[:, 1:], neighbour[:, 1:]              # the point itself first
-    off = xyz[:, 2] - np.median(xyz[neighbour, 2], axis=1)
-    allowed = threshold_m + slope * np.median(distance, axis=1)
+    off = xyz[:, 2] - _median_rows(xyz[neighbour, 2])
+    allowed = threshold_m + slope * _median_rows(distance)
     out = ground.copy()
     out[index[np.abs(off) > allowed]] = False
     return out
