@@ -36,7 +36,7 @@ from gfjax.io.cloud import CloudView
 
 RETURNS = ("all", "last")
 
-__all__ = ["Terrain", "measure", "settle", "follows", "finish", "raster_cell_m", "settle_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
+__all__ = ["Terrain", "measure", "follows", "finish", "raster_cell_m", "settle_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
 
 # The preset name that keeps a method's fixed defaults (no rule applied).
 FIXED_PRESET = "fixed"
@@ -214,7 +214,9 @@ def combine(terrains: Iterable[Terrain]) -> Terrain:
 
 def settle_terrain(rule: Callable[[Terrain], dict[str, Any]] | None, terrain: Terrain, config: Any, params: Any, *,
                    fixed: Iterable[str] = ()) -> Settled:
-    """`settle` on a terrain measured already (a survey's: `combine`)."""
+    """`config` and `params` with the values `rule(terrain)` gives, but for the fields in
+    `fixed` (a user's, kept as they are); what was chosen and the terrain in `Settled`. A
+    rule's value is checked by the dataclass like any other (`SettingError`)."""
     if rule is None:
         return Settled(config, params, {}, None)
     keep = set(fixed)
@@ -254,25 +256,6 @@ def _show(value: Any) -> str:
     return str(value)
 
 
-def settle(rule: Callable[[Terrain], dict[str, Any]] | None, xyz_m: np.ndarray, config: Any, params: Any,
-           *, fixed: Iterable[str] = (), last_xyz_m: np.ndarray | None = None) -> Settled:
-    """`config` and `params` with the values `rule(measure(xyz_m, last_xyz_m))` gives, but for `fixed`.
-
-    Args:
-      rule: the method's `adapt` (None: nothing follows the data).
-      xyz_m: the points the method uses, float `(n, 3)` [m]; with none, nothing changes.
-      last_xyz_m: their last returns, float `(k, 3)` [m] (None: the same points).
-      config, params: the method's `Config` and `Params` (params may be None).
-      fixed: field names a user set, kept as they are.
-
-    Returns:
-      `Settled`. A rule's value is checked by the dataclass like any other (`SettingError`).
-    """
-    if rule is None or len(xyz_m) == 0:
-        return Settled(config, params, {}, None)
-    return settle_terrain(rule, measure(xyz_m, last_xyz_m), config, params, fixed=fixed)
-
-
 def follows(rule: Callable[[Terrain], dict[str, Any]], config_type: type, params_type: type | None):
     """Decorate a method's `filter(cloud, *, config=None, params=None, returns="all", ...)` so
     that a call without a `config` settles the method's values on the cloud (`rule`: the
@@ -310,9 +293,13 @@ def finish(result: Any, cloud: Any, settled: Settled | None) -> Any:
 
 def settle_cloud(rule: Callable[[Terrain], dict[str, Any]] | None, cloud: Any, config: Any, params: Any, *,
                  fixed: Iterable[str] = (), returns: str = "all") -> Settled:
-    """`settle` on a cloud's used points (`cloud.filter_mask(returns)`) and their last returns."""
+    """`settle_terrain` on a cloud's used points (`cloud.filter_mask(returns)`) and their last
+    returns; nothing changes (`Settled` without a terrain) without a rule or a used point."""
     if rule is None:
         return Settled(config, params, {}, None)
     xyz = cloud.xyz_m
-    return settle(rule, xyz[cloud.filter_mask(returns)], config, params, fixed=fixed,
-                  last_xyz_m=xyz[cloud.filter_mask("last")])
+    used = xyz[cloud.filter_mask(returns)]
+    if len(used) == 0:
+        return Settled(config, params, {}, None)
+    terrain = measure(used, xyz[cloud.filter_mask("last")])
+    return settle_terrain(rule, terrain, config, params, fixed=fixed)

@@ -94,6 +94,18 @@ def window(catalog: Catalog, i: int, cloud: Cloud, lattice: Lattice | None) -> P
     return Points(**fields, name=cloud.name, frame=catalog.frame)
 
 
+def _file_points(catalog: Catalog, *selections: str) -> Iterator[tuple[np.ndarray, ...]]:
+    """Per file of the catalog, its points `(k, 3)` [m] of each returns selection ("all",
+    "last": `use_mask`), read block by block from its store."""
+    for entry in catalog.entries:
+        parts: list[list[np.ndarray]] = [[] for _ in selections]
+        for _, block in entry.blocks():
+            args = (block["ignored"], block["return_number"], block["number_of_returns"])
+            for part, selection in zip(parts, selections):
+                part.append(block["xyz_m"][use_mask(*args, selection)])
+        yield tuple(np.concatenate(part) if part else np.empty((0, 3)) for part in parts)
+
+
 def survey_config(method: ModuleType, config, catalog: Catalog, *, returns: str = "all"):
     """`config` with the method's per-cloud estimates made once for the whole survey
     (`method.survey_config`, where the method has one: DMF's voxel size W), so every file and
@@ -101,14 +113,7 @@ def survey_config(method: ModuleType, config, catalog: Catalog, *, returns: str 
     hook = getattr(method, "survey_config", None)
     if hook is None:
         return config
-
-    def clouds() -> Iterator[np.ndarray]:
-        for entry in catalog.entries:
-            parts = [block["xyz_m"][use_mask(block["ignored"], block["return_number"], block["number_of_returns"],
-                                              returns)] for _, block in entry.blocks()]
-            yield np.concatenate(parts) if parts else np.empty((0, 3))
-
-    return hook(config, clouds())
+    return hook(config, (used for used, in _file_points(catalog, returns)))
 
 
 def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrain | None:
@@ -116,16 +121,7 @@ def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrai
     file measured on its used points and their last returns, then combined, so every file and
     tile of the survey gets the same values. None when no point is used. Reads each file's
     store once."""
-    terrains = []
-    for entry in catalog.entries:
-        used, last = [], []
-        for _, block in entry.blocks():
-            args = (block["ignored"], block["return_number"], block["number_of_returns"])
-            used.append(block["xyz_m"][use_mask(*args, returns)])
-            last.append(block["xyz_m"][use_mask(*args, "last")])
-        xyz = np.concatenate(used) if used else np.empty((0, 3))
-        if len(xyz):
-            terrains.append(adaptive.measure(xyz, np.concatenate(last)))
+    terrains = [adaptive.measure(used, last) for used, last in _file_points(catalog, returns, "last") if len(used)]
     return adaptive.combine(terrains) if terrains else None
 
 
