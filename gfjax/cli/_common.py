@@ -216,6 +216,22 @@ def say_crs_warning(found: Sequence[tuple[Path, Any]], *, metres_matter: bool = 
         print(line, file=sys.stderr)
 
 
+def say_written_versions(found: Sequence[tuple[Path, Any]]) -> None:
+    """Say once on stderr which inputs (`(path, laspy header)`) are written in another LAS
+    version than theirs (`gfjax.io.las.written_version`: LAS 1.0 as 1.2)."""
+    from gfjax.io import las as las_io
+
+    by_change: dict[tuple, list[Path]] = {}
+    for path, header in found:
+        new = las_io.written_version(header)
+        if new is not None:
+            by_change.setdefault(((header.version.major, header.version.minor), new), []).append(path)
+    for (old, new), paths in by_change.items():
+        print(f"gfjax: note: {_some(paths)}: LAS {old[0]}.{old[1]}, written as LAS {new[0]}.{new[1]} "
+              f"(laspy writes no LAS {old[0]}.{old[1]}); points and classes are as in LAS {old[0]}.{old[1]}",
+              file=sys.stderr)
+
+
 def check_inputs(paths: Sequence[Path], *, units: str | None, metres_matter: bool = True) -> list:
     """Read every input's header, CRS and units before any work (`gfjax.io.las.read_header`,
     `header_crs_units`), and say once what was assumed of their CRSs (`say_crs_warning`).

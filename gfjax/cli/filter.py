@@ -52,7 +52,8 @@ import numpy as np
 
 from gfjax.cli import _job
 from gfjax.cli._common import (TIF_SUFFIXES, add_method_options, add_units_option, method_setup,
-                               nonnegative_float, output_targets, positive_float, positive_int, say_crs_warning)
+                               nonnegative_float, output_targets, positive_float, positive_int, say_crs_warning,
+                               say_written_versions)
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 
@@ -135,6 +136,7 @@ def run(args: argparse.Namespace) -> int:
                             dtm_cell_m=args.cell if args.dtm else None,
                             extra_bytes_per_point=4 if args.instances else 0, trust_data=args.trust_data)
     say_crs_warning([(job.source, job.crs_units) for job in planned])
+    say_written_versions([(job.source, job.header) for job in planned])
     out_of_core = _out_of_core(args, setup, planned)
     # cleanup errors ignored: after a failed task a worker may still be writing a store there
     with tempfile.TemporaryDirectory(prefix="gfjax-survey-", ignore_cleanup_errors=True) as folder, \

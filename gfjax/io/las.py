@@ -8,11 +8,12 @@ Every bad input raises `InputError` naming the file.
 """
 from __future__ import annotations
 
+import copy
 import glob
 import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import laspy
 import numpy as np
@@ -23,7 +24,7 @@ from gfjax.io import crs as crs_lib
 from gfjax.io import units as units_lib
 from gfjax.io.atomic import atomic_output, is_temporary
 from gfjax.io.cloud import Cloud
-from gfjax.io.las_layout import INT32_MAX, INT32_MIN, Layout, check_layout
+from gfjax.io.las_layout import INT32_MAX, INT32_MIN, WRITTEN_AS, Layout, check_layout
 
 if TYPE_CHECKING:
     import pyproj
@@ -174,7 +175,7 @@ def header_crs_units(header: laspy.LasHeader, *, name: str,
 
 
 def read_points(path: str | os.PathLike, *, trust_data: bool = False, allow_empty: bool = False) -> laspy.LasData:
-    """Read a LAS 1.1-1.4 or LAZ file whole, checked as `read` checks it, without its units:
+    """Read a LAS 1.0-1.4 or LAZ file whole, checked as `read` checks it, without its units:
     what `gfjax info` describes (a file with no points when `allow_empty`, or in degrees).
 
     Raises:
@@ -201,7 +202,7 @@ def read_points(path: str | os.PathLike, *, trust_data: bool = False, allow_empt
 
 def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
          trust_data: bool = False) -> Cloud:
-    """Read a LAS 1.1-1.4 or LAZ file whole, with its CRS and unit factors.
+    """Read a LAS 1.0-1.4 or LAZ file whole, with its CRS and unit factors.
 
     Args:
       path: the file. LAZ is decompressed with lazrs.
@@ -285,13 +286,31 @@ def _write_las(las: laspy.LasData, f, *, compress: bool, backends) -> None:
     write such bytes back; `surrogateescape` lets it check them without error and write them
     unchanged. (A VLR user id is checked strictly whatever the setting: `write` reports it.)
     """
-    header, evlrs = copc.without_layout(las.header, las.evlrs)
+    header, evlrs = writable(las.header, las.evlrs)
     with laspy.LasWriter(f, header, do_compress=compress, laz_backend=backends, closefd=False,
                          encoding_errors="surrogateescape") as writer:
         writer.write_points(las.points)
         _keep_extra_bytes_statistics(header, writer.header)
         if header.version.minor >= 4 and evlrs:
             writer.write_evlrs(evlrs)
+
+
+def written_version(header: laspy.LasHeader) -> tuple[int, int] | None:
+    """The version a file of `header` is written as when laspy cannot write its own (LAS 1.0:
+    1.2, `las_layout.WRITTEN_AS`); None when it is written as read."""
+    return WRITTEN_AS.get((header.version.major, header.version.minor))
+
+
+def writable(header: laspy.LasHeader, evlrs) -> tuple[laspy.LasHeader, Any]:
+    """`header` and `evlrs` as laspy can write them back: without COPC's layout records
+    (`copc.without_layout`), a LAS 1.0 header as LAS 1.2 (`written_version`). A copy where
+    anything changes; `header` and `evlrs` themselves otherwise."""
+    new, evlrs = copc.without_layout(header, evlrs)
+    version = written_version(new)
+    if version is not None:
+        new = copy.deepcopy(new) if new is header else new
+        new.version = laspy.header.Version(*version)
+    return new, evlrs
 
 
 def _keep_extra_bytes_statistics(read: laspy.LasHeader, written: laspy.LasHeader) -> None:

@@ -2,7 +2,7 @@
 
 laspy trusts the header: a count of 4 billion VLRs is looped over, a count of 10**15 points is
 allocated, and a header that under-counts its points silently drops the rest. `check_layout`
-reads the public header block with `struct` (ASPRS LAS 1.1-1.4, "Public Header Block") and
+reads the public header block with `struct` (ASPRS LAS 1.0-1.4, "Public Header Block") and
 checks every count, length and offset against the bytes the file holds, so that each check is
 bounded by the file size and nothing is allocated from a header value alone.
 
@@ -29,11 +29,13 @@ from pathlib import Path
 from gfjax.errors import InputError
 
 SIGNATURE = b"LASF"
-# Point formats per version that laspy both reads and writes (a file gfjax reads, it must be
-# able to write back); laspy writes no LAS 1.0.
-VERSION_FORMATS = {(1, 1): (0, 1), (1, 2): (0, 1, 2, 3), (1, 3): (0, 1, 2, 3, 4, 5),
+# Point formats per version that laspy reads (a file gfjax reads, it must be able to write back).
+VERSION_FORMATS = {(1, 0): (0, 1), (1, 1): (0, 1), (1, 2): (0, 1, 2, 3), (1, 3): (0, 1, 2, 3, 4, 5),
                    (1, 4): (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10)}
 SUPPORTED_VERSIONS = tuple(VERSION_FORMATS)
+# Versions laspy reads but does not write, and the version they are written as: LAS 1.2 holds
+# every field of a LAS 1.0 header and point (its global encoding replaces a reserved 0).
+WRITTEN_AS = {(1, 0): (1, 2)}
 # Size of the public header block per minor version (bytes).
 _HEADER_SIZE = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
 # Minimum point record length per point format (bytes); more is extra bytes.
@@ -132,7 +134,7 @@ def _check(f, size: int, name: str) -> Layout:
                           f"header at least {_HEADER_SIZE[0]})")
     major, minor = head[24], head[25]
     if (major, minor) not in SUPPORTED_VERSIONS:
-        raise _fail(name, f"LAS version {major}.{minor} is not supported (1.1 to 1.4)")
+        raise _fail(name, f"LAS version {major}.{minor} is not supported (1.0 to 1.4)")
     need = _HEADER_SIZE[minor]
     if len(head) < need:
         raise _fail(name, f"not a valid LAS/LAZ header (truncated: the file has {size} bytes, a LAS "

@@ -18,7 +18,7 @@ import laspy
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import asprs, copc
+from gfjax.io import asprs
 from gfjax.io import las as las_io
 from gfjax.io.atomic import atomic_output
 from gfjax.io.cloud import use_mask
@@ -71,7 +71,7 @@ class Stream:
 
 @contextlib.contextmanager
 def open_points(path: str | os.PathLike, *, units: str | None = None, trust_data: bool = False) -> Iterator[Stream]:
-    """A `Stream` over a LAS 1.1-1.4 or LAZ file's points.
+    """A `Stream` over a LAS 1.0-1.4 or LAZ file's points.
 
     Raises:
       InputError: as `gfjax.io.las.read`.
@@ -117,7 +117,7 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
             f = las_io._KeepWriteError(raw)
             try:
                 # the writer counts and bounds what it writes in its header: not the reader's
-                header, evlrs = copc.without_layout(copy.deepcopy(stream.header), stream._reader.evlrs)
+                header, evlrs = las_io.writable(copy.deepcopy(stream.header), stream._reader.evlrs)
                 with laspy.LasWriter(f, header, do_compress=compress, laz_backend=backends, closefd=False,
                                      encoding_errors="surrogateescape") as writer:
                     for start, points in stream.chunks():

@@ -175,3 +175,37 @@ def test_input_spelled_differently_is_not_overwritten(tmp_path, capsys, fake_met
     code, _, err = run_cli(capsys, "filter", "in.laz", "-o", "in.laz", "--method", "fake", "--force")
     assert code == 0, err
     assert src.read_bytes() != before and sorted(os.listdir(tmp_path)) == ["in.laz"]
+
+
+def _las_1_0(path):
+    """A LAS 1.2 / format 1 file of 50 points with its version byte set to 1.0."""
+    header = laspy.LasHeader(point_format=1, version="1.2")
+    header.scales = np.array([0.01, 0.01, 0.01])
+    las = laspy.LasData(header)
+    rng = np.random.default_rng(0)
+    las.x, las.y, las.z = rng.uniform(0, 20, 50), rng.uniform(0, 20, 50), rng.uniform(0, 1, 50)
+    las.intensity = rng.integers(0, 60000, 50)
+    las.gps_time = rng.uniform(0, 1e5, 50)
+    las.classification = np.full(50, 1, np.uint8)
+    las.write(path)
+    data = bytearray(path.read_bytes())
+    data[25] = 0                                     # version minor
+    path.write_bytes(bytes(data))
+    return path
+
+
+def test_a_las_1_0_file_filters_and_is_written_as_las_1_2(tmp_path, capsys, fake_methods):
+    source = _las_1_0(tmp_path / "old.las")
+    code, out, _ = run_cli(capsys, "info", source)
+    assert code == 0 and "LAS 1.0" in out
+    target = tmp_path / "out.las"
+    code, _, err = run_cli(capsys, "filter", source, "-o", target, "--method", "fake")
+    assert code == 0, err
+    notes = [line for line in err.splitlines() if "written as LAS 1.2" in line]
+    assert len(notes) == 1 and str(source) in notes[0] and "LAS 1.0" in notes[0]
+    before, after = laspy.read(source), laspy.read(target)
+    assert (after.header.version.major, after.header.version.minor) == (1, 2)
+    assert after.header.point_format.id == 1
+    for name in before.point_format.dimension_names:
+        if name != "classification":
+            np.testing.assert_array_equal(np.asarray(after[name]), np.asarray(before[name]), err_msg=name)

@@ -127,10 +127,15 @@ def test_truncated_header_exits_2(capsys, fake_methods, las14):
     _exits_2(capsys, las14, "not a valid LAS/LAZ header (truncated: the file has 300 bytes")
 
 
-@pytest.mark.parametrize("minor", [0, 5, 9, 255])
+@pytest.mark.parametrize("minor", [5, 9, 255])
 def test_unsupported_las_version_exits_2(capsys, fake_methods, las14, minor):
     patch(las14, VERSION_MINOR, minor)
     _exits_2(capsys, las14, f"LAS version 1.{minor} is not supported")
+
+
+def test_las_1_0_with_a_later_point_format_exits_2(capsys, fake_methods, las14):
+    patch(las14, VERSION_MINOR, 0)
+    _exits_2(capsys, las14, "point data format 6 is not part of LAS 1.0 (formats 0 to 1)")
 
 
 def test_las_major_version_2_exits_2(capsys, fake_methods, las14):
