@@ -254,6 +254,23 @@ def check_inputs(paths: Sequence[Path], *, units: str | None, metres_matter: boo
     return headers
 
 
+def class_list(text: str) -> tuple[int, ...]:
+    """argparse type of `--ignore-class` / `--keep-class`: `"6,9,17"` -> `(6, 9, 17)`, ASPRS codes
+    0-255."""
+    codes = []
+    for item in text.split(","):
+        item = item.strip()
+        try:
+            code = int(item)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{item!r} is not a class code (a comma-separated list of "
+                                             "integers 0-255, e.g. 6,9,17)") from None
+        if not 0 <= code <= 255:
+            raise argparse.ArgumentTypeError(f"class {code} is not an ASPRS class code (0-255)")
+        codes.append(code)
+    return tuple(codes)
+
+
 def parse_set_values(items: Sequence[str]) -> dict[str, str]:
     """`["cell_m=0.5", ...]` -> `{"cell_m": "0.5"}`; a later key wins."""
     values: dict[str, str] = {}

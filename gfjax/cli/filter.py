@@ -53,7 +53,7 @@ import numpy as np
 from gfjax.cli import _job
 from gfjax.cli._common import (TIF_SUFFIXES, add_method_options, add_units_option, method_setup,
                                nonnegative_float, output_targets, positive_float, positive_int, say_crs_warning,
-                               say_written_versions)
+                               say_written_versions, class_list)
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 
@@ -71,6 +71,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="context around each tile [m], for the methods that tile (listed below)")
     parser.add_argument("--returns", choices=("all", "last"), default="all",
                         help="returns the filter uses (default all)")
+    parser.add_argument("--ignore-class", type=class_list, default=(), metavar="LIST",
+                        help="classes the filter neither uses nor relabels, e.g. 9,17 (noise 7, 18 and withheld "
+                             "points always)")
+    parser.add_argument("--keep-class", type=class_list, default=(), metavar="LIST",
+                        help="classes the filter uses as context but never relabels, e.g. 6,9,17")
     parser.add_argument("--reset-nonground", action="store_true",
                         help="set every non-ground point to class 1 (default: only former class 2)")
     parser.add_argument("--instances", action="store_true",
@@ -108,6 +113,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from gfjax.io.asprs import ClassRules
+
+    args.classes = ClassRules(frozenset(args.ignore_class), frozenset(args.keep_class))
     inputs = las_io.expand_inputs(args.inputs)
     targets = output_targets(inputs, args.output, suffixes=las_io.LAS_SUFFIXES)
     dtm_targets = [None] * len(inputs)
@@ -150,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
             from gfjax import survey
 
             catalog = survey.index(inputs, folder, returns=args.returns, units=args.units,
-                                   trust_data=args.trust_data, client=client)
+                                   trust_data=args.trust_data, client=client, classes=args.classes)
             setup = _survey_setup(setup, catalog, args)
             runner = survey.Runner(catalog, functools.partial(_filter, setup, client is None), setup.lattice, folder,
                                    returns=args.returns, context=args.dtm is not None, client=client,
@@ -171,7 +179,7 @@ def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
     from gfjax.survey import cluster
 
     catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data,
-                           client=client)
+                           client=client, classes=args.classes)
     setup = _survey_setup(setup, catalog, args)
     runner = survey.Runner(catalog, functools.partial(_filter, setup, False), setup.lattice, folder,
                            returns=args.returns, context=False, client=client, whole=_whole(setup, catalog))
@@ -181,7 +189,8 @@ def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
     staged = {job.source: atomic.temporary_name(job.target.absolute()) for job in planned}
     writes = {job.source: runner.write(position[job.source], job.target.absolute(), staged[job.source],
                                        returns=args.returns, reset_nonground=args.reset_nonground, force=args.force,
-                                       input_paths=[p.absolute() for p in inputs], trust_data=args.trust_data)
+                                       input_paths=[p.absolute() for p in inputs], trust_data=args.trust_data,
+                                       classes=args.classes)
               for job in planned}
     runner.release()
     committed: set[Path] = set()
@@ -282,7 +291,7 @@ def _run(args, setup, inputs, planned, runner) -> int:
 
     def one(job: _job.Planned) -> None:
         start = time.perf_counter()
-        cloud = las_io.read(job.source, units=args.units, trust_data=args.trust_data)
+        cloud = las_io.read(job.source, units=args.units, trust_data=args.trust_data, classes=args.classes)
         if cloud.n_points != job.header.point_count:
             print(f"gfjax: warning: {job.source}: header says {job.header.point_count:,} points, the file holds "
                   f"{cloud.n_points:,}; filtering the {cloud.n_points:,} points present (--trust-data)",
@@ -293,7 +302,8 @@ def _run(args, setup, inputs, planned, runner) -> int:
             _say_settled(args, str(job.source), result.settled)
         else:
             result, halo_ground_m = runner(position[job.source], cloud)
-        ground = np.asarray(result.ground, dtype=bool)
+        # points of a kept class keep their class: not ground in the file, the counts or the DTM
+        ground = np.asarray(result.ground, dtype=bool) & ~cloud.classes.kept(cloud.classification)
         labelled = cloud.with_ground(ground, reset_nonground=args.reset_nonground,
                                      used=cloud.filter_mask(args.returns))
         if args.instances:
@@ -360,7 +370,7 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
     shared = None
     if client is not None or (len(inputs) > 1 and not args.independent):
         catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data,
-                               client=client)
+                               client=client, classes=args.classes)
         settled = _survey_setup(setup, catalog, args)
         shared = (survey.Runner(catalog, functools.partial(_filter, settled, False), settled.lattice, folder,
                                 returns=args.returns, context=False, client=client),
@@ -371,7 +381,7 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
             return write(job, shared[0], shared[1][job.source])
         with tempfile.TemporaryDirectory(prefix="file-", dir=folder) as own:      # this file's index only
             catalog = survey.index([job.source], own, returns=args.returns, units=args.units,
-                                   trust_data=args.trust_data)
+                                   trust_data=args.trust_data, classes=args.classes)
             settled = _survey_setup(setup, catalog, args)
             write(job, survey.Runner(catalog, functools.partial(_filter, settled, False), settled.lattice, own,
                                      returns=args.returns, context=False), 0)
@@ -380,7 +390,7 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
         start_s = time.perf_counter()
         n_ground, n = stream.relabel(job.source, job.target, runner.ground(i), returns=args.returns,
                                      reset_nonground=args.reset_nonground, force=args.force, input_paths=inputs,
-                                     trust_data=args.trust_data)
+                                     trust_data=args.trust_data, classes=args.classes)
         seconds = time.perf_counter() - start_s
         print(f"{job.source} -> {job.target}: {setup.name} (out of core), {n_ground:,} ground of {n:,} "
               f"points ({100.0 * n_ground / max(n, 1):.1f} %), {seconds:.1f} s ({n / max(seconds, 1e-9):,.0f} points/s)")

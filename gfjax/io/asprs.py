@@ -1,8 +1,12 @@
-"""ASPRS LAS class codes and the points filters ignore."""
+"""ASPRS LAS class codes, and what a filter does with each (`ClassRules`)."""
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Set as AbstractSet
 import laspy
 import numpy as np
+
+from gfjax.errors import SettingError
 
 NEVER_CLASSIFIED = 0
 UNCLASSIFIED = 1
@@ -13,28 +17,71 @@ HIGH_NOISE = 18
 NOISE_CLASSES = (LOW_NOISE, HIGH_NOISE)
 
 
-def ignored_mask(las: laspy.LasData | laspy.PackedPointRecord) -> np.ndarray:
-    """Points (of a file, or of a chunk of its points) that no filter uses and whose class never
-    changes: noise (7, 18) or withheld.
+@dataclasses.dataclass(frozen=True)
+class ClassRules:
+    """What a filter does with the points of each class code (0-255).
 
-    Returns a bool array `(n,)`.
+    Every point is one of three kinds:
+    - ignored: its class is in `ignore`, or it is withheld. No filter uses it and its class never
+      changes. Noise (7, 18) is always ignored: a low return under the terrain would pull a
+      ground surface down.
+    - kept: its class is in `keep`. Filters use it (a building or water point is context for the
+      ground beside it) but its class never changes: classes a user already has survive.
+    - the rest: used, and labelled ground (2) or not (former ground becomes 1).
+
+    Attributes:
+      ignore: the ignored codes (any iterable of ints; noise 7 and 18 are added).
+      keep: the kept codes.
     """
-    cls = np.asarray(las.classification)
-    ignored = np.isin(cls, NOISE_CLASSES)
-    names = set(las.point_format.dimension_names)
-    if "withheld" in names:
-        ignored |= np.asarray(las.withheld, dtype=bool)
-    return ignored
+
+    ignore: AbstractSet[int] = frozenset(NOISE_CLASSES)
+    keep: AbstractSet[int] = frozenset()
+
+    def __post_init__(self):
+        for name in ("ignore", "keep"):
+            codes = frozenset(int(c) for c in getattr(self, name))
+            bad = sorted(c for c in codes if not 0 <= c <= 255)
+            if bad:
+                raise SettingError(f"{name} classes must be ASPRS codes 0-255, got {bad[0]}", name)
+            object.__setattr__(self, name, codes)
+        object.__setattr__(self, "ignore", self.ignore | frozenset(NOISE_CLASSES))
+
+    def ignored(self, las: laspy.LasData | laspy.PackedPointRecord) -> np.ndarray:
+        """Points (of a file, or of a chunk of its points) that no filter uses and whose class
+        never changes: a class in `ignore`, or withheld. bool `(n,)`."""
+        ignored = np.isin(np.asarray(las.classification), sorted(self.ignore))
+        if "withheld" in set(las.point_format.dimension_names):
+            ignored |= np.asarray(las.withheld, dtype=bool)
+        return ignored
+
+    def kept(self, classification: np.ndarray) -> np.ndarray:
+        """Points whose class is in `keep`, bool `(n,)`: used, never relabelled."""
+        return np.isin(np.asarray(classification), sorted(self.keep))
+
+    def describe(self) -> str:
+        """`ignored 7, 9, 18; kept 6` for messages."""
+        keep = f"; kept {', '.join(map(str, sorted(self.keep)))}" if self.keep else ""
+        return f"ignored {', '.join(map(str, sorted(self.ignore)))}{keep}"
+
+
+DEFAULT_RULES = ClassRules()
+
+
+def ignored_mask(las: laspy.LasData | laspy.PackedPointRecord, rules: ClassRules = DEFAULT_RULES) -> np.ndarray:
+    """Points (of a file, or of a chunk of its points) that no filter uses and whose class never
+    changes (`ClassRules.ignored`; by default noise 7, 18 and withheld points). bool `(n,)`."""
+    return rules.ignored(las)
 
 
 def relabel(classification: np.ndarray, ground: np.ndarray, used: np.ndarray, *,
-            reset_nonground: bool = False) -> np.ndarray:
+            reset_nonground: bool = False, rules: ClassRules = DEFAULT_RULES) -> np.ndarray:
     """New classes uint8 `(n,)` for a filter's labels (SPEC section 1): used ground points get
     class 2; used non-ground points that were 2 become 1, and the other used non-ground points
-    keep their class unless `reset_nonground` (then all become 1); points not `used` keep
-    their class whatever `ground` says."""
+    keep their class unless `reset_nonground` (then all become 1); points not `used` and points
+    of the classes `rules` keeps keep their class whatever `ground` says."""
     cls = np.asarray(classification, np.uint8)
-    ground, used = np.asarray(ground, bool), np.asarray(used, bool)
+    ground = np.asarray(ground, bool)
+    used = np.asarray(used, bool) & ~rules.kept(cls)
     new = cls.copy()
     new[ground & used] = GROUND
     nonground = ~ground & used

@@ -110,6 +110,9 @@ class Cloud:
         metres assumed", ...), for `gfjax info` and logs.
       frame: the box the tiled filters lay their lattice on (`gfjax.io.tiles.Frame`; a
         survey's, so adjacent files agree), or None for the cloud's own.
+      classes: which classes filters ignore and which keep their class (`asprs.ClassRules`;
+        default: noise and withheld points ignored, every other class relabelled); set with
+        `with_classes`.
     """
 
     las: laspy.LasData
@@ -119,10 +122,16 @@ class Cloud:
     crs: pyproj.CRS | None = None
     units_source: str = "in memory: metres"
     frame: Frame | None = None
+    classes: asprs.ClassRules = asprs.DEFAULT_RULES
 
     @property
     def n_points(self) -> int:
         return len(self.las.points)
+
+    def with_classes(self, *, ignore=(), keep=()) -> "Cloud":
+        """This cloud with the classes `ignore` (never used, never relabelled; noise always)
+        and `keep` (used as context, never relabelled) of `asprs.ClassRules`."""
+        return dataclasses.replace(self, classes=asprs.ClassRules(frozenset(ignore), frozenset(keep)))
 
     @property
     def name(self) -> str:
@@ -171,8 +180,9 @@ class Cloud:
 
     @property
     def ignored(self) -> np.ndarray:
-        """Points every filter ignores (noise classes 7 and 18, withheld flag), bool `(n,)`."""
-        return asprs.ignored_mask(self.las)
+        """Points every filter ignores (`classes.ignore`, by default noise classes 7 and 18, and the
+        withheld flag), bool `(n,)`."""
+        return self.classes.ignored(self.las)
 
     def filter_mask(self, returns: str = "all") -> np.ndarray:
         """Points a filter uses: not ignored, and last returns only when `returns == "last"`."""
@@ -184,14 +194,15 @@ class Cloud:
 
         Ground points get class 2. Non-ground points that were class 2 become 1; other
         non-ground points keep their class unless `reset_nonground` (then all become 1).
-        Points outside `used` (default: not ignored) keep their class whatever `ground` says.
+        Points outside `used` (default: not ignored) and points of the classes `classes`
+        keeps keep their class whatever `ground` says.
         """
         ground = np.asarray(ground, dtype=bool)
         if ground.shape != (self.n_points,):
             raise ValueError(f"{self.name}: ground must have shape ({self.n_points},), got {ground.shape}")
         if used is None:
             used = ~self.ignored
-        new = asprs.relabel(self.classification, ground, used, reset_nonground=reset_nonground)
+        new = asprs.relabel(self.classification, ground, used, reset_nonground=reset_nonground, rules=self.classes)
         las = laspy.LasData(header=self.las.header, points=self.las.points.copy())
         if hasattr(self.las, "evlrs") and self.las.evlrs is not None:
             las.evlrs = self.las.evlrs

@@ -19,7 +19,7 @@ import laspy
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import copc
+from gfjax.io import asprs, copc
 from gfjax.io import crs as crs_lib
 from gfjax.io import units as units_lib
 from gfjax.io.atomic import atomic_output, is_temporary
@@ -201,7 +201,7 @@ def read_points(path: str | os.PathLike, *, trust_data: bool = False, allow_empt
 
 
 def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
-         trust_data: bool = False) -> Cloud:
+         trust_data: bool = False, classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> Cloud:
     """Read a LAS 1.0-1.4 or LAZ file whole, with its CRS and unit factors.
 
     Args:
@@ -211,6 +211,7 @@ def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
         empty or unreadable: `header_crs_units`) is taken as metres.
       trust_data: when the header's point count disagrees with the points the file holds, read
         the points present (the cloud's header then counts them) instead of raising.
+      classes: which classes filters ignore and which keep their class (`Cloud.classes`).
 
     Returns:
       A `Cloud` whose `las` holds every header field, VLR/EVLR and point dimension.
@@ -224,7 +225,8 @@ def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
     las = read_points(path, trust_data=trust_data)
     found = header_crs_units(las.header, name=str(path), units=units)
     return Cloud(las=las, path=Path(path), horizontal_unit_m=found.units.horizontal_m,
-                 vertical_unit_m=found.units.vertical_m, crs=found.crs, units_source=found.units.source)
+                 vertical_unit_m=found.units.vertical_m, crs=found.crs, units_source=found.units.source,
+                 classes=classes)
 
 
 def check_int32_limits(path: Path, points) -> None:

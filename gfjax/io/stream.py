@@ -139,11 +139,13 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
 
 def relabel(source: str | os.PathLike, target: str | os.PathLike, ground: np.ndarray, *, returns: str = "all",
             reset_nonground: bool = False, force: bool = False, input_paths: Iterable[str | os.PathLike] = (),
-            trust_data: bool = False, staged: Path | None = None) -> tuple[int, int]:
+            trust_data: bool = False, staged: Path | None = None,
+            classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> tuple[int, int]:
     """Copy `source` to `target` (`rewrite`) with the classes that `ground` says, bool
     `(n_points,)` (array-like; read a chunk at a time, so a memory map stays unread), as
     `Cloud.with_ground` sets them: ground 2; former ground 1 (every non-ground point 1 with
-    `reset_nonground`); the points the filter does not use (`returns`, noise, withheld) kept.
+    `reset_nonground`); the points the filter does not use (`returns`, the classes `classes`
+    ignores: noise, withheld) and those of the classes it keeps keep their class.
 
     Returns:
       `(n_ground, n_points)` written.
@@ -152,12 +154,13 @@ def relabel(source: str | os.PathLike, target: str | os.PathLike, ground: np.nda
 
     def classify(start: int, points) -> np.ndarray:
         n = len(points)
-        used = use_mask(asprs.ignored_mask(points), np.asarray(points.return_number),
+        used = use_mask(classes.ignored(points), np.asarray(points.return_number),
                         np.asarray(points.number_of_returns), returns)
-        mine = np.asarray(ground[start:start + n], bool) & used
+        classification = np.asarray(points.classification)
+        mine = np.asarray(ground[start:start + n], bool) & used & ~classes.kept(classification)
         counts[0] += int(mine.sum())
         counts[1] += n
-        return asprs.relabel(np.asarray(points.classification), mine, used, reset_nonground=reset_nonground)
+        return asprs.relabel(classification, mine, used, reset_nonground=reset_nonground, rules=classes)
 
     rewrite(source, target, classify, force=force, input_paths=input_paths, trust_data=trust_data, staged=staged)
     return counts[0], counts[1]

@@ -39,6 +39,7 @@ class Entry(NamedTuple):
       store: the `.npy` of its `STORE` records, or None for a COPC file (its records are read
         from the file, a box's from the octree nodes that meet it: `gfjax.io.copc`).
       scale_m: metres per unit of x, y and z.
+      classes: the classes its filter ignores (`asprs.ClassRules`; for a COPC file's records).
     """
 
     path: Path
@@ -46,6 +47,7 @@ class Entry(NamedTuple):
     frame: Frame | None
     store: Path | None
     scale_m: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    classes: asprs.ClassRules = asprs.DEFAULT_RULES
 
     def records(self) -> np.ndarray:
         """The file's `STORE` records `(n_points,)`, memory-mapped (index it with the few rows
@@ -62,7 +64,7 @@ class Entry(NamedTuple):
             with laspy.open(self.path, laz_backend=las_io.LAZ_BACKENDS) as reader:
                 start = 0
                 for chunk in reader.chunk_iterator(size):
-                    yield start, to_records(chunk, self.scale_m)
+                    yield start, to_records(chunk, self.scale_m, self.classes)
                     start += len(chunk)
             return
         offset = np.load(self.store, mmap_mode="r").offset          # the header's length; no page read
@@ -84,7 +86,7 @@ class Entry(NamedTuple):
         if self.store is None:
             with copc.Reader(self.path) as reader:
                 index, points = reader.within(lo, hi, self.scale_m[0])
-            return index, to_records(points, self.scale_m)
+            return index, to_records(points, self.scale_m, self.classes)
         found = []
         for start, block in self.blocks():
             xy = block["xyz_m"][:, :2]
@@ -93,16 +95,16 @@ class Entry(NamedTuple):
         return index, self.records()[index]
 
 
-def to_records(points, scale_m) -> np.ndarray:
+def to_records(points, scale_m, classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> np.ndarray:
     """`STORE` records `(n,)` of a chunk of a file's points (a laspy point record), its
-    coordinates times `scale_m` (metres per unit of x, y, z)."""
+    coordinates times `scale_m` (metres per unit of x, y, z), ignored as `classes` says."""
     part = np.empty(len(points), STORE)
     part["xyz_m"] = np.stack([np.asarray(points.x, np.float64), np.asarray(points.y, np.float64),
                               np.asarray(points.z, np.float64)], axis=1) * np.asarray(scale_m, np.float64)
     part["classification"] = np.asarray(points.classification, np.uint8)
     part["return_number"] = np.asarray(points.return_number, np.uint8)
     part["number_of_returns"] = np.asarray(points.number_of_returns, np.uint8)
-    part["ignored"] = asprs.ignored_mask(points)
+    part["ignored"] = classes.ignored(points)
     return part
 
 
@@ -132,7 +134,8 @@ class _Indexed(NamedTuple):
 
 
 def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, returns: str = "all",
-          units: str | None = None, trust_data: bool = False, client=None) -> Catalog:
+          units: str | None = None, trust_data: bool = False, client=None,
+          classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> Catalog:
     """Read every file once into a catalog whose stores live in `folder`.
 
     Args:
@@ -144,6 +147,7 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
         (`gfjax.io.las.read`).
       client: a `dask.distributed.Client` whose workers index the files, each file a task
         (`folder` must be one they reach), or None: here, one file after another.
+      classes: the classes the filter ignores (`asprs.ClassRules`).
 
     Raises:
       InputError: an unreadable file, files whose CRS or units differ, a file whose points lie
@@ -153,7 +157,7 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
     # on a cluster, absolute paths: workers resolve a relative one in their own working folder
     paths = [Path(p) if client is None else Path(p).absolute() for p in paths]
     jobs = [(i, path, Path(folder) / f"{i}.npy") for i, path in enumerate(paths)]
-    options = dict(returns=returns, units=units, trust_data=trust_data)
+    options = dict(returns=returns, units=units, trust_data=trust_data, classes=classes)
     if client is None:
         done = (index_file(*job, **options) for job in jobs)
     else:
@@ -194,7 +198,7 @@ def _gathered(client, jobs: list, options: dict) -> Iterator[_Indexed]:
 
 
 def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: str | None = None,
-               trust_data: bool = False) -> _Indexed:
+               trust_data: bool = False, classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> _Indexed:
     """File `path` read once, a chunk at a time: its `STORE` records written to `store` (none
     for a COPC file), the box of its points filtered, its bounds checked."""
     with stream.open_points(path, units=units, trust_data=trust_data) as points:
@@ -209,7 +213,7 @@ def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: 
             high = np.full(3, -np.inf)
             box_lo, box_hi = np.full(3, np.inf), np.full(2, -np.inf)
             for start, chunk in points.chunks():
-                part = to_records(chunk, scale)
+                part = to_records(chunk, scale, classes)
                 xyz = part["xyz_m"]
                 low = np.minimum(low, columns.lows(xyz) / scale)
                 high = np.maximum(high, columns.highs(xyz) / scale)
@@ -222,7 +226,7 @@ def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: 
                     out.write(part.tobytes())
         _check_bounds(points, low, high)
         frame = Frame(box_lo, box_hi) if np.all(np.isfinite(box_lo)) else None
-        return _Indexed(Entry(path, points.n_points, frame, store, scale), points.crs, _units(points),
+        return _Indexed(Entry(path, points.n_points, frame, store, scale, classes), points.crs, _units(points),
                         _describe(points))
 
 

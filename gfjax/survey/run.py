@@ -16,6 +16,7 @@ import numpy as np
 from gfjax import methods
 from gfjax.io import las as las_io
 from gfjax.io import stream
+from gfjax.io.asprs import DEFAULT_RULES, ClassRules
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
 from gfjax.result import Result
@@ -176,7 +177,7 @@ def _submitter(client, catalog: Catalog, filter_fn: Callable) -> Callable:
 
 def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str | Path, *, config=None, params=None,
              tiling: Tiling | None = None, returns: str = "all", units: str | None = None, client=None,
-             **options) -> Iterator[tuple[Cloud, Result]]:
+             classes: ClassRules = DEFAULT_RULES, **options) -> Iterator[tuple[Cloud, Result]]:
     """Each file of a survey and its `Result`, filtered as a part of the whole survey.
 
     ```python
@@ -196,6 +197,7 @@ def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str 
       units: `--units` override.
       client: a `dask.distributed.Client` whose cluster filters the tiles (`Runner`), or None
         for this process.
+      classes: the classes the filter ignores and those whose class it keeps (`Cloud.classes`).
       options: further keyword arguments of the method's `filter` (SparseGF's `model`).
 
     Yields:
@@ -208,13 +210,13 @@ def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str 
         if not methods.tiles(module):
             raise InputError(f"tiling: method {module.__name__} does not tile")
         options = {**options, "tiling": tiling}
-    catalog = index(paths, folder, returns=returns, units=units, client=client)
+    catalog = index(paths, folder, returns=returns, units=units, client=client, classes=classes)
     config = survey_config(module, config, catalog, returns=returns)
     filter_fn = functools.partial(_method_filter, module, config, params, options)
     run = Runner(catalog, filter_fn, methods.lattice(module, config, tiling), folder, returns=returns, context=False,
                  client=client, whole=fits_whole(module, config, catalog))
     for i, entry in enumerate(catalog.entries):
-        cloud = las_io.read(entry.path, units=units)
+        cloud = las_io.read(entry.path, units=units, classes=classes)
         yield cloud, run(i, cloud)[0]
 
 
@@ -224,7 +226,7 @@ def _method_filter(module: ModuleType, config, params, options: dict, points: Po
 
 def filter(paths: Sequence[str | Path], out: str | Path, *, method: str | ModuleType = methods.DEFAULT_METHOD,
            config=None, params=None, tiling: Tiling | None = None, returns: str = "all", units: str | None = None,
-           client=None,
+           client=None, classes: ClassRules = DEFAULT_RULES,
            reset_nonground: bool = False, force: bool = False, **options) -> list[Path]:
     """Filter a survey as one and write each file's copy, classified, into the folder `out`.
 
@@ -241,7 +243,7 @@ def filter(paths: Sequence[str | Path], out: str | Path, *, method: str | Module
     Args:
       paths: the survey's LAS/LAZ files.
       out: an existing folder; each output has its input's name.
-      method, config, params, tiling, returns, units, client, options: as `filtered`.
+      method, config, params, tiling, returns, units, client, classes, options: as `filtered`.
       reset_nonground: every non-ground point becomes class 1 (default: only former class 2).
       force: overwrite existing outputs.
 
@@ -256,7 +258,7 @@ def filter(paths: Sequence[str | Path], out: str | Path, *, method: str | Module
     written = []
     with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder:
         for cloud, result in filtered(paths, method, folder, config=config, params=params, tiling=tiling, returns=returns,
-                                      units=units, client=client, **options):
+                                      units=units, client=client, classes=classes, **options):
             labelled = cloud.with_ground(result.ground, reset_nonground=reset_nonground,
                                          used=cloud.filter_mask(returns))
             written.append(las_io.write(labelled, out / Path(cloud.path).name, force=force, input_paths=paths))
