@@ -282,12 +282,13 @@ def follows(rule: Callable[[Terrain], dict[str, Any]], config_type: type, params
 
 
 def finish(result: Any, cloud: Any, settled: Settled | None) -> Any:
-    """`result` (a `gfjax.result.Result` on `cloud`) with `settled` attached and its ground
-    spikes dropped (`gfjax.spikes.despike`), where the
-    values followed the data (`settled` with a terrain); `result` itself otherwise."""
+    """`result` (a `gfjax.result.Result` on `cloud`) with `settled` attached, its ground points
+    over lower returns and its ground spikes dropped (`gfjax.spikes.unstack`, `despike`), where
+    the values followed the data (`settled` with a terrain); `result` itself otherwise."""
     if settled is None or settled.terrain is None:
         return result
-    ground = spikes.despike(cloud.xyz_m, np.asarray(result.ground, dtype=bool))
+    ground = spikes.guard(cloud.xyz_m, cloud.filter_mask("all"), np.asarray(result.ground, dtype=bool),
+                          spacing_m=settled.terrain.spacing_m, slope_p90=settled.terrain.slope_p90)
     return result._replace(ground=ground, settled=settled)
 
 

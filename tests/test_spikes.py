@@ -63,3 +63,63 @@ def test_non_ground_and_tiny_inputs_are_left_as_they_are():
     few[:spikes.NEIGHBOURS] = True          # k points or fewer: nothing to compare with
     np.testing.assert_array_equal(spikes.despike(xyz, few), few)
     assert spikes.despike(xyz, few) is not few
+
+
+def brute_force_unstack(xyz, used, ground, *, cell_m, drop_m):
+    """Each ground point against every used return of its own and the 8 cells around it."""
+    lo = xyz[used | ground, :2].min(axis=0)
+    cell = np.floor((xyz[:, :2] - lo) / cell_m).astype(int)
+    out = ground.copy()
+    for i in np.flatnonzero(ground):
+        near = used & (np.abs(cell - cell[i]) <= 1).all(axis=1)
+        if (xyz[near, 2] < xyz[i, 2] - drop_m).any():
+            out[i] = False
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_unstack_matches_brute_force_on_random_labels(seed):
+    rng = np.random.default_rng(seed)
+    xyz = terrain(seed=seed)
+    xyz[rng.choice(400, 60, replace=False), 2] += rng.uniform(-12, 12, 60)
+    ground = rng.random(400) < 0.7
+    used = rng.random(400) < 0.9
+    for cell_m, drop_m in [(1.0, 5.0), (3.0, 2.0), (7.5, 0.5)]:
+        np.testing.assert_array_equal(spikes.unstack(xyz, used, ground, cell_m=cell_m, drop_m=drop_m),
+                                      brute_force_unstack(xyz, used, ground, cell_m=cell_m, drop_m=drop_m))
+
+
+def bridge(seed=0):
+    """A 40 m wide valley 12 m deep, crossed by a 6 m wide deck at the banks' height, 2 points/m²."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, 100, (20_000, 2))
+    z = np.where(np.abs(xy[:, 0] - 50) < 20, 88.0, 100.0) + rng.normal(0, 0.03, len(xy))
+    deck = (np.abs(xy[:, 0] - 50) < 20) & (np.abs(xy[:, 1] - 50) < 3) & (rng.random(len(xy)) < 0.8)
+    z[deck] = 100.0 + rng.normal(0, 0.03, deck.sum())
+    return np.column_stack([xy, z]), deck
+
+
+def test_a_deck_over_its_valley_is_no_ground_the_banks_stay():
+    xyz, deck = bridge()
+    ground = np.ones(len(xyz), bool)            # a filter that kept the deck
+    out = spikes.guard(xyz, np.ones(len(xyz), bool), ground, spacing_m=0.7, slope_p90=0.0)
+    assert not out[deck].any()
+    banks = np.abs(xyz[:, 0] - 50) >= 22        # two cells from the valley's edges (its walls go)
+    assert out[banks].all()
+    valley = (np.abs(xyz[:, 0] - 50) < 18) & (np.abs(xyz[:, 1] - 50) > 5)     # 2 m off its walls and the deck
+    assert out[valley].all()
+
+
+def test_a_steep_slope_is_not_stacked():
+    xyz = terrain(n=4000, slope=1.2)            # 50 degrees, the terrain's own 90th percentile
+    ground = np.ones(len(xyz), bool)
+    cell_m = 1.6
+    assert spikes.unstack(xyz, ground, ground, cell_m=cell_m, drop_m=spikes.stacked_drop_m(cell_m, 1.2)).all()
+    assert spikes.stacked_drop_m(cell_m, 1.2) > 1.2 * 2 * np.sqrt(2) * cell_m   # more than the slope's fall over 3x3 cells
+
+
+def test_unstack_leaves_labels_without_returns_alone():
+    xyz = terrain(n=30)
+    ground = np.ones(30, bool)
+    assert spikes.unstack(xyz, np.zeros(30, bool), ground, cell_m=1.0, drop_m=1.0).all()
+    assert not spikes.unstack(xyz, ground, np.zeros(30, bool), cell_m=1.0, drop_m=1.0).any()

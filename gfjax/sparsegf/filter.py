@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from gfjax import spikes
+from gfjax import adaptive, spikes
 from gfjax.errors import InputError
 from gfjax.io.cloud import CloudView
 from gfjax.result import Result
@@ -199,7 +199,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
       `Result(ground, Diagnostics)`; ground by `config.decision` (`vote.decide`): by default
       SMRF's verdict (run once over the cloud) unless the network's mean vote is confident
       against it and it stands off the ground kept around it (`level_ground_kept`), then
-      ground spikes dropped (`gfjax.spikes`); `decision="network"` is the
+      ground over lower returns and ground spikes dropped (`gfjax.spikes.guard`); `decision="network"` is the
       paper's mean vote > `ground_probability`, as it is.
     """
     if not isinstance(model, Model):
@@ -229,7 +229,10 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
 
     ground = full(np.asarray(decide(prob, smrf_ground, config=config)), bool)
     if config.decision == "network+smrf":         # the paper's bare decision stays bare
-        ground = spikes.despike(cloud.xyz_m, level_ground_kept(cloud.xyz_m, ground, full(smrf_ground, bool)))
+        terrain = adaptive.measure(xyz_m, cloud.xyz_m[cloud.filter_mask("last")])
+        ground = spikes.guard(cloud.xyz_m, cloud.filter_mask("all"),
+                              level_ground_kept(cloud.xyz_m, ground, full(smrf_ground, bool)),
+                              spacing_m=terrain.spacing_m, slope_p90=terrain.slope_p90)
     diagnostics = Diagnostics(full(prob, np.float32), full(votes, np.int32), n_patches,
                               None if smrf_ground is None else full(smrf_ground, bool))
     return Result(ground=ground, diagnostics=diagnostics)
