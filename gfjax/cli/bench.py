@@ -98,11 +98,11 @@ def run(args: argparse.Namespace) -> int:
         document = bench.document(records, repeat=args.repeat, notes=notes, command=bench.command_line(),
                                   threads=args.threads, compile_cache=args.compile_cache is not None)
         with las_io.atomic_output(args.json, force=args.force, input_paths=inputs, suffixes=(".json",),
-                                  option="--json") as tmp:
+                                  option="--json", exclusive=not args.force) as tmp:
             tmp.write_text(json.dumps(bench.json_safe(document), indent=2, allow_nan=False) + "\n")
     if args.plot and bench.has_accuracy(records):
         with las_io.atomic_output(args.plot, force=args.force, input_paths=inputs, suffixes=(".png",),
-                                  option="--plot") as tmp:
+                                  option="--plot", exclusive=not args.force) as tmp:
             bench.plot(records, tmp)
     elif args.plot:
         print(f"--plot {args.plot}: no labelled file ran, nothing drawn", file=sys.stderr)

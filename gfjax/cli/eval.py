@@ -166,6 +166,6 @@ def run(args: argparse.Namespace) -> int:
         document = {"method": setup.name if setup else None, "reference_class": args.reference_class,
                     "returns": args.returns, "files": records, "mean": mean}
         with las_io.atomic_output(args.json, force=args.force, input_paths=inputs, suffixes=(".json",),
-                                  option="--json") as tmp:
+                                  option="--json", exclusive=not args.force) as tmp:
             tmp.write_text(json.dumps(document, indent=2) + "\n")
     return 0

@@ -201,7 +201,7 @@ def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
         if n != job.header.point_count:
             print(f"gfjax: warning: {job.source}: header says {job.header.point_count:,} points, the file holds "
                   f"{n:,}; filtered the {n:,} points present (--trust-data)", file=sys.stderr)
-        atomic.commit(staged[job.source], job.target)
+        atomic.commit(staged[job.source], job.target, exclusive=not args.force)
         committed.add(job.source)
         seconds = time.perf_counter() - start
         print(f"{job.source} -> {job.target}: {setup.name} (on the cluster), {n_ground:,} ground of {n:,} points "
@@ -390,7 +390,7 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
         start_s = time.perf_counter()
         n_ground, n = stream.relabel(job.source, job.target, runner.ground(i), returns=args.returns,
                                      reset_nonground=args.reset_nonground, force=args.force, input_paths=inputs,
-                                     trust_data=args.trust_data, classes=args.classes)
+                                     trust_data=args.trust_data, classes=args.classes, exclusive=not args.force)
         seconds = time.perf_counter() - start_s
         print(f"{job.source} -> {job.target}: {setup.name} (out of core), {n_ground:,} ground of {n:,} "
               f"points ({100.0 * n_ground / max(n, 1):.1f} %), {seconds:.1f} s ({n / max(seconds, 1e-9):,.0f} points/s)")
@@ -411,7 +411,7 @@ def _write(labelled, target: Path, dtm_target: Path | None, cloud, ground: np.nd
     was there before (`--force`) is put back, so the old pair stays a pair.
     """
     if dtm_target is None:
-        las_io.write(labelled, target, force=args.force, input_paths=inputs)
+        las_io.write(labelled, target, force=args.force, input_paths=inputs, exclusive=not args.force)
         return
     from gfjax import dtm as dtm_lib
     from gfjax.io import atomic
@@ -432,7 +432,8 @@ def _write(labelled, target: Path, dtm_target: Path | None, cloud, ground: np.nd
         written.append(dtm_target)
 
     try:
-        las_io.write(labelled, target, force=args.force, input_paths=inputs, before_commit=write_dtm)
+        las_io.write(labelled, target, force=args.force, input_paths=inputs, before_commit=write_dtm,
+                     exclusive=not args.force)
     except BaseException:
         if written:
             dtm_target.unlink(missing_ok=True)

@@ -15,6 +15,7 @@ another host, whose pid cannot be checked, is only removed by age).
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import secrets
@@ -157,12 +158,44 @@ def existing_output_message(where: str, *, more: int = 0) -> str:
     return f"{where}: exists; pass --force to overwrite it"
 
 
+def _publish(tmp: Path, out: Path, *, exclusive: bool) -> None:
+    """Give the written temporary `tmp` the name `out`: replacing whatever is there, or with
+    `exclusive` only while no file has that name. The exclusive move is a hard link, which the
+    system refuses on an existing name, then the temporary's name removed: of two writers of
+    one new output, one succeeds and the other is told (a check before the work cannot tell,
+    since both pass it). Where the file system has no hard links, an `O_EXCL` claim of the name
+    and then the rename."""
+    if not exclusive:
+        os.replace(tmp, out)
+        return
+    try:
+        os.link(tmp, out)
+    except FileExistsError:
+        raise InputError(existing_output_message(str(out)) + " (written by another process meanwhile)") from None
+    except OSError as err:
+        if err.errno not in _NO_LINKS:
+            raise
+        try:
+            os.close(os.open(out, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        except FileExistsError:
+            raise InputError(existing_output_message(str(out)) + " (written by another process meanwhile)") from None
+        os.replace(tmp, out)
+        return
+    os.unlink(tmp)
+
+
+# errno values of a file system that makes no hard links (FAT, some network and FUSE mounts)
+_NO_LINKS = {errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EXDEV, errno.EMLINK, errno.ENOSYS}
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, *, force: bool = False,
                   input_paths: Iterable[str | os.PathLike] = (),
                   suffixes: tuple[str, ...] | None = None, option: str = "",
-                  staged: Path | None = None) -> Iterator[Path]:
-    """Yield a temporary path beside `path`; on success fsync it and rename it onto `path`.
+                  staged: Path | None = None, exclusive: bool = False) -> Iterator[Path]:
+    """Yield a temporary path beside `path`; on success fsync it and rename it onto `path`
+    (with `exclusive`, only if no file has that name by then: `_publish`; the command line's
+    rule without `--force`).
 
     The temporary file (`temporary_name`: hidden, same folder, no input suffix, mode 0666 less
     the umask) is removed if the body raises or the process is interrupted, so a failed write
@@ -190,7 +223,7 @@ def atomic_output(path: str | os.PathLike, *, force: bool = False,
         if staged is not None:
             kept = True
             return
-        os.replace(tmp, out)
+        _publish(tmp, out, exclusive=exclusive)
     except OSError as err:
         raise InputError(f"{out}: cannot write ({err.strerror or err})") from None
     finally:
@@ -200,10 +233,16 @@ def atomic_output(path: str | os.PathLike, *, force: bool = False,
     _sync_folder(out)
 
 
-def commit(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
-    """Rename a staged temporary (`atomic_output(..., staged=...)`) onto `path`, durably."""
+def commit(tmp: str | os.PathLike, path: str | os.PathLike, *, exclusive: bool = False) -> None:
+    """Rename a staged temporary (`atomic_output(..., staged=...)`) onto `path`, durably (with
+    `exclusive`, only while no file has that name: `_publish`; the temporary is then removed)."""
     try:
-        os.replace(tmp, path)
+        try:
+            _publish(Path(tmp), Path(path), exclusive=exclusive)
+        except InputError:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
+            raise
     except OSError as err:
         raise InputError(f"{path}: cannot write ({err.strerror or err})") from None
     _sync_folder(Path(path))

@@ -246,7 +246,7 @@ def check_int32_limits(path: Path, points) -> None:
 
 def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
           input_paths: Iterable[str | os.PathLike] = (),
-          before_commit: Callable[[], None] | None = None) -> Path:
+          before_commit: Callable[[], None] | None = None, exclusive: bool = False) -> Path:
     """Write `cloud.las` to `path` atomically; LAZ (lazrs) when the suffix is `.laz`.
 
     Nothing but what `cloud.las` holds is written: the header, VLRs/EVLRs, scales/offsets and
@@ -254,6 +254,8 @@ def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
     `input_paths` unless `force`. `before_commit` runs once the points are written, before the
     file is renamed into place: if it raises, `path` is not written (a companion file, such as
     `gfjax filter --dtm`'s DTM, is written there so that neither exists without the other).
+    With `exclusive`, an existing `path` is never replaced, even one another process wrote
+    since the work began (the command line without `--force`): InputError, nothing written.
 
     Returns:
       The path written.
@@ -264,7 +266,7 @@ def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
     inputs = [*input_paths, *([cloud.path] if cloud.path is not None else [])]
     compress = Path(path).suffix.lower() == ".laz"
     backends = _compressors(cloud.las.point_format.id, Path(path)) if compress else None
-    with atomic_output(path, force=force, input_paths=inputs, suffixes=LAS_SUFFIXES) as tmp:
+    with atomic_output(path, force=force, input_paths=inputs, suffixes=LAS_SUFFIXES, exclusive=exclusive) as tmp:
         with open(tmp, "w+b") as raw:  # readable: laspy re-reads the header to add EVLRs
             f = _KeepWriteError(raw)
             try:

@@ -91,7 +91,7 @@ def open_points(path: str | os.PathLike, *, units: str | None = None, trust_data
 def rewrite(source: str | os.PathLike, target: str | os.PathLike,
             classify: Callable[[int, laspy.ScaleAwarePointRecord], np.ndarray], *, force: bool = False,
             input_paths: Iterable[str | os.PathLike] = (), trust_data: bool = False,
-            staged: Path | None = None) -> Path:
+            staged: Path | None = None, exclusive: bool = False) -> Path:
     """Copy `source` to `target` atomically with each chunk's classification replaced.
 
     Args:
@@ -99,7 +99,7 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
       target: the output (LAZ when its suffix is `.laz`).
       classify: `classify(start, points) -> (len(points),) uint8`: the new classes of the
         points `start` to `start + len(points)` of `source`.
-      force, input_paths: as `gfjax.io.las.write`.
+      force, input_paths, exclusive: as `gfjax.io.las.write`.
       staged: a temporary name beside `target` (`gfjax.io.atomic.temporary_name`): the copy is
         written there and left for the process that named it to commit (`gfjax.io.atomic.commit`).
       trust_data: as `gfjax.io.las.read`.
@@ -113,7 +113,7 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
     with open_points(source, trust_data=trust_data, units="m") as stream:
         backends = las_io._compressors(stream.header.point_format.id, target) if compress else None
         with atomic_output(target, force=force, input_paths=[*input_paths, source],
-                           suffixes=las_io.LAS_SUFFIXES, staged=staged) as tmp, open(tmp, "w+b") as raw:
+                           suffixes=las_io.LAS_SUFFIXES, staged=staged, exclusive=exclusive) as tmp, open(tmp, "w+b") as raw:
             f = las_io._KeepWriteError(raw)
             try:
                 # the writer counts and bounds what it writes in its header: not the reader's
@@ -140,7 +140,7 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
 def relabel(source: str | os.PathLike, target: str | os.PathLike, ground: np.ndarray, *, returns: str = "all",
             reset_nonground: bool = False, force: bool = False, input_paths: Iterable[str | os.PathLike] = (),
             trust_data: bool = False, staged: Path | None = None,
-            classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> tuple[int, int]:
+            classes: asprs.ClassRules = asprs.DEFAULT_RULES, exclusive: bool = False) -> tuple[int, int]:
     """Copy `source` to `target` (`rewrite`) with the classes that `ground` says, bool
     `(n_points,)` (array-like; read a chunk at a time, so a memory map stays unread), as
     `Cloud.with_ground` sets them: ground 2; former ground 1 (every non-ground point 1 with
@@ -162,5 +162,6 @@ def relabel(source: str | os.PathLike, target: str | os.PathLike, ground: np.nda
         counts[1] += n
         return asprs.relabel(classification, mine, used, reset_nonground=reset_nonground, rules=classes)
 
-    rewrite(source, target, classify, force=force, input_paths=input_paths, trust_data=trust_data, staged=staged)
+    rewrite(source, target, classify, force=force, input_paths=input_paths, trust_data=trust_data, staged=staged,
+            exclusive=exclusive)
     return counts[0], counts[1]

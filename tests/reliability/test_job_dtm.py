@@ -63,15 +63,19 @@ def test_dtm_write_failure_leaves_no_point_cloud(scene, tmp_path, capsys, fake_m
 
 
 def _fail_renames_to(monkeypatch, name: str) -> None:
-    """`os.replace` onto a path ending in `name` fails as on a full disk."""
-    real_replace = os.replace
+    """`os.replace` and `os.link` (the exclusive move without `--force`) onto a path ending in
+    `name` fail as on a full disk."""
+    real_replace, real_link = os.replace, os.link
 
-    def replace(src, dst, **kwargs):
-        if str(dst).endswith(name):
-            raise OSError(28, "No space left on device")
-        return real_replace(src, dst, **kwargs)
+    def failing(real):
+        def move(src, dst, **kwargs):
+            if str(dst).endswith(name):
+                raise OSError(28, "No space left on device")
+            return real(src, dst, **kwargs)
+        return move
 
-    monkeypatch.setattr(os, "replace", replace)
+    monkeypatch.setattr(os, "replace", failing(real_replace))
+    monkeypatch.setattr(os, "link", failing(real_link))
 
 
 def test_point_cloud_rename_failure_removes_the_new_dtm(scene, tmp_path, capsys, fake_methods, monkeypatch):
