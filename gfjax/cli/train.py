@@ -71,6 +71,7 @@ def _load(paths, units, ground_class):
 
 def run(args: argparse.Namespace) -> int:
     import dataclasses
+    import os
     import time
     from pathlib import Path
 
@@ -80,6 +81,12 @@ def run(args: argparse.Namespace) -> int:
     state_path = Path(str(out) + ".state")
     inputs = las_io.expand_inputs(args.inputs)
     validate = las_io.expand_inputs(args.validate) if args.validate else []
+    if out.suffix.lower() in las_io.LAS_SUFFIXES:
+        raise InputError(f"-o {out}: a model file, not a point cloud (name it .eqx); --force never lets a model "
+                         "replace a LAS/LAZ file")
+    for data in [*inputs, *validate]:
+        if out.exists() and os.path.samefile(out, data):
+            raise InputError(f"-o {out}: is a file it trains on; --force never lets a model replace its data")
     if out.exists() and not (args.force or args.resume):
         raise InputError(f"{existing_output_message(f'-o {out}')} (or --resume to continue training it)")
     # --resume continues the model at -o: that one may exist.

@@ -18,6 +18,7 @@ from typing import Any
 
 import equinox as eqx
 import jax
+import numpy as np
 
 from gfjax.errors import InputError
 from gfjax.sparsegf.model import Model, NetConfig, init
@@ -109,6 +110,12 @@ def load(path: str | Path | None = None) -> tuple[Model, dict[str, Any]]:
                              f"({type(err).__name__})") from None
         if f.read(1):
             raise InputError(f"{path}: model file has trailing bytes after the weights")
+    arrays = [np.asarray(a) for a in jax.tree.leaves(eqx.filter(tuple(model), eqx.is_inexact_array))]
+    bad = sum(int(np.count_nonzero(~np.isfinite(a))) for a in arrays)
+    if bad:
+        # a diverged training writes such weights; its votes would be NaN, and every point no ground
+        raise InputError(f"{path}: model weights hold {bad:,} values that are not finite (NaN or inf): "
+                         "a training that diverged?")
     return model, header
 
 

@@ -25,6 +25,23 @@ from typing import Any
 from gfjax.errors import InputError
 
 WORKERS_ENV = "GFJAX_WORKERS"        # set in a local cluster's workers: how many share this machine's cores
+# A local worker process: Python, JAX and a tile's arrays, about 1 GiB at the default tile [bytes]
+# (an estimate, not a measurement); and at most this many workers per core (one task each).
+WORKER_BYTES = 1 << 30
+WORKERS_PER_CORE = 4
+
+
+def max_local_workers() -> tuple[int, str]:
+    """The most workers a local cluster may start here, and why: `WORKERS_PER_CORE` per core this
+    process may run on, and no more than the memory budget (`gfjax.limits`) holds at
+    `WORKER_BYTES` each; at least 1."""
+    from gfjax import limits
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    budget = limits.memory_budget_bytes()
+    most = max(1, min(WORKERS_PER_CORE * cores, int(budget // WORKER_BYTES)))
+    return most, (f"{cores} cores at most {WORKERS_PER_CORE} workers each, a memory budget of "
+                  f"{budget / 2**30:.1f} GiB at about {WORKER_BYTES / 2**30:.0f} GiB a worker")
 
 
 def available() -> None:
@@ -44,8 +61,13 @@ def client(workers: int | None = None, scheduler: str | None = None) -> Iterator
     them (`dask_setup`), so N workers do not each start a thread pool over every core.
 
     Raises:
-      InputError: dask.distributed missing, or no scheduler answering at `scheduler`.
+      InputError: dask.distributed missing, more `workers` than `max_local_workers`, or no
+        scheduler answering at `scheduler`.
     """
+    if workers is not None:
+        most, why = max_local_workers()
+        if workers > most:
+            raise InputError(f"--workers {workers}: at most {most} on this machine ({why})")
     available()
     from distributed import Client, LocalCluster
 

@@ -47,3 +47,33 @@ def test_bad_model_files_exit_2_before_any_output(tmp_path, capsys):
     code, _, err = run_cli(capsys, "filter", scene, "-o", tmp_path / "out.las", "--method", "smrf",
                            "--model", tmp_path / "junk.eqx")
     assert code == 2 and "only --method sparsegf takes a model" in error_line(err)
+
+
+def test_train_never_replaces_its_data_or_a_point_cloud(tmp_path, capsys):
+    scene = write_scene(tmp_path / "a.las")
+    before = scene.read_bytes()
+    code, _, err = run_cli(capsys, "train", scene, "-o", scene, "--force")
+    assert code == 2 and "a model file, not a point cloud" in error_line(err)
+    named = tmp_path / "data.eqx"                 # a training file under a model's name
+    named.write_bytes(before)
+    code, _, err = run_cli(capsys, "train", named, "-o", named, "--force", "--dry-run")
+    assert code == 2 and "is a file it trains on" in error_line(err) and "data.eqx" in error_line(err)
+    assert scene.read_bytes() == before and named.read_bytes() == before
+
+
+def test_a_model_of_nan_weights_exits_2_naming_it(tmp_path, capsys):
+    import jax
+
+    from gfjax.sparsegf import checkpoint
+
+    model, header = checkpoint.load()
+    broken = jax.tree.map(lambda a: a * np.nan if hasattr(a, "dtype") and np.issubdtype(a.dtype, np.floating) else a,
+                          tuple(model))
+    path = tmp_path / "nan.eqx"
+    checkpoint.save(path, type(model)(*broken), header["meta"])
+    scene = write_scene(tmp_path / "a.las")
+    code, _, err = run_cli(capsys, "filter", scene, "-o", tmp_path / "out.las", "--method", "sparsegf",
+                           "--model", path)
+    line = error_line(err)
+    assert code == 2 and "nan.eqx" in line and "not finite" in line
+    assert not (tmp_path / "out.las").exists()
