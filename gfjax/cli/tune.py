@@ -8,7 +8,9 @@ they are chosen from a grid (`--time-steps` x `--rigidness`, default 0.5,0.65,0.
 each cloth is simulated once per file, then the threshold is fitted on each; params.json lists
 them as grid-searched, never as fitted by gradient. Several files are tuned together (one
 parameter set, unweighted mean of their losses), batched under `jax.vmap` by tile shape. The
-fit is regularised toward the defaults (`--prior`).
+fit starts from the values `gfjax filter` would choose on these files (`gfjax.adaptive`: SMRF's
+and PMF's cell, PMF's distances; the "defaults" below) and is regularised toward them
+(`--prior`); params.json records them and the terrain they came from under "start".
 
 MASF and DMF (`--method masf|dmf`) have no gradient to follow: MASF's alpha_max_m,
 alpha_step_m, alpha_top_m, st and ft_m act through the alpha pyramid and a TIN grown on the host; DMF's v0
@@ -40,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
+from typing import Any
 
 from gfjax.cli import _job
 from gfjax.cli._common import add_units_option, check_inputs, positive_float, positive_int, ranged
@@ -165,8 +168,8 @@ def run(args: argparse.Namespace) -> int:
         if value and method.name != "csf":
             raise InputError(f"{option}: only CSF has a cloth grid, not {args.method}")
     _check_grids(args)
-    samples = _labelled_samples(args, inputs)
-    config = method.config_type()
+    samples, terrain = _labelled_samples(args, inputs)
+    config, start, settled = _start(method, terrain)
     if method.name == "csf":
         from gfjax.tune import csf as tcsf
 
@@ -175,15 +178,15 @@ def run(args: argparse.Namespace) -> int:
     else:
         windows = method.grid_values(config, args.windows)
     settings = tfit.Settings(steps=args.steps, prior=args.prior, loss=args.loss, windows_m=windows)
-    problem = Problem(samples, config=config, max_window_m=max(windows), method=method, grid=windows)
+    problem = Problem(samples, config=config, max_window_m=max(windows), method=method, grid=windows, defaults=start)
     v = guard.validate(problem, settings, folds=args.folds, block_m=args.block, alpha=args.alpha, progress=True)
     names = [b.name for b in method.bounds]
     kept = bool(v.kept[0])
-    values = {b.name: float(x) if kept else b.default for b, x in zip(method.bounds, v.values[0])}   # exact defaults
+    values = {b.name: float(x) if kept else d for b, x, d in zip(method.bounds, v.values[0], start)}
     static_values = method.params_values(float(v.window_m[0])) if method.static else {}
     values |= static_values
     span = {b.name: b.hi - b.lo for b in method.bounds}
-    defaults = {b.name: b.default for b in method.bounds}
+    defaults = dict(zip(names, start))
     fitted = [k for k in names if kept and abs(values[k] - defaults[k]) > 1e-4 * span[k]]
     kind = "1 - kappa" if args.loss == "kappa" else "total error"
     validation = {"folds": args.folds, "measure": "total error" if args.folds >= 2 else kind,
@@ -192,7 +195,9 @@ def run(args: argparse.Namespace) -> int:
                   "shrink": float(v.shrink[0]), "p_value": float(v.p_value[0]), "alpha": args.alpha,
                   "changed_units": int(v.units[0]), "kept": kept, "per_fold": v.fold_errors[:, 0, :].tolist()}
     extra = {"fitted": fitted, "validation": validation, "loss": args.loss, "prior": args.prior, "steps": args.steps,
-             "training_files": [str(p) for p in inputs]}
+             "training_files": [str(p) for p in inputs],
+             "start": {"values": defaults, "chosen_from_terrain": settled.chosen,
+                       "terrain": settled.terrain._asdict() if settled.terrain is not None else None}}
     if method.static == "window_m":
         extra |= {"grid": {method.static: list(windows)},
                   "window_chosen_from_grid": kept and values[method.static] != method.default_static(config),
@@ -239,7 +244,7 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
             except ValueError as err:
                 raise InputError(f"--grid: {err}") from None
         grid[key] = values
-    samples = _labelled_samples(args, inputs)
+    samples, _ = _labelled_samples(args, inputs)      # no value of MASF's or DMF's follows the terrain
     try:
         tuned = tmodule.METHOD.tune(samples, config=config, grid=grid, folds=args.folds, block_m=args.block, alpha=args.alpha,
                            progress=True)
@@ -264,17 +269,38 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
     return 0
 
 
-def _labelled_samples(args: argparse.Namespace, inputs) -> list:
-    """The training files as `gfjax.tune.problem.Sample`s; InputError when none holds class 2."""
+def _labelled_samples(args: argparse.Namespace, inputs) -> tuple[list, Any]:
+    """The training files as `gfjax.tune.problem.Sample`s and their terrain together
+    (`gfjax.adaptive.combine`); InputError when none holds class 2."""
     import numpy as np
 
+    from gfjax import adaptive
     from gfjax.io import las as las_io
     from gfjax.tune.problem import Sample
 
-    samples = [Sample.from_cloud(las_io.read(p, units=args.units), returns=args.returns) for p in inputs]
+    samples, terrains = [], []
+    for path in inputs:
+        cloud = las_io.read(path, units=args.units)
+        samples.append(Sample.from_cloud(cloud, returns=args.returns))
+        use = cloud.filter_mask(args.returns)
+        if use.any():
+            xyz = cloud.xyz_m
+            terrains.append(adaptive.measure(xyz[use], xyz[cloud.filter_mask("last")]))
     if not any(np.any(s.ref_ground[s.use]) for s in samples):
         raise InputError(f"{', '.join(map(str, inputs))}: no reference ground (class 2) to tune on")
-    return samples
+    return samples, adaptive.combine(terrains)
+
+
+def _start(method, terrain) -> tuple:
+    """The Config and the values vector `(p,)` a fit of `method` (`gfjax.tune.methods.Method`)
+    starts from: the method's values that follow the data (`gfjax.adaptive`) on the training
+    files' `terrain`, as `gfjax filter` would settle them on these files; and what was chosen."""
+    from gfjax import adaptive, methods
+
+    module = methods.get(method.name)
+    settled = adaptive.settle_terrain(module.adapt, terrain, method.config_type(), module.Params())
+    start = [float(settled.chosen.get(b.name, b.default)) for b in method.bounds]   # exact, as params.json holds them
+    return settled.config, start, settled
 
 
 def _summary(out, method: str, values: dict, validation: dict, fitted: list[str], *, kind: str = "total error",

@@ -112,15 +112,16 @@ def _sample_loss(conf, kind: str):
 
 @functools.partial(jax.jit, static_argnames=("config", "kind", "n_samples", "method"))
 def soft_loss(raw, radius_px, temperature, buckets, masks, group, weight, prior, *, config, kind: str,
-              n_samples: int, method: Method = SMRF):
+              n_samples: int, method: Method = SMRF, center=None):
     """Relaxed objective (scalar) for unconstrained `raw` `(g, 3)` (ordered as `method.bounds`)
     with the static parameter at `radius_px` (SMRF: openings, traced int32); `group` int32
-    `(c,)` maps samples to rows of `raw`, `weight` float32 `(c,)` weighs their losses."""
+    `(c,)` maps samples to rows of `raw`, `weight` float32 `(c,)` weighs their losses; the prior
+    pulls toward `center` `(p,)` (None: the method's defaults; `Problem.defaults`)."""
     values = tparams.from_raw(raw, method.bounds)
     conf = _confusions(values, radius_px, buckets, masks, group, method=method, config=config,
                        temperature=temperature, n_samples=n_samples)
     data = jnp.sum(weight * _sample_loss(conf, kind))
-    return data + prior * jnp.sum(tparams.prior_penalty(raw, method.bounds))
+    return data + prior * jnp.sum(tparams.prior_penalty(raw, method.bounds, center))
 
 
 _soft_value_and_grad = jax.jit(jax.value_and_grad(soft_loss.__wrapped__),
@@ -211,10 +212,12 @@ def _group_error(per_sample: np.ndarray, group: np.ndarray, weight: np.ndarray, 
     return out
 
 
-def _penalty(values: np.ndarray, method: Method) -> np.ndarray:
-    """`params.prior_penalty` on bounded values `(g, 3)` (numpy), `(g,)`."""
+def _penalty(values: np.ndarray, method: Method, center: np.ndarray | None = None) -> np.ndarray:
+    """`params.prior_penalty` on bounded values `(g, 3)` (numpy), `(g,)`; `center` `(p,)` as
+    there (None: the method's defaults)."""
     span = np.asarray([b.hi - b.lo for b in method.bounds])
-    return np.sum(np.square((np.asarray(values, np.float64) - method.defaults) / span), axis=-1)
+    center = method.defaults if center is None else np.asarray(center)
+    return np.sum(np.square((np.asarray(values, np.float64) - center) / span), axis=-1)
 
 
 def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=None, weight=None,
@@ -229,7 +232,8 @@ def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=
       group: int `(c,)` parameter group of each sample (default: one shared group).
       weight: float `(c,)` weight of each sample's loss (default: 1 / samples per group);
         a sample of weight 0 does not influence the fit.
-      start: float `(g, 3)` starting values (default: the defaults).
+      start: float `(g, 3)` starting values (default: `problem.defaults`, also the prior's
+        centre).
       progress: tqdm bar over steps.
 
     Returns:
@@ -247,7 +251,8 @@ def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=
     weight = np.asarray(weight, np.float64)
     method = problem.method
     bounds = method.bounds
-    start = np.tile(method.defaults, (n_groups, 1)) if start is None else np.asarray(start, np.float32)
+    center = np.asarray(problem.defaults, np.float32)
+    start = np.tile(center, (n_groups, 1)) if start is None else np.asarray(start, np.float32)
     arrays = _arrays(problem)
     group_j, weight_j = jnp.asarray(group), jnp.asarray(weight, jnp.float32)
     temps = relax.geometric_schedule(settings.temperature_start_m, settings.temperature_end_m, settings.steps)
@@ -259,7 +264,7 @@ def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=
         nonlocal passes
         passes += 1
         errs = hard_errors(problem, values, masks, group, window_m, kind=settings.loss)
-        return _group_error(errs, group, weight, n_groups) + settings.prior * _penalty(values, method)
+        return _group_error(errs, group, weight, n_groups) + settings.prior * _penalty(values, method, center)
 
     grid = method.grid_values(problem.config, settings.windows_m)
     default_window = method.default_static(problem.config)
@@ -288,7 +293,7 @@ def fit(problem: Problem, settings: Settings = Settings(), *, masks=None, group=
         for step in range(settings.steps):
             loss, g = _soft_value_and_grad(raw, radius, temps[step], arrays, masks, group_j, weight_j,
                                            prior, config=problem.config, kind=settings.loss, n_samples=c,
-                                           method=method)
+                                           method=method, center=jnp.asarray(center))
             grads += 1
             with jax.numpy_dtype_promotion("standard"):   # optax: float ** int32 step count
                 updates, state = optimiser.update(g, state, raw)

@@ -185,7 +185,7 @@ def validate(problem: Problem, settings: tfit.Settings = tfit.Settings(), *, poi
     weight = np.asarray(weight, np.float64)
     covered = problem.covered()
     base = covered if point_masks is None else [np.asarray(m, bool) & cv for m, cv in zip(point_masks, covered)]
-    defaults = np.tile(problem.method.defaults, (n_groups, 1))
+    defaults = np.tile(problem.defaults, (n_groups, 1))
     default_window = np.full(n_groups, problem.method.default_static(problem.config))
     passes = grads = 0
     n_levels = len(shrink)

@@ -72,11 +72,15 @@ def _row(values: list[float], like: ArrayLike) -> Array:
     return jnp.asarray(values, like.dtype).reshape((1,) * (like.ndim - 1) + (len(values),))
 
 
-def prior_penalty(raw: Float[ArrayLike, "... p"], bounds: Sequence[Bound]) -> Float[Array, "..."]:
-    """`sum_k ((value_k - default_k) / (hi_k - lo_k))^2`: distance to the defaults on the
-    bounded scale (0 at the defaults), summed over the last axis."""
+def prior_penalty(raw: Float[ArrayLike, "... p"], bounds: Sequence[Bound],
+                  center: Float[ArrayLike, " p"] | None = None) -> Float[Array, "..."]:
+    """`sum_k ((value_k - center_k) / (hi_k - lo_k))^2`: distance to `center` (default: the
+    bounds' defaults; a fit that starts from values the cloud chose passes those) on the
+    bounded scale (0 there), summed over the last axis."""
     values = from_raw(raw, bounds)
-    default, span = _row([b.default for b in bounds], raw), _row([b.hi - b.lo for b in bounds], raw)
+    span = _row([b.hi - b.lo for b in bounds], raw)
+    default = _row([b.default for b in bounds], raw) if center is None else \
+        jnp.asarray(center, raw.dtype).reshape((1,) * (raw.ndim - 1) + (len(bounds),))
     return jnp.sum(jnp.square((values - default) / span), axis=-1)
 
 

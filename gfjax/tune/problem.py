@@ -133,15 +133,30 @@ class Problem:
         SMRF: openings up to its largest value); overrides `max_window_m`.
       tiling: the tiles a tiled method's samples are cut into (`gfjax.io.tiles.Tiling`, None:
         its defaults), as its `filter` cuts them.
+      defaults: float `(p,)` the values a fit starts from, is pulled toward and is guarded
+        against, ordered as `method.bounds` (None: the method's fixed defaults; `gfjax tune`
+        passes those the samples' terrain gives, `gfjax.adaptive`).
     """
 
     method: tmethods.Method = tmethods.SMRF      # also for problems pickled before methods existed
+    _defaults: np.ndarray | None = None         # ... and before they carried their own defaults
+
+    @property
+    def defaults(self) -> np.ndarray:
+        """float32 `(p,)`: the start, the prior's centre and the guard's reference."""
+        return self.method.defaults if self._defaults is None else self._defaults
 
     def __init__(self, samples: Sequence[Sample], *, config, max_window_m: float | None = None,
                  method: tmethods.Method = tmethods.SMRF, max_batch: int = 8, grid: tuple[float, ...] | None = None,
-                 tiling: tiling_lib.Tiling | None = None):
+                 tiling: tiling_lib.Tiling | None = None, defaults: Sequence[float] | np.ndarray | None = None):
         if not samples:
             raise InputError("no labelled samples to tune on")
+        if defaults is not None:
+            defaults = np.asarray(defaults, np.float32).reshape(len(method.bounds))
+            for b, value in zip(method.bounds, defaults):
+                if not b.lo < value < b.hi:
+                    raise InputError(f"{b.name}: starting value {value:g} outside the tuning bounds ({b.lo:g}, {b.hi:g})")
+            self._defaults = defaults
         if not isinstance(config, method.config_type):
             raise InputError(f"config: expected a {method.name} Config, got {type(config).__name__}")
         self.samples = list(samples)

@@ -120,3 +120,28 @@ def test_cli_tune_pmf_writes_params_that_filter_reads(tmp_path, capsys):
     assert np.float32(setup.params.max_distance_m) == np.float32(data["values"]["max_distance_m"])
     assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "p.json"), "--method", "pmf",
                           "--windows", "12"]) == 2
+
+
+def test_cli_tune_pmf_starts_from_and_guards_against_the_values_the_terrain_gives(tmp_path, capsys):
+    """PMF's first threshold follows the data (0.5 m, not the fixed 0.15 m): the fit starts
+    there, and a fit the guard rejects leaves those values, not the fixed ones."""
+    from gfjax import adaptive, pmf
+    from gfjax.pmf.config import INITIAL_DISTANCE_M
+
+    laz = tmp_path / "crop.laz"
+    cloud = crop_cloud()
+    gfjax.write(cloud, laz)
+    out = tmp_path / "pmf.json"
+    # two folds of a few blocks: too few units for the guard ever to keep a fit (module docstring)
+    code = cli_main.main(["tune", str(laz), "-o", str(out), "--method", "pmf", "--steps", "1", "--folds", "2",
+                          "--block", "30"])
+    assert code == 0, capsys.readouterr()
+    data = json.loads(out.read_text())
+    xyz = gfjax.read(laz).xyz_m
+    expected = pmf.adapt(adaptive.measure(xyz, xyz))
+    assert data["start"]["chosen_from_terrain"] == expected
+    assert data["start"]["values"]["initial_distance_m"] == INITIAL_DISTANCE_M != float(pmf.Params().initial_distance_m)
+    assert not data["validation"]["kept"] and data["fitted"] == []
+    for key in ("initial_distance_m", "max_distance_m"):
+        assert data["values"][key] == expected[key]
+    assert data["values"]["slope"] == data["start"]["values"]["slope"]
