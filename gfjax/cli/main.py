@@ -44,6 +44,7 @@ SUBCOMMANDS: dict[str, str] = {
     "info": "header, CRS, units and class counts of LAS/LAZ files",
     "filter": "classify ground points, write LAS/LAZ (and a DTM)",
     "dtm": "build a DTM GeoTIFF from a file's ground points (class 2)",
+    "hag": "height above ground of every point (HeightAboveGround), or heights as z",
     "eval": "score ground labels against reference labels",
     "tune": "fit a method's thresholds against labelled files",
     "train": "train the SparseGF model",

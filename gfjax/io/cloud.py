@@ -209,6 +209,21 @@ class Cloud:
         las.classification = new
         return dataclasses.replace(self, las=las)
 
+    def with_z(self, z: np.ndarray) -> "Cloud":
+        """A copy whose z are `z` (float `(n,)`, in the file's vertical unit; e.g. heights above
+        ground), stored at the file's z scale with a z offset of 0; everything else as read."""
+        z = np.asarray(z, np.float64)
+        if z.shape != (self.n_points,):
+            raise ValueError(f"{self.name}: z must have shape ({self.n_points},), got {z.shape}")
+        header = copy.deepcopy(self.las.header)
+        header.offsets = np.array([header.offsets[0], header.offsets[1], 0.0])
+        las = laspy.LasData(header=header, points=self.las.points.copy())
+        if hasattr(self.las, "evlrs") and self.las.evlrs is not None:
+            las.evlrs = self.las.evlrs
+        las.x, las.y = np.asarray(self.las.x), np.asarray(self.las.y)      # as stored: the same integers
+        las.z = z
+        return dataclasses.replace(self, las=las)
+
     def with_extra_dim(self, name: str, values: np.ndarray, *, description: str = "") -> "Cloud":
         """A copy with an extra-bytes dimension `name` set to `values` (shape `(n,)`).
 

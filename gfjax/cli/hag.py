@@ -1,0 +1,108 @@
+"""`gfjax hag IN... -o OUT`: each point's height above ground, as PDAL's `HeightAboveGround`.
+
+Ground is the points of class 2 (`--ground-class` to change it), or what `--method` calls ground
+(the file is then also classified, as `gfjax filter` would). Heights come from a TIN of the
+ground points (`gfjax.dtm.hag`), written as a float64 extra-bytes dimension `HeightAboveGround`
+in the file's vertical unit; `--normalize` writes them into z instead (lidR's
+`normalize_height`), every other attribute as read. With several inputs the TIN of each file
+also takes the ground points of its neighbours within `--buffer` metres (from their classes),
+so heights agree across file borders; with `--method` each file is filtered on its own.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from gfjax.cli import _job
+from gfjax.cli._common import (add_method_options, add_units_option, check_inputs, method_setup,
+                               nonnegative_float, output_targets, ranged)
+from gfjax.errors import InputError
+from gfjax.io import las as las_io
+
+BUFFER_M = 50.0          # neighbours' ground around a file, for its TIN [m]
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser("hag", help="height above ground of every point (HeightAboveGround)",
+                                   description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("inputs", nargs="+", metavar="IN", help="LAS/LAZ files, folders or globs")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT",
+                        help="output .las/.laz file, or an existing folder for several inputs")
+    parser.add_argument("--ground-class", type=ranged("--ground-class"), default=2, metavar="CODE",
+                        help="class code of ground points (default 2), when no --method is given")
+    add_method_options(parser, method_help="classify ground first with this filter")
+    parser.add_argument("--normalize", action="store_true",
+                        help="write the heights into z instead of a HeightAboveGround dimension")
+    parser.add_argument("--buffer", type=nonnegative_float, default=BUFFER_M, metavar="M",
+                        help=f"neighbour files' ground around each file [m] (default {BUFFER_M:g})")
+    add_units_option(parser)
+    parser.add_argument("--force", action="store_true", help="overwrite existing output files")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    from gfjax.dtm.hag import DESCRIPTION, DIMENSION, height_above_ground
+
+    inputs = las_io.expand_inputs(args.inputs)
+    targets = output_targets(inputs, args.output, suffixes=las_io.LAS_SUFFIXES)
+    _job.check_outputs([("-o", t, las_io.LAS_SUFFIXES) for t in targets], inputs=inputs, force=args.force)
+    runs_method = any(v for v in (args.method, args.preset, args.params, args.set_values))
+    setup = method_setup(args) if runs_method else None
+    check_inputs(inputs, units=args.units)
+    catalog, folder = None, None
+    if len(inputs) > 1 and setup is None and args.buffer > 0:
+        import tempfile
+
+        from gfjax import survey
+
+        folder = tempfile.TemporaryDirectory(prefix="gfjax-survey-", ignore_cleanup_errors=True)
+        catalog = survey.index(inputs, folder.name, units=args.units)
+
+    def one(i: int, source, target) -> None:
+        start = time.perf_counter()
+        cloud = las_io.read(source, units=args.units)
+        if setup is not None:
+            ground = np.asarray(setup.filter(cloud, progress=True).ground, bool)
+            cloud = cloud.with_ground(ground)
+        else:
+            ground = (cloud.classification == np.uint8(args.ground_class)) & ~cloud.ignored
+        xyz = cloud.xyz_m
+        context = _neighbours_ground(catalog, i, xyz, args) if catalog is not None else np.empty((0, 3))
+        if not ground.any() and not len(context):
+            raise InputError(f"{source}: no ground point (class {args.ground_class}) to measure heights from"
+                             if setup is None else f"{source}: {setup.name} found no ground point")
+        n = len(xyz)
+        heights_m = height_above_ground(np.concatenate([xyz, context]),
+                                        np.concatenate([ground, np.ones(len(context), bool)]))[:n]
+        heights = heights_m / cloud.vertical_unit_m                   # the file's vertical unit
+        out = cloud.with_z(heights) if args.normalize else cloud.with_extra_dim(DIMENSION, heights,
+                                                                              description=DESCRIPTION)
+        las_io.write(out, target, force=args.force, input_paths=inputs, exclusive=not args.force)
+        print(f"{source} -> {target}: heights above {int(ground.sum()):,} ground points"
+              f"{f' and {len(context):,} of its neighbours' if len(context) else ''}, "
+              f"{'z' if args.normalize else DIMENSION} from {heights[~ground].min(initial=0):.2f} to "
+              f"{heights.max():.2f}, {time.perf_counter() - start:.1f} s")
+
+    try:
+        jobs = [_job.Planned(s, None, (0.0, 0.0), t, None, None) for s, t in zip(inputs, targets)]
+        index = {s: i for i, s in enumerate(inputs)}
+        return _job.run_files(jobs, lambda job: one(index[job.source], job.source, job.target), keep_going=False,
+                              report=None)
+    finally:
+        if folder is not None:
+            folder.cleanup()
+
+
+def _neighbours_ground(catalog, i: int, xyz_m: np.ndarray, args) -> np.ndarray:
+    """The ground points (by class) of the other files within `--buffer` of file `i`'s points,
+    float64 `(k, 3)` [m]."""
+    from gfjax.survey import halo
+
+    lo, hi = xyz_m[:, :2].min(axis=0) - args.buffer, xyz_m[:, :2].max(axis=0) + args.buffer
+    parts = [np.empty((0, 3))]
+    for _, _, records in halo.within_box(catalog, lo, hi, skip=i):
+        ground = (np.asarray(records["classification"]) == args.ground_class) & ~np.asarray(records["ignored"])
+        parts.append(np.asarray(records["xyz_m"])[ground])
+    return np.concatenate(parts)
