@@ -171,11 +171,13 @@ def test_pmf_rule_follows_spacing_and_slope():
     assert sparse["cell_m"] == 4.0
 
 
-def test_dmf_masf_csf_rules_set_nothing_yet():
+def test_dmf_masf_rules_set_nothing_yet_csf_takes_the_trend_off_any_terrain():
     from gfjax import csf, dmf, masf
 
-    terrain = adaptive.measure(grid_plane(1.0, 100.0))
-    assert dmf.adapt(terrain) == masf.adapt(terrain) == csf.adapt(terrain) == {}
+    for xyz in (grid_plane(1.0, 100.0), grid_plane(0.2, 60.0)):
+        terrain = adaptive.measure(xyz)
+        assert dmf.adapt(terrain) == masf.adapt(terrain) == {}
+        assert csf.adapt(terrain) == {"trend_m": csf.TREND_M, "rigidness": 1}
 
 
 def test_finish_drops_a_spike_only_where_the_values_followed_the_cloud():

@@ -29,6 +29,7 @@ from gfjax._types import Mask, PointMask, Points, Raster
 from gfjax.csf import stages
 from gfjax.csf.cloth import simulate
 from gfjax.csf.config import BUFFER_PX, CLOTH_START_M, Config, Params, adapt
+from gfjax.csf.trend import trend_at
 from gfjax.io.cloud import CloudView
 from gfjax.io import groups
 from gfjax.io.tiled import check_memory, checked_options, filter_groups
@@ -98,6 +99,7 @@ class Anchor(NamedTuple):
 # large cloud's run dominates its compile, and each padded particle costs every step).
 WARM_SIDES = (128, 192, 256, 384, 512)
 _LARGE_STEP = 64
+TREND_CELLS = 6               # cells of the trend's surface across its window (`trend.trend_at`)
 _FEW_POINTS_UP_TO = 1 << 18
 _LARGE_POINT_STEP = 1 << 16
 
@@ -274,7 +276,12 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
         origin = cloud.frame.snap(origin, config.cell_m)
         origin[2] = cloud.frame.origin_m[2]
         anchor = Anchor(np.zeros(2, np.float32), np.float32(0.0))
-    local = (xyz_m - origin).astype(np.float32)
+    local = xyz_m - origin
+    trend = None
+    if config.trend_m is not None:
+        trend = trend_at(local, use, window_m=config.trend_m, cell_m=config.trend_m / TREND_CELLS)
+        local[:, 2] -= trend(local[:, :2])
+    local = local.astype(np.float32)
     h, w = grid_shape(local, use, cell_m=config.cell_m, anchor=anchor)
     n = len(local)
     capacity = canonical_points(n)
@@ -288,8 +295,13 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     ground = np.asarray(ground)[:n] & use
     diag = TileDiagnostics(*(np.asarray(a)[:h, :w] for a in (cloth_u, filled, movable, surface.exists)), steps)
     xy0 = origin[:2] - BUFFER_PX * config.cell_m
+    under = 0.0                                       # the trend under each particle, put back
+    if trend is not None:
+        rows, cols = np.mgrid[0:h, 0:w]               # row 0 south here, north in the diagnostics
+        particles = np.column_stack([cols.ravel(), rows.ravel()]) * config.cell_m + (xy0 - origin[:2])
+        under = trend(particles).reshape(h, w)[::-1]
     return Result(ground=ground, diagnostics=Diagnostics(
-        cloth_z=origin[2] - np.asarray(diag.cloth_u, np.float64)[::-1],
-        surface_z=origin[2] - np.asarray(diag.surface_u, np.float64)[::-1],
+        cloth_z=origin[2] - np.asarray(diag.cloth_u, np.float64)[::-1] + under,
+        surface_z=origin[2] - np.asarray(diag.surface_u, np.float64)[::-1] + under,
         movable=np.asarray(diag.movable)[::-1], steps=int(diag.steps), origin_m=xy0,
         cell_m=config.cell_m))

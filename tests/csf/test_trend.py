@@ -1,0 +1,104 @@
+"""CSF's trend (`gfjax.csf.trend`) against a brute-force loop, and a cloth that follows a slope."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from gfjax.csf.trend import TREND_PERCENTILE, trend_at
+
+
+def brute_force(xyz, use, window_m, cell_m, xy):
+    """The same surface built cell by cell, then sampled point by point."""
+    lo = xyz[use, :2].min(axis=0)
+    ij = np.floor((xyz[use, :2] - lo) / cell_m).astype(int)
+    h, w = ij[:, 1].max() + 1, ij[:, 0].max() + 1
+    lowest = np.full((h, w), np.inf)
+    for (i, j), z in zip(ij, xyz[use, 2]):
+        lowest[j, i] = min(lowest[j, i], z)
+    filled = lowest.copy()
+    cells = np.argwhere(np.isfinite(lowest))
+    for r in range(h):
+        for c in range(w):
+            if not np.isfinite(lowest[r, c]):
+                d = ((cells - [r, c]) ** 2).sum(axis=1)
+                filled[r, c] = lowest[tuple(cells[np.argmin(d)])]
+    k = max(3, 2 * math.ceil(window_m / (2 * cell_m)) + 1)
+    half = k // 2
+
+    def square(a, fn):
+        out = np.empty_like(a)
+        padded = np.pad(a, half, mode="edge")
+        for r in range(h):
+            for c in range(w):
+                out[r, c] = fn(padded[r:r + k, c:c + k])
+        return out
+
+    low = square(filled, lambda s: np.sort(s, axis=None)[int(s.size * TREND_PERCENTILE / 100)])
+    smooth = square(square(low, np.max), np.mean)
+    rows = (xy[:, 1] - lo[1]) / cell_m - 0.5
+    cols = (xy[:, 0] - lo[0]) / cell_m - 0.5
+    return ndimage.map_coordinates(smooth, [rows, cols], order=1, mode="nearest")
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_trend_matches_brute_force(seed):
+    """Points enough for every cell (an empty cell's nearest may tie: the fill has its own test)."""
+    rng = np.random.default_rng(seed)
+    n = 4000
+    xy = rng.uniform(0, 60, (n, 2))
+    z = 10 + 0.3 * xy[:, 0] + rng.normal(0, 0.1, n)
+    objects = rng.random(n) < 0.2
+    z[objects] += rng.uniform(2, 15, objects.sum())
+    xyz = np.column_stack([xy, z])
+    use = rng.random(n) < 0.9
+    probe = rng.uniform(-5, 65, (200, 2))
+    for window_m, cell_m in [(30.0, 5.0), (12.0, 3.0)]:
+        np.testing.assert_allclose(trend_at(xyz, use, window_m=window_m, cell_m=cell_m)(probe),
+                                   brute_force(xyz, use, window_m, cell_m, probe), atol=1e-9)
+
+
+def test_empty_cells_take_their_nearest_filled_cell():
+    xyz = np.array([[0.5, 0.5, 1.0], [9.5, 0.5, 5.0], [0.5, 9.5, 1.0], [9.5, 9.5, 5.0]])
+    trend = trend_at(xyz, np.ones(4, bool), window_m=1.0, cell_m=1.0)     # a 3 x 3 window: no smoothing
+    west, east = trend(np.array([[1.5, 5.0]])), trend(np.array([[8.5, 5.0]]))
+    assert west < east                                      # the west half from the west points
+
+
+def test_trend_of_a_tilted_plane_with_houses_is_parallel_to_the_plane():
+    """What the cloth needs: the slope gone, the houses kept off. The trend stands a constant
+    above a uniform slope (its 10th-percentile erosion lowers it less than the dilation raises
+    it), which a cloth falling from above does not see."""
+    rng = np.random.default_rng(2)
+    xy = rng.uniform(0, 200, (40_000, 2))
+    z = 50 + 0.4 * xy[:, 0] - 0.2 * xy[:, 1] + rng.normal(0, 0.02, len(xy))
+    houses = (np.abs((xy[:, 0] % 50) - 25) < 6) & (np.abs((xy[:, 1] % 50) - 25) < 6)
+    z[houses] += 8.0                                      # 12 m roofs: narrower than the window
+    trend = trend_at(np.column_stack([xy, z]), np.ones(len(xy), bool), window_m=30.0, cell_m=5.0)
+    inner = np.all((xy > 30) & (xy < 170), axis=1)
+    off = trend(xy[inner]) - (50 + 0.4 * xy[inner, 0] - 0.2 * xy[inner, 1])
+    assert np.percentile(off, 97.5) - np.percentile(off, 2.5) < 1.0     # flat after the trend, within 1 m
+    assert 0 <= np.median(off) < 3.0
+
+
+def test_a_cloth_on_the_trend_keeps_a_steep_slope_the_plain_cloth_loses():
+    import gfjax
+    from gfjax import csf
+
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 100, (20_000, 2))
+    z = 100 + 0.6 * xy[:, 0] + rng.normal(0, 0.02, len(xy))          # 31 degrees
+    cloud = gfjax.Cloud.from_xyz(np.column_stack([xy, z]))
+    plain = csf.filter(cloud, config=csf.Config())
+    followed = csf.filter(cloud)                                        # the values that follow the cloud
+    assert followed.settled.chosen == {"trend_m": csf.TREND_M, "rigidness": 1}
+    assert np.mean(plain.ground) < 0.2 < 0.9 < np.mean(followed.ground)
+    d = followed.diagnostics                                            # the cloth where the terrain is
+    h, w = d.cloth_z.shape
+    rows, cols = np.mgrid[0:h, 0:w]
+    x = d.origin_m[0] + cols * d.cell_m
+    y = d.origin_m[1] + (h - 1 - rows) * d.cell_m
+    inside = (x > 5) & (x < 95) & (y > 5) & (y < 95)
+    assert np.abs(np.median((d.cloth_z - (100 + 0.6 * x))[inside])) < 0.05
