@@ -16,7 +16,7 @@ from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.params import param
 
-__all__ = ["Config", "Params", "PRESETS", "adapt", "TREND_M", "GRAVITY", "DAMPING", "CLOTH_START_M", "BUFFER_PX",
+__all__ = ["Config", "Params", "PRESETS", "adapt", "ADAPTED", "TREND_M", "GRAVITY", "DAMPING", "CLOTH_START_M", "BUFFER_PX",
            "STOP_DISPLACEMENT_M", "SMOOTH_THRESHOLD_M", "MIN_SMOOTH_COMPONENT", "single_move",
            "double_move", "RANGES"]
 
@@ -41,6 +41,7 @@ STOP_DISPLACEMENT_M = 0.005   # CSF.cpp: stop when 0 < max particle displacement
 SMOOTH_THRESHOLD_M = 0.3      # CSF.cpp: `Cloth(..., 0.3, 9999, ...)`, smoothThreshold
 MIN_SMOOTH_COMPONENT = 50     # Cloth.h: MAX_PARTICLE_FOR_POSTPROCESSIN (components > 50)
 TREND_M = 30.0                # the trend `adapt` takes off: objects up to this wide stay on it [m]
+ADAPTED = {"trend_m": TREND_M, "rigidness": 1}   # what `adapt` sets, on every terrain
 
 
 # Particle.h, `singleMove1` / `doubleMove1`: `rigidness` relaxations of 0.3 each folded into
@@ -135,4 +136,4 @@ def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
     terrain, since a flat one has no trend to take. A call that settles it also runs the guard
     (`adaptive.finish`)."""
     del terrain
-    return {"trend_m": TREND_M, "rigidness": 1}
+    return dict(ADAPTED)

@@ -16,6 +16,7 @@ under `jax.vmap` (a batch of tiles padded to one capacity and one grid shape).
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import NamedTuple
 
@@ -28,7 +29,7 @@ from gfjax import adaptive, aot
 from gfjax._types import Mask, PointMask, Points, Raster
 from gfjax.csf import stages
 from gfjax.csf.cloth import simulate
-from gfjax.csf.config import BUFFER_PX, CLOTH_START_M, Config, Params, adapt
+from gfjax.csf.config import ADAPTED, BUFFER_PX, CLOTH_START_M, Config, Params, adapt
 from gfjax.csf.trend import trend_at
 from gfjax.io.cloud import CloudView
 from gfjax.io import groups
@@ -226,9 +227,10 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
     """Load, or compile and store (`gfjax.aot`), `drop_cloth` (the program whose compile
     dominates a run: about 1 s, against 0.1 s for `point_surface` and `classify`, which
     compile on first use) on every grid `(h, w)` of two `sides` (default: every canonical
-    grid up to 512 particles a side, 25 programs). Nothing runs; nothing is kept when the
-    program cache is off. Returns the number of programs prepared (`gfjax warmup`)."""
-    config, params = config or Config(), params or Params()
+    grid up to 512 particles a side, 25 programs), for `config` (default: the values a run
+    without one settles on, `config.ADAPTED`). Nothing runs; nothing is kept when the program
+    cache is off. Returns the number of programs prepared (`gfjax warmup`)."""
+    config, params = config or dataclasses.replace(Config(), **ADAPTED), params or Params()
     spec = jax.ShapeDtypeStruct
 
     def job(grid):
@@ -237,6 +239,19 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
         return lambda: aot.prefetch(drop_cloth, surface, params, config=config)
 
     return aot.warm_all([job((h, w)) for h in sides for w in sides], progress=progress, desc="csf programs")
+
+
+def detrended(local: np.ndarray, use: np.ndarray, config: Config):
+    """Points `(n, 3)` in local metres as the cloth meets them: float32, less the terrain's trend
+    where `config.trend_m` asks for it (`gfjax.csf.trend`); and that trend (`height(xy)`, local
+    metres) or None. The tuning (`gfjax.tune.csf`) frames its samples with it too."""
+    local = np.asarray(local, np.float64)
+    if config.trend_m is None:
+        return local.astype(np.float32), None
+    trend = trend_at(local, use, window_m=config.trend_m, cell_m=config.trend_m / TREND_CELLS)
+    local = local.copy()
+    local[:, 2] -= trend(local[:, :2])
+    return local.astype(np.float32), trend
 
 
 @adaptive.follows(adapt, Config, Params)
@@ -276,12 +291,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
         origin = cloud.frame.snap(origin, config.cell_m)
         origin[2] = cloud.frame.origin_m[2]
         anchor = Anchor(np.zeros(2, np.float32), np.float32(0.0))
-    local = xyz_m - origin
-    trend = None
-    if config.trend_m is not None:
-        trend = trend_at(local, use, window_m=config.trend_m, cell_m=config.trend_m / TREND_CELLS)
-        local[:, 2] -= trend(local[:, :2])
-    local = local.astype(np.float32)
+    local, trend = detrended(xyz_m - origin, use, config)
     h, w = grid_shape(local, use, cell_m=config.cell_m, anchor=anchor)
     n = len(local)
     capacity = canonical_points(n)

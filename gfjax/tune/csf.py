@@ -147,7 +147,8 @@ def sample_distances(xyz_m: np.ndarray, use: np.ndarray, *, config: csf.Config,
     """Point-to-cloth distances of one cloud for each grid cloth, float32 `(cloths, n)` [m].
 
     The cloud is framed exactly as `gfjax.csf.filter` frames it (origin at the minimum of the
-    used points, float32 local metres, `grid_shape`), so the distances are the filter's.
+    used points, float32 local metres less the trend where `config.trend_m` asks,
+    `grid_shape`), so the distances are the filter's.
 
     Args:
       xyz_m: float64 `(n, 3)` [m]; use: bool `(n,)` points the filter sees (at least one).
@@ -155,9 +156,11 @@ def sample_distances(xyz_m: np.ndarray, use: np.ndarray, *, config: csf.Config,
     """
     from gfjax import __version__
 
+    from gfjax.csf.filter import detrended
+
     use = np.asarray(use, bool)
     origin = xyz_m[use].min(axis=0)
-    local = (xyz_m - origin).astype(np.float32)
+    local, _ = detrended(xyz_m - origin, use, config)
     shape = csf.grid_shape(local, use, cell_m=config.cell_m)
     out = np.zeros((len(cloths), len(local)), np.float32)
     for k, code in enumerate(cloths):
