@@ -17,9 +17,12 @@ class Result(NamedTuple):
       settled: the settings the run used where some followed the cloud
         (`gfjax.adaptive.Settled`: the config, the params, what the rules chose and the
         terrain they read), or None when every setting was given.
+      notes: what a user should know of this run (a fallback it took), one line each; the
+        command line says them on stderr.
     """
 
     ground: np.ndarray
     diagnostics: Any = None
     instance_id: np.ndarray | None = None
     settled: Any = None
+    notes: tuple[str, ...] = ()

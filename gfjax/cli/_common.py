@@ -367,8 +367,8 @@ def method_setup(args: argparse.Namespace, *, tiling: tuple[float | None, float 
         raise InputError(f"--model {model}: only --method sparsegf takes a model, not {name!r}")
     options, base = None, None
     if name == "sparsegf":
-        net, base = module.load_model(model)          # a bad model file fails here, before any output
-        options = {"model": net}
+        _, base = module.load_model(model)            # a bad model file fails here, before any output
+        options = {"model": model}                    # loaded once per process (`sparsegf.load_model`)
     given = {key: value for key, value in zip(_TILING_OPTIONS, tiling) if value is not None}
     tiling_ = _tiling(name, module, given) if given else None
     config, params = methods.make_config_and_params(

@@ -300,6 +300,8 @@ def _run(args, setup, inputs, planned, runner) -> int:
         if runner is None:
             result = setup.filter(cloud, returns=args.returns, progress=True)
             _say_settled(args, str(job.source), result.settled)
+            for note in result.notes:
+                print(f"gfjax: {job.source}: {note}", file=sys.stderr)
         else:
             result, halo_ground_m = runner(position[job.source], cloud)
         # points of a kept class keep their class: not ground in the file, the counts or the DTM

@@ -54,6 +54,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
+def _densities(data) -> list[float]:
+    """The lowest and highest points per m² of covered area among the training clouds
+    (`gfjax.adaptive.measure`): the range `gfjax.sparsegf.filter.trained_density` reads back."""
+    from gfjax import adaptive
+
+    values = [1.0 / adaptive.measure(d.xyz_m).spacing_m ** 2 for d in data]
+    return [min(values), max(values)]
+
+
 def _load(paths, units, ground_class):
     import numpy as np
 
@@ -144,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
             "min_patches_per_file": args.min_patches_per_file,
             "files": [Path(p).name for p in inputs], "validate": [Path(p).name for p in validate],
             "config": model_settings(config),
+            "inputs": {"density_pts_m2": _densities(data)},
             "lambda": lam, "lr": args.lr or sgf_train.LR_START, "seconds": time.perf_counter() - started,
             "logs": [log._asdict() for log in logs]}
     checkpoint.save(out, model, meta)

@@ -89,10 +89,15 @@ def read_header(path: str | Path) -> dict[str, Any]:
     return header
 
 
+def shipped_path() -> Path:
+    """The model file inside the package."""
+    return Path(str(resources.files("gfjax") / "data" / SHIPPED))
+
+
 def load(path: str | Path | None = None) -> tuple[Model, dict[str, Any]]:
     """The model stored at `path` (default: the model shipped in the package) and its header."""
     if path is None:
-        path = Path(str(resources.files("gfjax") / "data" / SHIPPED))
+        path = shipped_path()
     path = Path(path)
     header = read_header(path)
     try:

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
+from pathlib import Path
 from typing import NamedTuple
 from collections.abc import Callable
 
@@ -12,7 +14,7 @@ from gfjax.errors import InputError
 from gfjax.io.cloud import CloudView
 from gfjax.result import Result
 from gfjax.sparsegf import checkpoint
-from gfjax.sparsegf.config import DECISION_FIELDS, LEVEL_TOLERANCE_M, Config
+from gfjax.sparsegf.config import DECISION_FIELDS, DENSITY_SLACK, LEVEL_TOLERANCE_M, Config
 from gfjax.sparsegf.features import cloud_features, n_features
 from gfjax.sparsegf.model import Model
 from gfjax.sparsegf.partition import PartitionConfig, partition
@@ -137,19 +139,47 @@ def warm(config: Config | None = None, params=None, *, progress: bool = False) -
 
 def load_model(path=None) -> tuple[Model, Config]:
     """The model at `path` (None: the model shipped in gfjax) and the settings it was trained
-    with; the decision (`config.DECISION_FIELDS`) keeps `Config`'s defaults."""
+    with; the decision (`config.DECISION_FIELDS`) keeps `Config`'s defaults. Read once per
+    process while the file stays as it is (its size and time are part of the key)."""
+    path = Path(path) if path is not None else checkpoint.shipped_path()
+    try:
+        stamp = path.stat()
+        key = (str(path.resolve()), stamp.st_size, stamp.st_mtime_ns)
+    except OSError:
+        key = None                              # `checkpoint.load` says what is wrong with it
+    return _load_model(path, key) if key is not None else _read_model(path)
+
+
+@functools.lru_cache(maxsize=4)
+def _load_model(path: Path, key: tuple) -> tuple[Model, Config]:
+    del key
+    return _read_model(path)
+
+
+def _read_model(path: Path) -> tuple[Model, Config]:
     model, header = checkpoint.load(path)
     stored = header.get("meta", {}).get("config", {})
     names = {f.name for f in dataclasses.fields(Config)} - set(DECISION_FIELDS)
     try:
         config = Config(**{k: v for k, v in stored.items() if k in names})
     except (TypeError, ValueError) as err:
-        raise InputError(f"{path or checkpoint.SHIPPED}: model settings are unusable ({err})") from None
+        raise InputError(f"{path}: model settings are unusable ({err})") from None
     have = model.net.config.in_features
     if n_features(config.features) != have:
-        raise InputError(f"{path or checkpoint.SHIPPED}: the network takes {have} input features, "
+        raise InputError(f"{path}: the network takes {have} input features, "
                          f"its settings give {n_features(config.features)} ({config.features})")
     return model, config
+
+
+def trained_density(path=None) -> tuple[float, float] | None:
+    """The points per m² the model at `path` (None: the shipped one) was trained on, lowest and
+    highest of its files (`gfjax train` records them); None for a model file without them."""
+    found = checkpoint.read_header(path or checkpoint.shipped_path()).get("meta", {}).get("inputs", {})
+    density = found.get("density_pts_m2") if isinstance(found, dict) else None
+    if (isinstance(density, list) and len(density) == 2 and all(isinstance(v, (int, float)) for v in density)
+            and 0 < density[0] <= density[1]):
+        return float(density[0]), float(density[1])
+    return None
 
 
 def level_ground_kept(xyz_m: np.ndarray, ground: np.ndarray, smrf_ground: np.ndarray, *,
@@ -202,7 +232,9 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
       ground over lower returns and ground spikes dropped (`gfjax.spikes.guard`); `decision="network"` is the
       paper's mean vote > `ground_probability`, as it is.
     """
+    seen = None                              # the densities a model file says it was trained on
     if not isinstance(model, Model):
+        seen = trained_density(model)
         model, trained_with = load_model(model)
         config = trained_with if config is None else config
     config = Config() if config is None else config
@@ -217,6 +249,15 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
         raise InputError(f"{cloud.name}: --returns: {err}") from None
     used_index = np.flatnonzero(used)
     xyz_m = cloud.xyz_m[used_index]
+    terrain = adaptive.measure(xyz_m, cloud.xyz_m[cloud.filter_mask("last")]) if len(xyz_m) else None
+    if seen is not None and terrain is not None and config.decision == "network+smrf":
+        density, (low, high) = 1.0 / terrain.spacing_m ** 2, seen
+        if not low / DENSITY_SLACK <= density <= high * DENSITY_SLACK:
+            from gfjax import smrf as smrf_method
+
+            note = (f"sparsegf: {density:.3g} points/m², beyond the {low:.3g}-{high:.3g} its model was trained on "
+                    f"(a factor {DENSITY_SLACK:g} either side): SMRF's labels kept")
+            return smrf_method.filter(cloud, returns=returns)._replace(notes=(note,))
     smrf = smrf_heights(xyz_m) if config.reads_smrf else None
     smrf_ground = None if smrf is None else smrf[:, 1] >= 0
     prob, votes, n_patches = ground_probability(model, xyz_m, config, progress=progress,
@@ -228,8 +269,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
         return out
 
     ground = full(np.asarray(decide(prob, smrf_ground, config=config)), bool)
-    if config.decision == "network+smrf":         # the paper's bare decision stays bare
-        terrain = adaptive.measure(xyz_m, cloud.xyz_m[cloud.filter_mask("last")])
+    if config.decision == "network+smrf" and terrain is not None:   # the paper's bare decision stays bare
         ground = spikes.guard(cloud.xyz_m, cloud.filter_mask("all"),
                               level_ground_kept(cloud.xyz_m, ground, full(smrf_ground, bool)),
                               spacing_m=terrain.spacing_m, slope_p90=terrain.slope_p90)

@@ -217,3 +217,20 @@ def test_a_pack_that_overflows_the_standard_plan_runs_again_with_a_grown_plan(ne
     np.testing.assert_array_equal(np.asarray(prob), np.asarray(again))
     values = pipeline.unpack(packed, np.asarray(prob))[0]
     assert len(values) and np.all(np.isfinite(values))
+
+
+def test_the_shipped_model_says_the_densities_it_saw():
+    from gfjax.sparsegf.filter import trained_density
+
+    low, high = trained_density()
+    assert 0.1 < low < 0.2 and 10 < high < 15
+
+
+def test_a_model_without_densities_has_no_range(tmp_path):
+    from gfjax.sparsegf.filter import trained_density
+
+    path = tmp_path / "m.eqx"
+    checkpoint.save(path, init(MICRO, key=jax.random.key(1)), {"inputs": {"density_pts_m2": "junk"}})
+    assert trained_density(path) is None
+    checkpoint.save(path, init(MICRO, key=jax.random.key(1)), {})
+    assert trained_density(path) is None
