@@ -105,9 +105,10 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
         return ground.copy()
     xyz = np.asarray(xyz_m, dtype=np.float64)
     points = np.flatnonzero(used | ground)
-    # cells at whole multiples of cell_m: a survey's window and the whole cloud share them
-    ij = np.floor(xyz[points, :2] / cell_m).astype(np.int64)
-    ij -= ij.min(axis=0) - 1                                               # a ring of empty cells
+    xy = xyz[points, :2]
+    # cells from the points' corner, as the rule was chosen: a survey's window lays them from its
+    # own corner, so near a window's edge its labels may differ from one file's (as the spikes')
+    ij = np.floor((xy - xy.min(axis=0)) / cell_m).astype(np.int64) + 1    # a ring of empty cells
     width = int(ij[:, 0].max()) + 2
     key = ij[:, 1] * width + ij[:, 0]
     # the occupied cells only (sorted keys): a stray point kilometres away adds one cell, not a raster

@@ -67,7 +67,8 @@ def test_non_ground_and_tiny_inputs_are_left_as_they_are():
 
 def brute_force_unstack(xyz, used, ground, *, cell_m, drop_m):
     """Each ground point against every used return of its own and the 8 cells around it."""
-    cell = np.floor(xyz[:, :2] / cell_m).astype(int)          # whole multiples of cell_m
+    lo = xyz[used | ground, :2].min(axis=0)
+    cell = np.floor((xyz[:, :2] - lo) / cell_m).astype(int)
     out = ground.copy()
     for i in np.flatnonzero(ground):
         near = used & (np.abs(cell - cell[i]) <= 1).all(axis=1)
