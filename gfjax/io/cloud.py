@@ -128,6 +128,13 @@ class Cloud:
     def n_points(self) -> int:
         return len(self.las.points)
 
+    def _copied_las(self, header: laspy.LasHeader) -> laspy.LasData:
+        """A new record of this cloud's points (copied) under `header`, with its EVLRs."""
+        las = laspy.LasData(header=header, points=self.las.points.copy())
+        if getattr(self.las, "evlrs", None) is not None:
+            las.evlrs = self.las.evlrs
+        return las
+
     def with_classes(self, *, ignore=(), keep=()) -> "Cloud":
         """This cloud with the classes `ignore` (never used, never relabelled; noise always)
         and `keep` (used as context, never relabelled) of `asprs.ClassRules`."""
@@ -203,9 +210,7 @@ class Cloud:
         if used is None:
             used = ~self.ignored
         new = asprs.relabel(self.classification, ground, used, reset_nonground=reset_nonground, rules=self.classes)
-        las = laspy.LasData(header=self.las.header, points=self.las.points.copy())
-        if hasattr(self.las, "evlrs") and self.las.evlrs is not None:
-            las.evlrs = self.las.evlrs
+        las = self._copied_las(self.las.header)
         las.classification = new
         return dataclasses.replace(self, las=las)
 
@@ -217,9 +222,7 @@ class Cloud:
             raise ValueError(f"{self.name}: z must have shape ({self.n_points},), got {z.shape}")
         header = copy.deepcopy(self.las.header)
         header.offsets = np.array([header.offsets[0], header.offsets[1], 0.0])
-        las = laspy.LasData(header=header, points=self.las.points.copy())
-        if hasattr(self.las, "evlrs") and self.las.evlrs is not None:
-            las.evlrs = self.las.evlrs
+        las = self._copied_las(header)
         las.x, las.y = np.asarray(self.las.x), np.asarray(self.las.y)      # as stored: the same integers
         las.z = z
         return dataclasses.replace(self, las=las)
@@ -235,9 +238,7 @@ class Cloud:
         if values.shape != (self.n_points,):
             raise ValueError(f"{self.name}: {name} must have shape ({self.n_points},), got {values.shape}")
         header = copy.deepcopy(self.las.header)
-        las = laspy.LasData(header=header, points=self.las.points.copy())
-        if hasattr(self.las, "evlrs") and self.las.evlrs is not None:
-            las.evlrs = self.las.evlrs
+        las = self._copied_las(header)
         if name not in set(las.point_format.dimension_names):
             las.add_extra_dim(laspy.ExtraBytesParams(name=name, type=values.dtype, description=description))
         las[name] = values
