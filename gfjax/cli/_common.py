@@ -35,6 +35,8 @@ RANGES: dict[str, Range] = {
     "--lr": Range(0, 10, low_open=True),
     "--seed": Range(0, 2**32 - 1, integer=True),
     "--min-patches-per-file": Range(0, 100_000, integer=True),
+    "--max-patches-per-file": Range(0, 100_000, integer=True),
+    "--thin-copies": Range(0, 100, integer=True),
     "--repeat": Range(1, 10_000, integer=True),
     "--timeout": Range(0, 1e7, low_open=True, unit="s"),
 }

@@ -38,6 +38,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--min-patches-per-file", type=ranged("--min-patches-per-file"), default=0, metavar="N",
                         help="draw a file with fewer patches again (new shifts and rotations) until it gives N "
                              "per epoch, so small tiles weigh as much as large ones (default 0: every patch once)")
+    parser.add_argument("--max-patches-per-file", type=ranged("--max-patches-per-file"), default=0, metavar="N",
+                        help="a random N of a file's patches per epoch when it has more, so a large survey tile "
+                             "does not outweigh the others (default 0: all of them)")
+    parser.add_argument("--thin-copies", type=ranged("--thin-copies"), default=0, metavar="K",
+                        help="also train on K randomly thinned copies of each file, at densities drawn "
+                             "log-uniformly down to 0.1 points/m² (default 0)")
     parser.add_argument("--validate", nargs="+", default=(), metavar="FILES", help="labelled files scored after each epoch")
     parser.add_argument("--ground-class", type=ranged("--ground-class"), default=2, help="class code of ground in the labels (default 2)")
     parser.add_argument("--features", choices=FEATURE_SETS, default=DEFAULT_FEATURES,
@@ -117,9 +123,10 @@ def run(args: argparse.Namespace) -> int:
     if args.no_refinement:
         net_config = dataclasses.replace(net_config, refine=0)
     data = _load(inputs, args.units, args.ground_class)
-    n_patches = sgf_train.count_patches(data, config, args.min_patches_per_file)
+    data += sgf_train.thinned(data, copies=args.thin_copies, seed=args.seed)
+    n_patches = sgf_train.count_patches(data, config, args.min_patches_per_file, args.max_patches_per_file)
     print(f"{args.preset}: {count_parameters(net_config):,} parameters; about {n_patches} patches per epoch "
-          f"from {len(inputs)} files, up to {args.batch} per step")
+          f"from {len(inputs)} files and {len(data) - len(inputs)} thinned copies, up to {args.batch} per step")
     if args.dry_run:
         return 0
     if not args.resume:
@@ -146,11 +153,12 @@ def run(args: argparse.Namespace) -> int:
     lam = 0.0 if args.no_hag_loss else sgf_train.LAMBDA
     model, logs = sgf_train.fit(model, data, config=config, epochs=args.epochs, batch_size=args.batch, seed=args.seed,
                               resume_path=state_path, validate=val, lam=lam, lr=args.lr or sgf_train.LR_START,
-                              min_patches=args.min_patches_per_file,
+                              min_patches=args.min_patches_per_file, max_patches=args.max_patches_per_file,
                               on_step=on_step, on_epoch=on_epoch)
     bar.close()
     meta = {"preset": args.preset, "seed": args.seed, "epochs": args.epochs, "batch": args.batch,
-            "min_patches_per_file": args.min_patches_per_file,
+            "min_patches_per_file": args.min_patches_per_file, "max_patches_per_file": args.max_patches_per_file,
+            "thin_copies": args.thin_copies,
             "files": [Path(p).name for p in inputs], "validate": [Path(p).name for p in validate],
             "config": model_settings(config),
             "inputs": {"density_pts_m2": _densities(data)},

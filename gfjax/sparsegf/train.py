@@ -32,6 +32,7 @@ from gfjax.sparsegf.vote import decide
 # run here, so the default starts at 1e-2 and ends 100 times lower, as the paper's does.
 LR_START = 1e-2
 LR_END_RATIO = 1e-2
+THIN_LOW_PTS_M2 = 0.1        # sparsest density a thinned training copy is drawn down to [points/m²]
 TRAIN_MIN_CAPACITY = 32_768   # voxel rows of the smaller training packs (half a step's time)
 CALIBRATION_PASSES = 30       # packs that measure the batch-norm statistics before the first step
 
@@ -53,6 +54,30 @@ def labelled(xyz_m: np.ndarray, classification: np.ndarray, *, ground_class: int
     return Labelled(np.asarray(xyz_m, np.float64), t.ground, t.bins)
 
 
+def thinned(data: list[Labelled], *, copies: int, seed: int, low_pts_m2: float = THIN_LOW_PTS_M2) -> list[Labelled]:
+    """`copies` thinned twins of every cloud denser than twice `low_pts_m2`, each a random
+    subset at a density drawn log-uniformly between `low_pts_m2` and the cloud's own.
+
+    Density augmentation: a survey may be ten times sparser than any training file, and the
+    network's context (how many points a voxel holds, how far the ground lies between them)
+    changes with it. Labels and height bins are the full cloud's (a point's height above the
+    labelled ground does not change when its neighbours are dropped). Deterministic given
+    `seed`; the copies' per-cloud inputs are computed from the thinned points, as a thin
+    survey's would be.
+    """
+    from gfjax import adaptive
+
+    rng = np.random.default_rng([seed, 1 << 20])
+    out = []
+    for d in data:
+        density = 1.0 / adaptive.measure(d.xyz_m).spacing_m ** 2
+        for _ in range(copies if density > 2 * low_pts_m2 else 0):
+            target = float(np.exp(rng.uniform(np.log(low_pts_m2), np.log(density))))
+            keep = np.sort(rng.permutation(len(d.xyz_m))[:max(1, round(len(d.xyz_m) * target / density))])
+            out.append(Labelled(d.xyz_m[keep], d.ground[keep], d.hag_bin[keep]))
+    return out
+
+
 class Step(NamedTuple):
     """One training step's inputs: a pack and, per central point row `(P,)` int32, its label
     (1 = ground) and its HAG bin."""
@@ -63,14 +88,16 @@ class Step(NamedTuple):
 
 
 def training_batches(data: list[Labelled], config: Config, *, batch_size: int, rng: np.random.Generator,
-                     plans: dict | None = None, min_patches: int = 0):
+                     plans: dict | None = None, min_patches: int = 0, max_patches: int = 0):
     """One epoch of steps: every patch of every cloud once, in random order.
 
     Augmentation: the grid of patch axes is shifted at random per cloud (the central regions
     fall on new places each epoch) and each patch is rotated about z at random (the paper's).
     A cloud with fewer than `min_patches` patches is drawn again on new shifts and rotations
     until it gives `min_patches`, so a small tile (a forest plot among city blocks) weighs as
-    much as the others in an epoch; 0 keeps the paper's one pass.
+    much as the others in an epoch; 0 keeps the paper's one pass. A cloud with more than
+    `max_patches` (> 0) gives a random `max_patches` of them, so a square kilometre does not
+    outweigh a city block.
     Up to `batch_size` patches are packed per step (`pipeline.pack`, at most
     `pipeline.PACK_VOXELS` voxels unless one patch is larger), into `TRAIN_MIN_CAPACITY` or
     `PACK_VOXELS` rows (a few sparse ISPRS patches fill the first, a dense forest patch needs
@@ -92,6 +119,8 @@ def training_batches(data: list[Labelled], config: Config, *, batch_size: int, r
             drawn += more if not drawn or need >= len(more) else [more[i] for i in rng.permutation(len(more))[:need]]
             if len(drawn) >= min_patches:
                 break
+        if 0 < max_patches < len(drawn):
+            drawn = [drawn[i] for i in np.sort(rng.permutation(len(drawn))[:max_patches])]
         items += [(d, p) for p in drawn]
     order = [items[i] for i in rng.permutation(len(items))]
     source = {id(p): d for d, p in order}
@@ -187,13 +216,14 @@ class EpochLog(NamedTuple):
     seconds: float
 
 
-def count_patches(data: list[Labelled], config: Config, min_patches: int = 0) -> int:
+def count_patches(data: list[Labelled], config: Config, min_patches: int = 0, max_patches: int = 0) -> int:
     """Patches in an epoch of `training_batches` (about: the count varies with the grid shift)."""
     from gfjax.sparsegf.partition import PartitionConfig, partition
 
     pc = PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m)
     counts = [len(partition(d.xyz_m, pc).centers_m) for d in data]
-    return sum(max(c, min_patches) if c else 0 for c in counts)
+    capped = [max(c, min_patches) if c else 0 for c in counts]
+    return sum(min(c, max_patches) if max_patches > 0 else c for c in capped)
 
 
 def validation_error(model: Model, data: list[Labelled], config: Config) -> float:
@@ -212,11 +242,11 @@ def validation_error(model: Model, data: list[Labelled], config: Config) -> floa
 
 def fit(model: Model, data: list[Labelled], *, config: Config, epochs: int, batch_size: int, seed: int,
         resume_path=None, validate: list[Labelled] | None = None, lam: float = LAMBDA, lr: float = LR_START,
-        min_patches: int = 0, on_step=None, on_epoch=None):
+        min_patches: int = 0, max_patches: int = 0, on_step=None, on_epoch=None):
     """Train `model` for `epochs` epochs; deterministic given `seed`.
 
     The learning rate follows a cosine from `lr` to `lr * LR_END_RATIO` over the run (per
-    step); `min_patches` is `training_batches`'. Epoch `e` draws its grid shifts, rotations,
+    step); `min_patches` and `max_patches` are `training_batches`'. Epoch `e` draws its grid shifts, rotations,
     thinning and order from `numpy.random.default_rng([seed, e])`, so a run resumed from the checkpoint at
     `resume_path` (written after every epoch: model, optimizer state, epoch) continues exactly
     as the uninterrupted run would. `on_step(epoch, step, steps in the epoch, [loss, cls,
@@ -235,7 +265,7 @@ def fit(model: Model, data: list[Labelled], *, config: Config, epochs: int, batc
         totals = []
         rng = np.random.default_rng([seed, epoch])
         steps = list(training_batches(data, config, batch_size=batch_size, rng=rng, plans=plans,
-                                      min_patches=min_patches))
+                                      min_patches=min_patches, max_patches=max_patches))
         model = calibrate(model, steps)
         for i, step in enumerate(steps):
             rate = learning_rate((epoch + i / len(steps)) / epochs, lr)

@@ -191,6 +191,34 @@ def test_a_small_file_is_drawn_again_until_it_gives_min_patches():
     assert count(1) == one_pass                       # a minimum every file meets changes nothing
     assert count(40) == 80                            # both files topped up to exactly 40
     assert train.count_patches(data, Config(features=FEATURES), 40) == 80
+    assert count_capped(data[1:], 5) == 5             # the large file cut down to exactly 5
+    assert count_capped(data, 1) == 2                 # both files cut down to one
+    assert train.count_patches(data, Config(features=FEATURES), 0, 1) == 2
+
+
+def count_capped(data, max_patches):
+    steps = train.training_batches(data, Config(features=FEATURES), batch_size=4, rng=np.random.default_rng(3),
+                                   max_patches=max_patches)
+    return sum(len(step.packed.patches) for step in steps)
+
+
+def test_thinned_copies_are_sparser_subsets_with_their_labels_and_repeat_with_the_seed():
+    from gfjax import adaptive
+
+    xyz, cls = scene()
+    data = [train.labelled(xyz, cls)]
+    density = 1.0 / adaptive.measure(xyz).spacing_m ** 2
+    copies = train.thinned(data, copies=3, seed=0, low_pts_m2=density / 20)
+    assert len(copies) == 3
+    rows = {tuple(p): i for i, p in enumerate(map(tuple, xyz))}
+    for c in copies:
+        assert 0 < len(c.xyz_m) < len(xyz)
+        index = np.asarray([rows[tuple(p)] for p in c.xyz_m])       # a subset of the cloud's points
+        np.testing.assert_array_equal(c.ground, data[0].ground[index])
+        np.testing.assert_array_equal(c.hag_bin, data[0].hag_bin[index])
+    again = train.thinned(data, copies=3, seed=0, low_pts_m2=density / 20)
+    assert all(np.array_equal(a.xyz_m, b.xyz_m) for a, b in zip(copies, again))
+    assert train.thinned(data, copies=3, seed=0, low_pts_m2=density) == []    # no sparser density to draw
 
 
 def test_a_pack_that_overflows_the_standard_plan_runs_again_with_a_grown_plan(net):
