@@ -1,6 +1,6 @@
 """Every method on every labelled file we have: point and DTM accuracy against the file's own ground.
 
-    nice .venv/bin/python experiments/corpus_eval.py [--methods smrf,pmf,...] [--jobs 2]
+    nice .venv/bin/python experiments/corpus_eval.py [--methods smrf,pmf,...] [--jobs 2] [--model M.eqx --json J]
 
 The 29 files of `experiments.common.LABELLED` (11 ISPRS reference samples, bcts_1/2, Topography,
 autzen, the 14 vendor-classified tiles of `corpus/`), each method with its defaults. Scored as
@@ -33,8 +33,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.common import LABELLED, RESULTS, Labelled, labelled  # noqa: E402
+from gfjax.methods import names as method_names  # noqa: E402
 
-METHODS = ("smrf", "pmf", "csf", "dmf", "masf", "sparsegf")
+METHODS = tuple(method_names())
 MAX_TYPE1 = 0.10          # a file passes with type I at most this (fraction) ...
 MAX_RMSE_M = 0.30         # ... and a DTM RMSE at most this [m]
 CELL_M = 2.0
@@ -69,14 +70,16 @@ def score_file(method: str, entry: Labelled, run) -> dict:
     return row
 
 
-def run_method(method: str, names: list[str]) -> dict:
-    """Every file of `names` with `method`'s defaults, in this process."""
+def run_method(method: str, names: list[str], model: str | None = None) -> dict:
+    """Every file of `names` with `method`'s defaults, in this process (`model`: the model
+    file of a method that takes one; None: the shipped one)."""
     from gfjax import methods
 
-    module = methods.get(method)
+    found = methods.get(method)
+    options = {"model": model} if model is not None and found.load_model is not None else {}
 
     def run(cloud):
-        return module.filter(cloud, progress=False).ground
+        return found.filter(cloud, progress=False, **options).ground
 
     entries = {e.name: e for e in LABELLED}
     warm = entries[WARM_UP]
@@ -165,8 +168,8 @@ def markdown(document: dict) -> list[str]:
     return lines
 
 
-def _child(method: str, names: list[str], out: Path) -> None:
-    out.write_text(json.dumps(run_method(method, names)))
+def _child(method: str, names: list[str], out: Path, model: str | None) -> None:
+    out.write_text(json.dumps(run_method(method, names, model)))
 
 
 def main() -> None:
@@ -175,11 +178,12 @@ def main() -> None:
     parser.add_argument("--files", default=None, help="comma-separated short names (default: every labelled file)")
     parser.add_argument("--jobs", type=int, default=1, help="methods run at once, each in its own process")
     parser.add_argument("--json", type=Path, default=RESULTS / "corpus_eval.json")
+    parser.add_argument("--model", default=None, help="model file of the methods that take one (default: shipped)")
     parser.add_argument("--child", nargs=2, metavar=("METHOD", "OUT"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     names = [e.name for e in labelled()] if args.files is None else args.files.split(",")
     if args.child:
-        _child(args.child[0], names, Path(args.child[1]))
+        _child(args.child[0], names, Path(args.child[1]), args.model)
         return
     chosen = [m for m in args.methods.split(",") if m]
     unknown = sorted(set(chosen) - set(METHODS))
@@ -192,6 +196,8 @@ def main() -> None:
         command = [sys.executable, __file__, "--child", method, str(out)]
         if args.files:
             command += ["--files", args.files]
+        if args.model:
+            command += ["--model", args.model]
         subprocess.run(command, check=True)
         result = json.loads(out.read_text())
         out.unlink()

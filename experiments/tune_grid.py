@@ -64,7 +64,7 @@ def table(method: str, sample: Sample, combos, cache: Path) -> tuple[np.ndarray,
         return np.load(path), float(seconds.read_text())
     start = time.perf_counter()
     module, tmodule = METHODS[method]
-    wrong = tmodule.METHOD.wrong_table(sample, module.Config(), combos)
+    wrong = tmodule.TUNER.wrong_table(sample, module.Config(), combos)
     took = time.perf_counter() - start
     print(f"{sample.name}: {len(combos)} runs in {took:.0f} s", flush=True)
     np.save(path, wrong)

@@ -72,7 +72,7 @@ def pct(x):
     return f"{100 * x:.2f}"
 
 
-def prepared(names: list[str], cache: Path, method: tmethods.Method = tmethods.SMRF,
+def prepared(names: list[str], cache: Path, method: tmethods.GradientTuner = tmethods.SMRF,
              cloth_cache: Path | None = None) -> tuple[Problem, float]:
     """The prepared `Problem` of the named samples, from a pickle under `cache` when one exists
     for the same files and gfjax sources (the openings to 24 m dominate the run otherwise);
@@ -107,7 +107,7 @@ def prepared(names: list[str], cache: Path, method: tmethods.Method = tmethods.S
     return problem, seconds
 
 
-def write_report(out: Path, method: tmethods.Method) -> None:
+def write_report(out: Path, method: tmethods.GradientTuner) -> None:
     """`<stem>.md` from every `<stem>_<phases>.json` of the method under `out` (merged in name order)."""
     stem = "tune_isprs" if method is tmethods.SMRF else f"tune_isprs_{method.name}"
     merged: dict = {}

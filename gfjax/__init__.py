@@ -16,13 +16,15 @@ import importlib
 
 from gfjax import cache as _cache
 from gfjax.io.cloud import Cloud
+from gfjax.methods import PACKAGES as _PACKAGES
 from gfjax.result import Result
 
 __version__ = "0.1.0"
 
 _cache.setup()
 
-_LAZY = {"data", "bench", "smrf", "dmf", "masf", "pmf", "csf", "sparsegf", "raster", "dtm", "metrics", "tune", "io", "methods", "cache", "aot"}
+_LAZY = {"data", "bench", "raster", "dtm", "metrics", "tune", "io", "methods", "method", "cache", "aot",
+         *(package.removeprefix("gfjax.") for package in _PACKAGES.values())}
 _LAZY_FUNCS = {"read": "gfjax.io.las", "write": "gfjax.io.las", "Tiling": "gfjax.io.tiles"}
 
 

@@ -192,14 +192,9 @@ def tiles_per_batch(extent_m: tuple[float, float] | None, tile_m: float, *, max_
     return min(max_batch, count)
 
 
-# Method packages and other option owners whose RANGES make the README table, in its order.
+# Owners of options other than the methods' (`Method.ranges`, every registered method first)
+# whose RANGES make the README table, in its order.
 TABLE_SOURCES: dict[str, str] = {
-    "smrf": "gfjax.smrf.config",
-    "pmf": "gfjax.pmf.config",
-    "csf": "gfjax.csf.config",
-    "dmf": "gfjax.dmf.config",
-    "masf": "gfjax.masf.config",
-    "sparsegf": "gfjax.sparsegf.config",
     "tiling (`--tile-size`, `--buffer`)": "gfjax.io.tiles",
     "dtm (`--cell`, `--max-edge`)": "gfjax.dtm.build",
     "commands (tune, train, bench, eval, dtm)": "gfjax.cli._common",
@@ -233,22 +228,26 @@ def tiled_estimator(*, max_batch: int, tile_bytes_per_cell: float, mosaic_bytes_
 
 def markdown_table() -> str:
     """The README table of every checked range: method, key, range, default."""
+    from gfjax import methods          # not at the top: the registry's `Method` type imports this module
+
     lines = ["| method or command | `--set` key or option | valid range | default |", "| --- | --- | --- | --- |"]
-    for method, module_name in TABLE_SOURCES.items():
+    owners = [(m.name, {}, (m.Config, m.Params), m.ranges) for m in map(methods.get, methods.available())]
+    for owner, module_name in TABLE_SOURCES.items():
         module = importlib.import_module(module_name)
-        defaults = dict(getattr(module, "DEFAULTS", {}))
-        for cls_name in ("Config", "Params", "Tiling"):
-            cls = getattr(module, cls_name, None)
+        owners.append((owner, getattr(module, "DEFAULTS", {}), (getattr(module, "Tiling", None),), module.RANGES))
+    for owner, given, classes, ranges in owners:
+        defaults = dict(given)
+        for cls in classes:
             if cls is not None and dataclasses.is_dataclass(cls):
                 for field in dataclasses.fields(cls):
                     if field.default is not dataclasses.MISSING:
                         defaults.setdefault(field.name, field.default)
-        for key, allowed in module.RANGES.items():
+        for key, allowed in ranges.items():
             default = defaults.get(key, "")
             if hasattr(default, "shape"):
                 default = default.item()
             shown = f"{default:g}" if isinstance(default, float) else str(default)
-            lines.append(f"| {method} | `{key}` | {allowed.text()} | {shown} |")
+            lines.append(f"| {owner} | `{key}` | {allowed.text()} | {shown} |")
     return "\n".join(lines)
 
 

@@ -1,101 +1,88 @@
 """The registry of ground-filtering methods, and `--set key=value` handling.
 
-Every method package (`gfjax.smrf`, `gfjax.dmf`, ...) exposes, at its top level:
-
-- `filter(cloud, *, config=None, params=None, returns="all", progress=False) -> Result`; a
-  method that cuts its work into buffered tiles (SMRF, PMF: the cloud; DMF: its NGNEM raster)
-  also takes `tiling=None`, a `gfjax.Tiling` (`gfjax.io.tiles`): an option of the run, never a
-  field of `Config` (`tiles`).
-- `Config`: a frozen dataclass of static values (shapes, loop counts, cell sizes) [metres],
-  with `memory_estimates(extent_m=None)` (and `tiling=None` for a method that tiles): the
-  largest allocations its values imply (`gfjax.limits`).
-- `Params`: traced scalars (thresholds optax may tune) [metres]: a subclass of
-  `gfjax.params.Params` whose fields are `gfjax.params.param(default)`; or None.
-- `PRESETS`: dict of preset name -> dict of overrides (may be empty).
-- optionally `warm(config=None, params=None, *, progress=False) -> int`: load or compile the
-  programs `filter` runs for every canonical input shape (`gfjax warmup`).
-- optionally `TILE_LABELS = True`: a tile's core labels depend on the tile's window only, so
-  a survey runs each tile of its lattice once (`lattice`; `gfjax.survey`).
-- optionally `WHOLE_CLOUD = True`: a point's label depends on the whole cloud (CSF's cloth
-  settles over all of it), so a survey that fits the memory budget is filtered as one cloud
-  (`gfjax.survey.fits_whole`) and gets exactly the labels of one file of it.
-- optionally `survey_config(config, clouds) -> Config`: `config` with the estimates a method
-  makes per cloud fixed once for a whole survey (`clouds`: each file's points filtered,
-  float64 `(n_i, 3)` [m]), so every file and halo shares them (DMF's voxel size W;
-  `gfjax.survey.survey_config`).
-
-The registry imports a method lazily, so `gfjax info` does not pay for every method. Bad
-names, keys and values raise `InputError` naming the option (the CLI exits with code 2).
+Every method package (`gfjax.smrf`, `gfjax.dmf`, ...) exports its `gfjax.method.Method` as
+`METHOD`; `PACKAGES` lists them, and every list of names (the CLI's choices, the option
+table, the lazy imports of `gfjax`) is derived from it. A package is imported on first use,
+so `gfjax info` does not pay for every method. Bad names, keys and values raise `InputError`
+naming the option (the CLI exits with code 2).
 """
 from __future__ import annotations
 
 import dataclasses
 import importlib
-import inspect
 from collections.abc import Mapping
 from types import ModuleType
 from typing import Any
 
 from gfjax import limits
 from gfjax.errors import InputError, SettingError
+from gfjax.method import Method
 
-# The method `gfjax filter` runs without `--method`. SPEC section 2: the method with the lowest
-# mean total error on the 11 shared ISPRS samples with its defaults; SMRF until that is measured.
+# The method `gfjax filter` runs without `--method`: the one that passes the most labelled
+# files with its defaults (`experiments/results/corpus_eval.md`; the README says why).
 DEFAULT_METHOD = "smrf"
 
-METHODS: dict[str, str] = {
+# name -> package exporting `METHOD`: the one place a method is registered.
+PACKAGES: dict[str, str] = {
     "smrf": "gfjax.smrf",
-    "dmf": "gfjax.dmf",
-    "masf": "gfjax.masf",
     "pmf": "gfjax.pmf",
     "csf": "gfjax.csf",
+    "dmf": "gfjax.dmf",
+    "masf": "gfjax.masf",
     "sparsegf": "gfjax.sparsegf",
 }
 
 
+def names() -> list[str]:
+    """Every registered method name, in registry order."""
+    return list(PACKAGES)
+
+
 def available() -> list[str]:
-    """Names of the methods whose package is importable."""
-    names = []
-    for name in METHODS:
+    """Names of the methods whose package imports (a build may leave one out)."""
+    out = []
+    for name in PACKAGES:
         try:
-            module = importlib.import_module(METHODS[name])
-        except ImportError:
+            get(name)
+        except InputError:
             continue
-        if callable(getattr(module, "filter", None)):      # not a `filter` submodule
-            names.append(name)
-    return names
+        out.append(name)
+    return out
 
 
-def get(name: str, *, option: str = "--method") -> ModuleType:
-    """The method package for `name` (raises InputError naming `option` and the choices)."""
-    if name not in METHODS:
-        raise InputError(f"{option}: unknown method {name!r}; choose from {', '.join(METHODS)}")
+def get(name: str, *, option: str = "--method") -> Method:
+    """The `Method` registered as `name` (raises InputError naming `option` and the choices)."""
+    if name not in PACKAGES:
+        raise InputError(f"{option}: unknown method {name!r}; choose from {', '.join(PACKAGES)}")
     try:
-        module = importlib.import_module(METHODS[name])
+        package = importlib.import_module(PACKAGES[name])
     except ModuleNotFoundError as err:
-        if err.name is None or not METHODS[name].startswith(err.name):
+        if err.name is None or not PACKAGES[name].startswith(err.name):
             raise  # a dependency of an existing method is missing: an internal error
         raise InputError(f"{option}: method {name!r} is not available in this build") from None
-    if not callable(getattr(module, "filter", None)):
+    method = getattr(package, "METHOD", None)
+    if not isinstance(method, Method):
         raise InputError(f"{option}: method {name!r} is not implemented yet")
-    return module
+    return method
 
 
-def tiles(method: ModuleType) -> bool:
-    """Whether `method`'s `filter` takes a `tiling` (it cuts its work into buffered tiles)."""
-    return "tiling" in inspect.signature(method.filter).parameters
+def of(method: Method | ModuleType | str) -> Method:
+    """`method` as a `Method`: a Method itself, a method package (`gfjax.smrf`) or a name."""
+    if isinstance(method, Method):
+        return method
+    if isinstance(method, str):
+        return get(method)
+    found = getattr(method, "METHOD", None)
+    if not isinstance(found, Method):
+        raise TypeError(f"not a method: {method!r} (pass a gfjax.method.Method, a method package or a name)")
+    return found
 
 
-def whole_cloud(method: ModuleType) -> bool:
-    """Whether `method`'s labels depend on the whole cloud (`WHOLE_CLOUD`)."""
-    return bool(getattr(method, "WHOLE_CLOUD", False))
-
-
-def lattice(method: ModuleType, config: Any, tiling: Any = None) -> Any:
+def lattice(method: Method, config: Any, tiling: Any = None) -> Any:
     """The tile lattice a survey runs `method` on tile by tile (`gfjax.io.tiles.Lattice`:
     `tiling`, None for its defaults, at `config.cell_m`), for a method whose tiles' labels
-    depend on their windows only (`TILE_LABELS`); None for any other method."""
-    if not getattr(method, "TILE_LABELS", False):
+    depend on their windows only (`Method.tile_labels`); None for any other method."""
+    if not method.tile_labels:
         return None
     from gfjax.io.tiled import lattice_of
 
@@ -152,7 +139,7 @@ def _as_field_value(value: Any, current: Any) -> Any:
     return value
 
 
-def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | None = None,
+def make_config_and_params(method: Method | ModuleType | str, overrides: Mapping[str, Any] | None = None,
                            preset: str | None = None, *, values: Mapping[str, float] | None = None,
                            values_source: str = "--params", base_config: Any = None, tiling: Any = None,
                            tiling_sources: Mapping[str, str] | None = None) -> tuple[Any, Any]:
@@ -161,20 +148,21 @@ def make_config_and_params(method: ModuleType, overrides: Mapping[str, Any] | No
     Precedence, lowest first: the defaults (or `base_config`, e.g. the settings a SparseGF
     model was trained with), `preset`, `values` (e.g. the `values` of a
     `gfjax tune` params.json, named by `values_source` in errors), then `overrides`
-    (`--set`). `tiling`, a `gfjax.Tiling` for a method that tiles (`tiles`), joins the checks
+    (`--set`). `method`: a `Method`, its package or its name. `tiling`, a `gfjax.Tiling`
+    for a method that tiles (`Method.tiles`), joins the checks
     of the rasters the values set (its core must hold a cell; `tiling_sources` names the
     option that gave each of its fields). Keys are matched against the fields of `Config` and of `Params`. An
     unknown key, an unknown preset, a value that does not parse or that the method's own
     checks reject (`Config.__post_init__`: ranges and memory budget, `gfjax.limits`;
     `Params.check()` when it exists) raises `InputError` naming the option and the key.
     """
+    method = of(method)
     config = method.Config() if base_config is None else base_config
-    params_cls = getattr(method, "Params", None)
-    params = params_cls() if params_cls is not None else None
-    method_name = method.__name__.split(".")[-1]
+    params = method.Params() if method.Params is not None else None
+    method_name = method.name
     layers: list[tuple[str, Mapping[str, Any]]] = []
     if preset is not None:
-        presets = getattr(method, "PRESETS", {})
+        presets = method.presets
         if preset not in presets:
             choices = ", ".join(presets) or "none"
             raise InputError(f"--preset: unknown preset {preset!r} for {method_name}; choose from {choices}")

@@ -39,14 +39,14 @@ def _filter_function(kind: str, name: str, model: str | None = None) -> Callable
     if kind == "method":
         from gfjax import methods
 
-        module = methods.get(name)
+        method = methods.get(name)
         options = {}
-        if name == "sparsegf":
-            loaded, config = module.load_model(model)
+        if method.load_model is not None:
+            loaded, config = method.load_model(model)
             options = {"model": loaded, "config": config}
 
         def run_method(cloud) -> np.ndarray:
-            return np.asarray(module.filter(cloud, progress=False, **options).ground, dtype=bool)
+            return np.asarray(method.filter(cloud, progress=False, **options).ground, dtype=bool)
 
         return run_method
     if kind == "peer":

@@ -62,15 +62,18 @@ def plan(methods_text: str | None, peers_text: str | None, *, model: str | None 
         if method_names == ["none"]:
             method_names = []
         for name in method_names:
-            if name not in methods.METHODS:
+            if name not in methods.PACKAGES:
                 raise InputError(f"--methods: unknown method {name!r}; choose from "
-                                 f"{', '.join(methods.METHODS)} (or none)")
+                                 f"{', '.join(methods.names())} (or none)")
             methods.get(name, option="--methods")
+    takers = [name for name in method_names if methods.get(name).load_model is not None]
     if model is not None:
-        if "sparsegf" not in method_names:
-            raise InputError(f"--model {model}: only the sparsegf method takes a model; add it to --methods")
-        methods.get("sparsegf").load_model(model)
-    runners = [Runner("method", name, model if name == "sparsegf" else None) for name in method_names]
+        if not takers:
+            able = " or ".join(n for n in methods.available() if methods.get(n).load_model is not None)
+            raise InputError(f"--model {model}: only the {able} method takes a model; add it to --methods")
+        for name in takers:
+            methods.get(name).load_model(model)
+    runners = [Runner("method", name, model if name in takers else None) for name in method_names]
     notes = []
     for name in peers.parse_peers(peers_text):
         if peers.installed(name):

@@ -10,12 +10,12 @@ import sys
 import textwrap
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from types import ModuleType
 from typing import Any, NamedTuple
 
 from gfjax.errors import InputError
 from gfjax.io.units import UNIT_CHOICES
 from gfjax.limits import Range
+from gfjax.method import Method
 
 TIF_SUFFIXES = (".tif", ".tiff")
 _NAMED = 3                  # files a warning names before it counts the rest
@@ -120,11 +120,11 @@ def add_method_options(parser: argparse.ArgumentParser, *, method_help: str, def
     runs `gfjax.methods.DEFAULT_METHOD` without --method (the help names it); `tiling`: it
     takes --tile-size / --buffer (the help lists the methods that do).
     """
-    from gfjax.methods import DEFAULT_METHOD, METHODS
+    from gfjax.methods import DEFAULT_METHOD, names
 
     default = f" (default {DEFAULT_METHOD})" if default_method else ""
     parser.add_argument("--method", default=None, metavar="NAME",
-                        help=f"{method_help}{default}: {', '.join(METHODS)}")
+                        help=f"{method_help}{default}: {', '.join(names())}")
     parser.add_argument("--preset", default=None, metavar="NAME",
                         help="a named set of option values of the method (listed below)")
     # Built only when the help is printed: it imports every method (`gfjax.cli.main._Parser`).
@@ -140,7 +140,7 @@ def add_method_options(parser: argparse.ArgumentParser, *, method_help: str, def
 def method_table(*, default_method: bool = False, tiling: bool = False) -> str:
     """The end of `--help` for the commands that run a method: each method's presets (its
     `PRESETS`), the default method marked when `default_method`, and with `tiling` the methods
-    that take `--tile-size` / `--buffer` (`gfjax.methods.tiles`), with the defaults.
+    that take `--tile-size` / `--buffer` (`Method.tiles`), with the defaults.
 
     Imports every method package, and so JAX (about a second): called only to print help.
     """
@@ -149,17 +149,17 @@ def method_table(*, default_method: bool = False, tiling: bool = False) -> str:
     width = max(shutil.get_terminal_size().columns - 2, 60)
     lines = ["methods (--method NAME) and their presets (--preset NAME):"]
     tiled = []
-    for name in methods.METHODS:
+    for name in methods.names():
         label = f"  {name}{' (default)' if default_method and name == methods.DEFAULT_METHOD else ''}"
         try:
-            module = methods.get(name)
+            method = methods.get(name)
         except (InputError, ImportError):
             lines.append(f"{label}: not available in this build")
             continue
-        presets = ", ".join(getattr(module, "PRESETS", None) or {}) or "none"
+        presets = ", ".join(method.presets) or "none"
         lines.append(textwrap.fill(f"{label}: {presets}", width=width, subsequent_indent=" " * 6,
                                    break_on_hyphens=False))
-        if methods.tiles(module):
+        if method.tiles:
             tiled.append(name)
     if tiling:
         from gfjax.io.tiles import Tiling
@@ -292,16 +292,19 @@ def load_params_file(path: str | os.PathLike) -> dict[str, Any]:
 
 
 class MethodSetup(NamedTuple):
-    """A method package, the Config/Params the options give it, and further keyword
-    arguments of its `filter` (SparseGF's `model`, a tiled method's `tiling`)."""
+    """A method (`gfjax.method.Method`), the Config/Params the options give it, and further
+    keyword arguments of its `filter` (SparseGF's `model`, a tiled method's `tiling`)."""
 
-    name: str
-    module: ModuleType
+    method: Method
     config: Any
     params: Any
     options: dict | None = None
     fixed: frozenset[str] | None = None      # fields the options set; None: every field settled
     settled: Any = None                      # what `settle` chose (`gfjax.adaptive.Settled`)
+
+    @property
+    def name(self) -> str:
+        return self.method.name
 
     def filter(self, cloud, **kwargs):
         """The method on `cloud`; the values the options left open follow the cloud first
@@ -310,7 +313,7 @@ class MethodSetup(NamedTuple):
         from gfjax import adaptive
 
         setup = self.settle(cloud, returns=kwargs.get("returns", "all"))
-        result = self.module.filter(cloud, config=setup.config, params=setup.params, **(self.options or {}), **kwargs)
+        result = self.method.filter(cloud, config=setup.config, params=setup.params, **(self.options or {}), **kwargs)
         return adaptive.finish(result, cloud, setup.settled)
 
     def settle(self, cloud, *, returns: str = "all") -> MethodSetup:
@@ -319,7 +322,7 @@ class MethodSetup(NamedTuple):
         its points, so every tile shares the values); itself when nothing is left open."""
         from gfjax import adaptive
 
-        rule = getattr(self.module, "adapt", None)
+        rule = self.method.adapt
         if self.fixed is None or rule is None:
             return self
         settled = adaptive.settle_cloud(rule, cloud, self.config, self.params, fixed=self.fixed, returns=returns)
@@ -339,7 +342,7 @@ class MethodSetup(NamedTuple):
         """The lattice a survey runs tile by tile (`gfjax.methods.lattice`), or None."""
         from gfjax import methods
 
-        return methods.lattice(self.module, self.config, self.tiling)
+        return methods.lattice(self.method, self.config, self.tiling)
 
     def memory_estimates(self) -> list:
         """The method's `Config.memory_estimates()` with its tiling (`gfjax.methods.memory_estimates`)."""
@@ -353,7 +356,7 @@ def method_setup(args: argparse.Namespace, *, tiling: tuple[float | None, float 
 
     The method is `--method`, else the params file's method, else `DEFAULT_METHOD`. `tiling`:
     the `--tile-size` and `--buffer` values (None: not given), for a method that tiles
-    (`gfjax.methods.tiles`). Every value is range-checked (`gfjax.limits`) before any file is
+    (`Method.tiles`). Every value is range-checked (`gfjax.limits`) before any file is
     read.
     """
     from gfjax import adaptive, methods
@@ -363,18 +366,19 @@ def method_setup(args: argparse.Namespace, *, tiling: tuple[float | None, float 
     if params_file and params_file["method"] != name:
         raise InputError(f"--params {args.params}: fitted for method {params_file['method']!r}, "
                          f"not {name!r}")
-    module = methods.get(name)
+    method = methods.get(name)
     model = getattr(args, "model", None)
-    if model is not None and name != "sparsegf":
-        raise InputError(f"--model {model}: only --method sparsegf takes a model, not {name!r}")
+    if model is not None and method.load_model is None:
+        takers = [m for m in methods.names() if methods.get(m).load_model is not None]
+        raise InputError(f"--model {model}: only --method {' or '.join(takers)} takes a model, not {name!r}")
     options, base = None, None
-    if name == "sparsegf":
-        _, base = module.load_model(model)            # a bad model file fails here, before any output
-        options = {"model": model}                    # loaded once per process (`sparsegf.load_model`)
+    if method.load_model is not None:
+        _, base = method.load_model(model)            # a bad model file fails here, before any output
+        options = {"model": model}                    # loaded once per process (the loader caches it)
     given = {key: value for key, value in zip(_TILING_OPTIONS, tiling) if value is not None}
-    tiling_ = _tiling(name, module, given) if given else None
+    tiling_ = _tiling(method, given) if given else None
     config, params = methods.make_config_and_params(
-        module, parse_set_values(args.set_values), args.preset, values=params_file["values"] if params_file else None,
+        method, parse_set_values(args.set_values), args.preset, values=params_file["values"] if params_file else None,
         values_source=f"--params {args.params}", base_config=base, tiling=tiling_,
         tiling_sources={key: _TILING_OPTIONS[key] for key in given})
     if tiling_ is not None:
@@ -382,21 +386,20 @@ def method_setup(args: argparse.Namespace, *, tiling: tuple[float | None, float 
     fixed = None
     if args.preset != adaptive.FIXED_PRESET:
         fixed = frozenset(parse_set_values(args.set_values)) | frozenset(params_file["values"] if params_file else ())
-        fixed |= frozenset(getattr(module, "PRESETS", {}).get(args.preset, {}))
-    return MethodSetup(name, module, config, params, options, fixed)
+        fixed |= frozenset(method.presets.get(args.preset, {}))
+    return MethodSetup(method, config, params, options, fixed)
 
 
 _TILING_OPTIONS = {"tile_size_m": "--tile-size", "buffer_m": "--buffer"}
 
 
-def _tiling(name: str, module: ModuleType, given: dict[str, float]):
+def _tiling(method: Method, given: dict[str, float]):
     """The `gfjax.Tiling` of `--tile-size` / `--buffer` (`given`: their fields), range-checked;
     against the method's cell and the memory budget by `make_config_and_params`."""
-    from gfjax import methods
     from gfjax.io.tiles import Tiling
 
-    if not methods.tiles(module):
-        raise InputError(f"{_TILING_OPTIONS[next(iter(given))]}: method {name} does not tile")
+    if not method.tiles:
+        raise InputError(f"{_TILING_OPTIONS[next(iter(given))]}: method {method.name} does not tile")
     try:
         return Tiling(**given)
     except ValueError as err:

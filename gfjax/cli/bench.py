@@ -22,13 +22,13 @@ import sys
 def add_parser(subparsers) -> argparse.ArgumentParser:
     from gfjax.bench.peers import PEERS
     from gfjax.cli._common import add_model_option, add_units_option, positive_int, ranged
-    from gfjax.methods import METHODS
+    from gfjax.methods import names
 
     parser = subparsers.add_parser("bench", help="compare the speed and accuracy of methods and peers",
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("inputs", nargs="+", metavar="FILE", help="LAS/LAZ files, folders or globs")
     parser.add_argument("--methods", default=None, metavar="NAME,...",
-                        help=f"gfjax methods, comma-separated ({', '.join(METHODS)}), or none "
+                        help=f"gfjax methods, comma-separated ({', '.join(names())}), or none "
                              "(default: every available method)")
     parser.add_argument("--peers", default=None, metavar="NAME,...",
                         help=f"peer packages, comma-separated ({', '.join(PEERS)}), or none "

@@ -221,11 +221,11 @@ def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
 def _whole(setup, catalog) -> bool:
     """Whether the survey runs as one cloud (`gfjax.survey.fits_whole`); when the method's labels
     depend on the whole cloud but the survey does not fit, one line on stderr says so."""
-    from gfjax import methods, survey
+    from gfjax import survey
 
-    if survey.fits_whole(setup.module, setup.config, catalog):
+    if survey.fits_whole(setup.method, setup.config, catalog):
         return True
-    if methods.whole_cloud(setup.module) and catalog.frame is not None:
+    if setup.method.whole_cloud and catalog.frame is not None:
         print(f"gfjax: warning: {setup.name}: the survey does not fit the memory budget as one cloud; each file "
               f"is filtered with {survey.HALO_M:g} m of its neighbours' points, so labels near file borders may "
               "differ from those of one file", file=sys.stderr)
@@ -238,14 +238,14 @@ def _survey_setup(setup, catalog, args):
     estimates (`gfjax.survey.survey_config`), so that every tile and halo shares them."""
     from gfjax import adaptive, survey
 
-    rule = getattr(setup.module, "adapt", None)
+    rule = setup.method.adapt
     if setup.fixed is not None and rule is not None:
         terrain = survey.survey_terrain(catalog, returns=args.returns)
         if terrain is not None:
             setup = setup.fixed_at(adaptive.settle_terrain(rule, terrain, setup.config, setup.params,
                                                            fixed=setup.fixed))
             _say_settled(args, "the survey", setup.settled)
-    return setup._replace(config=survey.survey_config(setup.module, setup.config, catalog, returns=args.returns))
+    return setup._replace(config=survey.survey_config(setup.method, setup.config, catalog, returns=args.returns))
 
 
 def _say_settled(args, what: str, settled) -> None:

@@ -158,10 +158,10 @@ def _talk(*, quiet: bool, method: str | None, notice: bool = True):
         if said:
             return
         said.append(module)
-        from gfjax.methods import METHODS
+        from gfjax.methods import PACKAGES
 
-        package = module.split(".")[1] if module.startswith("gfjax.") else ""
-        what = package if package in METHODS else method or ""
+        what = next((name for name, package in PACKAGES.items() if module == package or
+                     module.startswith(f"{package}.")), method or "")
         what = f"{what} " if what else ""
         line = f"gfjax: compiling {what}for a new input shape (kept, so later runs of this shape start at once)"
         if "tqdm" in sys.modules:                       # between progress bars, not through one

@@ -48,8 +48,6 @@ from gfjax.cli import _job
 from gfjax.cli._common import add_units_option, check_inputs, positive_float, positive_int, ranged
 from gfjax.errors import InputError
 
-TUNABLE = ("smrf", "pmf", "csf", "masf", "dmf")   # gfjax.tune.methods.METHODS and SEARCHED (no JAX at parse time)
-SEARCHED = ("masf", "dmf")                        # tuned by grid search (`gfjax.tune.search`), not by gradient
 
 
 def _positive_list(item: Callable[[str], float | int]) -> Callable[[str], tuple]:
@@ -90,14 +88,12 @@ def _grid_item(text: str) -> tuple[str, tuple[float, ...]]:
 def _check_grids(args: argparse.Namespace) -> None:
     """Each value of `--windows`, `--time-steps`, `--rigidness` in the range of the key it
     sets (the method's RANGES, `gfjax.limits`)."""
-    import importlib
+    from gfjax import limits, methods
 
-    from gfjax import limits
-
-    module = importlib.import_module(f"gfjax.{args.method}.config")
+    ranges = methods.get(args.method).ranges
     for option, key, values in (("--windows", "window_m", args.windows), ("--time-steps", "time_step", args.time_steps),
                                 ("--rigidness", "rigidness", args.rigidness)):
-        allowed = module.RANGES.get(key)
+        allowed = ranges.get(key)
         for value in (values or ()) if allowed is not None else ():
             try:
                 limits.check_value(key, value, allowed)
@@ -111,7 +107,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("inputs", nargs="+", metavar="TRAIN", help="labelled LAS/LAZ files (ground = class 2)")
     parser.add_argument("-o", "--output", required=True, metavar="PARAMS.json", help="params file to write")
     parser.add_argument("--method", default="smrf", metavar="NAME",
-                        help=f"method to tune ({', '.join(TUNABLE)}; default smrf)")
+                        help="method to tune (default smrf): its thresholds by gradient, or a grid of its "
+                             "settings")
     parser.add_argument("--loss", choices=("total-error", "kappa"), default="total-error",
                         help="expected total error (default) or 1 - soft kappa")
     parser.add_argument("--prior", type=ranged("--prior"), default=0.01, metavar="W",
@@ -143,15 +140,20 @@ def run(args: argparse.Namespace) -> int:
 
     from gfjax.io import las as las_io
 
-    if args.method not in TUNABLE:
-        raise InputError(f"--method: {args.method!r} cannot be tuned yet; tunable: {', '.join(TUNABLE)}")
+    from gfjax import methods
+
+    tuning = methods.get(args.method).tuning
+    if tuning is None:
+        tunable = [name for name in methods.available() if methods.get(name).tuning is not None]
+        raise InputError(f"--method: {args.method!r} has no thresholds to tune; tunable: {', '.join(tunable)}")
     out = Path(args.output)
     inputs = las_io.expand_inputs(args.inputs)
     _job.check_outputs([("-o", out, (".json",))], inputs=inputs, force=args.force)
     check_inputs(inputs, units=args.units)
-    if args.grid and args.method not in SEARCHED:
-        raise InputError(f"--grid: only {', '.join(SEARCHED)} are tuned on a grid of settings, not {args.method}")
-    if args.method in SEARCHED:
+    if args.grid and tuning != "grid":
+        searched = [name for name in methods.available() if methods.get(name).tuning == "grid"]
+        raise InputError(f"--grid: only {', '.join(searched)} are tuned on a grid of settings, not {args.method}")
+    if tuning == "grid":
         return _run_search(args, inputs, out)
 
 
@@ -214,16 +216,17 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_search(args: argparse.Namespace, inputs, out) -> int:
-    """`--method masf|dmf`: every combination of the grid, then the guard (`gfjax.tune.search`)."""
+    """A method tuned on a grid (`Method.tuning`): every combination of the grid, then the guard
+    (`gfjax.tune.search`)."""
     import importlib
 
-    from gfjax import limits
+    from gfjax import limits, methods
     from gfjax.tune import search
     from gfjax.tune.params import write_params
 
-    method_config = importlib.import_module(f"gfjax.{args.method}.config")
+    method = methods.get(args.method)
     tmodule = importlib.import_module(f"gfjax.tune.{args.method}")
-    config = method_config.Config()
+    config = method.Config()
 
     for option, value in (("--windows", args.windows), ("--time-steps", args.time_steps),
                           ("--rigidness", args.rigidness)):
@@ -235,7 +238,7 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
     for key, values in args.grid:
         if key not in grid:
             raise InputError(f"--grid {key}: unknown key; {args.method} searches {', '.join(grid)}")
-        allowed = tmodule.METHOD.grid_ranges.get(key, method_config.RANGES[key])
+        allowed = tmodule.TUNER.grid_ranges.get(key, method.ranges[key])
         if allowed.integer:             # a whole number given as "2" or "2.0" is the integer 2
             values = tuple(int(v) if float(v).is_integer() else v for v in values)
         for value in values:
@@ -246,7 +249,7 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
         grid[key] = values
     samples, _ = _labelled_samples(args, inputs)      # no value of MASF's or DMF's follows the terrain
     try:
-        tuned = tmodule.METHOD.tune(samples, config=config, grid=grid, folds=args.folds, block_m=args.block, alpha=args.alpha,
+        tuned = tmodule.TUNER.tune(samples, config=config, grid=grid, folds=args.folds, block_m=args.block, alpha=args.alpha,
                            progress=True)
     except ValueError as err:
         raise InputError(f"--grid: {err}") from None
@@ -257,14 +260,14 @@ def _run_search(args: argparse.Namespace, inputs, out) -> int:
                   "units": ("files" if v.by_sample else f"blocks of {args.block:g} m") if args.folds >= 2 else None,
                   "default": v.default_error, "tuned": v.tuned_error, "p_value": v.p_value, "alpha": args.alpha,
                   "changed_units": v.units, "kept": v.kept, "per_fold": v.fold_errors.tolist(),
-                  "best_on_all_labels": tmodule.METHOD.values(tuned.combos[v.best])}
+                  "best_on_all_labels": tmodule.TUNER.values(tuned.combos[v.best])}
     extra = {"fitted": fitted, "validation": validation, "search": "exhaustive grid",
              "choice": "one-standard-error rule: the candidate nearest the defaults within one standard error "
                        f"plus {search.TIE_MARGIN:g} of the best" if args.folds >= 2 else "lowest training error",
              "grid": {k: sorted({c[k] for c in tuned.combos}) for k in defaults},
-             "not_differentiable": {k: tmodule.METHOD.note for k in defaults},
+             "not_differentiable": {k: tmodule.TUNER.note for k in defaults},
              "training_files": [str(p) for p in inputs]}
-    write_params(out, method=args.method, values=tuned.values, units=tmodule.METHOD.units, extra=extra)
+    write_params(out, method=args.method, values=tuned.values, units=tmodule.TUNER.units, extra=extra)
     _summary(out, args.method, tuned.values, validation, fitted)
     return 0
 
@@ -292,13 +295,13 @@ def _labelled_samples(args: argparse.Namespace, inputs) -> tuple[list, Any]:
 
 
 def _start(method, terrain) -> tuple:
-    """The Config and the values vector `(p,)` a fit of `method` (`gfjax.tune.methods.Method`)
+    """The Config and the values vector `(p,)` a fit of `method` (`gfjax.tune.methods.GradientTuner`)
     starts from: the method's values that follow the data (`gfjax.adaptive`) on the training
     files' `terrain`, as `gfjax filter` would settle them on these files; and what was chosen."""
     from gfjax import adaptive, methods
 
-    module = methods.get(method.name)
-    settled = adaptive.settle_terrain(module.adapt, terrain, method.config_type(), module.Params())
+    found = methods.get(method.name)
+    settled = adaptive.settle_terrain(found.adapt, terrain, method.config_type(), found.Params())
     start = [float(settled.chosen.get(b.name, b.default)) for b in method.bounds]   # exact, as params.json holds them
     return settled.config, start, settled
 

@@ -18,23 +18,20 @@ ANNOUNCE_COMPILES = False      # every program it meets is compiled: no line per
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    from gfjax.methods import METHODS
+    from gfjax.methods import names
 
     parser = subparsers.add_parser("warmup", help="compile the methods' programs ahead, so first runs start at once",
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--methods", nargs="+", choices=list(METHODS), metavar="METHOD",
+    parser.add_argument("--methods", nargs="+", choices=names(), metavar="METHOD",
                         help="methods to prepare (default: every method with canonical shapes)")
     return parser
 
 
 def warmable() -> list[str]:
-    """The methods whose package has `warm` (canonical input shapes)."""
-    import importlib
+    """The methods with canonical input shapes to prepare (`Method.warm`)."""
+    from gfjax import methods
 
-    from gfjax.methods import METHODS
-
-    return [name for name, module in METHODS.items()
-            if callable(getattr(importlib.import_module(module), "warm", None))]
+    return [name for name in methods.available() if methods.get(name).warm is not None]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -45,14 +42,14 @@ def run(args: argparse.Namespace) -> int:
     if folder is None:
         raise InputError("warmup: the program cache is off (GFJAX_CACHE=0, GFJAX_EXPORT_CACHE=0 or a refused "
                          "folder), so nothing compiled now would be kept")
-    modules = {name: methods.get(name) for name in names}
-    for name, module in modules.items():
-        if not callable(getattr(module, "warm", None)):
+    chosen = {name: methods.get(name) for name in names}
+    for name, method in chosen.items():
+        if method.warm is None:
             raise InputError(f"--methods: {name} has no canonical shapes to prepare; it compiles on first use "
                              f"(choose from {', '.join(warmable())})")
-    for name, module in modules.items():
+    for name, method in chosen.items():
         start = time.perf_counter()
-        shapes = module.warm(progress=True)
+        shapes = method.warm(progress=True)
         print(f"{name}: {shapes} input shapes ready ({time.perf_counter() - start:.0f} s)", flush=True)
     print(f"programs kept in {folder}")
     return 0

@@ -7,12 +7,14 @@ result = gfjax.csf.filter(cloud, config=gfjax.csf.Config(rigidness=1),
                           params=gfjax.csf.Params(class_threshold_m=0.3))
 ```
 """
-from gfjax.csf.config import PRESETS, TREND_M, Config, Params, adapt
+from gfjax.csf.config import PRESETS, RANGES, TREND_M, Config, Params, adapt
 from gfjax.csf.filter import Diagnostics, TileDiagnostics, filter, filter_points, grid_shape, warm
+from gfjax.method import Method
 
 # The cloth settles over the whole cloud: a point's label can depend on points far away, so no
 # finite halo reproduces one file's labels; a survey runs as one cloud when it fits in memory.
-WHOLE_CLOUD = True
+METHOD = Method("csf", filter, Config, Params, PRESETS, RANGES, adapt=adapt, warm=warm, whole_cloud=True,
+                tuning="gradient")
 
-__all__ = ["filter", "adapt", "warm", "Config", "Params", "PRESETS", "TREND_M", "WHOLE_CLOUD", "filter_points", "grid_shape",
+__all__ = ["METHOD", "filter", "adapt", "warm", "Config", "Params", "PRESETS", "TREND_M", "filter_points", "grid_shape",
            "Diagnostics", "TileDiagnostics"]

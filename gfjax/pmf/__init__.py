@@ -7,11 +7,13 @@ result = gfjax.pmf.filter(cloud, config=gfjax.pmf.Config(max_window_m=17.0),
                           params=gfjax.pmf.Params(slope=0.5))
 ```
 """
-from gfjax.pmf.config import PRESETS, Config, Params, adapt
+from gfjax.method import Method
+from gfjax.pmf.config import PRESETS, RANGES, Config, Params, adapt
 from gfjax.pmf.filter import Diagnostics, filter, warm
 from gfjax.pmf.stages import TileDiagnostics
 
-# A tile's core labels depend on its window only: a survey runs each tile once (`gfjax.methods`).
-TILE_LABELS = True
+# A tile's core labels depend on its window only: a survey runs each tile once.
+METHOD = Method("pmf", filter, Config, Params, PRESETS, RANGES, adapt=adapt, warm=warm, tiles=True,
+                tile_labels=True, tuning="gradient")
 
-__all__ = ["filter", "warm", "adapt", "Config", "Params", "PRESETS", "TILE_LABELS", "Diagnostics", "TileDiagnostics"]
+__all__ = ["METHOD", "filter", "warm", "adapt", "Config", "Params", "PRESETS", "Diagnostics", "TileDiagnostics"]

@@ -9,11 +9,13 @@ result = gfjax.smrf.filter(cloud, config=gfjax.smrf.Config(window_m=12.0),
 result = gfjax.smrf.filter(cloud, tiling=gfjax.Tiling(tile_size_m=250.0, buffer_m=40.0))
 ```
 """
-from gfjax.smrf.config import PRESETS, Config, Params, adapt
+from gfjax.method import Method
+from gfjax.smrf.config import PRESETS, RANGES, Config, Params, adapt
 from gfjax.smrf.filter import Diagnostics, filter, warm
 from gfjax.smrf.stages import TileDiagnostics
 
-# A tile's core labels depend on its window only: a survey runs each tile once (`gfjax.methods`).
-TILE_LABELS = True
+# A tile's core labels depend on its window only: a survey runs each tile once.
+METHOD = Method("smrf", filter, Config, Params, PRESETS, RANGES, adapt=adapt, warm=warm, tiles=True,
+                tile_labels=True, tuning="gradient")
 
-__all__ = ["filter", "warm", "adapt", "Config", "Params", "PRESETS", "TILE_LABELS", "Diagnostics", "TileDiagnostics"]
+__all__ = ["METHOD", "filter", "warm", "adapt", "Config", "Params", "PRESETS", "Diagnostics", "TileDiagnostics"]

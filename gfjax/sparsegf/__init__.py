@@ -21,7 +21,8 @@ and the filter itself, with the same shape as every other method:
   batch-norm statistics), `init`: the network (`model`); `load_model`, `checkpoint`: model
   files; `train`: the training loop (`gfjax train`); `features`: the per-point inputs.
 """
-from gfjax.sparsegf.config import PRESETS, Config
+from gfjax.method import Method
+from gfjax.sparsegf.config import PRESETS, RANGES, Config
 from gfjax.sparsegf.filter import Diagnostics, filter, load_model, warm
 from gfjax.sparsegf.model import NET_PRESETS, Model, NetConfig, SparseGFNet, count_parameters, init
 from gfjax.sparsegf.compress import CENTRAL_TOL_M, R_IN_M, R_OC_M, R_OO_M, Compressed, compress, compression_ratio
@@ -31,9 +32,10 @@ from gfjax.sparsegf.partition import STEP_M, Partition, PartitionConfig, PatchBa
 from gfjax.sparsegf.vote import UNCOVERED, Vote, decide, soft_vote
 
 Params = None      # no thresholds: the network's weights are SparseGF's parameters
+METHOD = Method("sparsegf", filter, Config, Params, PRESETS, RANGES, warm=warm, load_model=load_model)
 
 __all__ = [
-    "Config", "Diagnostics", "Model", "NET_PRESETS", "NetConfig", "PRESETS", "Params", "SparseGFNet",
+    "METHOD", "Config", "Diagnostics", "Model", "NET_PRESETS", "NetConfig", "PRESETS", "Params", "SparseGFNet",
     "count_parameters", "init",
     "filter", "load_model", "warm",
     "CENTRAL_TOL_M", "R_IN_M", "R_OC_M", "R_OO_M", "STEP_M", "HAG_BIN_EDGES_M", "N_HAG_BINS",

@@ -7,7 +7,7 @@ filtering: the file's halo is every point of the other files inside them (plus a
 those windows then hold exactly the points they would hold in one file of the whole survey:
 the file's labels are the same. A method that does not tile gets the points within
 `HALO_M` of the file's bounding box as context, which removes most, not all, of the seam. A
-method whose labels depend on the whole cloud (`WHOLE_CLOUD`: CSF) filters the whole survey as
+method whose labels depend on the whole cloud (`Method.whole_cloud`: CSF) filters the whole survey as
 one cloud when it fits the memory budget (`fits_whole`, `survey_labels`), so its labels are
 exactly one file's.
 """
@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
-from types import ModuleType
 
 import numpy as np
 
-from gfjax import adaptive, limits, methods
+from gfjax import adaptive, limits
 from gfjax.io.cloud import Cloud, Points, use_mask
 from gfjax.io.tiles import Frame, Lattice
+from gfjax.method import Method
 from gfjax.result import Result
 from gfjax.survey.catalog import STORE, Catalog
 
@@ -106,11 +106,11 @@ def _file_points(catalog: Catalog, *selections: str) -> Iterator[tuple[np.ndarra
         yield tuple(np.concatenate(part) if part else np.empty((0, 3)) for part in parts)
 
 
-def survey_config(method: ModuleType, config, catalog: Catalog, *, returns: str = "all"):
+def survey_config(method: Method, config, catalog: Catalog, *, returns: str = "all"):
     """`config` with the method's per-cloud estimates made once for the whole survey
-    (`method.survey_config`, where the method has one: DMF's voxel size W), so every file and
+    (`Method.survey_config`, where the method has one: DMF's voxel size W), so every file and
     its halo share them; otherwise `config` as it is. Reads each file's store once."""
-    hook = getattr(method, "survey_config", None)
+    hook = method.survey_config
     if hook is None:
         return config
     return hook(config, (used for used, in _file_points(catalog, returns)))
@@ -143,11 +143,11 @@ def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, lat
     return result._replace(ground=ground[:n], instance_id=instance_id), points.xyz_m[n:][ground[n:]]
 
 
-def fits_whole(method: ModuleType, config, catalog: Catalog) -> bool:
+def fits_whole(method: Method, config, catalog: Catalog) -> bool:
     """Whether the survey is filtered as one cloud: `method`'s labels depend on the whole cloud
-    (`WHOLE_CLOUD`), and the survey's points in memory together with the method's largest
+    (`Method.whole_cloud`), and the survey's points in memory together with the method's largest
     raster over the survey's frame fit the memory budget (`gfjax.limits`; this machine's)."""
-    if not methods.whole_cloud(method) or catalog.frame is None:
+    if not method.whole_cloud or catalog.frame is None:
         return False
     span = np.asarray(catalog.frame.upper_m, np.float64) - np.asarray(catalog.frame.origin_m[:2], np.float64)
     n_points = sum(entry.n_points for entry in catalog.entries)

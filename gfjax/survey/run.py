@@ -18,6 +18,7 @@ from gfjax.io import las as las_io
 from gfjax.io import stream
 from gfjax.io.asprs import DEFAULT_RULES, ClassRules
 from gfjax.errors import InputError
+from gfjax.method import Method
 from gfjax.io.cloud import Cloud
 from gfjax.result import Result
 from gfjax.survey import cluster
@@ -175,7 +176,7 @@ def _submitter(client, catalog: Catalog, filter_fn: Callable) -> Callable:
     return submit
 
 
-def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str | Path, *, config=None, params=None,
+def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, folder: str | Path, *, config=None, params=None,
              tiling: Tiling | None = None, returns: str = "all", units: str | None = None, client=None,
              classes: ClassRules = DEFAULT_RULES, **options) -> Iterator[tuple[Cloud, Result]]:
     """Each file of a survey and its `Result`, filtered as a part of the whole survey.
@@ -187,7 +188,7 @@ def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str 
 
     Args:
       paths: the survey's files.
-      method: a method name (`gfjax.methods.METHODS`) or package (`gfjax.dmf`).
+      method: a `gfjax.method.Method`, its package (`gfjax.dmf`) or its name.
       folder: a private temporary folder for the catalog's stores.
       config, params: the method's settings (default: its defaults); its per-cloud estimates
         are made once for the survey (`survey_config`).
@@ -204,27 +205,27 @@ def filtered(paths: Sequence[str | Path], method: str | ModuleType, folder: str 
       `(cloud, result)` per file in the order of `paths`; `result.ground` covers the file's
       own points only.
     """
-    module = methods.get(method) if isinstance(method, str) else method
-    config = module.Config() if config is None else config
+    method = methods.of(method)
+    config = method.Config() if config is None else config
     if tiling is not None:
-        if not methods.tiles(module):
-            raise InputError(f"tiling: method {module.__name__} does not tile")
+        if not method.tiles:
+            raise InputError(f"tiling: method {method.name} does not tile")
         options = {**options, "tiling": tiling}
     catalog = index(paths, folder, returns=returns, units=units, client=client, classes=classes)
-    config = survey_config(module, config, catalog, returns=returns)
-    filter_fn = functools.partial(_method_filter, module, config, params, options)
-    run = Runner(catalog, filter_fn, methods.lattice(module, config, tiling), folder, returns=returns, context=False,
-                 client=client, whole=fits_whole(module, config, catalog))
+    config = survey_config(method, config, catalog, returns=returns)
+    filter_fn = functools.partial(_method_filter, method, config, params, options)
+    run = Runner(catalog, filter_fn, methods.lattice(method, config, tiling), folder, returns=returns, context=False,
+                 client=client, whole=fits_whole(method, config, catalog))
     for i, entry in enumerate(catalog.entries):
         cloud = las_io.read(entry.path, units=units, classes=classes)
         yield cloud, run(i, cloud)[0]
 
 
-def _method_filter(module: ModuleType, config, params, options: dict, points: Points, returns: str) -> Result:
-    return module.filter(points, config=config, params=params, returns=returns, **options)
+def _method_filter(method: Method, config, params, options: dict, points: Points, returns: str) -> Result:
+    return method.filter(points, config=config, params=params, returns=returns, **options)
 
 
-def filter(paths: Sequence[str | Path], out: str | Path, *, method: str | ModuleType = methods.DEFAULT_METHOD,
+def filter(paths: Sequence[str | Path], out: str | Path, *, method: Method | ModuleType | str = methods.DEFAULT_METHOD,
            config=None, params=None, tiling: Tiling | None = None, returns: str = "all", units: str | None = None,
            client=None, classes: ClassRules = DEFAULT_RULES,
            reset_nonground: bool = False, force: bool = False, **options) -> list[Path]:

@@ -27,7 +27,7 @@ from gfjax.params import declared_defaults
 from gfjax.tune import search
 from gfjax.tune.problem import Sample
 
-__all__ = ["GRID", "V1_VALUES", "NOTE", "UNITS", "default_grid", "candidates", "labels", "METHOD"]
+__all__ = ["GRID", "V1_VALUES", "NOTE", "UNITS", "default_grid", "candidates", "labels", "TUNER"]
 
 GRID: dict[str, tuple[float, ...]] = {
     "v0": (1.0, 1.5, 2.0, 2.5, 3.0),
@@ -92,4 +92,4 @@ def labels(sample: Sample, config: Config, combos: Sequence[Mapping[str, float]]
         yield ground.copy()
 
 
-METHOD = search.Searched("dmf", Config, default_grid, candidates, labels, UNITS, NOTE)
+TUNER = search.GridTuner("dmf", Config, default_grid, candidates, labels, UNITS, NOTE)

@@ -32,7 +32,7 @@ from gfjax import metrics
 from gfjax.tune import params as tparams
 from gfjax.tune import relax
 from gfjax.tune import smrf as tsmrf
-from gfjax.tune.methods import SMRF, Method
+from gfjax.tune.methods import SMRF, GradientTuner
 from gfjax.tune.problem import Problem
 
 __all__ = ["Settings", "FitResult", "fit", "hard_ground", "hard_errors", "hard_errors_at", "soft_loss",
@@ -54,7 +54,7 @@ class Settings:
       prior: weight of the squared distance to the defaults (bounded scale).
       loss: "total-error" (expected total error) or "kappa" (1 - soft kappa).
       windows_m: the grid of the method's static parameter (SMRF: window [m]); None: the
-        method's default grid (`Method.grid`); ignored by methods without one (PMF).
+        method's default grid (`GradientTuner.grid`); ignored by methods without one (PMF).
       eval_every: steps between hard evaluations (best iterate kept).
     """
 
@@ -112,7 +112,7 @@ def _sample_loss(conf, kind: str):
 
 @functools.partial(jax.jit, static_argnames=("config", "kind", "n_samples", "method"))
 def soft_loss(raw, radius_px, temperature, buckets, masks, group, weight, prior, *, config, kind: str,
-              n_samples: int, method: Method = SMRF, center=None):
+              n_samples: int, method: GradientTuner = SMRF, center=None):
     """Relaxed objective (scalar) for unconstrained `raw` `(g, 3)` (ordered as `method.bounds`)
     with the static parameter at `radius_px` (SMRF: openings, traced int32); `group` int32
     `(c,)` maps samples to rows of `raw`, `weight` float32 `(c,)` weighs their losses; the prior
@@ -129,7 +129,7 @@ _soft_value_and_grad = jax.jit(jax.value_and_grad(soft_loss.__wrapped__),
 
 
 @functools.partial(jax.jit, static_argnames=("config", "method"))
-def _hard_ground(values, radius_px, buckets, group, *, config, method: Method):
+def _hard_ground(values, radius_px, buckets, group, *, config, method: GradientTuner):
     """Plain-filter labels per bucket, bool `(b, cap)`, for values `(g, 3)`."""
     out = []
     for prep, _, cloud in buckets:
@@ -212,7 +212,7 @@ def _group_error(per_sample: np.ndarray, group: np.ndarray, weight: np.ndarray, 
     return out
 
 
-def _penalty(values: np.ndarray, method: Method, center: np.ndarray | None = None) -> np.ndarray:
+def _penalty(values: np.ndarray, method: GradientTuner, center: np.ndarray | None = None) -> np.ndarray:
     """`params.prior_penalty` on bounded values `(g, 3)` (numpy), `(g,)`; `center` `(p,)` as
     there (None: the method's defaults)."""
     span = np.asarray([b.hi - b.lo for b in method.bounds])

@@ -28,7 +28,7 @@ from gfjax.tune import search
 from gfjax.tune.problem import Sample
 
 __all__ = ["GRID", "CONFIG_KEYS", "PARAMS_KEYS", "NO_TOP", "NOTE", "UNITS", "default_grid", "candidates", "labels",
-           "METHOD"]
+           "TUNER"]
 
 CONFIG_KEYS = ("alpha_max_m", "alpha_step_m", "alpha_top_m")      # set the pyramid (`Config`)
 PARAMS_KEYS = ("st", "ft_m")                       # set the densification (`Params`)
@@ -116,5 +116,5 @@ def labels(sample: Sample, config: Config, combos: Sequence[Mapping[str, float]]
         yield ground
 
 
-METHOD = search.Searched("masf", Config, default_grid, candidates, labels, UNITS, NOTE, values=values,
+TUNER = search.GridTuner("masf", Config, default_grid, candidates, labels, UNITS, NOTE, values=values,
                          grid_ranges=GRID_RANGES)

@@ -1,8 +1,8 @@
 """What the tuning loop needs to know of a method: its bounds, its parameter-free preparation,
 its relaxed (or hard) ground weight, and its static grid parameter (SPEC section 7).
 
-A `Method` is a static argument of the jitted losses (hashed by identity: use the module
-constants `SMRF`, `PMF` and `CSF`). The values vector `(p,)` is ordered as `Method.bounds`.
+A `GradientTuner` is a static argument of the jitted losses (hashed by identity: use the module
+constants `SMRF`, `PMF` and `CSF`). The values vector `(p,)` is ordered as `GradientTuner.bounds`.
 
 * SMRF (`gfjax.tune.smrf`): slope, threshold_m, scalar fitted; `window_m` searched on a grid
   (`static="window_m"`), its openings prepared once up to the largest window.
@@ -29,11 +29,11 @@ from gfjax.tune import pmf as tpmf
 from gfjax.tune import smrf as tsmrf
 from gfjax.tune.params import Bound
 
-__all__ = ["Method", "SMRF", "PMF", "CSF", "METHODS", "get"]
+__all__ = ["GradientTuner", "SMRF", "PMF", "CSF", "METHODS", "get"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class Method:
+class GradientTuner:
     """A tunable method.
 
     Attributes:
@@ -104,13 +104,13 @@ def _pmf_weight(prep, values, *, config, static_px, temperature):
     return tpmf.ground_weight(prep, tpmf.make_params(values), config=config, temperature=temperature)
 
 
-SMRF = Method(
+SMRF = GradientTuner(
     name="smrf", bounds=tsmrf.BOUNDS, units=tsmrf.UNITS, config_type=smrf_method.Config, static="window_m",
     grid=tsmrf.GRID["window_m"], prepare_tile=tsmrf.prepare_tile.__wrapped__, ground_weight=_smrf_weight,
     static_px=tsmrf.radius_for, default_static=lambda config: smrf_method.Config().window_m,
     prepared_config=lambda config, grid: dataclasses.replace(
         config, window_m=float(max(max(grid), config.window_m))))
-PMF = Method(
+PMF = GradientTuner(
     name="pmf", bounds=tpmf.BOUNDS, units=tpmf.UNITS, config_type=pmf_method.Config, static=None, grid=(),
     prepare_tile=tpmf.prepare_tile.__wrapped__, ground_weight=_pmf_weight,
     static_px=lambda config, value: 0, default_static=lambda config: config.max_window_m,
@@ -127,7 +127,7 @@ def _csf_values(code: float) -> dict:
     return {"time_step": time_step, "rigidness": rigidness}
 
 
-CSF = Method(
+CSF = GradientTuner(
     name="csf", bounds=tcsf.BOUNDS, units=tcsf.UNITS, config_type=csf_method.Config, static="cloth",
     grid=tcsf.GRID, prepare_tile=None, ground_weight=_csf_weight,
     static_px=lambda config, value: config.index(value),
@@ -142,7 +142,7 @@ CSF = Method(
 METHODS = {m.name: m for m in (SMRF, PMF, CSF)}
 
 
-def get(name: str) -> Method:
+def get(name: str) -> GradientTuner:
     """The tunable method called `name` (ValueError naming the tunable ones otherwise)."""
     try:
         return METHODS[name]

@@ -89,7 +89,7 @@ def write_params(path: str | os.PathLike, *, method: str, values: Mapping[str, f
     """Write a params.json atomically (temporary file + rename). Returns the path.
 
     Args:
-      method: the method name (`gfjax.methods.METHODS` key).
+      method: the method name (`gfjax.methods.PACKAGES` key).
       values: `{key: float}` for `make_config_and_params` (Config or Params fields).
       units: `{key: unit}` for each value.
       extra: more report entries (fitted keys, validation figures); must not hold

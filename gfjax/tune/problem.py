@@ -1,8 +1,8 @@
 """Labelled samples cut into tiles, prepared once, in fixed-shape buckets for the tuning loop.
 
 A `Problem` holds, for a list of labelled clouds, the parameter-free part of a method's
-pipeline (`Method.prepare_tile`: SMRF's openings, PMF's openings; CSF: whole samples and
-their point-to-cloth distances, `Method.prepare_samples`) per shape bucket of `gfjax.io.tiles`, with the
+pipeline (`GradientTuner.prepare_tile`: SMRF's openings, PMF's openings; CSF: whole samples and
+their point-to-cloth distances, `GradientTuner.prepare_samples`) per shape bucket of `gfjax.io.tiles`, with the
 reference labels padded alike. Which labelled points count (a training half, a fold) is an
 array argument (`Problem.masks`), not part of the compiled shapes, so every protocol of a
 run reuses the same preparation and the same compiled loss.
@@ -113,7 +113,7 @@ def block_folds(xyz_m: np.ndarray, *, folds: int, block_m: float, seed: int = 0)
 
 
 @functools.partial(jax.jit, static_argnames=("method", "config", "shape"))
-def _prepare_batch(xyz, valid, hw, *, method: tmethods.Method, config, shape):
+def _prepare_batch(xyz, valid, hw, *, method: tmethods.GradientTuner, config, shape):
     fn = functools.partial(method.prepare_tile, config=config, shape=shape)
     return jax.vmap(fn)(xyz, valid, hw)
 
@@ -138,7 +138,7 @@ class Problem:
         passes those the samples' terrain gives, `gfjax.adaptive`).
     """
 
-    method: tmethods.Method = tmethods.SMRF      # also for problems pickled before methods existed
+    method: tmethods.GradientTuner = tmethods.SMRF      # also for problems pickled before methods existed
     _defaults: np.ndarray | None = None         # ... and before they carried their own defaults
 
     @property
@@ -147,7 +147,7 @@ class Problem:
         return self.method.defaults if self._defaults is None else self._defaults
 
     def __init__(self, samples: Sequence[Sample], *, config, max_window_m: float | None = None,
-                 method: tmethods.Method = tmethods.SMRF, max_batch: int = 8, grid: tuple[float, ...] | None = None,
+                 method: tmethods.GradientTuner = tmethods.SMRF, max_batch: int = 8, grid: tuple[float, ...] | None = None,
                  tiling: tiling_lib.Tiling | None = None, defaults: Sequence[float] | np.ndarray | None = None):
         if not samples:
             raise InputError("no labelled samples to tune on")

@@ -50,7 +50,7 @@ from gfjax import aot
 from gfjax.tune.guard import fold_plan, sign_flip_p
 from gfjax.tune.problem import Sample
 
-__all__ = ["Choice", "Searched", "TIE_MARGIN", "Tuned", "errors", "grid_candidates", "grid_distance", "one_se_choice",
+__all__ = ["Choice", "GridTuner", "TIE_MARGIN", "Tuned", "errors", "grid_candidates", "grid_distance", "one_se_choice",
            "unit_errors", "validate", "wrong_table"]
 
 
@@ -284,8 +284,8 @@ def wrong_table(labels: Iterator[np.ndarray], sample: Sample, n_combos: int, *, 
 
 
 @dataclasses.dataclass(frozen=True)
-class Searched:
-    """A method tuned by grid search (`gfjax.tune.masf.METHOD`, `gfjax.tune.dmf.METHOD`).
+class GridTuner:
+    """A method tuned by grid search (`gfjax.tune.masf.TUNER`, `gfjax.tune.dmf.TUNER`).
 
     Attributes:
       name: the method's name in `gfjax.methods` and params.json.

@@ -13,6 +13,7 @@ import pytest
 
 from gfjax import cache
 from gfjax.cli import main as cli_main
+from gfjax.method import Method
 from gfjax.result import Result
 
 # Classes of the 8 points of `write_scene`: a mix of ground, vegetation, building, noise.
@@ -62,8 +63,6 @@ class FakeParams:
 def _fake_module(name: str, *, instances: bool, crash: bool = False) -> types.ModuleType:
     module = types.ModuleType(name)
     module.Config, module.Params = FakeConfig, FakeParams
-    module.PRESETS = {"generous": {"threshold_m": 100.0}}
-    module.TILE_LABELS = True         # labels point by point: a survey may run it tile by tile
     module.calls = []
 
     def filter(cloud, *, config=None, params=None, returns="all", progress=False, tiling=None):  # noqa: A001
@@ -77,6 +76,9 @@ def _fake_module(name: str, *, instances: bool, crash: bool = False) -> types.Mo
         return Result(ground=ground, diagnostics=None, instance_id=ids)
 
     module.filter = filter
+    # labels point by point: a survey may run it tile by tile
+    module.METHOD = Method(name, filter, FakeConfig, FakeParams, {"generous": {"threshold_m": 100.0}}, {},
+                           tiles=True, tile_labels=True)
     return module
 
 
@@ -90,7 +92,7 @@ def fake_methods(monkeypatch):
                "fake_crash": _fake_module("fake_crash", instances=False, crash=True)}
     for name, module in modules.items():
         monkeypatch.setitem(sys.modules, f"_gfjax_test_{name}", module)
-        monkeypatch.setitem(methods.METHODS, name, f"_gfjax_test_{name}")
+        monkeypatch.setitem(methods.PACKAGES, name, f"_gfjax_test_{name}")
     return modules
 
 

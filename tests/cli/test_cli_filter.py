@@ -159,7 +159,7 @@ def test_unknown_method_and_missing_package(tmp_path, capsys, monkeypatch):
     src = write_scene(tmp_path / "in.laz")
     code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz", "--method", "nosuch")
     assert code == 2 and "--method: unknown method 'nosuch'" in error_line(err)
-    monkeypatch.setitem(methods.METHODS, "ghost", "gfjax._no_such_method_package")
+    monkeypatch.setitem(methods.PACKAGES, "ghost", "gfjax._no_such_method_package")
     code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz", "--method", "ghost")
     assert code == 2 and "method 'ghost' is not available" in error_line(err)
     assert sorted(os.listdir(tmp_path)) == ["in.laz"]

@@ -24,15 +24,15 @@ def _one_line(text: str) -> str:
 def test_filter_help_names_the_default_method(capsys):
     out = _one_line(_help(capsys, "filter"))
     assert "gfjax.methods" not in out
-    assert f"ground filter (default {methods.DEFAULT_METHOD}): {', '.join(methods.METHODS)}" in out
+    assert f"ground filter (default {methods.DEFAULT_METHOD}): {', '.join(methods.names())}" in out
     assert f"{methods.DEFAULT_METHOD} (default):" in out
 
 
 @pytest.mark.parametrize("command", ["filter", "eval"])
 def test_help_lists_every_methods_presets(capsys, fake_methods, command):
     out = _one_line(_help(capsys, command))
-    for name in methods.METHODS:
-        presets = ", ".join(methods.get(name).PRESETS) or "none"
+    for name in methods.names():
+        presets = ", ".join(methods.get(name).presets) or "none"
         assert re.search(rf"\b{re.escape(name)}( \(default\))?: {re.escape(presets)}", out), (name, out)
     assert "fake: generous" in out
 
@@ -41,8 +41,9 @@ def test_filter_help_says_which_methods_take_tile_size_and_buffer(capsys):
     out = _one_line(_help(capsys, "filter"))
     tiling = out.split("--tile-size and --buffer apply to the methods that tile:")[1]
     tiling, defaults = tiling.split(";")[0].split("(default")
-    for name in methods.METHODS:
+    for name in methods.names():
         takes = "tiling" in inspect.signature(methods.get(name).filter).parameters
+        assert takes == methods.get(name).tiles, name
         assert (re.search(rf"\b{name}\b", tiling) is not None) == takes, name
     assert re.search(r"\bsmrf\b", tiling) and re.search(r"\bdmf\b", tiling) and not re.search(r"\bcsf\b", tiling)
     assert defaults.strip() == "500 m tiles, 50 m buffers)"

@@ -11,6 +11,7 @@ import pytest
 
 from gfjax import methods
 from gfjax.errors import InputError
+from gfjax.method import Method
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,8 +31,8 @@ class Params:
     slope: Any = dataclasses.field(default_factory=lambda: jnp.asarray(0.15, jnp.float32))
 
 
-MODULE = types.ModuleType("gfjax.toy")
-MODULE.Config, MODULE.Params, MODULE.PRESETS = Config, Params, {"steep": {"slope": 0.3, "cell_m": 2.0}}
+MODULE = types.ModuleType("gfjax.toy")        # a method package: `make_config_and_params` takes it or its METHOD
+MODULE.METHOD = Method("toy", lambda cloud, **kwargs: None, Config, Params, {"steep": {"slope": 0.3, "cell_m": 2.0}}, {})
 
 
 def test_types_follow_the_fields():
@@ -69,8 +70,8 @@ def test_errors_name_the_option(kwargs, message):
 def test_get_unknown_and_unavailable_methods(monkeypatch):
     with pytest.raises(InputError, match="--method: unknown method 'zzz'; choose from smrf"):
         methods.get("zzz")
-    monkeypatch.setitem(methods.METHODS, "ghost", "gfjax._ghost_method")
+    monkeypatch.setitem(methods.PACKAGES, "ghost", "gfjax._ghost_method")
     with pytest.raises(InputError, match="method 'ghost' is not available in this build"):
         methods.get("ghost")
     assert "ghost" not in methods.available()
-    assert methods.DEFAULT_METHOD in methods.METHODS
+    assert methods.DEFAULT_METHOD in methods.PACKAGES

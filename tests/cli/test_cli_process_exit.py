@@ -22,7 +22,7 @@ import cli_helpers
 from gfjax import methods
 module = cli_helpers._fake_module("fake", instances=False)
 sys.modules["_gfjax_test_fake"] = module
-methods.METHODS["fake"] = "_gfjax_test_fake"
+methods.PACKAGES["fake"] = "_gfjax_test_fake"
 from gfjax.cli import main as cli_main
 import gfjax.cache
 gfjax.cache.setup = lambda: None

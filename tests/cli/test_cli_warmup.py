@@ -1,6 +1,8 @@
 """`gfjax warmup`: needs the program cache, names the methods it can prepare, bad options."""
 from __future__ import annotations
 
+import dataclasses
+
 import cli_helpers
 import pytest
 from cli_helpers import no_compilation_cache  # noqa: F401 (autouse fixture)
@@ -22,7 +24,7 @@ def test_warmup_names_a_method_without_canonical_shapes(capsys, tmp_path, monkey
 def test_warmup_prepares_each_method_once(capsys, tmp_path, monkeypatch):
     aot.enable(tmp_path / "export")
     calls = []
-    monkeypatch.setattr(smrf, "warm", lambda progress=False: calls.append(progress) or 30)
+    monkeypatch.setattr(smrf, "METHOD", dataclasses.replace(smrf.METHOD, warm=lambda progress=False: calls.append(progress) or 30))
     code, out, _ = cli_helpers.run_cli(capsys, "-q", "warmup", "--methods", "smrf")
     assert code == 0 and calls == [True]
     assert "smrf: 30 input shapes ready" in out and str(tmp_path / "export") in out
@@ -43,6 +45,6 @@ def test_warmup_does_not_announce_each_compile(capsys, tmp_path, monkeypatch):
             hook("gfjax.smrf.stages")              # what a compile inside warm would call
         return 30
 
-    monkeypatch.setattr(smrf, "warm", warm)
+    monkeypatch.setattr(smrf, "METHOD", dataclasses.replace(smrf.METHOD, warm=warm))
     code, _, err = cli_helpers.run_cli(capsys, "warmup", "--methods", "smrf")
     assert code == 0 and "compiling" not in err

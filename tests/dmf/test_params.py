@@ -13,7 +13,7 @@ from gfjax import dmf, methods, params as params_lib
 from gfjax.errors import SettingError
 
 
-@pytest.mark.parametrize("name", [n for n in methods.METHODS if methods.get(n).Params is not None])
+@pytest.mark.parametrize("name", [n for n in methods.PACKAGES if methods.get(n).Params is not None])
 def test_every_methods_params_share_one_base_and_check(name):
     method = methods.get(name)
     params = method.Params()

@@ -2,6 +2,7 @@
 `gfjax` as a program with the fake methods registered (for signal tests)."""
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -37,8 +38,9 @@ def picky_method(monkeypatch):
         return result
 
     module.filter = filter
+    module.METHOD = dataclasses.replace(module.METHOD, filter=filter)
     monkeypatch.setitem(sys.modules, "_gfjax_test_picky", module)
-    monkeypatch.setitem(methods.METHODS, "picky", "_gfjax_test_picky")
+    monkeypatch.setitem(methods.PACKAGES, "picky", "_gfjax_test_picky")
     return module
 
 
@@ -51,7 +53,7 @@ import cli_helpers, laspy
 from gfjax import methods
 module = cli_helpers._fake_module("fake", instances=False)
 sys.modules["_gfjax_test_fake"] = module
-methods.METHODS["fake"] = "_gfjax_test_fake"
+methods.PACKAGES["fake"] = "_gfjax_test_fake"
 from gfjax.cli import main as cli_main
 import gfjax.cache
 gfjax.cache.setup = lambda: None

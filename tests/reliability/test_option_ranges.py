@@ -4,7 +4,6 @@ product sets a raster or a loop are checked against the memory budget with an es
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import os
 import re
 from pathlib import Path
@@ -20,11 +19,7 @@ from gfjax.io import las as las_io
 from gfjax.io.tiles import Tiling
 
 REPO = Path(__file__).resolve().parents[2]
-METHOD_NAMES = [name for name in methods.METHODS if name in limits.TABLE_SOURCES]
-
-
-def _config_module(name: str):
-    return importlib.import_module(limits.TABLE_SOURCES[name])
+METHOD_NAMES = methods.names()
 
 
 def _numeric_fields(cls) -> list[str]:
@@ -40,20 +35,19 @@ def _numeric_fields(cls) -> list[str]:
 
 @pytest.mark.parametrize("name", METHOD_NAMES)
 def test_every_numeric_key_of_every_method_has_a_range(name):
-    module = _config_module(name)
-    for cls_name in ("Config", "Params"):
-        cls = getattr(module, cls_name, None)
+    method = methods.get(name)
+    for cls in (method.Config, method.Params):
         if cls is None:
             continue
-        missing = [key for key in _numeric_fields(cls) if key not in module.RANGES]
-        assert missing == [], f"{name}.{cls_name}: no range for {missing}"
+        missing = [key for key in _numeric_fields(cls) if key not in method.ranges]
+        assert missing == [], f"{name}.{cls.__name__}: no range for {missing}"
 
 
 @pytest.mark.parametrize("name", METHOD_NAMES)
 def test_defaults_and_presets_are_in_range(name):
     method = methods.get(name)
     methods.make_config_and_params(method)
-    for preset in getattr(method, "PRESETS", {}):
+    for preset in method.presets:
         methods.make_config_and_params(method, preset=preset)
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import signal
 import sys
-import types
 
 import numpy as np
 import pytest
@@ -17,6 +16,7 @@ from gfjax import csf, dmf, smrf, survey  # noqa: E402
 from gfjax.cli.main import main  # noqa: E402
 from gfjax.errors import InputError  # noqa: E402
 from gfjax.io import las as las_io  # noqa: E402
+from gfjax.method import Method  # noqa: E402
 from gfjax.survey import cluster  # noqa: E402
 from test_survey import SMALL_TILES, town, write_grid  # noqa: E402
 
@@ -127,7 +127,7 @@ def test_one_file_on_the_cluster_labels_as_in_process(grid, client, tmp_path, mo
     assert os.listdir(tmp_path / "rel") == ["cluster.laz"]
 
 
-def _dies_once(marker: str) -> types.ModuleType:
+def _dies_once(marker: str) -> Method:
     """SMRF, except that the first tile to run kills its worker process (SIGKILL, mid-task)."""
 
     def filter(points, *, tiling=None, **kwargs):
@@ -140,11 +140,9 @@ def _dies_once(marker: str) -> types.ModuleType:
     return _method("dies_once", filter)
 
 
-def _method(name: str, filter) -> types.ModuleType:
-    """A method package made here: SMRF's Config with `filter`."""
-    module = types.ModuleType(name)
-    module.Config, module.filter, module.TILE_LABELS = smrf.Config, filter, True
-    return module
+def _method(name: str, filter) -> Method:
+    """A method made here: SMRF's Config with `filter`."""
+    return Method(name, filter, smrf.Config, None, {}, {}, tiles=True, tile_labels=True)
 
 
 def test_a_killed_worker_has_its_tile_run_again(grid, client, in_process, tmp_path):

@@ -304,11 +304,11 @@ def test_only_methods_whose_tiles_label_alone_run_a_survey_tile_by_tile(grid, tm
     from gfjax import csf, dmf
     from gfjax.io.tiles import Lattice
 
-    assert methods.lattice(smrf, smrf.Config(cell_m=2.0), Tiling(tile_size_m=100.0, buffer_m=10.0)) == Lattice(100.0, 10.0, 2.0)
-    assert methods.lattice(pmf, pmf.Config()) == Lattice(500.0, 50.0, 1.0)
-    assert methods.lattice(dmf, dmf.Config()) is None and methods.tiles(dmf)
-    assert methods.lattice(csf, csf.Config()) is None and not methods.tiles(csf)
-    with pytest.raises(InputError, match="^tiling: method gfjax.csf does not tile$"):
+    assert methods.lattice(smrf.METHOD, smrf.Config(cell_m=2.0), Tiling(tile_size_m=100.0, buffer_m=10.0)) == Lattice(100.0, 10.0, 2.0)
+    assert methods.lattice(pmf.METHOD, pmf.Config()) == Lattice(500.0, 50.0, 1.0)
+    assert methods.lattice(dmf.METHOD, dmf.Config()) is None and dmf.METHOD.tiles
+    assert methods.lattice(csf.METHOD, csf.Config()) is None and not csf.METHOD.tiles
+    with pytest.raises(InputError, match="^tiling: method csf does not tile$"):
         next(survey.filtered(grid[0], csf, tmp_path, tiling=SMALL_TILES))
     assert not list(tmp_path.iterdir())                     # refused before any file was indexed
 
@@ -386,8 +386,8 @@ def test_a_whole_cloud_survey_over_the_budget_says_it_takes_halos(grid, tmp_path
 
     (tmp_path / "catalog").mkdir()
     catalog = index(paths, tmp_path / "catalog")
-    assert survey.fits_whole(csf, csf.Config(), catalog)
-    assert not survey.fits_whole(smrf, smrf.Config(), catalog)     # tiled: its tiles agree already
+    assert survey.fits_whole(csf.METHOD, csf.Config(), catalog)
+    assert not survey.fits_whole(smrf.METHOD, smrf.Config(), catalog)     # tiled: its tiles agree already
 
 
 def test_snap_finds_the_lattice_cell_of_a_corner():
@@ -413,14 +413,14 @@ def test_a_survey_of_uneven_density_shares_one_voxel_size(tmp_path):
     assert own == [1.0, 2.0]
     (tmp_path / "store").mkdir()
     catalog = survey.index(paths, tmp_path / "store")
-    shared = survey.survey_config(dmf, dmf.Config(), catalog).voxel_m
+    shared = survey.survey_config(dmf.METHOD, dmf.Config(), catalog).voxel_m
     assert shared in own
     (tmp_path / "run").mkdir()
     sizes = [result.diagnostics.cell_m for _, result in survey.filtered(paths, "dmf", tmp_path / "run")]
     assert sizes == [shared, shared]
     pinned = dmf.Config(voxel_m=3.0)
-    assert survey.survey_config(dmf, pinned, catalog) is pinned
-    assert survey.survey_config(smrf, smrf.Config(), catalog) == smrf.Config()
+    assert survey.survey_config(dmf.METHOD, pinned, catalog) is pinned
+    assert survey.survey_config(smrf.METHOD, smrf.Config(), catalog) == smrf.Config()
 
 
 def test_adaptive_survey_labels_nearly_as_the_union(grid, tmp_path):

@@ -177,7 +177,7 @@ def test_every_row_of_the_table_is_the_plain_filters_errors(far_group):
                                                                           cloud.classification[:50]]))
     sample = Sample.from_cloud(cloud)
     combos, default = tmasf.candidates(masf.Config(), SMALL_GRID)
-    wrong = tmasf.METHOD.wrong_table(sample, masf.Config(), combos)
+    wrong = tmasf.TUNER.wrong_table(sample, masf.Config(), combos)
     assert wrong.shape == (len(combos), cloud.n_points)
     for row in sorted({default, 0, len(combos) - 1, 3, 5}):
         c = combos[row]
@@ -206,7 +206,7 @@ def test_every_row_of_dmfs_table_is_the_plain_filters_errors():
     combos, default = tdmf.candidates(dmf.Config(), DMF_GRID)
     assert combos[default] == {"v0": 2.0, "max_filter_px": 2.0, "rc_min_share": 0.5, "height_threshold_m": 0.0,
                                "height_threshold_w": 0.2}
-    wrong = tdmf.METHOD.wrong_table(sample, dmf.Config(), combos)
+    wrong = tdmf.TUNER.wrong_table(sample, dmf.Config(), combos)
     for row in sorted({default, 0, 5}):
         c = combos[row]
         config = dataclasses.replace(dmf.Config(), v0=c["v0"], max_filter_px=int(c["max_filter_px"]),
@@ -249,7 +249,7 @@ def test_cli_tune_masf_writes_params_that_filter_reads(tmp_path, capsys):
     (["--grid", "foo=1"], "--grid foo: unknown key"),
     (["--grid", "st=-1"], "--grid: st must be"),
     (["--grid", "alpha_top_m=-1"], "--grid: alpha_top_m must be"),
-    (["--grid", "st=1", "--method", "smrf"], "only masf, dmf are tuned on a grid"),
+    (["--grid", "st=1", "--method", "smrf"], "only dmf, masf are tuned on a grid"),
     (["--loss", "kappa"], "--loss kappa: masf is searched on total error only"),
     (["--windows", "12"], "--windows: not a setting of masf"),
     (["--method", "dmf", "--grid", "max_filter_px=1.5"], "--grid: max_filter_px must be an integer"),

@@ -1,0 +1,86 @@
+"""`Method`: everything the rest of gfjax knows of one ground filter, as one typed value.
+
+Each method package exports its value as `METHOD` (`gfjax.smrf.METHOD`, ...), and
+`gfjax.methods` lists the packages. The CLI, surveys, warm-up, tuning and the option table
+read these fields and nothing else of a package, so a new method is its own package and one
+line of `gfjax.methods.PACKAGES`.
+
+```python
+m = gfjax.methods.get("smrf")
+config, params = m.Config(window_m=12.0), m.Params(slope=0.2)
+result = m.filter(cloud, config=config, params=params)
+```
+"""
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from gfjax.limits import Range
+
+TUNINGS = ("gradient", "grid")     # how `gfjax tune` fits a method: optax on relaxed labels, or a grid search
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Method:
+    """One ground filter.
+
+    Attributes:
+      name: the `--method` name.
+      filter: `filter(cloud, *, config=None, params=None, returns="all", progress=False,
+        **options) -> gfjax.Result`; the options are `tiling` (when `tiles`) and `model`
+        (when it has `load_model`).
+      Config: frozen dataclass of static values (shapes, loop counts, cell sizes) [m]; where
+        they set rasters or loops, `memory_estimates(extent_m=None[, tiling=None])` gives the
+        largest allocations they imply (`gfjax.methods.memory_estimates`).
+      Params: `gfjax.params.Params` subclass of traced thresholds optax may tune [m], or None.
+      presets: preset name -> `{key: value}` overrides (`--preset`).
+      ranges: `--set` key -> its valid `gfjax.limits.Range` (the fields of Config and Params).
+      adapt: `adapt(terrain) -> {key: value}`, the values that follow the cloud
+        (`gfjax.adaptive`), or None.
+      warm: `warm(config=None, params=None, *, progress=False) -> int`: load or compile the
+        programs `filter` runs for every canonical input shape (`gfjax warmup`), or None.
+      tiles: `filter` cuts its work into buffered tiles and takes `tiling=gfjax.Tiling(...)`.
+      tile_labels: a tile's core labels depend on its window only, so a survey runs each tile
+        of its lattice once (`gfjax.methods.lattice`).
+      whole_cloud: a point's label depends on the whole cloud (CSF's cloth settles over all
+        of it): a survey that fits the memory budget is filtered as one cloud.
+      survey_config: `survey_config(config, clouds) -> Config`, the estimates made per cloud
+        fixed once for a whole survey (DMF's voxel size), or None.
+      load_model: `load_model(path or None) -> (model, Config it was trained with)` for a
+        method whose `filter` takes `model=` (a model file; None: the one shipped; SparseGF),
+        else None. A bad file raises `InputError` here, before any output is written.
+      tuning: how `gfjax tune` fits it (`TUNINGS`), or None when it cannot be tuned.
+    """
+
+    name: str
+    filter: Callable[..., Any]
+    Config: type
+    Params: type | None
+    presets: Mapping[str, Mapping[str, Any]]
+    ranges: Mapping[str, Range]
+    adapt: Callable[[Any], dict] | None = None
+    warm: Callable[..., int] | None = None
+    tiles: bool = False
+    tile_labels: bool = False
+    whole_cloud: bool = False
+    survey_config: Callable[..., Any] | None = None
+    load_model: Callable[[Any], tuple[Any, Any]] | None = None
+    tuning: str | None = None
+
+    def __post_init__(self):
+        if self.tuning is not None and self.tuning not in TUNINGS:
+            raise ValueError(f"Method {self.name}: tuning must be one of {TUNINGS} or None, got {self.tuning!r}")
+        if self.tile_labels and not self.tiles:
+            raise ValueError(f"Method {self.name}: tile_labels needs tiles")
+        unknown = set(self.ranges) - _fields(self.Config) - _fields(self.Params)
+        if unknown:
+            raise ValueError(f"Method {self.name}: ranges of keys that are no field: {sorted(unknown)}")
+
+    def __repr__(self) -> str:
+        return f"Method({self.name!r})"
+
+
+def _fields(cls: type | None) -> set[str]:
+    return {f.name for f in dataclasses.fields(cls)} if cls is not None else set()
