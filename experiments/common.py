@@ -6,7 +6,7 @@
         first_s, again_s, result = first_and_again(lambda: gfjax.smrf.filter(cloud))
         m = score(result.ground, cloud)
 
-The labelled data are not shipped (README, "Data": where each file comes from and how to get
+The labelled data are not shipped (docs/development.md, "Data": where each file comes from and how to get
 it): they are read from `$GFJAX_SHARED_DATA`, by default `../shared/data` beside the
 repository. ISPRS reference ground is ASPRS class 2, every other class non-ground.
 Scores are those of `gfjax.metrics.point_metrics` (SPEC section 8).

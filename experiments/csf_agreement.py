@@ -10,7 +10,7 @@ seconds (CPU time is the steadier figure on a shared machine), gfjax's simulatio
 
 Usage:
   nice .venv/bin/python experiments/csf_agreement.py [FILES...] [--json OUT]
-Default files: the 11 ISPRS samples and lasR_bcts/bcts_1.laz of the data folder (README, "Data"). Results, in
+Default files: the 11 ISPRS samples and lasR_bcts/bcts_1.laz of the data folder (docs/development.md, "Data"). Results, in
 one command: `experiments/results/csf_agreement.json` and the table `csf_agreement.txt` (beside
 the JSON, same stem).
 """

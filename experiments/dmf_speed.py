@@ -41,7 +41,7 @@ from gfjax.bench import harness  # noqa: E402
 from gfjax.bench.peers import PEERS  # noqa: E402
 from gfjax.bench.run import machine  # noqa: E402
 import numpy as np  # noqa: E402
-from experiments.common import DATA as SHARED_DATA  # noqa: E402  ($GFJAX_SHARED_DATA; README, "Data")
+from experiments.common import DATA as SHARED_DATA  # noqa: E402  ($GFJAX_SHARED_DATA; docs/development.md, "Data")
 
 REPEAT = 3
 DATA = (SHARED_DATA / "lasR_bcts" / "bcts_2.laz").resolve()

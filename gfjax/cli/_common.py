@@ -22,7 +22,7 @@ _NAMED = 3                  # files a warning names before it counts the rest
 
 # The valid range of every numeric option that belongs to a command rather than to a method
 # (`--set` keys, `--tile-size`, `--buffer` and `--cell` have theirs in the method's and the
-# DTM's RANGES). Parsed and checked by `ranged(option)`; listed in the README's table.
+# DTM's RANGES). Parsed and checked by `ranged(option)`; listed in the table of `docs/cli.md`.
 RANGES: dict[str, Range] = {
     "--ground-class": Range(0, 255, integer=True),
     "--reference-class": Range(0, 255, integer=True),

@@ -21,7 +21,7 @@ __all__ = ["Config", "Params", "PRESETS", "INPAINT_METHODS", "RANGES", "adapt"]
 
 INPAINT_METHODS = ("harmonic", "nearest")
 
-# The valid range of every numeric Config / Params field (`gfjax.limits`; the README's table
+# The valid range of every numeric Config / Params field (`gfjax.limits`; the table of `docs/cli.md`
 # of checked ranges is generated from these tables).
 RANGES: dict[str, Range] = {
     "cell_m": Range(0, 100, low_open=True, unit="m"),
