@@ -7,21 +7,19 @@ result = gfjax.smrf.filter(cloud)
 gfjax.write(cloud.with_ground(result.ground), "out.laz")
 ```
 Method packages (`gfjax.smrf`, `gfjax.dmf`, ...) are imported on first attribute access.
-Compiled programs are kept in `~/.cache/gfjax` for later processes (`gfjax.cache`;
-`GFJAX_CACHE=0` turns that off).
+Importing gfjax changes no JAX setting and writes nothing; the first call of a method's
+`filter` or `warm` keeps compiled programs in `~/.cache/gfjax` for later processes
+(`gfjax.cache`; `GFJAX_CACHE=0` turns that off).
 """
 from __future__ import annotations
 
 import importlib
 
-from gfjax import cache as _cache
 from gfjax.io.cloud import Cloud
 from gfjax.methods import PACKAGES as _PACKAGES
 from gfjax.result import Result
 
 __version__ = "0.1.0"
-
-_cache.setup()
 
 _LAZY = {"data", "bench", "raster", "dtm", "metrics", "tune", "io", "methods", "method", "cache", "aot",
          *(package.removeprefix("gfjax.") for package in _PACKAGES.values())}

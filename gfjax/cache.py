@@ -2,10 +2,11 @@
 
 Two caches, both under `$XDG_CACHE_HOME/gfjax` (by default `~/.cache/gfjax`): JAX's persistent
 compilation cache (`jax/`) and gfjax's own store of compiled programs (`export/`,
-`gfjax.aot`). `setup()` turns both on; `import gfjax` and every `gfjax` command call it, so a
-notebook restart or a new script loads what an earlier process compiled. `GFJAX_CACHE=0`
-turns both off (each process then compiles afresh); `GFJAX_EXPORT_CACHE` and
-`JAX_COMPILATION_CACHE_DIR` move one of them elsewhere.
+`gfjax.aot`). `setup()` turns both on. `import gfjax` leaves JAX's settings and the disk
+alone; every `gfjax` command, and the first call of a method's `filter` or `warm` in a process
+(`persistent`), turn the caches on, so a notebook restart or a new script loads what an
+earlier process compiled. `GFJAX_CACHE=0` turns both off (each process then compiles afresh);
+`GFJAX_EXPORT_CACHE` and `JAX_COMPILATION_CACHE_DIR` move one of them elsewhere.
 
 JAX reads its cache folder when it first compiles: a process that compiled with JAX before it
 imported gfjax keeps JAX's choice for JAX's cache (gfjax's own store still works).
@@ -13,14 +14,16 @@ This module imports JAX only when JAX is already imported (`gfjax info` stays fa
 """
 from __future__ import annotations
 
+import functools
 import importlib.util
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from gfjax import aot
 
-__all__ = ["SWITCH_ENV", "CACHE_SIZE_BYTES", "setup", "enable", "folder", "export_folder"]
+__all__ = ["SWITCH_ENV", "CACHE_SIZE_BYTES", "setup", "ensure", "persistent", "enable", "folder", "export_folder"]
 
 SWITCH_ENV = "GFJAX_CACHE"   # "0" or "": no persistent caches in this process
 CACHE_SIZE_BYTES = 1 << 30   # bound of the persistent JAX compilation cache
@@ -46,6 +49,27 @@ def setup() -> Path | None:
     if os.environ.get(SWITCH_ENV, "1") in ("", "0"):
         return None
     return enable()
+
+
+_state = {"set_up": False}
+
+
+def ensure() -> None:
+    """`setup()` once per process (later calls do nothing)."""
+    if not _state["set_up"]:
+        _state["set_up"] = True
+        setup()
+
+
+def persistent(function: Callable) -> Callable:
+    """Decorate a method's `filter` or `warm`: the caches are turned on (`ensure`) before its
+    first call in the process, so the API keeps the command line's warm starts without
+    `import gfjax` touching JAX's settings or the disk."""
+    @functools.wraps(function)
+    def call(*args, **kwargs):
+        ensure()
+        return function(*args, **kwargs)
+    return call
 
 
 def enable() -> Path | None:

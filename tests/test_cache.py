@@ -49,3 +49,14 @@ def test_gfjax_cache_0_turns_both_caches_off(tmp_path, off):
     folder, jax_folder, _, _ = _run(tmp_path, GFJAX_CACHE=off)
     assert folder == jax_folder == "None"
     assert not (tmp_path / "gfjax").exists()
+
+
+def test_import_gfjax_changes_no_jax_setting_and_writes_nothing(tmp_path):
+    script = ("import gfjax, gfjax.smrf, jax; from gfjax import aot; "
+              "print(jax.config.jax_compilation_cache_dir or None, aot.enabled_folder())")
+    env = {k: v for k, v in os.environ.items() if k not in ("GFJAX_CACHE", "GFJAX_EXPORT_CACHE")}
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=REPO, timeout=120,
+                          env={**env, "XDG_CACHE_HOME": str(tmp_path)})
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["None", "None"]
+    assert not any(tmp_path.iterdir())

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from gfjax import adaptive, aot
+from gfjax import adaptive, aot, cache
 from gfjax._types import Mask, PointMask, Points, Raster
 from gfjax.csf import stages
 from gfjax.csf.cloth import simulate
@@ -222,6 +222,7 @@ def filter_points(xyz: Points, valid: PointMask, params: Params, anchor: Anchor 
     return ground, TileDiagnostics(cloth_u, filled, movable, surface.exists, steps)
 
 
+@cache.persistent
 def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False,
          sides: tuple[int, ...] = WARM_SIDES) -> int:
     """Load, or compile and store (`gfjax.aot`), `drop_cloth` (the program whose compile
@@ -254,6 +255,7 @@ def detrended(local: np.ndarray, use: np.ndarray, config: Config):
     return local.astype(np.float32), trend
 
 
+@cache.persistent
 @adaptive.follows(adapt, Config, Params)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False) -> Result:  # noqa: A001 (the package API name)

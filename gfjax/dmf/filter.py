@@ -22,7 +22,7 @@ import jax
 import numpy as np
 from scipy.spatial import cKDTree
 
-from gfjax import adaptive, aot
+from gfjax import adaptive, aot, cache
 from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import extract, neighbours, shapes, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params, adapt
@@ -232,6 +232,7 @@ def _prefetch_raster_program(shape: tuple[int, int], cell_m: float, config: Conf
                  spec(padded, np.bool_), spec((), np.float32), spec((), np.float32), **stage_options(config))
 
 
+@cache.persistent
 def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False,
          tiling: Tiling | None = None) -> int:
     """Load, or compile and store (`gfjax.aot`), the programs `filter` runs on a cloud of any
@@ -424,6 +425,7 @@ def prepare(cloud: CloudView, use: np.ndarray, config: Config, *, tiling: Tiling
                     overflowed, seconds)
 
 
+@cache.persistent
 @adaptive.follows(adapt, Config, Params)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,  # noqa: A001
            returns: str = "all", progress: bool = False, tiling: Tiling | None = None) -> Result:

@@ -39,7 +39,7 @@ import numpy as np
 
 from gfjax.errors import InputError
 from gfjax.io.cloud import CloudView
-from gfjax import adaptive
+from gfjax import adaptive, cache
 from gfjax.io import groups
 from gfjax.io.tiled import check_memory, filter_groups
 from gfjax.io.tiles import Frame
@@ -201,6 +201,7 @@ def filter_points(xyz_m: np.ndarray, config: Config, params: Params,
                                           tin_rebuilds=result.tin_rebuilds, **empty_diag)
 
 
+@cache.persistent
 @adaptive.follows(adapt, Config, Params)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False) -> Result:

@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gfjax import adaptive
+from gfjax import adaptive, cache
 from gfjax.io import tiled
 from gfjax.io.cloud import CloudView
 from gfjax.io.tiles import Tiling
@@ -49,6 +49,7 @@ class Diagnostics(NamedTuple):
     n_tiles: int
 
 
+@cache.persistent
 @adaptive.follows(adapt, Config, Params)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False, tiling: Tiling | None = None) -> Result:  # noqa: A001 (the package API name)
@@ -78,6 +79,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
         windows_px=done.config.windows_px, n_tiles=done.n_tiles))
 
 
+@cache.persistent
 def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False,
          tiling: Tiling | None = None) -> int:
     """Prepare the programs `filter` runs on a file of one tile of any size (`tiled.warm`):

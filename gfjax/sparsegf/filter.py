@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from gfjax import adaptive, spikes
+from gfjax import adaptive, cache, spikes
 from gfjax.errors import InputError
 from gfjax.io.cloud import CloudView
 from gfjax.result import Result
@@ -105,6 +105,7 @@ WARM_SIDE_M = 120.0          # the generated scene `warm` filters: a flat square
 WARM_POINTS = 30_000
 
 
+@cache.persistent
 def warm(config: Config | None = None, params=None, *, progress: bool = False) -> int:
     """Load or compile ahead the programs a cloud's patches run (`gfjax warmup`; the command
     line keeps them): the shipped network on a pack of the smallest capacity
@@ -211,6 +212,7 @@ def level_ground_kept(xyz_m: np.ndarray, ground: np.ndarray, smrf_ground: np.nda
     return out
 
 
+@cache.persistent
 def filter(cloud: CloudView, *, config: Config | None = None, params=None, returns: str = "all",
            progress: bool = False, model: Model | str | None = None) -> Result:
     """Classify ground points with SparseGF.
