@@ -82,7 +82,7 @@ def test_the_flags_agree():
 def test_a_seventh_method_is_its_package_and_one_registry_line(monkeypatch):
     """A toy package exporting METHOD, registered by one entry of `PACKAGES`: the CLI's
     choices, the option table and `gfjax.<name>`-style lookups all see it."""
-    from gfjax import limits
+    from gfjax.cli import ranges
 
     @dataclasses.dataclass(frozen=True)
     class Config:
@@ -103,7 +103,7 @@ def test_a_seventh_method_is_its_package_and_one_registry_line(monkeypatch):
 
     assert "toy" in methods.names() and "toy" in methods.available()
     assert methods.get("toy") is package.METHOD
-    assert "| toy | `threshold_m` | >= 0 and <= 10 m | 0.5 |" in limits.markdown_table()
+    assert "| toy | `threshold_m` | >= 0 and <= 10 m | 0.5 |" in ranges.markdown_table()
     config, _ = methods.make_config_and_params("toy", {"threshold_m": "0.2"}, "strict")
     assert config.threshold_m == 0.2
     with pytest.raises(InputError, match="unknown preset 'loose' for toy; choose from strict"):

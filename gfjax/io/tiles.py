@@ -29,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterator, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -519,3 +519,26 @@ def merge(n_points: int, tiles: Sequence[Tile], labels: Sequence[np.ndarray], *,
         lab = np.asarray(lab)[:tile.n_points]
         out[tile.index[tile.core]] = lab[tile.core]
     return out
+
+
+def tiled_estimator(*, max_batch: int, tile_bytes_per_cell: float, mosaic_bytes_per_cell: float):
+    """The `memory_estimates(extent_m=None, tiling=None)` method of a `Config` whose method
+    filters tile by tile (with a `cell_m`): a batch of up to `max_batch` tile rasters of
+    `tile_bytes_per_cell` bytes a cell (the tiling's largest window: `tiling` a
+    `Tiling`, default its defaults), and with `extent_m` (the cloud's x, y
+    extent [m]) the whole-cloud mosaic of its diagnostics, `mosaic_bytes_per_cell` a cell."""
+
+    def memory_estimates(self, extent_m: tuple[float, float] | None = None, tiling: Any = None) -> list[limits.Estimate]:
+        tiling = Tiling() if tiling is None else tiling
+        side = limits.raster_side(tiling.tile_size_m + 2 * tiling.buffer_m, self.cell_m)
+        tiles = limits.tiles_per_batch(extent_m, tiling.tile_size_m, max_batch=max_batch)
+        out = [limits.Estimate(f"a batch of {tiles} tile raster(s) of {side:,} x {side:,} cells "
+                        "((tile_size_m + 2 buffer_m) / cell_m)", float(side) ** 2 * tiles * tile_bytes_per_cell,
+                        ("cell_m", "tile_size_m", "buffer_m"))]
+        if extent_m is not None:
+            w, h = (limits.raster_side(e, self.cell_m) for e in extent_m)
+            out.append(limits.Estimate(f"the whole-cloud rasters of {h:,} x {w:,} cells (extent / cell_m)",
+                                float(h) * float(w) * mosaic_bytes_per_cell, ("cell_m",)))
+        return out
+
+    return memory_estimates

@@ -11,6 +11,7 @@ from jaxtyping import Array, Float
 
 from gfjax import adaptive, limits, params
 from gfjax.errors import SettingError
+from gfjax.io import tiles
 from gfjax.limits import Range
 from gfjax.params import param
 
@@ -58,7 +59,7 @@ class Config:
     # checked against the memory budget where a job starts: per tile cell about 16 float32 or
     # int32 rasters (stage inputs, work arrays, diagnostics: an estimate, not a measurement),
     # per cloud cell three float64 diagnostics rasters.
-    memory_estimates = limits.tiled_estimator(max_batch=MAX_BATCH, tile_bytes_per_cell=16 * 4,
+    memory_estimates = tiles.tiled_estimator(max_batch=MAX_BATCH, tile_bytes_per_cell=16 * 4,
                                               mosaic_bytes_per_cell=3 * 8)
 
     @property

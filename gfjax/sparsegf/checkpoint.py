@@ -14,7 +14,7 @@ import os
 import tempfile
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax
@@ -137,6 +137,18 @@ def state_epoch(path: str | Path) -> int:
         return 0
 
 
+class EpochLog(NamedTuple):
+    """What one epoch did: mean losses over its steps, the validation total error (None without
+    validation files), its wall time [s]."""
+
+    epoch: int
+    loss: float
+    loss_cls: float
+    loss_hag: float
+    val_total_error: float | None
+    seconds: float
+
+
 def save_state(path: str | Path, model: Model, opt_state, epoch: int, logs: list) -> None:
     """The training state after `epoch` epochs (model, optimizer state, epoch logs), atomically."""
     header = {"magic": MAGIC + "-state", "format": FORMAT, "epoch": epoch,
@@ -147,8 +159,6 @@ def save_state(path: str | Path, model: Model, opt_state, epoch: int, logs: list
 def load_state(path: str | Path, model: Model, opt_state):
     """`(model, opt_state, epochs done, logs)` from `save_state`; `model` and `opt_state` give
     the shapes."""
-    from gfjax.sparsegf.train import EpochLog
-
     path = Path(path)
     with open(path, "rb") as f:
         try:

@@ -30,12 +30,13 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from gfjax import raster
+from gfjax.sparsegf.smrf_prior import N_SMRF_FEATURES, smrf_heights
 
 FEATURE_SETS = ("xyz", "xyz+tophat", "xyz+tophat+smrf")
-N_SMRF_FEATURES = 2                            # `smrf_prior.smrf_heights`' columns
 Z_SCALE_M = 10.0                               # patch-centred heights are divided by this [m]
 TOPHAT_CELL_M = 1.0                            # cell of the minimum raster [m]
 TOPHAT_RADII_PX = (1, 2, 4, 8, 16, 32, 64)     # half-widths of the opening squares [cells]
@@ -64,10 +65,6 @@ def cloud_features(xyz_m, features: str, *, smrf=None):
     `smrf`: the cloud's `smrf_prior.smrf_heights` when already computed."""
     if not reads_smrf(features):
         return None
-    import numpy as np
-
-    from gfjax.sparsegf.smrf_prior import smrf_heights
-
     h = smrf_heights(xyz_m) if smrf is None else smrf
     return (np.sign(h) * np.log1p(np.abs(h))).astype(np.float32)
 

@@ -22,7 +22,7 @@ import numpy as np
 import scipy.ndimage
 from jaxtyping import Float
 
-from gfjax.sparsegf.features import N_SMRF_FEATURES
+N_SMRF_FEATURES = 2      # the columns of `smrf_heights`: (dz, margin)
 
 
 

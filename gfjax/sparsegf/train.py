@@ -18,6 +18,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from gfjax.sparsegf import checkpoint
+from gfjax.sparsegf.checkpoint import EpochLog
 from gfjax.sparsegf.config import Config
 from gfjax.sparsegf.features import cloud_features
 from gfjax.sparsegf.filter import patches
@@ -204,18 +206,6 @@ def init(model: Model):
         return opt, opt.init(eqx.filter(model.net, eqx.is_array))
 
 
-class EpochLog(NamedTuple):
-    """What one epoch did: mean losses over its steps, the validation total error (None without
-    validation files), its wall time [s]."""
-
-    epoch: int
-    loss: float
-    loss_cls: float
-    loss_hag: float
-    val_total_error: float | None
-    seconds: float
-
-
 def count_patches(data: list[Labelled], config: Config, min_patches: int = 0, max_patches: int = 0) -> int:
     """Patches in an epoch of `training_batches` (about: the count varies with the grid shift)."""
     from gfjax.sparsegf.partition import PartitionConfig, partition
@@ -252,8 +242,6 @@ def fit(model: Model, data: list[Labelled], *, config: Config, epochs: int, batc
     as the uninterrupted run would. `on_step(epoch, step, steps in the epoch, [loss, cls,
     hag])` and `on_epoch(EpochLog)` report progress. Returns `(model, [EpochLog])`.
     """
-    from gfjax.sparsegf import checkpoint
-
     opt, opt_state = init(model)
     data = [d._replace(cloud_feats=cloud_features(d.xyz_m, config.features)) for d in data]
     validate = [d._replace(cloud_feats=cloud_features(d.xyz_m, config.features)) for d in validate or []]
