@@ -51,6 +51,7 @@ SUBCOMMANDS: dict[str, str] = {
     "bench": "compare the speed and accuracy of methods and peers",
     "demo": "filter the embedded sample (no arguments, no network)",
     "warmup": "compile the methods' programs ahead, so first runs start at once",
+    "cache": "size of the program caches, or empty them",
 }
 ALWAYS_LISTED = ("demo",)
 
