@@ -188,6 +188,14 @@ def make_config_and_params(method: Method | ModuleType | str, overrides: Mapping
                 raise InputError(f"{source}: unknown key {key!r} for method {method_name}; known keys: {known}")
             try:
                 value = _parse_value(raw, current) if isinstance(raw, str) else raw
+            except ValueError as err:
+                raise InputError(f"{source} {key}={raw}: {err}") from None
+            if key in method.ranges and isinstance(value, (int, float)) and not isinstance(value, bool):
+                try:                                      # before a float32 cast can overflow
+                    limits.check_value(key, value, method.ranges[key])
+                except ValueError as err:
+                    raise InputError(f"{source}: {err}") from None
+            try:
                 updates[key] = _as_field_value(value, current)
             except ValueError as err:
                 raise InputError(f"{source} {key}={raw}: {err}") from None

@@ -61,6 +61,18 @@ def ranged(option: str) -> Callable[[str], float | int]:
     return parse
 
 
+def number(text: str) -> float:
+    """argparse type: any number, `inf` included (its range is checked where the option's
+    range lives, e.g. `gfjax.dtm.build.check_options`); not NaN."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if math.isnan(value):
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}")
+    return value
+
+
 def positive_float(text: str) -> float:
     """argparse type: a finite number > 0 (a cell size, a tile size) [m]."""
     try:

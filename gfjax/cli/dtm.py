@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from gfjax.cli import _job
-from gfjax.cli._common import (TIF_SUFFIXES, add_units_option, check_inputs, nonnegative_float, positive_float,
+from gfjax.cli._common import (TIF_SUFFIXES, add_units_option, check_inputs, number, positive_float,
                                ranged)
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
@@ -24,8 +24,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("input", metavar="IN", help="classified LAS/LAZ file")
     parser.add_argument("-o", "--output", required=True, metavar="DTM.tif", help="GeoTIFF to write")
     parser.add_argument("--cell", type=positive_float, default=1.0, metavar="M", help="cell size [m] (default 1)")
-    parser.add_argument("--max-edge", type=nonnegative_float, default=100.0, metavar="M",
-                        help="longest TIN edge that fills empty cells [m] (default 100)")
+    parser.add_argument("--max-edge", type=number, default=100.0, metavar="M",
+                        help="longest TIN edge that fills empty cells [m] (default 100; inf: no limit)")
     parser.add_argument("--hillshade", default=None, metavar="PNG", help="also write a hillshade PNG")
     parser.add_argument("--ground-class", type=ranged("--ground-class"), default=2, metavar="CODE",
                         help="class code of ground points (default 2)")

@@ -19,6 +19,7 @@ import concurrent.futures
 import contextlib
 import logging
 import os
+import re
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -72,6 +73,9 @@ def client(workers: int | None = None, scheduler: str | None = None) -> Iterator
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
+        port = re.search(r":(\d+)/?$", scheduler)
+        if port is not None and not 0 < int(port.group(1)) <= 65535:
+            raise InputError(f"--scheduler {scheduler}: port {port.group(1)} is not a TCP port (1-65535)")
         try:
             c = Client(scheduler)                # waits distributed.comm.timeouts.connect (30 s)
         except (OSError, TimeoutError) as err:

@@ -292,3 +292,29 @@ def test_batch_estimate_counts_the_tiles_the_extent_holds():
     many = config.memory_estimates((10_000.0, 10_000.0))[0]       # 400 tiles: batches of 8
     assert "a batch of 1 tile" in one.what and "a batch of 4 tile" in four.what and "a batch of 8 tile" in many.what
     assert four.n_bytes == 4 * one.n_bytes and many.n_bytes == 8 * one.n_bytes
+
+
+def test_a_set_value_beyond_float32_is_refused_by_its_range_not_as_inf(scene, tmp_path, capsys):
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                   # no overflow warning on the way
+        code, _, err = run_cli(capsys, "filter", scene, "-o", tmp_path / "out.laz", "--method", "smrf",
+                               "--set", "slope=1e308")
+    assert code == 2 and error_line(err) == "gfjax: error: --set: slope must be >= 0 and <= 100, got 1e+308"
+
+
+def test_max_edge_takes_inf_as_its_range_says_and_refuses_nan(scene, tmp_path, capsys):
+    code, _, err = run_cli(capsys, "dtm", scene, "-o", tmp_path / "d.tif", "--max-edge", "nan")
+    assert code == 2 and error_line(err) == "gfjax: error: --max-edge: expected a number, got 'nan'"
+    code, _, err = run_cli(capsys, "dtm", scene, "-o", tmp_path / "d.tif", "--max-edge", "-1")
+    assert code == 2 and "--max-edge: max_edge_m must be >= 0 m, or inf, got -1.0" in error_line(err)
+    from gfjax.dtm.build import check_options
+
+    assert check_options("", cell_m=1.0, max_edge_m=float("inf")) == (1.0, float("inf"))
+
+
+def test_a_scheduler_port_outside_tcp_is_refused_at_once(scene, tmp_path, capsys):
+    pytest.importorskip("distributed")
+    code, _, err = run_cli(capsys, "filter", scene, "-o", tmp_path / "out.laz", "--scheduler", "tcp://127.0.0.1:99999")
+    assert code == 2 and "port 99999 is not a TCP port (1-65535)" in error_line(err)
