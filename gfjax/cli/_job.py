@@ -26,7 +26,6 @@ from gfjax.errors import InputError
 from gfjax.io import las as las_io
 from gfjax.io.atomic import check_output, existing_output_message
 
-_GIB = float(1 << 30)
 _LAZ_OF_LAS = 0.25          # a LAZ written from LAS points: at most about a quarter of the LAS size
 _LAZ_SLACK = 1.05           # a LAZ rewritten from a LAZ: about its input size (new classes compress alike)
 
@@ -158,8 +157,16 @@ def _check_free_space(planned: Sequence[Planned], *, dtm_cell_m: float | None, e
         except OSError:
             continue
         if size > free:
-            raise InputError(f"{folder}: the outputs need about {size / _GIB:,.2f} GiB, only "
-                             f"{free / _GIB:,.2f} GiB free (estimated from the input sizes)")
+            raise InputError(f"{folder}: the outputs need about {byte_size(size)}, only {byte_size(free)} free "
+                             "(estimated from the input sizes)")
+
+
+def byte_size(n_bytes: float) -> str:
+    """`n_bytes` in the largest binary unit that leaves at least 1 of it: "512 bytes", "3.2 MiB"."""
+    for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n_bytes >= scale:
+            return f"{n_bytes / scale:,.2f} {unit}"
+    return f"{n_bytes:,.0f} bytes"
 
 
 def _one_line(message: object) -> str:

@@ -80,8 +80,16 @@ def test_outputs_larger_than_the_free_space_are_refused_before_filtering(folders
     code, _, err = run_cli(capsys, "filter", source, "-o", out, "--method", "fake", "--independent")
     assert code == 2
     line = error_line(err)
-    assert f"{out}: the outputs need about" in line and "GiB free" in line
+    assert f"{out}: the outputs need about" in line and "only 100 bytes free" in line
+    assert " KiB," in line or " MiB," in line                        # sizes in a unit that shows them, not 0.00 GiB
     assert fake_methods["fake"].calls == [] and _names(out) == []
+
+
+def test_byte_sizes_take_the_unit_that_shows_them():
+    from gfjax.cli._job import byte_size
+
+    assert [byte_size(n) for n in (100, 3 * 2**10, 2.5 * 2**20, 3 * 2**30)] == \
+        ["100 bytes", "3.00 KiB", "2.50 MiB", "3.00 GiB"]
 
 
 def test_a_file_failing_during_the_run_keeps_completed_outputs_and_prints_a_summary(folders, capsys, picky_method):
