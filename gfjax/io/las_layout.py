@@ -36,6 +36,9 @@ SUPPORTED_VERSIONS = tuple(VERSION_FORMATS)
 # Versions laspy reads but does not write, and the version they are written as: LAS 1.2 holds
 # every field of a LAS 1.0 header and point (its global encoding replaces a reserved 0).
 WRITTEN_AS = {(1, 0): (1, 2)}
+# The largest coordinate a scale and offset may reach: beyond any survey in any linear unit down to
+# millimetres, and float64 still resolves 0.1 mm there, so the arithmetic of every method stays finite.
+MAX_COORDINATE = 1e12
 # Size of the public header block per minor version (bytes).
 _HEADER_SIZE = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
 # Minimum point record length per point format (bytes); more is extra bytes.
@@ -171,6 +174,11 @@ def _check(f, size: int, name: str) -> Layout:
     for axis, value in zip("xyz", offsets):
         if not math.isfinite(value):
             raise _fail(name, f"{axis} offset is {value!r} (must be finite)")
+    for axis, scale, value in zip("xyz", scales, offsets):
+        reach = abs(value) + abs(scale) * 2.0**31
+        if reach > MAX_COORDINATE:
+            raise _fail(name, f"{axis} scale factor {scale:g} with offset {value:g} lets coordinates exceed "
+                              f"{MAX_COORDINATE:g} units (the most gfjax takes)")
     for field, value in zip(("max x", "min x", "max y", "min y", "max z", "min z"), extents):
         if not math.isfinite(value):
             raise _fail(name, f"{field} in the header is {value!r} (must be finite)")

@@ -161,6 +161,17 @@ def test_bad_scale_factor_exits_2(capsys, fake_methods, las14, value):
     _exits_2(capsys, las14, f"y scale factor is {value!r}")
 
 
+@pytest.mark.parametrize("value", [1e306, 1e3], ids=["1e306", "1e3"])
+def test_a_scale_factor_that_lets_coordinates_overflow_exits_2(capsys, fake_methods, las14, value):
+    patch(las14, SCALE["x"], value)
+    _exits_2(capsys, las14, f"x scale factor {value:g} with offset 500000 lets coordinates exceed 1e+12 units")
+
+
+def test_an_offset_beyond_any_survey_exits_2(capsys, fake_methods, las14):
+    patch(las14, OFFSET["y"], 5e12)
+    _exits_2(capsys, las14, "y scale factor 0.01 with offset 5e+12 lets coordinates exceed 1e+12 units")
+
+
 @pytest.mark.parametrize("value", [float("nan"), float("inf")], ids=["nan", "inf"])
 def test_bad_offset_exits_2(capsys, fake_methods, las14, value):
     patch(las14, OFFSET["z"], value)
