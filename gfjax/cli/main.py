@@ -185,11 +185,14 @@ def _talk(*, quiet: bool, method: str | None, notice: bool = True):
             os.environ["TQDM_DISABLE"] = before
 
 
-HANDLED_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+HANDLED_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+# The signal that arrived during this run, if any: a library that calls back into Python (lazrs
+# writing LAZ) may turn the `Interrupted` raised in its callback into an error of its own.
+_arrived: dict[str, int] = {}
 
 
 class Interrupted(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, raised in the main thread like Ctrl-C's KeyboardInterrupt, so the
+    """SIGINT, SIGTERM or SIGHUP, raised in the main thread as a KeyboardInterrupt, so the
     same `finally` blocks remove temporary files (`gfjax.io.atomic`)."""
 
     def __init__(self, signum: int):
@@ -198,6 +201,7 @@ class Interrupted(KeyboardInterrupt):
 
 
 def _raise_interrupted(signum, frame) -> None:
+    _arrived.setdefault("signum", signum)
     for sig in HANDLED_SIGNALS:                 # a second signal must not cut the clean-up short
         with contextlib.suppress(ValueError, OSError):
             signal.signal(sig, signal.SIG_IGN)
@@ -206,8 +210,9 @@ def _raise_interrupted(signum, frame) -> None:
 
 @contextlib.contextmanager
 def _signals_interrupt():
-    """While the command runs, SIGTERM and SIGHUP raise `Interrupted` (main thread only);
-    the previous handlers come back afterwards."""
+    """While the command runs, SIGINT, SIGTERM and SIGHUP raise `Interrupted` (main thread
+    only); the previous handlers come back afterwards."""
+    _arrived.clear()
     previous = {}
     if threading.current_thread() is threading.main_thread():
         for sig in HANDLED_SIGNALS:
@@ -332,6 +337,10 @@ def _run(argv: Sequence[str]) -> int:
         print(f"gfjax: interrupted by {signal.Signals(signum).name}; no partial output left", file=sys.stderr)
         return 128 + int(signum)
     except Exception as err:  # noqa: BLE001 (the one place that turns bugs into exit code 1)
+        if "signum" in _arrived:        # the interruption, wrapped by a library on its way out
+            signum = _arrived["signum"]
+            print(f"gfjax: interrupted by {signal.Signals(signum).name}; no partial output left", file=sys.stderr)
+            return 128 + int(signum)
         if debug:
             traceback.print_exc()
         print(f"gfjax: internal error: {type(err).__name__}: {_one_line(err)} "

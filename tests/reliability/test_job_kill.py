@@ -42,6 +42,23 @@ def test_signal_during_write_leaves_no_temporary_or_partial_output(tmp_path, sig
     assert _names(tmp_path) == ["in.las"]
 
 
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=["SIGINT", "SIGTERM", "SIGHUP"])
+@pytest.mark.parametrize("name", ["out.laz", "out.las"])
+def test_signal_inside_the_writer_exits_with_the_signal_not_as_a_writer_error(tmp_path, sig, name):
+    """lazrs turns an exception raised while it calls back into Python into an error of its
+    own ("Failed to call write"): the exit code still says which signal ended the run."""
+    source = write_scene(tmp_path / "in.las")
+    with start_program("filter", source, "-o", tmp_path / name, "--method", "fake", slow_file=True) as process:
+        try:
+            wait_for_line(process, "WRITING", lines=[])
+            process.send_signal(sig)
+            assert process.wait(timeout=60) == 128 + sig
+        finally:
+            process.kill()
+        assert _stderr_lines(process) == [f"gfjax: interrupted by {sig.name}; no partial output left"]
+    assert _names(tmp_path) == ["in.las"]
+
+
 def test_sigterm_during_a_multi_file_run_keeps_completed_outputs_and_prints_a_summary(tmp_path):
     source, out = tmp_path / "in", tmp_path / "out"
     source.mkdir()
