@@ -55,6 +55,7 @@ from gfjax.cli._common import (TIF_SUFFIXES, add_method_options, add_units_optio
                                nonnegative_float, output_targets, positive_float, positive_int, say_crs_warning,
                                say_written_versions, class_list)
 from gfjax.errors import InputError
+from gfjax.io import atomic
 from gfjax.io import las as las_io
 
 
@@ -147,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
     say_written_versions([(job.source, job.header) for job in planned])
     out_of_core = _out_of_core(args, setup, planned)
     # cleanup errors ignored: after a failed task a worker may still be writing a store there
-    with tempfile.TemporaryDirectory(prefix="gfjax-survey-", ignore_cleanup_errors=True) as folder, \
+    with atomic.scratch_folder() as folder, \
             _cluster(args) as client:
         if args.scheduler is not None and args.dtm is None and not args.instances:
             return _run_on_cluster(args, setup, inputs, planned, folder, client)
@@ -175,7 +176,6 @@ def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
     here, where they are: this process's writer then uses the cores the workers leave idle.)
     This process still reads the stores once, for the tiles each file meets."""
     from gfjax import survey
-    from gfjax.io import atomic
     from gfjax.survey import cluster
 
     catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data,
@@ -416,7 +416,6 @@ def _write(labelled, target: Path, dtm_target: Path | None, cloud, ground: np.nd
         las_io.write(labelled, target, force=args.force, input_paths=inputs, exclusive=not args.force)
         return
     from gfjax import dtm as dtm_lib
-    from gfjax.io import atomic
 
     context = None
     if halo_ground_m is not None:

@@ -53,11 +53,10 @@ def run(args: argparse.Namespace) -> int:
     check_inputs(inputs, units=args.units)
     catalog, folder = None, None
     if len(inputs) > 1 and setup is None and args.buffer > 0:
-        import tempfile
-
         from gfjax import survey
+        from gfjax.io import atomic
 
-        folder = tempfile.TemporaryDirectory(prefix="gfjax-survey-", ignore_cleanup_errors=True)
+        folder = atomic.scratch_folder()
         catalog = survey.index(inputs, folder.name, units=args.units)
 
     def one(i: int, source, target) -> None:

@@ -19,7 +19,10 @@ import errno
 import os
 import re
 import secrets
+import shutil
 import socket
+import stat
+import tempfile
 import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -80,6 +83,45 @@ def is_stale(path: str | os.PathLike, *, now: float | None = None) -> bool:
         return False
     pid = int(match["pid"])
     return pid != os.getpid() and not _pid_running(pid)
+
+
+SCRATCH_PREFIX = "gfjax-survey-"
+_SCRATCH_NAME = re.compile(r"^gfjax-survey-(?P<host>[A-Za-z0-9_]+)-(?P<pid>\d+)-[A-Za-z0-9_]+$")
+
+
+def scratch_folder() -> tempfile.TemporaryDirectory:
+    """A private working folder in `$TMPDIR` (a survey's stores), named for this host and
+    process, removed on the way out like any temporary; first, the folders of earlier runs
+    that were killed (SIGKILL, power loss) are removed: this user's, whose process is gone
+    (same host) or that were not modified for `STALE_AGE_S`."""
+    remove_stale_scratch(tempfile.gettempdir())
+    return tempfile.TemporaryDirectory(prefix=f"{SCRATCH_PREFIX}{_host()}-{os.getpid()}-",
+                                       ignore_cleanup_errors=True)
+
+
+def remove_stale_scratch(folder: str | os.PathLike, *, now: float | None = None) -> list[Path]:
+    """Remove the working folders of killed runs (`scratch_folder`) directly inside `folder`;
+    returns them. A link, another user's folder or anything not named so is left alone."""
+    removed = []
+    now = time.time() if now is None else now
+    try:
+        entries = [e for e in os.scandir(folder) if e.name.startswith(SCRATCH_PREFIX)]
+    except OSError:
+        return removed
+    for entry in entries:
+        match = _SCRATCH_NAME.match(entry.name)
+        try:
+            info = entry.stat(follow_symlinks=False)
+        except OSError:
+            continue
+        if match is None or not stat.S_ISDIR(info.st_mode) or info.st_uid != os.getuid():
+            continue
+        old = now - info.st_mtime > STALE_AGE_S
+        gone = match["host"] == _host() and int(match["pid"]) != os.getpid() and not _pid_running(int(match["pid"]))
+        if old or gone:
+            shutil.rmtree(entry.path, ignore_errors=True)
+            removed.append(Path(entry.path))
+    return removed
 
 
 def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:

@@ -14,6 +14,7 @@ from types import ModuleType
 import numpy as np
 
 from gfjax import methods
+from gfjax.io import atomic
 from gfjax.io import las as las_io
 from gfjax.io import stream
 from gfjax.io.asprs import DEFAULT_RULES, ClassRules
@@ -251,13 +252,12 @@ def filter(paths: Sequence[str | Path], out: str | Path, *, method: Method | Mod
     Returns:
       The paths written, in the order of `paths`.
     """
-    import tempfile
 
     out = Path(out)
     if not out.is_dir():
         raise InputError(f"{out}: not an existing folder")
     written = []
-    with tempfile.TemporaryDirectory(prefix="gfjax-survey-") as folder:
+    with atomic.scratch_folder() as folder:
         for cloud, result in filtered(paths, method, folder, config=config, params=params, tiling=tiling, returns=returns,
                                       units=units, client=client, classes=classes, **options):
             labelled = cloud.with_ground(result.ground, reset_nonground=reset_nonground,

@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -147,3 +148,27 @@ def test_files_that_only_look_like_temporaries_are_left_alone(tmp_path):
         os.utime(path, (old, old))
     assert atomic.remove_stale_temporaries(tmp_path) == []
     assert all(path.exists() for path in keep)
+
+
+def test_working_folders_of_killed_surveys_are_removed_by_the_next_one(tmp_path, monkeypatch):
+    """A survey's stores live in `$TMPDIR/gfjax-survey-<host>-<pid>-*`: SIGKILL leaves them, so
+    the next run removes those of processes that are gone, and nothing else."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    host = atomic._host()
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    gone = tmp_path / f"gfjax-survey-{host}-{int(dead.stdout)}-abc123"
+    alive = tmp_path / f"gfjax-survey-{host}-{os.getppid()}-def456"          # a running process
+    other_host = tmp_path / "gfjax-survey-elsewhere-1-ghi789"
+    old = tmp_path / "gfjax-survey-elsewhere-2-jkl012"
+    for folder in (gone, alive, other_host, old):
+        (folder / "catalog").mkdir(parents=True)
+        (folder / "catalog" / "0.npy").write_bytes(b"x" * 100)
+    os.utime(old, (time.time() - atomic.STALE_AGE_S - 60,) * 2)
+    target = tmp_path / "precious"
+    target.mkdir()
+    (tmp_path / f"gfjax-survey-{host}-{int(dead.stdout)}-link").symlink_to(target)
+    with atomic.scratch_folder() as folder:
+        assert Path(folder).name.startswith(f"gfjax-survey-{host}-{os.getpid()}-")
+        assert not gone.exists() and not old.exists()
+        assert alive.exists() and other_host.exists() and target.exists()
+    assert not Path(folder).exists()
