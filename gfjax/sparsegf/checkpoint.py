@@ -10,8 +10,6 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
-import os
-import tempfile
 from importlib import resources
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -21,20 +19,12 @@ import jax
 import numpy as np
 
 from gfjax.errors import InputError
+from gfjax.io import atomic
 from gfjax.sparsegf.model import Model, NetConfig, init
 
 MAGIC = "gfjax-sparsegf-model"
 FORMAT = 3                         # 3: the point branch; 2: batch norms and their statistics, input features in the settings
 SHIPPED = "sparsegf_tiny.eqx"      # the model inside the package (gfjax/data)
-
-
-def _file_mode() -> int:
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
-
-
-_FILE_MODE = _file_mode()          # what open() would give a new file (mkstemp gives 0600)
 
 
 def save(path: str | Path, model: Model, meta: dict[str, Any] | None = None) -> None:
@@ -47,21 +37,16 @@ def save(path: str | Path, model: Model, meta: dict[str, Any] | None = None) -> 
 
 
 def _write(path: str | Path, header: dict[str, Any], tree) -> None:
-    """A JSON header line then `tree`'s leaves, written to a temporary file renamed into place."""
+    """A JSON header line then `tree`'s leaves, written atomically (`gfjax.io.atomic`: a full
+    disk is an `InputError` naming the file, and leaves nothing behind)."""
     buffer = io.BytesIO()
     eqx.tree_serialise_leaves(buffer, tree)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
+    with atomic.atomic_output(path, force=True) as tmp:
+        with open(tmp, "wb") as f:
             f.write(json.dumps(header).encode() + b"\n")
             f.write(buffer.getvalue())
-        os.chmod(tmp, _FILE_MODE)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def read_header(path: str | Path) -> dict[str, Any]:

@@ -76,3 +76,30 @@ def test_other_laz_write_errors_stay_internal_errors(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="compressor bug"):
         las_io.write(cloud, tmp_path / "out.laz")
     assert os.listdir(tmp_path) == []
+
+
+def test_disk_full_while_saving_a_model_raises_input_error_and_leaves_nothing(tmp_path, monkeypatch):
+    """`gfjax train` saves its model and its state after every epoch: a full disk there is
+    bad input naming the file (exit 2), and no model or temporary is left."""
+    import builtins
+
+    import jax
+
+    from gfjax.sparsegf import checkpoint
+    from gfjax.sparsegf.model import NET_PRESETS, init
+
+    model = init(NET_PRESETS["tiny"], key=jax.random.key(0))
+    real_open = builtins.open
+
+    def full_open(path, mode="r", *args, **kwargs):
+        if "w" in mode:
+            _FullDisk.budget = 1000
+            return io.BufferedWriter(_FullDisk(path, "w"))
+        return real_open(path, mode, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", full_open)
+    out = tmp_path / "model.eqx"
+    with pytest.raises(InputError, match=f"^{out}: cannot write \\(No space left on device\\)$"):
+        checkpoint.save(out, model)
+    monkeypatch.undo()
+    assert os.listdir(tmp_path) == []
