@@ -81,6 +81,13 @@ CANDIDATES: dict[str, dict[str, Rule]] = {
         "fixed": lambda t: {},
         "grid": lambda t: {"grid_m": _smrf_cell(t)},
         "grid spacing": lambda t: {"grid_m": max(1.0, _half_floor(t.last_spacing_m))},
+        "alpha by spacing": lambda t: {"grid_m": max(1.0, _half_floor(t.last_spacing_m)),
+                                       "alpha_max_m": max(20.0, 5 * _half_floor(t.last_spacing_m)),
+                                       "alpha_step_m": max(2.0, _half_floor(t.last_spacing_m))},
+        "alpha by spacing, x10": lambda t: {"grid_m": max(1.0, _half_floor(t.last_spacing_m)),
+                                            "alpha_max_m": max(20.0, 10 * _half_floor(t.last_spacing_m)),
+                                            "alpha_step_m": max(2.0, 2 * _half_floor(t.last_spacing_m))},
+        "st by slope": lambda t: {"st": round(max(0.05, t.slope_p90 / 2), 3)},
     },
     "dmf": {
         "fixed": lambda t: {},
