@@ -190,8 +190,8 @@ def make_config_and_params(method: Method | ModuleType | str, overrides: Mapping
                 value = _parse_value(raw, current) if isinstance(raw, str) else raw
             except ValueError as err:
                 raise InputError(f"{source} {key}={raw}: {err}") from None
-            if key in method.ranges and isinstance(value, (int, float)) and not isinstance(value, bool):
-                try:                                      # before a float32 cast can overflow
+            if key in method.ranges and _is_scalar_array(current) and isinstance(value, (int, float)):
+                try:                                      # before the float32 cast can overflow
                     limits.check_value(key, value, method.ranges[key])
                 except ValueError as err:
                     raise InputError(f"{source}: {err}") from None

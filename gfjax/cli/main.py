@@ -318,7 +318,7 @@ def _run(argv: Sequence[str]) -> int:
             _refuse_empty_arguments(parser, args)
             if module is None:
                 raise InputError(f"{args.command}: not available in this build")
-            cache.ensure()
+            cache.setup()
             with _talk(quiet=args.quiet, method=_method_of(args), notice=getattr(module, "ANNOUNCE_COMPILES", True)):
                 code = int(module.run(args) or 0)
             sys.stdout.flush()              # a closed pipe is found here, not at exit

@@ -15,8 +15,11 @@ One step (Cloth.cpp `Cloth::timeStep`, `Cloth::terrCollision`; Particle.cpp):
 4. Collision: a movable particle below `h` is put on `h` and fixed.
 The loop stops after `iterations` steps, or after the collision of a step whose largest
 displacement is in (0, 0.005) m: the package's cap and rule (CSF.cpp `do_cloth`). It also
-stops at a step that begins with no movable particle: the package runs on to its cap from
-there, but no later step changes anything (only `steps` differs).
+stops at a step that begins with no movable particle, and at the second of two steps in a
+row that moved no particle (a time step so small that float32 loses gravity's pull: the
+second step starts from the state the first did, so every later one repeats it): the
+package runs on to its cap from there, but no later step changes anything (only `steps`
+differs).
 
 Pipelining. The sweep is a sequence of wavefronts `t = i + 4 j` (`gfjax.csf.wavefront`), and a
 particle's steps 3-4 and the next step's 1 depend on that particle alone. So step `s + 1` may
@@ -85,6 +88,7 @@ class _Carry(NamedTuple):
     max_step: Array                           # (groups,) running max displacement per step [m]
     live: Array                               # (groups,) a particle was movable at the step's start
     stopped: Bool[Array, ""]
+    still: Bool[Array, ""]                    # the last step checked moved no particle
     last_step: Int[Array, ""]
     last_max: Float[Array, ""]
 
@@ -150,9 +154,13 @@ def _phase(lay: Layout, heights: Array, accel: Float[Array, ""], *, iterations: 
     done_max = max_step[done % groups]
     # A step that began with no movable particle changes nothing, nor does any later one:
     # stopping there gives the cloth of the cap (the package runs on to the cap).
-    stop = check & (_displacement_stops(done_max) | ~live[done % groups] | (done == iterations - 1))
+    # Two steps in a row that moved nothing: the second began where the first did (no
+    # velocity, the same springs), so it is a fixed point.
+    frozen = c.still & (done_max == 0)
+    stop = check & (_displacement_stops(done_max) | ~live[done % groups] | frozen | (done == iterations - 1))
     return _Carry(u=slots_u, kind=slots_kind, u_prev=u_prev, hit_step=hit_step,
                   ring=ring, max_step=max_step, live=live, stopped=c.stopped | stop,
+                  still=jnp.where(check, done_max == 0, c.still),
                   last_step=jnp.where(stop, done, c.last_step),
                   last_max=jnp.where(stop, done_max, c.last_max))
 
@@ -169,7 +177,7 @@ def _init(u: Raster, u_prev: Raster, movable: Mask, present: Mask, heights: Rast
         hit_step=jnp.full((PERIOD, groups, lanes), iterations, jnp.int32),
         ring=jnp.zeros((groups + 1, PERIOD, groups, lanes), dtype), max_step=jnp.zeros(groups, dtype),
         live=jnp.zeros(groups, bool),
-        stopped=jnp.array(False), last_step=jnp.int32(iterations - 1),
+        stopped=jnp.array(False), still=jnp.array(False), last_step=jnp.int32(iterations - 1),
         last_max=jnp.asarray(jnp.inf, dtype))
     return init, lay.by_phase(lay.to_slot_array(heights, -jnp.inf))
 

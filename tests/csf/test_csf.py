@@ -118,6 +118,21 @@ def test_a_cloth_resting_everywhere_stops_with_the_cloth_of_the_cap():
     np.testing.assert_allclose(np.asarray(state.u), u, atol=1e-6)
 
 
+def test_a_time_step_too_small_to_move_the_cloth_stops_at_its_fixed_point():
+    """dt = 1e-6: gravity's pull (dt^2 scaled twice) is lost to float32 rounding, no particle
+    moves, and the package's stop (a displacement above 0) never comes: gfjax stops at the
+    second still step, with the cloth the cap would give (the one it started from)."""
+    heights = surface("box")
+    start = float(heights.max()) + 0.05
+    state = cloth.simulate(jnp.asarray(heights), jnp.ones(heights.shape, bool), jnp.float32(start),
+                           jnp.float32(1e-6), config=csf.Config(iterations=100_000))
+    assert int(state.steps) <= 3 and float(state.max_step_m) == 0.0
+    np.testing.assert_array_equal(np.asarray(state.u), np.full(heights.shape, start, np.float32))
+    capped = cloth.simulate(jnp.asarray(heights), jnp.ones(heights.shape, bool), jnp.float32(start),
+                            jnp.float32(1e-6), config=csf.Config(iterations=3))
+    np.testing.assert_array_equal(np.asarray(state.u), np.asarray(capped.u))
+
+
 def test_simulate_vmap_runs_each_cloth_to_its_own_stop():
     """A batch shares the loop; a cloth that stops early is frozen at its own stopping step."""
     kinds = ["box", "ramp", "terrace"]
