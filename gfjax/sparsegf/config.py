@@ -36,10 +36,13 @@ DENSITY_SLACK = 2.0
 # not carry them (`filter.load_model`); they come from `Config`'s defaults or `--set`.
 DECISION_FIELDS = ("decision", "ground_probability", "smrf_ground_probability", "smrf_object_probability")
 
-# The valid range of every numeric Config field (`gfjax.limits`).
+# The valid range of every numeric Config field (`gfjax.limits`). Voxel indices are packed in
+# 16 bits (`gfjax.nn.sparse.keys`): at 0.05 m a patch still spans 1.6 km of height. Patch
+# centres closer than 10 m put every point in the central regions of over 50 patches (and the
+# partition's grid over a survey grows as 1 / step^2) for no vote the defaults lack.
 RANGES: dict[str, Range] = {
-    "voxel_m": Range(0, 1e5, low_open=True, high_open=True, unit="m"),
-    "step_m": Range(0, 1e5, low_open=True, high_open=True, unit="m"),
+    "voxel_m": Range(0.05, 1e5, high_open=True, unit="m"),
+    "step_m": Range(10, 1e5, high_open=True, unit="m"),
     "r_in_m": Range(0, 1e5, low_open=True, high_open=True, unit="m", extra="< r_oc_m"),
     "r_oc_m": Range(0, 1e5, low_open=True, high_open=True, unit="m", extra="<= r_oo_m"),
     "r_oo_m": Range(0, 1e5, low_open=True, high_open=True, unit="m"),

@@ -86,3 +86,21 @@ def test_training_state_nested_too_deeply_counts_no_epochs(tmp_path):
     path = tmp_path / "state.eqx"
     path.write_bytes(b"[" * 60_000 + b"\n")
     assert checkpoint.state_epoch(path) == 0
+
+
+def test_a_model_header_with_a_voxel_finer_than_its_keys_raises_input_error(tmp_path):
+    """The shipped model's file with `voxel_m` 1e-6 in its header: refused when loaded (its
+    settings pass the ranges of `--set`), not at the first patch."""
+    import json
+
+    from gfjax.sparsegf.filter import load_model
+
+    shipped = checkpoint.shipped_path()
+    with open(shipped, "rb") as f:
+        header = json.loads(f.readline())
+        body = f.read()
+    header["meta"]["config"]["voxel_m"] = 1e-6
+    path = tmp_path / "model.eqx"
+    path.write_bytes(json.dumps(header).encode() + b"\n" + body)
+    with pytest.raises(InputError, match="model settings are unusable .*voxel_m must be >= 0.05"):
+        load_model(path)

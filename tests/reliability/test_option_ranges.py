@@ -86,6 +86,8 @@ OUT_OF_RANGE = {
                                     "smrf_object_probability must be > 0 and < 1, got 1.5"),
     "sparsegf unknown decision": ("sparsegf", "decision=smrf",
                                   "decision must be one of ('network', 'network+smrf'), got 'smrf'"),
+    "sparsegf voxel finer than its keys": ("sparsegf", "voxel_m=0.0001", "voxel_m must be >= 0.05 and < 1e5 m"),
+    "sparsegf patch step": ("sparsegf", "step_m=0.001", "step_m must be >= 10 and < 1e5 m, got 0.001"),
 }
 
 
