@@ -20,6 +20,7 @@ import contextlib
 import logging
 import os
 import re
+import threading
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -53,6 +54,31 @@ def available() -> None:
         raise InputError("--workers/--scheduler need dask.distributed: pip install 'gfjax[dask]'") from None
 
 
+CONNECT_S = 45.0     # a scheduler answers within distributed's 30 s connect timeout, or never
+
+
+def _connect(client_type, scheduler: str):
+    """`client_type(scheduler)`, or TimeoutError after `CONNECT_S`: a peer that accepts the
+    connection and never answers its handshake holds `Client` forever, whatever its
+    `timeout`. The attempt runs in a daemon thread, left behind if it never returns."""
+    done: dict = {}
+
+    def attempt():
+        try:
+            done["client"] = client_type(scheduler)
+        except BaseException as err:             # noqa: BLE001 (handed to the caller's thread)
+            done["error"] = err
+
+    thread = threading.Thread(target=attempt, name="gfjax-scheduler-connect", daemon=True)
+    thread.start()
+    thread.join(CONNECT_S)
+    if thread.is_alive():
+        raise TimeoutError(f"nothing answered within {CONNECT_S:g} s")
+    if "error" in done:
+        raise done["error"]
+    return done["client"]
+
+
 @contextlib.contextmanager
 def client(workers: int | None = None, scheduler: str | None = None) -> Iterator:
     """A `dask.distributed.Client`: on a new local cluster of `workers` processes on the
@@ -77,7 +103,7 @@ def client(workers: int | None = None, scheduler: str | None = None) -> Iterator
         if port is not None and not 0 < int(port.group(1)) <= 65535:
             raise InputError(f"--scheduler {scheduler}: port {port.group(1)} is not a TCP port (1-65535)")
         try:
-            c = Client(scheduler)                # waits distributed.comm.timeouts.connect (30 s)
+            c = _connect(Client, scheduler)
         except (OSError, TimeoutError) as err:
             raise InputError(f"--scheduler {scheduler}: no Dask scheduler answers there ({err})") from None
         except ValueError as err:                # not an address ("http://...", "host:")

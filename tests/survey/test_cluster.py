@@ -201,3 +201,19 @@ def test_a_task_the_cluster_lost_is_run_here():
     assert cluster.result(Lost(), "survey tile (0, 0)", again=lambda: "labels") == "labels"
     with pytest.raises(FutureCancelledError):
         cluster.result(Lost(), "survey tile (0, 0)")
+
+
+def test_a_peer_that_accepts_and_never_answers_is_refused_after_the_connect_time(monkeypatch):
+    """`Client` waits forever on a peer that takes the connection and never sends its
+    handshake, whatever its timeout: the connection attempt is bounded here."""
+    import socket
+
+    monkeypatch.setattr(cluster, "CONNECT_S", 2.0)
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(4)
+        address = f"tcp://127.0.0.1:{silent.getsockname()[1]}"
+        with pytest.raises(InputError, match=f"--scheduler {address}: no Dask scheduler answers there "
+                                             r"\(nothing answered within 2 s\)"):
+            with cluster.client(scheduler=address):
+                pass
