@@ -69,10 +69,34 @@ def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRES
         return ground.copy()
     xyz = np.asarray(xyz_m, dtype=np.float64)[index]
     xy = xyz[:, :2] - xyz[:, :2].min(axis=0)
-    distance, neighbour = cKDTree(xy).query(xy, k=k + 1, workers=-1)
-    distance, neighbour = distance[:, 1:], neighbour[:, 1:]              # the point itself first
-    off = xyz[:, 2] - _median_rows(xyz[neighbour, 2])
-    allowed = threshold_m + slope * _median_rows(distance)
+    # A place held by more than k points (a stack of coincident returns): its points' k nearest
+    # are at distance 0 among themselves (which of them is a tie), so each is compared with
+    # the median of its stack. The tree keeps k + 1 of each stack, enough for any other
+    # point's k nearest, so a million coincident points cost what k + 1 do.
+    _, place, count = np.unique(xy, axis=0, return_inverse=True, return_counts=True)
+    place = place.reshape(-1)
+    rank = np.empty(len(xy), np.int64)
+    order = np.argsort(place, kind="stable")
+    starts = np.cumsum(count) - count
+    rank[order] = np.arange(len(xy)) - np.repeat(starts, count)
+    crowded = count[place] > k
+    in_tree = ~crowded | (rank <= k)
+    tree_xy, tree_z = xy[in_tree], xyz[in_tree, 2]
+    off = np.empty(len(xy))
+    allowed = np.full(len(xy), threshold_m)
+    query = np.flatnonzero(~crowded)
+    if query.size:
+        distance, neighbour = cKDTree(tree_xy).query(xy[query], k=k + 1, workers=-1)
+        distance, neighbour = distance[:, 1:], neighbour[:, 1:]          # the point itself first
+        off[query] = xyz[query, 2] - _median_rows(tree_z[neighbour])
+        allowed[query] += slope * _median_rows(distance)
+    stacked = np.flatnonzero(crowded)
+    if stacked.size:
+        z = xyz[order, 2]
+        medians = np.zeros(len(count))
+        for p in np.flatnonzero(count > k):                # few: each holds more than k points
+            medians[p] = np.median(z[starts[p]:starts[p] + count[p]])
+        off[stacked] = xyz[stacked, 2] - medians[place[stacked]]
     out = ground.copy()
     out[index[np.abs(off) > allowed]] = False
     return out

@@ -39,6 +39,34 @@ def test_matches_brute_force_on_random_labels(seed):
                                       brute_force(xyz, ground, threshold_m=threshold_m, slope=slope, k=k))
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_stacks_of_coincident_points_match_brute_force(seed):
+    """Places held by more than k points: each of their points is compared with its stack
+    (its k nearest are at distance 0 among them, which of them a tie); the points around see
+    k + 1 of them, and points far from them get the brute force's labels."""
+    rng = np.random.default_rng(seed)
+    xyz = terrain(n=300, seed=seed)
+    stack = np.repeat(xyz[:3], [12, 30, 9], axis=0)                    # three places, 12, 30 and 9 deep
+    stack[:, 2] = stack[:, 2] + rng.normal(0, 0.05, len(stack))
+    stack[5, 2] += 4.0                                                  # one high point in the first stack
+    xyz = np.vstack([xyz, stack])
+    ground = np.ones(len(xyz), bool)
+    got = spikes.despike(xyz, ground, k=8)
+    high = 300 + 5
+    assert not got[high] and got[300:high].all() and got[high + 1:].all()     # the stacks' ground stays
+    outside = np.arange(3, 300)                                         # away from the stacks: as before
+    to_stacks = np.hypot(*(xyz[outside, None, :2] - xyz[None, :3, :2]).transpose(2, 0, 1)).min(axis=1)
+    far = to_stacks > 30
+    want = brute_force(xyz, ground, threshold_m=spikes.THRESHOLD_M, slope=spikes.SLOPE, k=8)
+    np.testing.assert_array_equal(got[outside[far]], want[outside[far]])
+
+
+def test_a_million_coincident_points_cost_what_a_few_do():
+    xyz = np.vstack([np.tile([[10.0, 10.0, 5.0]], (1_000_000, 1)), terrain(n=100)])
+    ground = np.ones(len(xyz), bool)
+    assert spikes.despike(xyz, ground)[:1_000_000].all()               # seconds, not hours
+
+
 def test_a_chimney_and_a_multipath_point_go_the_ground_stays():
     xyz = terrain()
     xyz[10, 2] += 6.0                      # a chimney top kept as ground
