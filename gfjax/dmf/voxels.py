@@ -15,6 +15,8 @@ __all__ = ["voxel_size_m", "nn_sample", "Voxels", "bin_voxels"]
 
 
 _KEY_QUANTUM_M = 1e-4
+PROBE = 256              # sampled points whose nearest neighbour is looked up first ...
+STACKED_SHARE = 0.5      # ... and the share of them with a twin that marks a stacked cloud
 
 
 def _fmix64(x: np.ndarray) -> np.ndarray:
@@ -76,6 +78,20 @@ def nn_distances(xyz: np.ndarray, *, fraction: float, minimum: int, tree: cKDTre
     float64 `(s,)`; `tree` and `sample` as for `voxel_size_m`."""
     sample = nn_sample(len(xyz), xyz, fraction=fraction, minimum=minimum) if sample is None else sample
     tree = cKDTree(xyz) if tree is None else tree
+    probe = sample[:PROBE]
+    if len(sample) > PROBE:
+        # A cloud most of whose points coincide: a k-d tree cannot split a stack, so each query
+        # would scan it whole. A probe of the sample tells; then a tree holds each place once,
+        # and a point with a twin is at distance 0.
+        near, _ = tree.query(xyz[probe], k=2, workers=-1)
+        if np.mean(near[:, 1] == 0.0) > STACKED_SHARE:
+            _, first, place, count = np.unique(xyz, axis=0, return_index=True, return_inverse=True,
+                                               return_counts=True)
+            alone = count[place.reshape(-1)[sample]] == 1
+            dist = np.zeros(len(sample))
+            if alone.any() and len(first) > 1:
+                dist[alone] = cKDTree(xyz[first]).query(xyz[sample[alone]], k=2, workers=-1)[0][:, 1]
+            return dist
     dist, _ = tree.query(xyz[sample], k=2, workers=-1)         # every core: the same distances
     return dist[:, 1]
 

@@ -40,6 +40,21 @@ def test_voxel_size_of_duplicates_is_one_metre():
     assert voxels.voxel_size_m(xyz, v0=2.0, fraction=0.01, minimum=10) == (1.0, 0.0)
 
 
+@pytest.mark.parametrize("stacked", [3000, 300])
+def test_nn_distances_of_a_stacked_cloud_match_brute_force(stacked):
+    """Most points on a few places (a k-d tree cannot split them) or a few stacks among many
+    points: the distances are the brute force's either way (a point with a twin: 0)."""
+    rng = np.random.default_rng(5)
+    spread = _cloud(6, 600)
+    xyz = np.vstack([np.repeat(spread[:3], stacked // 3, axis=0), spread[3:]])
+    xyz = xyz[rng.permutation(len(xyz))]
+    sample = voxels.nn_sample(len(xyz), xyz, fraction=0.5, minimum=300)
+    got = voxels.nn_distances(xyz, fraction=0.5, minimum=300, sample=sample)
+    d = np.linalg.norm(xyz[sample][:, None, :] - xyz[None, :, :], axis=2)
+    d[np.arange(len(sample)), sample] = np.inf
+    np.testing.assert_allclose(got, d.min(axis=1), rtol=1e-12)
+
+
 def test_bin_voxels_matches_loop():
     xyz = _cloud(4)
     cell_m = 2.0
