@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import os
+import struct
 from operator import attrgetter
 from pathlib import Path
 
@@ -25,6 +26,35 @@ from laspy.vlrs.vlrlist import VLRList
 from gfjax.errors import InputError
 
 SUFFIX = ".copc.laz"
+_ENTRY = struct.Struct("<iiiiQii")      # a hierarchy entry: voxel key (d, x, y, z), offset, bytes, points
+
+
+def check_hierarchy(source, root_offset: int, root_size: int, *, name: str) -> int:
+    """Walk every page of a COPC hierarchy from the root page; returns the pages.
+
+    laspy follows a page that names itself (or an earlier page) as a child for ever: here each
+    page may be reached once, and must lie in the file.
+
+    Raises:
+      InputError: a page outside the file or reached twice (a loop), naming the file `name`.
+    """
+    size = source.seek(0, os.SEEK_END)
+    todo, seen = [(int(root_offset), int(root_size))], set()
+    while todo:
+        offset, length = todo.pop()
+        if offset in seen:
+            raise InputError(f"{name}: its COPC hierarchy page at byte {offset:,} is reached twice (a loop)")
+        if length < 0 or offset + length > size:
+            raise InputError(f"{name}: its COPC hierarchy page at byte {offset:,} ({length:,} bytes) lies "
+                             f"outside the file ({size:,} bytes)")
+        seen.add(offset)
+        source.seek(offset)
+        page = source.read(length)
+        for i in range(len(page) // _ENTRY.size):
+            *_, child, child_bytes, points = _ENTRY.unpack_from(page, i * _ENTRY.size)
+            if points == -1:
+                todo.append((child, child_bytes))
+    return len(seen)
 
 
 def is_copc(path: str | os.PathLike, header: laspy.LasHeader | None = None) -> bool:
@@ -62,7 +92,12 @@ class Reader:
         source = open(self.path, "rb")
         try:
             self._reader = laspy.CopcReader(source)
+            info = self._reader.copc_info
+            check_hierarchy(source, info.hierarchy_root_offset, info.hierarchy_root_size, name=str(self.path))
             nodes = load_octree_for_query(self._reader.source, self._reader.copc_info, self._reader.root_page)
+        except InputError:
+            source.close()
+            raise
         except Exception as err:  # noqa: BLE001 (laspy parsing the user's bytes: a bad file, not a bug)
             source.close()
             raise InputError(f"{self.path}: not a readable COPC file ({type(err).__name__}: {err})") from None

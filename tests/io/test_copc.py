@@ -111,3 +111,37 @@ def test_a_copc_file_whose_data_is_cut_is_named(pair, tmp_path):
     with pytest.raises(InputError, match="cut.copc.laz"):
         with copc.Reader(cut) as reader:
             reader.within(np.array([-1e12, -1e12]), np.array([1e12, 1e12]))
+
+
+def _with_root_entry(data: bytes, offset: int, size: int, points: int) -> tuple[bytes, int]:
+    """`data` with the root node's hierarchy entry (key 0, 0, 0, 0) rewritten."""
+    import io
+    import struct
+
+    info = laspy.CopcReader(io.BytesIO(data)).copc_info
+    root, length = info.hierarchy_root_offset, info.hierarchy_root_size
+    blob = bytearray(data)
+    for at in range(root, root + length, 32):
+        if struct.unpack_from("<iiii", blob, at) == (0, 0, 0, 0):
+            struct.pack_into("<Qii", blob, at + 16, offset, size, points)
+            return bytes(blob), root
+    raise AssertionError("no root entry")
+
+
+def test_a_copc_hierarchy_page_that_names_itself_is_refused_not_followed_for_ever(pair, tmp_path):
+    """A survey reads COPC files box by box through their hierarchy (`copc.Reader`): a root
+    entry that points at its own page, or at a page past the end, is bad input, not a hang."""
+    import io
+
+    data = pair[0].read_bytes()
+    info = laspy.CopcReader(io.BytesIO(data)).copc_info
+    looped, root = _with_root_entry(data, info.hierarchy_root_offset, info.hierarchy_root_size, -1)
+    path = tmp_path / "loop.copc.laz"
+    path.write_bytes(looped)
+    with pytest.raises(InputError, match=f"loop.copc.laz: its COPC hierarchy page at byte {root:,} is reached "
+                                         r"twice \(a loop\)"):
+        copc.Reader(path)
+    outside, _ = _with_root_entry(data, len(data) - 8, 64, -1)
+    path.write_bytes(outside)
+    with pytest.raises(InputError, match="lies outside the file"):
+        copc.Reader(path)
