@@ -109,6 +109,9 @@ def client(workers: int | None = None, scheduler: str | None = None) -> Iterator
         except ValueError as err:                # not an address ("http://...", "host:")
             raise InputError(f"--scheduler {scheduler}: not a Dask scheduler address ({err}); "
                              "e.g. tcp://host:8786") from None
+        except Exception as err:  # noqa: BLE001 (decoding a peer's bytes: a peer that is no scheduler, not a bug)
+            raise InputError(f"--scheduler {scheduler}: what answers there is not a Dask scheduler "
+                             f"({type(err).__name__}: {err})") from None
         with c:
             yield c
         return

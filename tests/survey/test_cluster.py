@@ -2,6 +2,7 @@
 worker's tile run again, a failing task named."""
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -215,5 +216,29 @@ def test_a_peer_that_accepts_and_never_answers_is_refused_after_the_connect_time
         address = f"tcp://127.0.0.1:{silent.getsockname()[1]}"
         with pytest.raises(InputError, match=f"--scheduler {address}: no Dask scheduler answers there "
                                              r"\(nothing answered within 2 s\)"):
+            with cluster.client(scheduler=address):
+                pass
+
+
+@pytest.mark.parametrize("reply", [b"\x01" + bytes(7) + (2**63).to_bytes(8, "little"), b"HTTP/1.1 200 OK\r\n\r\n"],
+                         ids=["8-EiB-frame", "http"])
+def test_a_peer_that_sends_what_no_scheduler_sends_is_bad_input(reply):
+    import socket
+    import threading
+
+    with socket.socket() as peer:
+        peer.bind(("127.0.0.1", 0))
+        peer.listen(4)
+
+        def answer():
+            with contextlib.suppress(OSError):
+                connection, _ = peer.accept()
+                with connection:
+                    connection.sendall(reply)
+                    connection.recv(1)
+
+        threading.Thread(target=answer, daemon=True).start()
+        address = f"tcp://127.0.0.1:{peer.getsockname()[1]}"
+        with pytest.raises(InputError, match=f"--scheduler {address}: "):
             with cluster.client(scheduler=address):
                 pass
