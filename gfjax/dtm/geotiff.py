@@ -6,6 +6,10 @@ renamed over the target only when complete, so a failed run never leaves a parti
 """
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+import tempfile
 import warnings
 
 import numpy as np
@@ -56,9 +60,39 @@ def write_geotiff(path, z: np.ndarray, *, transform: Affine, crs: rasterio.crs.C
                    BIGTIFF="IF_SAFER")
     if max(h, w) > TILE_PX:
         profile.update(tiled=True, blockxsize=TILE_PX, blockysize=TILE_PX)
-    with atomic_output(path, force=True) as tmp:
+    with atomic_output(path, force=True) as tmp, _gdal_messages():
         with rasterio.open(tmp, "w", **profile) as dst:
             dst.write(z.astype(np.float32), 1)
+
+
+@contextlib.contextmanager
+def _gdal_messages():
+    """What GDAL and libtiff print on the process's stderr during a write ("_tiffWriteProc:
+    No space left on device": C code, past Python) is held back: a write that fails says its
+    first line in the error, instead of rasterio's "See previous exception for details"; a
+    write that succeeds passes it on."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    held = tempfile.TemporaryFile()
+    os.dup2(held.fileno(), 2)
+    failed = False
+    try:
+        yield
+    except OSError as err:
+        failed = True
+        os.dup2(saved, 2)
+        held.seek(0)
+        said = [line.strip() for line in held.read().decode(errors="replace").splitlines() if line.strip()]
+        raise OSError(said[0] if said else str(err)) from None
+    finally:
+        if not failed:
+            os.dup2(saved, 2)
+            held.seek(0)
+            text = held.read()
+            if text:
+                os.write(2, text)
+        os.close(saved)
+        held.close()
 
 
 __all__ = ["NODATA", "cloud_rasterio_crs", "write_geotiff", "mosaic"]

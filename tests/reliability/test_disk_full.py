@@ -103,3 +103,29 @@ def test_disk_full_while_saving_a_model_raises_input_error_and_leaves_nothing(tm
         checkpoint.save(out, model)
     monkeypatch.undo()
     assert os.listdir(tmp_path) == []
+
+
+def test_disk_full_while_writing_a_dtm_gives_one_line_naming_the_reason(tmp_path):
+    """libtiff prints its complaints on the process's stderr from C; the command's one line says
+    the first of them, and nothing else reaches the user. A file-size limit (SIGXFSZ ignored)
+    makes every write past 20 KiB fail as a full disk would."""
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    import matplotlib.font_manager  # noqa: F401 (its cache written now, not under the child's limit)
+
+    from gfjax.data import demo_sample
+
+    def small_disk():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (20 * 1024, 20 * 1024))
+
+    out = tmp_path / "dtm.tif"
+    done = subprocess.run([sys.executable, "-m", "gfjax.cli.main", "dtm", str(demo_sample()), "-o", str(out)],
+                          capture_output=True, text=True, preexec_fn=small_disk, timeout=300)
+    assert done.returncode == 2, done.stderr
+    lines = [line for line in done.stderr.splitlines() if line]
+    assert lines == [f"gfjax: error: {out}: cannot write (_tiffWriteProc: File too large.)"], done.stderr
+    assert os.listdir(tmp_path) == []
