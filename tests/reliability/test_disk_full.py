@@ -109,8 +109,6 @@ def test_disk_full_while_writing_a_dtm_gives_one_line_naming_the_reason(tmp_path
     """libtiff prints its complaints on the process's stderr from C; the command's one line says
     the first of them, and nothing else reaches the user. A file-size limit (SIGXFSZ ignored)
     makes every write past 20 KiB fail as a full disk would."""
-    import resource
-    import signal
     import subprocess
     import sys
 
@@ -118,13 +116,12 @@ def test_disk_full_while_writing_a_dtm_gives_one_line_naming_the_reason(tmp_path
 
     from gfjax.data import demo_sample
 
-    def small_disk():
-        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-        resource.setrlimit(resource.RLIMIT_FSIZE, (20 * 1024, 20 * 1024))
-
+    small_disk = ("import resource, runpy, signal, sys; signal.signal(signal.SIGXFSZ, signal.SIG_IGN); "
+                  "resource.setrlimit(resource.RLIMIT_FSIZE, (20 * 1024, 20 * 1024)); "
+                  "sys.argv[0] = 'gfjax'; runpy.run_module('gfjax.cli.main', run_name='__main__')")
     out = tmp_path / "dtm.tif"
-    done = subprocess.run([sys.executable, "-m", "gfjax.cli.main", "dtm", str(demo_sample()), "-o", str(out)],
-                          capture_output=True, text=True, preexec_fn=small_disk, timeout=300)
+    done = subprocess.run([sys.executable, "-c", small_disk, "dtm", str(demo_sample()), "-o", str(out)],
+                          capture_output=True, text=True, timeout=300)
     assert done.returncode == 2, done.stderr
     lines = [line for line in done.stderr.splitlines() if line]
     assert lines == [f"gfjax: error: {out}: cannot write (_tiffWriteProc: File too large.)"], done.stderr
