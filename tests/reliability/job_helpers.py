@@ -46,9 +46,7 @@ def picky_method(monkeypatch):
 
 # `gfjax` as the program (`main()` without argv), the fake method registered first; with
 # GFJAX_TEST_SLOW_WRITE set, every LAS write writes its points, prints "WRITING <n>" and
-# sleeps (a signal then arrives while a temporary file exists); with GFJAX_TEST_SLOW_FILE
-# set, the first write of point bytes into the output file sleeps instead (a signal then
-# arrives inside the LAS/LAZ writer's call back into Python, as a real slow disk would have it).
+# sleeps (a signal then arrives while a temporary file exists).
 PROGRAM = """
 import os, sys, time
 import cli_helpers, laspy
@@ -69,34 +67,16 @@ if os.environ.get("GFJAX_TEST_SLOW_WRITE"):
             print(f"WRITING {count[0]}", flush=True)
             time.sleep(60)
     las_io._write_las = slow_write
-if os.environ.get("GFJAX_TEST_SLOW_FILE"):
-    from gfjax.io import las as las_io
-    real_write_las = las_io._write_las
-    class SlowFile:
-        def __init__(self, f):
-            self.f, self.slept = f, False
-        def write(self, data):
-            header = sys._getframe(1).f_code.co_name in ("write_to", "write_initial_header_and_vlrs")
-            if not self.slept and not header:      # the points: for LAZ, lazrs calls this from Rust
-                self.slept = True
-                print("WRITING 1", flush=True)
-                time.sleep(60)
-            return self.f.write(data)
-        def __getattr__(self, name):
-            return getattr(self.f, name)
-    las_io._write_las = lambda las, f, **kwargs: real_write_las(las, SlowFile(f), **kwargs)
 sys.argv = ["gfjax", *sys.argv[1:]]
 cli_main.main()
 """
 
 
-def start_program(*argv, slow_write_from: int | None = None, slow_file: bool = False) -> subprocess.Popen:
+def start_program(*argv, slow_write_from: int | None = None) -> subprocess.Popen:
     """Start `gfjax *argv` as a process (stdout, stderr piped, text)."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "tests" / "cli"), str(REPO)])}
     if slow_write_from is not None:
         env["GFJAX_TEST_SLOW_WRITE"] = str(slow_write_from)
-    if slow_file:
-        env["GFJAX_TEST_SLOW_FILE"] = "1"
     return subprocess.Popen([sys.executable, "-c", PROGRAM, *map(str, argv)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, cwd=REPO, env=env)
 
