@@ -27,6 +27,7 @@ __all__ = ["guard", "despike", "unstack", "stacked_drop_m", "NEIGHBOURS", "THRES
 
 # Chosen on the training files with the labels of SMRF, DMF and MASF (the most files passing
 # over the three; ties: the lowest ISPRS total error of SMRF): 8 neighbours, 1 m, slope 0.5.
+PROBE = 256             # ground points looked at first for stacks of coincident points
 NEIGHBOURS = 8           # ground neighbours a point is compared with
 THRESHOLD_M = 1.0        # height off their median tolerated next to them [m]
 SLOPE = 0.5              # ... plus this rise over run, over the median distance to them
@@ -69,10 +70,28 @@ def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRES
         return ground.copy()
     xyz = np.asarray(xyz_m, dtype=np.float64)[index]
     xy = xyz[:, :2] - xyz[:, :2].min(axis=0)
-    # A place held by more than k points (a stack of coincident returns): its points' k nearest
-    # are at distance 0 among themselves (which of them is a tie), so each is compared with
-    # the median of its stack. The tree keeps k + 1 of each stack, enough for any other
-    # point's k nearest, so a million coincident points cost what k + 1 do.
+    tree = cKDTree(xy)
+    # A place held by more than k points (a stack of coincident returns) would make every query
+    # near it scan the whole stack. A probe tells whether the cloud has one worth the care.
+    probe = np.linspace(0, len(xy) - 1, min(PROBE, len(xy))).astype(np.int64)
+    if np.any(tree.query(xy[probe], k=k + 1, workers=-1)[0][:, k] == 0.0):
+        return _despike_stacked(xyz, xy, index, ground, threshold_m=threshold_m, slope=slope, k=k)
+    distance, neighbour = tree.query(xy, k=k + 1, workers=-1)
+    distance, neighbour = distance[:, 1:], neighbour[:, 1:]              # the point itself first
+    off = xyz[:, 2] - _median_rows(xyz[neighbour, 2])
+    allowed = threshold_m + slope * _median_rows(distance)
+    out = ground.copy()
+    out[index[np.abs(off) > allowed]] = False
+    return out
+
+
+def _despike_stacked(xyz, xy, index, ground, *, threshold_m: float, slope: float, k: int) -> np.ndarray:
+    """`despike` on ground points some places of which hold more than k of them: each point of
+    such a stack is compared with the median of its stack (its k nearest are at distance 0
+    among them, which of them a tie); the tree keeps k + 1 of each stack, enough for any other
+    point's k nearest, so a million coincident points cost what k + 1 do."""
+    from scipy.spatial import cKDTree
+
     _, place, count = np.unique(xy, axis=0, return_inverse=True, return_counts=True)
     place = place.reshape(-1)
     rank = np.empty(len(xy), np.int64)
