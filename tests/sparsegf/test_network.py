@@ -4,6 +4,8 @@ Every pack here has the smallest capacity, so the network compiles once for pred
 once for the training step (a few seconds each with the micro network)."""
 from __future__ import annotations
 
+import sys
+
 import jax
 import numpy as np
 import pytest
@@ -132,6 +134,20 @@ def test_filter_votes_every_point(net):
     assert np.all(d.votes >= 1) and d.n_patches == 2 and d.smrf_ground is None    # SMRF not run
     assert np.all((d.prob_ground >= 0) & (d.prob_ground <= 1))
     np.testing.assert_array_equal(result.ground, d.prob_ground > 0.5)
+
+
+@pytest.mark.parametrize("in_flight", [1, 2, 3])
+def test_packs_run_side_by_side_give_the_votes_of_one_pack(net, in_flight, monkeypatch):
+    filter_module = sys.modules["gfjax.sparsegf.filter"]
+    xyz, _ = scene()
+    config = Config(features=FEATURES, decision="network")
+    together = filter_module.ground_probability(net, xyz, config)
+    monkeypatch.setattr(filter_module, "IN_FLIGHT", in_flight)
+    monkeypatch.setattr(filter_module, "group", lambda todo, slots: ([p] for p in todo))   # a pack per patch
+    apart = filter_module.ground_probability(net, xyz, config)
+    assert together[2] == apart[2] == 2
+    np.testing.assert_array_equal(together[1], apart[1])
+    np.testing.assert_allclose(together[0], apart[0], atol=1e-6)
 
 
 def test_the_default_decision_arbitrates_smrfs_verdict(net):
