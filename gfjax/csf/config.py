@@ -29,9 +29,13 @@ RANGES: dict[str, Range] = {
     "time_step": Range(0, 10, low_open=True),
     "trend_m": Range(0, 10_000, low_open=True, unit="m", none_ok=True),
 }
-# The cloth: about 16 float32 / int32 arrays per particle (heights, velocities, flags, the
-# simulation's work arrays) [bytes per particle].
-_BYTES_PER_PARTICLE = 16 * 4
+# The cloth: about 24 float32 / int32 arrays per particle (heights, velocities, flags, the
+# simulation's work arrays) [bytes per particle], and the simulation's ring of snapshots, one
+# per block in flight (`gfjax.csf.wavefront.blocks_in_flight`) [bytes per particle and block]:
+# the temporary buffers XLA gives the compiled cloth on grids of 256², 512² and 1,024²
+# particles are 405, 710 and 1,320 bytes a particle, where these give 440, 770 and 1,440.
+_BYTES_PER_PARTICLE = 24 * 4
+_BYTES_PER_PARTICLE_BLOCK = 5.5
 
 GRAVITY = 0.2                 # CSF.cpp: `double gravity = 0.2` [cloth units per step^2]
 DAMPING = 0.01                # Particle.h: `#define DAMPING 0.01` (Verlet velocity damping)
@@ -97,9 +101,12 @@ class Config:
         `extent_m` (the cloud's x, y extent [m]), the cloth over the whole cloud."""
         if extent_m is None:
             return []
+        from gfjax.csf.wavefront import blocks_in_flight
+
         w, h = (limits.raster_side(e, self.cell_m) + 2 * BUFFER_PX for e in extent_m)
+        per_particle = _BYTES_PER_PARTICLE + _BYTES_PER_PARTICLE_BLOCK * (blocks_in_flight((h, w)) + 1)
         return [limits.Estimate(f"a cloth of {h:,} x {w:,} particles (extent / cell_m)",
-                                float(h) * float(w) * _BYTES_PER_PARTICLE, ("cell_m",))]
+                                float(h) * float(w) * per_particle, ("cell_m",))]
 
 
 class Params(params.Params):

@@ -99,13 +99,21 @@ class Layout:
         return head.reshape(self.groups, PERIOD, self.lanes).transpose(1, 0, 2)
 
 
+def blocks_in_flight(shape: tuple[int, int]) -> int:
+    """Blocks of a particle grid `(h, w)` in flight at once, `Layout.groups`: about
+    `(w + 4 h) / PERIOD`, so the snapshots the simulation keeps grow with the grid's side as
+    well as its area (`gfjax.csf.config.Config.memory_estimates`)."""
+    h, w = shape
+    return -(-(w + SKEW * (h - 1) + REACH) // PERIOD)
+
+
 @functools.lru_cache(maxsize=32)
 def layout(shape: tuple[int, int]) -> Layout:
     """The `Layout` of a particle grid `(h, w)` (numpy, cached per shape)."""
     h, w = shape
     lanes = min(-(-(w + 2) // SKEW), h + 2)
     n_wavefronts = w + SKEW * (h - 1)
-    groups = -(-(n_wavefronts + REACH) // PERIOD)
+    groups = blocks_in_flight(shape)
     rows = (groups + 1) * PERIOD
     j, i = np.indices(shape)
     slot = (i + SKEW * j + REACH) * lanes + j % lanes

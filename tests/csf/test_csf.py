@@ -322,3 +322,24 @@ def test_filter_on_canonical_shapes_labels_as_on_the_cloud_own_grid():
     np.testing.assert_array_equal(result.ground, np.asarray(ground))
     np.testing.assert_array_equal(result.diagnostics.movable, np.asarray(diag.movable)[::-1])
     assert result.diagnostics.cloth_z.shape == shape
+
+
+@pytest.mark.parametrize("side", [128, 384])
+def test_the_memory_estimate_covers_the_compiled_cloth(side):
+    # the simulation keeps a snapshot per block in flight, so its memory grows with the side
+    # times the area; the estimate the command line checks before a run must follow it
+    import dataclasses
+    import importlib
+
+    from gfjax.csf.config import ADAPTED, BUFFER_PX, Config, Params
+
+    filter_module = importlib.import_module("gfjax.csf.filter")
+    config = dataclasses.replace(Config(), **ADAPTED)
+    grid, flag = jax.ShapeDtypeStruct((side, side), np.float32), jax.ShapeDtypeStruct((side, side), np.bool_)
+    surface = filter_module.Surface(grid, flag, flag, jax.ShapeDtypeStruct((2,), np.float32),
+                                    jax.ShapeDtypeStruct((), np.float32))
+    compiled = filter_module.drop_cloth.lower(surface, Params(), config=config).compile()
+    needed = compiled.memory_analysis().temp_size_in_bytes
+    extent = (side - 2 * BUFFER_PX - 1) * config.cell_m
+    estimate, = config.memory_estimates((extent, extent))
+    assert needed <= estimate.n_bytes <= 1.5 * needed
