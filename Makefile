@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint install clean
+.PHONY: demo test lint install bench clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -20,6 +20,12 @@ demo: $(STAMP)
 
 test: lint
 	$(BIN)/python -m pytest -n 2 -q
+
+# Not part of `make test`: whole-process timings against the peer packages, judged as ratios
+# to the recorded ones (experiments/results/bench_guard.md); needs ../shared/data.
+bench: $(STAMP)
+	$(BIN)/python -m pip install -q -c constraints.txt -e '.[bench]'
+	$(BIN)/python experiments/bench_guard.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check gfjax tests experiments
