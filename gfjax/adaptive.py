@@ -32,6 +32,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from gfjax import spikes
+from gfjax.errors import InputError, SettingError
 from gfjax.io.cloud import CloudView
 
 RETURNS = ("all", "last")
@@ -59,14 +60,31 @@ COARSE_SPACING_M = 2.5
 MAX_CELL_M = 6.0
 
 
+# The most cells a rule gives a raster per point over the area the points cover. A cloud spread
+# so thinly that a finer cell would give more (under one point per 64 m² at 1 m: a few hundred
+# points over square kilometres) gets the coarser cell, so its rasters cost what its points
+# cost; there is no surface to model at that spacing anyway. No labelled file comes near: the
+# sparsest has 16 m² a point.
+CELLS_PER_POINT = 64
+
+
+def cost_cell_m(terrain: Terrain) -> float:
+    """The finest cell [m] whose raster over the points' area holds at most `CELLS_PER_POINT`
+    cells a point, rounded up to 0.5 m; 0 for fewer than `_POINTS_PER_COVER_CELL` points, whose
+    area is not measured (a few points cost little, and points far apart are filtered as
+    groups: `gfjax.io.groups`)."""
+    if terrain.n_points < _POINTS_PER_COVER_CELL:
+        return 0.0
+    return math.ceil(math.sqrt(terrain.area_m2 / (CELLS_PER_POINT * terrain.n_points)) / 0.5) * 0.5
+
+
 def raster_cell_m(terrain: Terrain) -> float:
     """A morphological filter's raster cell [m] for a cloud: 1 m until the last returns lie
     more than `COARSE_SPACING_M` apart, then their spacing rounded down to 0.5 m, at most
-    `MAX_CELL_M`."""
+    `MAX_CELL_M`; never finer than `cost_cell_m`."""
     spacing = terrain.last_spacing_m
-    if spacing <= COARSE_SPACING_M:
-        return 1.0
-    return min(MAX_CELL_M, math.floor(spacing / 0.5) * 0.5)
+    cell = 1.0 if spacing <= COARSE_SPACING_M else min(MAX_CELL_M, math.floor(spacing / 0.5) * 0.5)
+    return max(cell, cost_cell_m(terrain))
 
 
 class Terrain(NamedTuple):
@@ -224,12 +242,21 @@ def settle_terrain(rule: Callable[[Terrain], dict[str, Any]] | None, terrain: Te
     config_fields = {f.name for f in dataclasses.fields(config)}
     on_config = {k: v for k, v in chosen.items() if k in config_fields}
     on_params = {k: v for k, v in chosen.items() if k not in config_fields}
-    if on_config:
-        config = dataclasses.replace(config, **on_config)
-    if on_params:
-        if params is None:
-            raise ValueError(f"rule sets {sorted(on_params)} but the method has no Params")
-        params = dataclasses.replace(params, **on_params)
+    try:
+        if on_config:
+            config = dataclasses.replace(config, **on_config)
+        if on_params:
+            if params is None:
+                raise ValueError(f"rule sets {sorted(on_params)} but the method has no Params")
+            params = dataclasses.replace(params, **on_params)
+    except SettingError as err:
+        given = [k for k in err.keys if k in keep]
+        if not given:
+            raise
+        # a user's value against one the cloud chose: the user says which to change
+        picked = ", ".join(f"{k}={_show(v)}" for k, v in chosen.items() if k in err.keys)
+        raise InputError(f"{err}: {', '.join(given)} given, {picked or 'the rest'} chosen from the cloud; "
+                         "set both (--set), or --preset fixed") from None
     return Settled(config, params, chosen, terrain)
 
 

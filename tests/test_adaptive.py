@@ -192,3 +192,47 @@ def test_finish_drops_a_spike_only_where_the_values_followed_the_cloud():
     assert not finished.ground[100] and finished.ground.sum() == len(xyz) - 1
     assert finished.settled is settled
     assert adaptive.finish(kept, cloud, None) is kept    # fixed values: labels as the filter gave them
+
+
+def thin_cloud(n: int = 1000, seed: int = 0) -> np.ndarray:
+    """`n` points spread evenly at random over 3.4 x 4.5 km (a point per 15,000 m²), a fifth
+    of them 2-20 m above a gentle slope."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0.0, [3400.0, 4500.0], (n, 2))
+    z = 200.0 + 0.01 * xy[:, 0] + rng.normal(0.0, 0.1, n)
+    objects = rng.random(n) < 0.2
+    z[objects] += rng.uniform(2.0, 20.0, objects.sum())
+    return np.column_stack([xy + [600_000.0, 4_900_000.0], z])
+
+
+def test_the_cost_cell_keeps_rasters_within_their_cells_per_point():
+    terrain = adaptive.measure(thin_cloud())
+    cell = adaptive.cost_cell_m(terrain)
+    assert terrain.area_m2 / cell ** 2 <= adaptive.CELLS_PER_POINT * terrain.n_points
+    assert terrain.area_m2 / (cell - 0.5) ** 2 > adaptive.CELLS_PER_POINT * terrain.n_points   # the finest such
+    assert adaptive.raster_cell_m(terrain) == cell > adaptive.MAX_CELL_M
+    # a cloud of ordinary density keeps its cells: the sparsest labelled file has 16 m² a point
+    assert adaptive.cost_cell_m(adaptive.measure(grid_plane(4.0, 800.0))) <= 1.0
+    assert adaptive.cost_cell_m(adaptive.measure(thin_cloud(10))) == 0.0                   # too few to measure
+
+
+@pytest.mark.parametrize("name", ["smrf", "pmf", "csf", "dmf", "masf", "sparsegf"])
+def test_a_cloud_spread_thin_over_square_kilometres_filters_with_every_method(name):
+    """Each method's rasters follow the points: no run over millions of cells for 1,000 points."""
+    from gfjax import methods
+
+    xyz = thin_cloud()
+    result = methods.get(name).filter(Cloud.from_xyz(xyz))
+    ground = np.asarray(result.ground)
+    assert ground.shape == (len(xyz),) and ground.mean() > 0.5
+
+
+def test_a_users_value_against_one_chosen_from_the_cloud_is_one_line(tmp_path, capsys):
+    """A window narrower than the cell the sparse cloud gets: exit 2, both values named."""
+    from cli_helpers import run_cli
+
+    src = _write_plane(tmp_path / "sparse.las", 5.3, 320.0)
+    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.las", "--set", "window_m=4")
+    assert code == 2 and "Traceback" not in err
+    assert "window_m given, cell_m=5.5 chosen from the cloud" in err
+    assert not (tmp_path / "out.las").exists()

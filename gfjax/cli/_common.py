@@ -99,6 +99,16 @@ def positive_int(text: str) -> int:
     return value
 
 
+def workers_count(text: str) -> int | str:
+    """argparse type of `--workers`: a whole number >= 1, or "auto"."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return positive_int(text)
+    except argparse.ArgumentTypeError as err:
+        raise argparse.ArgumentTypeError(f"{err} (or auto)") from None
+
+
 def nonnegative_int(text: str) -> int:
     """argparse type: a whole number >= 0."""
     value = _integer(text)

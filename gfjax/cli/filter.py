@@ -52,7 +52,7 @@ import numpy as np
 
 from gfjax.cli import _job
 from gfjax.cli._common import (TIF_SUFFIXES, add_method_options, add_units_option, method_setup,
-                               nonnegative_float, output_targets, positive_float, positive_int, say_crs_warning,
+                               nonnegative_float, output_targets, positive_float, say_crs_warning, workers_count,
                                say_written_versions, class_list)
 from gfjax.errors import InputError
 from gfjax.io import atomic
@@ -90,8 +90,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="DTM cell size [m] (default 1)")
     parser.add_argument("--independent", action="store_true",
                         help="filter each input on its own, without its neighbours' points")
-    parser.add_argument("--workers", type=positive_int, default=None, metavar="N",
-                        help="filter the tiles as tasks on a local Dask cluster of N worker processes "
+    parser.add_argument("--workers", type=workers_count, default=None, metavar="N",
+                        help="filter the tiles as tasks on a local Dask cluster of N worker processes, or "
+                             "'auto': one a core; fewer, or none, for a survey too small to gain "
                              "(needs dask.distributed: pip install 'gfjax[dask]')")
     parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
                         help="filter the tiles on the Dask cluster at ADDRESS (tcp://host:8786); its workers "
@@ -149,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     out_of_core = _out_of_core(args, setup, planned)
     # cleanup errors ignored: after a failed task a worker may still be writing a store there
     with atomic.scratch_folder() as folder, \
-            _cluster(args) as client:
+            _cluster(args, sum(job.header.point_count for job in planned)) as client:
         if args.scheduler is not None and args.dtm is None and not args.instances:
             return _run_on_cluster(args, setup, inputs, planned, folder, client)
         if out_of_core:
@@ -260,9 +261,10 @@ def _filter(setup, progress: bool, points, returns: str):
     return setup.filter(points, returns=returns, progress=progress)
 
 
-def _cluster(args: argparse.Namespace):
+def _cluster(args: argparse.Namespace, points: int):
     """The Dask client that `--workers` / `--scheduler` ask for (`gfjax.survey.cluster`), or
-    a context giving None."""
+    a context giving None; a local cluster only as large as the survey's `points` pay for
+    (`cluster.local_workers`, which says so when that is not what was asked)."""
     if args.workers is None and args.scheduler is None:
         return contextlib.nullcontext(None)
     if args.workers is not None and args.scheduler is not None:
@@ -272,7 +274,14 @@ def _cluster(args: argparse.Namespace):
         raise InputError(f"{option}: the cluster filters the inputs as one survey; drop --independent")
     from gfjax.survey import cluster
 
-    return cluster.client(workers=args.workers, scheduler=args.scheduler)
+    workers = None
+    if args.workers is not None:
+        workers, note = cluster.local_workers(args.workers, points)
+        if note is not None:
+            print(f"gfjax: {note}", file=sys.stderr)
+        if workers == 0:
+            return contextlib.nullcontext(None)
+    return cluster.client(workers=workers, scheduler=args.scheduler)
 
 
 def _run(args, setup, inputs, planned, runner) -> int:

@@ -140,7 +140,8 @@ def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
     """CSF's values that follow the cloud (`gfjax.adaptive`): the terrain's 30 m trend taken off
     before a soft cloth (rigidness 1) falls. Chosen on the training files by leave-one-survey-out
     (`experiments/results/adaptive_rules_csf.md`: 12 -> 15 of 21 files pass); the same for every
-    terrain, since a flat one has no trend to take. A call that settles it also runs the guard
-    (`adaptive.finish`)."""
-    del terrain
-    return dict(ADAPTED)
+    terrain, since a flat one has no trend to take. The cloth is no finer than
+    `adaptive.cost_cell_m` (a cloud spread thinner than a point per 64 m²). A call that settles
+    it also runs the guard (`adaptive.finish`)."""
+    cell = adaptive.cost_cell_m(terrain)
+    return {**ADAPTED, "cell_m": cell} if cell > Config().cell_m else dict(ADAPTED)

@@ -201,7 +201,13 @@ PRESETS: dict[str, dict[str, float]] = {
 
 
 def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
-    """MASF's values that follow the cloud (`gfjax.adaptive`): none yet (its grid is chosen on
-    the training files in `experiments/results/adaptive_rules_masf.md`); a call that settles
-    them also drops ground spikes (`adaptive.finish`)."""
-    return {}
+    """MASF's values that follow the cloud (`gfjax.adaptive`): the 1 m grid, or the coarser
+    `adaptive.cost_cell_m` of a cloud spread thinner than a point per 64 m² (no labelled file
+    is: the grids tried on them are in `experiments/results/adaptive_rules_masf.md`); a call
+    that settles them also drops ground spikes (`adaptive.finish`). A coarser grid scales the
+    alpha pyramid with it (alpha_min is twice the grid), so it keeps its layers."""
+    cell, fixed = adaptive.cost_cell_m(terrain), Config()
+    if cell <= fixed.grid_m:
+        return {}
+    scale = cell / fixed.grid_m
+    return {"grid_m": cell, "alpha_max_m": fixed.alpha_max_m * scale, "alpha_step_m": fixed.alpha_step_m * scale}

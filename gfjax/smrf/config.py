@@ -118,5 +118,9 @@ PRESETS: dict[str, dict[str, object]] = {
 
 def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
     """SMRF's values that follow the cloud (`gfjax.adaptive`): the cell, coarser for sparse
-    last returns (`adaptive.raster_cell_m`)."""
-    return {"cell_m": adaptive.raster_cell_m(terrain)}
+    last returns (`adaptive.raster_cell_m`); a cell coarser than a third of the window (a
+    cloud spread thinner than `adaptive.cost_cell_m` allows) widens the window to three
+    cells, so the opening still grows over three radii."""
+    cell = adaptive.raster_cell_m(terrain)
+    window = Config().window_m
+    return {"cell_m": cell} if 3 * cell <= window else {"cell_m": cell, "window_m": 3 * cell}

@@ -46,6 +46,44 @@ def max_local_workers() -> tuple[int, str]:
                   f"{budget / 2**30:.1f} GiB at about {WORKER_BYTES / 2**30:.0f} GiB a worker")
 
 
+# Points of a survey per local worker, at least, for the worker to pay for itself. A local
+# cluster starts its workers in a few seconds (a 4-file survey: 6.3-7.3 s on 2 workers, 2.0-3.6 s
+# in one process), and 2 workers on 2 cores filter about 1.25x as fast as one process (36 copies
+# of bcts_2, 30 M points: 80 s against 103 s, experiments/results/dask_scale.md): sharing gains
+# a fifth of the filtering time, which passes a few seconds at about 6 M points (0.3 M points/s).
+MIN_POINTS_PER_WORKER = 3_000_000
+
+
+def local_workers(asked: int | str, points: int) -> tuple[int, str | None]:
+    """Workers of a local cluster for a survey of `points` points (from the headers), and the
+    line to say when that is not what was asked (None when it is).
+
+    `asked` is a count (`--workers N`: at most `max_local_workers`) or "auto" (one a core, as
+    many as the memory budget holds). Either way no more than one worker per
+    `MIN_POINTS_PER_WORKER` points; 0 (filter in this process, no cluster) when that leaves one
+    worker where more were asked, or none.
+
+    Raises:
+      InputError: more workers asked than `max_local_workers`.
+    """
+    most, why = max_local_workers()
+    if asked == "auto":
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        wanted = max(1, min(cores, most))
+    else:
+        if asked > most:
+            raise InputError(f"--workers {asked}: at most {most} on this machine ({why})")
+        wanted = asked
+    pays = points // MIN_POINTS_PER_WORKER
+    workers = min(wanted, pays)
+    if workers < 2 and (wanted >= 2 or workers == 0):
+        return 0, (f"--workers {asked}: {points:,} points are too few for a cluster to pay for its start "
+                   f"(about {MIN_POINTS_PER_WORKER:,} points a worker); filtering in this process")
+    if workers < wanted or asked == "auto":
+        return workers, f"--workers {asked}: {workers} workers for {points:,} points"
+    return workers, None
+
+
 def available() -> None:
     """Raise `InputError` when `dask.distributed` is not installed (pip install 'gfjax[dask]')."""
     try:

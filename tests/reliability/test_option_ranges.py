@@ -191,17 +191,21 @@ def test_two_points_far_apart_are_filtered_apart(method, tmp_path, capsys, monke
     assert np.array_equal(laspy.read(tmp_path / "out.las").classification, [2, 2])
 
 
-@pytest.mark.parametrize("method, what", [("csf", "a cloth of 49,9"), ("masf", "a grid of 49,9"),
-                                          ("dmf", "the whole-cloud rasters of 49,9"),
-                                          ("smrf", "the whole-cloud rasters of 8,3"),   # 6 m cells: points 70 m apart
-                                          ("pmf", "the whole-cloud rasters of 8,3")])
-def test_one_group_over_the_budget_is_refused_after_reading(method, what, tmp_path, capsys, monkeypatch):
+# The cells are given: left to the rules, a cloud this thin gets cells coarse enough for its
+# points (`adaptive.cost_cell_m`) and fits the budget.
+@pytest.mark.parametrize("method, cell, what", [("csf", "cell_m=1", "a cloth of 49,9"),
+                                                ("masf", "grid_m=1", "a grid of 49,9"),
+                                                ("dmf", "voxel_m=1", "the whole-cloud rasters of 49,9"),
+                                                ("smrf", "cell_m=6", "the whole-cloud rasters of 8,3"),
+                                                ("pmf", "cell_m=6", "the whole-cloud rasters of 8,3")])
+def test_one_group_over_the_budget_is_refused_after_reading(method, cell, what, tmp_path, capsys, monkeypatch):
     las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
     steps = np.arange(0.0, 50_000.0, 50.0)                           # a chain of points 50 m apart
     las.x, las.y, las.z = steps, steps, np.zeros_like(steps)
     las.write(tmp_path / "line.las")
     monkeypatch.setenv(limits.BUDGET_ENV, "1")
-    code, _, err = run_cli(capsys, "filter", tmp_path / "line.las", "-o", tmp_path / "out.laz", "--method", method)
+    code, _, err = run_cli(capsys, "filter", tmp_path / "line.las", "-o", tmp_path / "out.laz", "--method", method,
+                           "--set", cell)
     assert code == 2 and what in error_line(err) and "memory budget of 1.0 GiB" in error_line(err)
     assert sorted(os.listdir(tmp_path)) == ["line.las"]
 

@@ -27,6 +27,15 @@ pytestmark = pytest.mark.slow
 cloudpickle.register_pickle_by_value(sys.modules[__name__])
 
 
+@pytest.fixture(autouse=True)
+def every_survey_pays_for_a_cluster(monkeypatch):
+    """The small surveys here would run in process (`cluster.local_workers`): let them reach the
+    cluster, which is what these tests are about."""
+    from gfjax.survey import cluster
+
+    monkeypatch.setattr(cluster, "MIN_POINTS_PER_WORKER", 1)
+
+
 @pytest.fixture(scope="module")
 def grid(tmp_path_factory):
     folder = tmp_path_factory.mktemp("cluster")
@@ -174,11 +183,12 @@ def test_a_failing_task_is_named_and_nothing_is_written(grid, client, tmp_path):
 
 @pytest.mark.parametrize("options, message", [
     (["--workers", "0"], "--workers"),
+    (["--workers", "two"], "or auto"),
     (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "give one"),
     (["--workers", "2", "--independent"], "drop --independent"),
     (["--scheduler", "tcp://127.0.0.1:1"], "no Dask scheduler answers"),
     (["--scheduler", "http://127.0.0.1:8786"], "not a Dask scheduler address"),
-], ids=["zero", "both", "independent", "no-scheduler", "not-an-address"])
+], ids=["zero", "not-a-number", "both", "independent", "no-scheduler", "not-an-address"])
 def test_bad_cluster_options_are_one_line(grid, tmp_path, capsys, options, message):
     import dask
 
@@ -242,3 +252,43 @@ def test_a_peer_that_sends_what_no_scheduler_sends_is_bad_input(reply):
         with pytest.raises(InputError, match=f"--scheduler {address}: "):
             with cluster.client(scheduler=address):
                 pass
+
+
+@pytest.mark.parametrize("asked, points, workers", [
+    (2, 1_000, 0), (2, 5_999_999, 0), (2, 6_000_000, 2), (4, 9_000_000, 3), (1, 3_000_000, 1), (1, 2_999_999, 0),
+    ("auto", 1_000, 0)])
+def test_a_local_cluster_is_only_as_large_as_the_survey_pays_for(monkeypatch, asked, points, workers):
+    from gfjax.survey import cluster
+
+    monkeypatch.setattr(cluster, "MIN_POINTS_PER_WORKER", 3_000_000)
+    monkeypatch.setattr(cluster, "max_local_workers", lambda: (8, "a test"))
+    got, note = cluster.local_workers(asked, points)
+    assert got == workers
+    assert (note is None) == (got == asked)
+    if got == 0:
+        assert "too few" in note and "in this process" in note
+
+
+def test_auto_takes_a_worker_a_core(monkeypatch):
+    from gfjax.survey import cluster
+
+    monkeypatch.setattr(cluster, "max_local_workers", lambda: (8, "a test"))
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2}, raising=False)
+    assert cluster.local_workers("auto", 10 ** 9) == (3, "--workers auto: 3 workers for 1,000,000,000 points")
+
+
+def test_workers_on_a_survey_too_small_says_so_and_filters_here(grid, tmp_path, capsys, monkeypatch):
+    from gfjax.survey import cluster
+
+    monkeypatch.setattr(cluster, "MIN_POINTS_PER_WORKER", 10 ** 9)
+    monkeypatch.setattr(cluster, "client", lambda **kw: pytest.fail("no cluster for a small survey"))
+    (tmp_path / "one").mkdir()
+    (tmp_path / "asked").mkdir()
+    sets = ["--method", "smrf", "--tile-size", "40", "--buffer", "8"]
+    assert main(["filter", *map(str, grid), "-o", str(tmp_path / "one"), *sets]) == 0
+    capsys.readouterr()
+    assert main(["filter", *map(str, grid), "-o", str(tmp_path / "asked"), "--workers", "2", *sets]) == 0
+    assert "--workers 2:" in capsys.readouterr().err
+    for path in grid:
+        np.testing.assert_array_equal(las_io.read(tmp_path / "asked" / path.name).classification,
+                                      las_io.read(tmp_path / "one" / path.name).classification)
