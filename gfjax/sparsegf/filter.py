@@ -20,8 +20,8 @@ from gfjax.sparsegf.config import DECISION_FIELDS, DENSITY_SLACK, LEVEL_TOLERANC
 from gfjax.sparsegf.features import cloud_features, n_features
 from gfjax.sparsegf.model import Model
 from gfjax.sparsegf.partition import PartitionConfig, partition
-from gfjax.sparsegf.pipeline import (PACK_SLOTS, WARM_KEPT, WARM_MEMBERS, capacity, group, pack, predict, prepare,
-                                     prepare_point_inputs, run_with_room, unpack)
+from gfjax.sparsegf.pipeline import (PACK_SLOTS, PACK_VOXELS, SMALL_PACK_VOXELS, WARM_KEPT, WARM_MEMBERS, capacity,
+                                     group, pack, predict, prepare, prepare_point_inputs, run_with_room, unpack)
 from gfjax.sparsegf.smrf_prior import smrf_heights
 from gfjax.sparsegf.vote import decide, soft_vote
 
@@ -90,7 +90,8 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
     running: collections.deque = collections.deque()
     with concurrent.futures.ThreadPoolExecutor(IN_FLIGHT, thread_name_prefix="sparsegf-pack") as pool:
         for todo in group(patches(xyz_m, config, cloud_feats=cloud_feats), PACK_SLOTS):
-            packed = pack(todo, PACK_SLOTS, plans)
+            small = sum(len(p.coords) for p in todo) <= SMALL_PACK_VOXELS
+            packed = pack(todo, PACK_SLOTS, plans, min_capacity=SMALL_PACK_VOXELS if small else PACK_VOXELS)
             running.append((packed, pool.submit(run, packed)))
             if len(running) > IN_FLIGHT:
                 finish(*running.popleft())
@@ -109,41 +110,44 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
     return np.asarray(vote.prob_ground)[:n], np.asarray(vote.count)[:n], len(index)
 
 
-WARM_SIDE_M = 120.0          # the generated scene `warm` filters: a flat square of this side [m]
-WARM_POINTS = 30_000
+WARM_SIDE_M = 120.0          # the generated scenes `warm` filters: flat squares of this side [m],
+WARM_POINTS = 30_000         # one a full pack,
+WARM_SMALL_SIDE_M = 20.0     # one a small pack
+WARM_SMALL_POINTS = 400
 
 
 @cache.persistent
 def warm(config: Config | None = None, params=None, *, progress: bool = False) -> int:
     """Load or compile ahead the programs a cloud's patches run (`gfjax warmup`; the command
-    line keeps them): the shipped network on a pack of the smallest capacity
-    (`pipeline.PACK_VOXELS` voxels) with its standard plan, the costly one, by filtering a small
-    generated scene; then the per-patch feature program at every padded patch size of
+    line keeps them): the shipped network on packs of `pipeline.PACK_VOXELS` and
+    `pipeline.SMALL_PACK_VOXELS` voxels with their standard plans, the costly ones, by
+    filtering two small generated scenes; then the per-patch feature program at every padded patch size of
     `pipeline.WARM_MEMBERS` x `pipeline.WARM_KEPT`, into JAX's persistent cache (none when
     that cache is off). The vote program of another cloud size still compiles on first use
     (0.1 s), and so do SMRF's programs for a model that reads SMRF's surface, unless
     `gfjax.smrf.warm` prepared them (`gfjax warmup` does both). Returns the number of
-    programs prepared: 1 network and the feature programs."""
+    programs prepared: 2 networks and the feature programs."""
     import jax
 
     from gfjax.io.cloud import Cloud
 
     rng = np.random.default_rng(0)
-    xy = rng.uniform(0.0, WARM_SIDE_M, (WARM_POINTS, 2))
-    z = 100.0 + 0.02 * xy[:, 0] + rng.normal(0.0, 0.05, WARM_POINTS)
     model, trained_with = load_model()
     config = trained_with if config is None else config
-    filter(Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], z])), config=config, params=params, progress=progress,
-           model=model)
+    for side_m, n in ((WARM_SIDE_M, WARM_POINTS), (WARM_SMALL_SIDE_M, WARM_SMALL_POINTS)):
+        xy = rng.uniform(0.0, side_m, (n, 2))
+        z = 100.0 + 0.02 * xy[:, 0] + rng.normal(0.0, 0.05, n)
+        filter(Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], z])), config=config, params=params,
+               progress=progress, model=model)
     if not jax.config.jax_compilation_cache_dir:       # JAX's cache is off: nothing would be kept
-        return 1
+        return 2
     sizes = [(m, k) for m in WARM_MEMBERS for k in WARM_KEPT if k <= m]
     if progress:
         from tqdm.auto import tqdm
         sizes = tqdm(sizes, desc="sparsegf patch sizes", unit="program")
     for members, kept in sizes:
         prepare_point_inputs(config, members, kept)
-    return 1 + len(sizes)
+    return 2 + len(sizes)
 
 
 def load_model(path=None) -> tuple[Model, Config]:

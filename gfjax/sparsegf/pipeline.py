@@ -49,6 +49,10 @@ MIN_POINTS = 4_096         # smallest point capacity of the per-patch feature pr
 # sparser or denser than that compiles its own on first use (0.85 s each).
 WARM_MEMBERS = tuple(2 ** i for i in range(14, 22))
 WARM_KEPT = tuple(2 ** i for i in range(14, 18))
+# The pack of a cloud whose patches hold this many voxels in all, or fewer: the network costs
+# what its pack's capacity costs, so a few hundred points do not pay for `PACK_VOXELS` rows
+# (a 30-point file: 2.9 s and 785 MB whole process with a full pack).
+SMALL_PACK_VOXELS = 8_192
 POINTS_PER_VOXEL = 4       # central point rows of a pack per voxel row
 # Patches per network call at most when classifying. A pack costs about the same whatever it
 # holds, so small patches (a sparse cloud's, a cloud's edges) share one; the batch index only
