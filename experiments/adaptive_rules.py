@@ -39,6 +39,15 @@ def _smrf_cell(t) -> float:
     return smrf.adapt(t)["cell_m"]
 
 
+def _coarse_cell(t) -> dict:
+    """`cell_m` where the spacing rule coarsens it (sparse last returns), nothing elsewhere, so
+    a candidate with it shares its runs on every other file."""
+    from gfjax import adaptive
+
+    cell = adaptive.raster_cell_m(t)
+    return {} if cell == 1.0 else {"cell_m": cell}
+
+
 # Candidates per method: name -> terrain -> field values. "fixed" is the method's fixed defaults.
 CANDIDATES: dict[str, dict[str, Rule]] = {
     "pmf": {
@@ -76,6 +85,7 @@ CANDIDATES: dict[str, dict[str, Rule]] = {
         "trend 30+rigid by slope": lambda t: {"trend_m": 30.0,
                                               "rigidness": 3 if t.slope_p90 < 0.15 else (2 if t.slope_p90 < 0.4 else 1)},
         "rigid by slope": lambda t: {"rigidness": 3 if t.slope_p90 < 0.15 else (2 if t.slope_p90 < 0.4 else 1)},
+        "trend 30+rigid 1+cell": lambda t: {"trend_m": 30.0, "rigidness": 1, **_coarse_cell(t)},
     },
     "masf": {
         "fixed": lambda t: {},
