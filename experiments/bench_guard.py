@@ -43,6 +43,7 @@ def cases(scratch: Path) -> list[guard.Case]:
 
     def survey(*more: str) -> guard.Side:
         out = scratch / ("independent" if more else "survey")
+        out.mkdir(exist_ok=True)
         return guard.Side((*GFJAX, "filter", *map(str, tiles), "-o", str(out), "--force", "--method", "smrf", *more))
 
     return [
@@ -111,6 +112,9 @@ def main() -> int:
 
         recorded = {} if args.record else record["ratios"]
         rows = guard.check(chosen, recorded, pairs=args.pairs, report=report)
+    except guard.GuardError as err:
+        print(f"bench_guard: {err}", file=sys.stderr)
+        return 2
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     command = "nice .venv/bin/python experiments/bench_guard.py " + " ".join(sys.argv[1:])
