@@ -2,7 +2,8 @@
 
 Ground is class 2 (`--ground-class` to change it). Cells hold the mean ground elevation; empty
 cells are filled by TIN linear interpolation through triangles no longer than `--max-edge`;
-the rest is nodata (-9999). The GeoTIFF has the input's CRS and its vertical unit.
+the rest is nodata (-9999). The GeoTIFF has the input's CRS and its vertical unit, and is
+cloud-optimised (COG: tiled, with overviews), so QGIS or a web map opens it at any zoom.
 """
 from __future__ import annotations
 

@@ -23,7 +23,7 @@ from gfjax.io import crs as crs_lib
 from gfjax.io.atomic import atomic_output
 
 NODATA = -9999.0
-TILE_PX = 256                  # GeoTIFF block size; rasters larger than this are tiled
+TILE_PX = 256                  # GeoTIFF block size (COG tiles)
 
 
 def cloud_rasterio_crs(cloud) -> rasterio.crs.CRS | None:
@@ -40,7 +40,8 @@ def cloud_rasterio_crs(cloud) -> rasterio.crs.CRS | None:
 
 def write_geotiff(path, z: np.ndarray, *, transform: Affine, crs: rasterio.crs.CRS | None,
                   nodata: float = NODATA) -> None:
-    """Write one float32 band, deflate-compressed (floating-point predictor), atomically.
+    """Write one float32 band as a cloud-optimised GeoTIFF (GDAL's COG driver: 256 x 256
+    tiles, overviews, deflate with the floating-point predictor), atomically.
 
     Args:
       path: target `.tif`; its folder must exist.
@@ -49,17 +50,16 @@ def write_geotiff(path, z: np.ndarray, *, transform: Affine, crs: rasterio.crs.C
       crs: rasterio CRS, or None (the file then has none).
       nodata: stored as the band's nodata value.
 
-    Rasters larger than 256 cells on a side are tiled in 256 x 256 blocks.
+    A COG opens at any zoom without reading the whole file, in QGIS or over HTTP, and is an
+    ordinary GeoTIFF to every other reader.
     """
     z = np.asarray(z)
     if z.ndim != 2 or z.size == 0:
         raise ValueError(f"z must be a non-empty (h, w) raster, got shape {z.shape}")
     h, w = z.shape
-    profile = dict(driver="GTiff", height=h, width=w, count=1, dtype="float32", crs=crs,
-                   transform=transform, nodata=nodata, compress="deflate", predictor=3,
-                   BIGTIFF="IF_SAFER")
-    if max(h, w) > TILE_PX:
-        profile.update(tiled=True, blockxsize=TILE_PX, blockysize=TILE_PX)
+    profile = dict(driver="COG", height=h, width=w, count=1, dtype="float32", crs=crs,
+                   transform=transform, nodata=nodata, compress="deflate", predictor="YES",
+                   blocksize=TILE_PX, BIGTIFF="IF_SAFER")
     with atomic_output(path, force=True) as tmp, _gdal_messages():
         with rasterio.open(tmp, "w", **profile) as dst:
             dst.write(z.astype(np.float32), 1)
