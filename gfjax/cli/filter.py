@@ -83,6 +83,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="add a uint32 extra-bytes dimension instance_id (methods that give one)")
     parser.add_argument("--dtm", default=None, metavar="DTM.tif",
                         help="also write a DTM GeoTIFF from the ground points (a folder for several inputs)")
+    parser.add_argument("--hillshade", action="store_true",
+                        help="with --dtm: also write each DTM's hillshade beside it (DTM.png)")
     parser.add_argument("--dtm-mosaic", default=None, metavar="MOSAIC.tif",
                         help="with --dtm and several inputs: also join their DTMs into one GeoTIFF, "
                              "written once every file is done")
@@ -126,9 +128,13 @@ def run(args: argparse.Namespace) -> int:
                                      rename_suffix=".tif")
     if args.dtm_mosaic is not None and args.dtm is None:
         raise InputError(f"--dtm-mosaic {args.dtm_mosaic}: needs --dtm (the per-file DTMs it joins)")
+    if args.hillshade and args.dtm is None:
+        raise InputError("--hillshade: needs --dtm (the DTMs it shades)")
+    shades = [hillshade_target(t) for t in dtm_targets if t is not None and args.hillshade]
     # Every output before any file is read: none may exist (or be an input) without --force.
     _job.check_outputs([*(("-o", t, las_io.LAS_SUFFIXES) for t in targets),
                         *(("--dtm", t, TIF_SUFFIXES) for t in dtm_targets if t is not None),
+                        *(("--hillshade", t, (".png",)) for t in shades),
                         *((("--dtm-mosaic", args.dtm_mosaic, TIF_SUFFIXES),) if args.dtm_mosaic else ())],
                        inputs=inputs, force=args.force)
     if args.dtm_mosaic is not None and Path(args.dtm_mosaic).resolve() in set(map(Path.resolve, dtm_targets)):
@@ -411,15 +417,16 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
 
 def _write(labelled, target: Path, dtm_target: Path | None, cloud, ground: np.ndarray,
            args: argparse.Namespace, inputs, halo_ground_m: np.ndarray | None = None) -> None:
-    """Write the classified cloud, and its DTM with `--dtm`: both or neither.
+    """Write the classified cloud, and its DTM with `--dtm` (and the DTM's hillshade with
+    `--hillshade`): all or none.
 
     In a survey the DTM also takes the ground points of the file's halo (`halo_ground_m`,
     metres), so adjacent files' DTMs give their shared border cells the same values.
 
     The DTM is built before anything is written (no ground points, a grid over the memory
     budget: nothing written), then written while the cloud's temporary file waits to be
-    renamed; if the cloud then fails, the DTM this call wrote is removed again, and a DTM that
-    was there before (`--force`) is put back, so the old pair stays a pair.
+    renamed; if the cloud then fails, the rasters this call wrote are removed again, and those
+    that were there before (`--force`) are put back, so the old set stays a set.
     """
     if dtm_target is None:
         las_io.write(labelled, target, force=args.force, input_paths=inputs, exclusive=not args.force)
@@ -433,22 +440,32 @@ def _write(labelled, target: Path, dtm_target: Path | None, cloud, ground: np.nd
     kept: list[Path] = []          # the earlier DTM, moved aside until the cloud is in place
     written = []
 
+    rasters = [(dtm_target, dtm.to_geotiff)]
+    if args.hillshade:
+        rasters.append((hillshade_target(dtm_target), dtm.to_png))
+
     def write_dtm() -> None:
-        if dtm_target.exists():
-            backup = atomic.temporary_name(dtm_target)
-            os.replace(dtm_target, backup)
-            kept.append(backup)
-        dtm.to_geotiff(dtm_target)
-        written.append(dtm_target)
+        for path, write in rasters:
+            if path.exists():
+                backup = atomic.temporary_name(path)
+                os.replace(path, backup)
+                kept.append((backup, path))
+            write(path)
+            written.append(path)
 
     try:
         las_io.write(labelled, target, force=args.force, input_paths=inputs, before_commit=write_dtm,
                      exclusive=not args.force)
     except BaseException:
-        if written:
-            dtm_target.unlink(missing_ok=True)
-        if kept:
-            os.replace(kept[0], dtm_target)
+        for path in written:
+            path.unlink(missing_ok=True)
+        for backup, path in kept:
+            os.replace(backup, path)
         raise
-    if kept:
-        kept[0].unlink(missing_ok=True)
+    for backup, _ in kept:
+        backup.unlink(missing_ok=True)
+
+
+def hillshade_target(dtm_target: Path) -> Path:
+    """Where `--hillshade` writes a DTM's hillshade: beside it, `.png` for `.tif`."""
+    return Path(dtm_target).with_suffix(".png")

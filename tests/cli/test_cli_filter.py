@@ -155,6 +155,27 @@ def test_dtm_option_writes_a_geotiff_with_the_crs(tmp_path, capsys, fake_methods
         assert dtm.res == (2.0, 2.0)
 
 
+def test_hillshade_option_writes_each_dtms_shade_beside_it(tmp_path, capsys, fake_methods):
+    pytest.importorskip("gfjax.dtm")
+    import matplotlib.image
+    import rasterio
+
+    src = write_scene(tmp_path / "in.laz")
+    args = ("filter", src, "-o", tmp_path / "out.laz", "--method", "fake", "--dtm", tmp_path / "dtm.tif", "--cell", "2")
+    code, _, err = run_cli(capsys, *args, "--hillshade")
+    assert code == 0, err
+    shade = matplotlib.image.imread(tmp_path / "dtm.png")
+    with rasterio.open(tmp_path / "dtm.tif") as dtm:
+        assert shade.ndim == 3 and shade.shape[:2] == dtm.shape
+    (tmp_path / "out.laz").unlink()
+    (tmp_path / "dtm.tif").unlink()
+    code, _, err = run_cli(capsys, *args, "--hillshade")          # the shade left there: refused, nothing written
+    assert code == 2 and "--hillshade" in error_line(err) and "dtm.png" in error_line(err)
+    assert sorted(os.listdir(tmp_path)) == ["dtm.png", "in.laz"]
+    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz", "--method", "fake", "--hillshade")
+    assert code == 2 and error_line(err) == "gfjax: error: --hillshade: needs --dtm (the DTMs it shades)"
+
+
 def test_unknown_method_and_missing_package(tmp_path, capsys, monkeypatch):
     src = write_scene(tmp_path / "in.laz")
     code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.laz", "--method", "nosuch")
