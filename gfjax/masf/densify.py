@@ -19,6 +19,8 @@
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from typing import NamedTuple
 
 import numpy as np
@@ -110,7 +112,7 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
             shape: tuple[int, int], cell_m: float, st: float, ft_m: float,
             pit_drop_m: float = 1.0, pit_slope: float | None = 1.0, pit_cap_m: float = 4.0,
             nearest_facet: bool = False, layer_passes: int = 3, retest_earlier: bool = False,
-            retriangulate: bool = False) -> Densified:
+            retriangulate: bool = False, step: Callable[[str], None] = lambda name: None) -> Densified:
     """Label ground points by top-down densification of the layer TINs.
 
     Args:
@@ -129,6 +131,8 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
         ground, each with the DT of the first layer that held it (no extra triangulation).
       retriangulate: the reference path: triangulate the TIN again with Qhull after each pass
         instead of inserting the accepted points, and retest every waiting point.
+      step: told when each layer below the top one, and then the labelling, is done
+        (`n_layers` calls; a progress bar).
     """
     n_layers, n_seeds = layers.shape
     seed_xyz = points_m[seeds]
@@ -174,9 +178,11 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
             start = tin.vertex_to_simplex[old.simplices[facet[stale], 0]]
             distance_m[stale], facet[stale] = tin.measure(seed_xyz[candidates[stale]], nearest_facet=nearest_facet,
                                                           start=start)
+        step(f"layer {level + 1} of {n_layers}")
     ground = np.zeros(len(points_m), dtype=bool)
     ground[seeds[in_tin]] = True
     rest = np.flatnonzero(~ground)
     if len(rest):
         ground[rest[tin.distance_m(points_m[rest], nearest_facet=nearest_facet) < ft_m]] = True
+    step("every point")
     return Densified(ground, in_tin, added, tin.rebuilds)

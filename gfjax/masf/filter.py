@@ -31,6 +31,9 @@ point and fewer than 4 points come out all ground.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+
+import contextlib
 import functools
 import time
 from typing import NamedTuple
@@ -112,7 +115,8 @@ class Prepared(NamedTuple):
         return self.local[self.pre.index]
 
 
-def prepare(xyz_m: np.ndarray, config: Config, frame: Frame | None = None) -> Prepared:
+def prepare(xyz_m: np.ndarray, config: Config, frame: Frame | None = None, *,
+            step: Callable[[str], None] = lambda name: None) -> Prepared:
     """Preprocess and triangulate once (steps 1 and the start of 2 of the module docstring).
 
     Args:
@@ -121,6 +125,7 @@ def prepare(xyz_m: np.ndarray, config: Config, frame: Frame | None = None) -> Pr
       frame: a survey's frame (`gfjax.io.tiles.Frame`): the grid's origin is then the corner of
         the survey's lattice cell that holds the minimum corner, so a window of the survey
         grids its points as the whole survey in one file does.
+      step: told when each of its `PREPARE_STEPS` stages is done (a progress bar).
     """
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
@@ -133,6 +138,7 @@ def prepare(xyz_m: np.ndarray, config: Config, frame: Frame | None = None) -> Pr
                                       neighbour_drop_m=config.neighbour_drop_m,
                                       max_cluster_cells=config.low_cluster_max_cells)
     seconds["preprocess"] = time.perf_counter() - clock
+    step("preprocess")
     faces = geometry = None
     bottom_z, inside = np.zeros(pre.shape), np.zeros(pre.shape, bool)
     if len(pre.index):
@@ -140,6 +146,7 @@ def prepare(xyz_m: np.ndarray, config: Config, frame: Frame | None = None) -> Pr
         clock = time.perf_counter()
         faces = tin.delaunay_faces(seed_xyz)
         seconds["delaunay_3d"] = time.perf_counter() - clock
+        step("triangulate")
         clock = time.perf_counter()
         bottom_z, inside = tin.bottom_surface(seed_xyz, pre.row, pre.col, pre.shape, cell_m=config.grid_m)
         if faces is not None:
@@ -158,7 +165,8 @@ def pyramid(prep: Prepared, config: Config) -> np.ndarray:
                                     alphas, cell_m=config.grid_m, tol_m=config.empty_tol_m)
 
 
-def densify(prep: Prepared, layers: np.ndarray, config: Config, params: Params) -> densify_mod.Densified:
+def densify(prep: Prepared, layers: np.ndarray, config: Config, params: Params, *,
+            step: Callable[[str], None] = lambda name: None) -> densify_mod.Densified:
     """Multiscale TIN densification of the pyramid `layers` (`pyramid`) with `DT_k = ST *
     alpha_k + FT` (Eq. 2): ground of every point of `prep.local`."""
     return densify_mod.densify(prep.local, prep.pre.index, layers, config.alphas_m(), shape=prep.pre.shape,
@@ -166,22 +174,29 @@ def densify(prep: Prepared, layers: np.ndarray, config: Config, params: Params) 
                                  pit_drop_m=config.neighbour_drop_m, pit_slope=config.pit_slope,
                                  pit_cap_m=config.pit_cap_m, nearest_facet=config.distance == "nearest_facet",
                                  layer_passes=config.layer_passes, retest_earlier=config.retest_earlier,
-                                 retriangulate=config.retriangulate)
+                                 retriangulate=config.retriangulate, step=step)
 
 
-def filter_points(xyz_m: np.ndarray, config: Config, params: Params,
-                  frame: Frame | None = None) -> tuple[np.ndarray, Diagnostics]:
+# Stages `prepare` reports to its `step`; `filter_points` adds the pyramid and, through
+# `densify`, one a layer.
+PREPARE_STEPS = 2
+
+
+def filter_points(xyz_m: np.ndarray, config: Config, params: Params, frame: Frame | None = None, *,
+                  step: Callable[[str], None] = lambda name: None) -> tuple[np.ndarray, Diagnostics]:
     """MASF on an array of points: `prepare`, `pyramid`, `densify`.
 
     Args:
       xyz_m: float64 `(n, 3)` metres (any origin; the minimum corner is subtracted here).
       config, params: as for `filter`.
       frame: as for `prepare`.
+      step: told when each stage is done: `PREPARE_STEPS + 1 + len(config.alphas_m())` calls
+        (fewer for a cloud with no potential ground point).
 
     Returns:
       `(ground, diagnostics)`: bool `(n,)` and a `Diagnostics` (indices into `xyz_m`).
     """
-    prep = prepare(xyz_m, config, frame)
+    prep = prepare(xyz_m, config, frame, step=step)
     alphas = config.alphas_m()
     empty_diag = dict(potential_ground=prep.pre.index, alphas_m=alphas, occupied_cells=int(prep.pre.occupied.sum()),
                       neighbour_outliers=prep.pre.neighbour_outliers, origin_m=prep.origin, seconds=prep.seconds)
@@ -192,8 +207,9 @@ def filter_points(xyz_m: np.ndarray, config: Config, params: Params,
     clock = time.perf_counter()
     layers = pyramid(prep, config)
     prep.seconds["alpha_shape"] += time.perf_counter() - clock
+    step("alpha shapes")
     clock = time.perf_counter()
-    result = densify(prep, layers, config, params)
+    result = densify(prep, layers, config, params, step=step)
     prep.seconds["densify"] = time.perf_counter() - clock
     return result.ground, Diagnostics(layers=layers, added_per_layer=result.added_per_layer,
                                           bottom_z_m=prep.bottom_z + prep.origin[2],
@@ -212,7 +228,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       config: static settings (`Config()`: alpha_max 20 m, step 2 m, grid 1 m).
       params: thresholds (`Params()`: ST 0.05, FT 0.5 m).
       returns: "all" or "last".
-      progress: accepted for the common interface; MASF runs as one pass (no bar).
+      progress: a progress bar over its stages and layers (stderr).
 
     Returns:
       `Result(ground, diagnostics)`: bool `(n,)` over the whole cloud (unused points False) and
@@ -223,7 +239,6 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       InputError: a bad `returns`, `params` out of range, naming the option, or a grid over
         the memory budget (`gfjax.limits`).
     """
-    del progress
     config = Config() if config is None else config
     params = Params() if params is None else params
     try:
@@ -242,8 +257,24 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
             return apart
     xyz = cloud.xyz_m
     check_memory(cloud.name, config.memory_estimates, xyz[used_index, :2])
-    ground_used, diagnostics = filter_points(xyz[used_index], config, params, cloud.frame)
+    with _stages_bar(progress, PREPARE_STEPS + 1 + len(config.alphas_m())) as step:
+        ground_used, diagnostics = filter_points(xyz[used_index], config, params, cloud.frame, step=step)
     ground = np.zeros(cloud.n_points, dtype=bool)
     ground[used_index] = ground_used
     diagnostics = diagnostics._replace(potential_ground=used_index[diagnostics.potential_ground])
     return Result(ground=ground, diagnostics=diagnostics)
+
+
+@contextlib.contextmanager
+def _stages_bar(progress: bool, total: int):
+    """A `step(name)` that advances a tqdm bar of `total` stages, or does nothing."""
+    if not progress:
+        yield lambda name: None
+        return
+    from tqdm.auto import tqdm
+
+    with tqdm(total=total, desc="masf", unit="stage", leave=False) as bar:
+        def step(name: str) -> None:
+            bar.set_postfix_str(name, refresh=False)
+            bar.update()
+        yield step

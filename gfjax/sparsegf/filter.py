@@ -39,14 +39,17 @@ class Diagnostics(NamedTuple):
 
 
 def patches(xyz_m: np.ndarray, config: Config, *, angle: float | Callable[[], float] = 0.0, seed: int = 0,
-            shift_m=(0.0, 0.0), cloud_feats: np.ndarray | None = None):
+            shift_m=(0.0, 0.0), cloud_feats: np.ndarray | None = None, count: Callable[[int], None] | None = None):
     """Every voxelized patch of a cloud, in partition order (`angle`: a rotation about z [rad]
     for every patch, or a function drawing one per patch; `cloud_feats`: the cloud's
-    `features.cloud_features`, computed here when None and the feature set has some)."""
+    `features.cloud_features`, computed here when None and the feature set has some; `count`
+    is told the number of patches once the partition is made, before the first is yielded)."""
     if cloud_feats is None:
         cloud_feats = cloud_features(xyz_m, config.features)
     part = partition(xyz_m, PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m),
                      shift_m=shift_m)
+    if count is not None:
+        count(sum(len(batch.patch_id) for batch in part.batches))
     for batch in part.batches:
         for row, pid in enumerate(batch.patch_id):
             members = batch.index[row][batch.valid[row]]
@@ -89,7 +92,11 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
 
     running: collections.deque = collections.deque()
     with concurrent.futures.ThreadPoolExecutor(IN_FLIGHT, thread_name_prefix="sparsegf-pack") as pool:
-        for todo in group(patches(xyz_m, config, cloud_feats=cloud_feats), PACK_SLOTS):
+        def total(n: int) -> None:
+            if bar is not None:
+                bar.reset(total=n)
+
+        for todo in group(patches(xyz_m, config, cloud_feats=cloud_feats, count=total), PACK_SLOTS):
             small = sum(len(p.coords) for p in todo) <= SMALL_PACK_VOXELS
             packed = pack(todo, PACK_SLOTS, plans, min_capacity=SMALL_PACK_VOXELS if small else PACK_VOXELS)
             running.append((packed, pool.submit(run, packed)))
