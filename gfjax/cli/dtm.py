@@ -4,6 +4,9 @@ Ground is class 2 (`--ground-class` to change it). Cells hold the mean ground el
 cells are filled by TIN linear interpolation through triangles no longer than `--max-edge`;
 the rest is nodata (-9999). The GeoTIFF has the input's CRS and its vertical unit, and is
 cloud-optimised (COG: tiled, with overviews), so QGIS or a web map opens it at any zoom.
+
+`--surface chm` writes the canopy height model instead: per cell, the highest point's height
+above the ground TIN (negative heights 0, empty cells nodata), on the DTM's lattice.
 """
 from __future__ import annotations
 
@@ -20,13 +23,17 @@ from gfjax.io import las as las_io
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    parser = subparsers.add_parser("dtm", help="build a DTM GeoTIFF from a file's ground points (class 2)",
+    parser = subparsers.add_parser("dtm", help="build a DTM GeoTIFF from a file's ground points (class 2), "
+                                                "or a canopy height model",
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("input", metavar="IN", help="classified LAS/LAZ file")
     parser.add_argument("-o", "--output", required=True, metavar="DTM.tif", help="GeoTIFF to write")
     parser.add_argument("--cell", type=positive_float, default=1.0, metavar="M", help="cell size [m] (default 1)")
     parser.add_argument("--max-edge", type=number, default=100.0, metavar="M",
                         help="longest TIN edge that fills empty cells [m] (default 100; inf: no limit)")
+    parser.add_argument("--surface", choices=("ground", "chm"), default="ground",
+                        help="ground: the DTM (default); chm: the canopy height model, each cell's highest "
+                             "height above ground")
     parser.add_argument("--hillshade", default=None, metavar="PNG", help="also write a hillshade PNG")
     parser.add_argument("--ground-class", type=ranged("--ground-class"), default=2, metavar="CODE",
                         help="class code of ground points (default 2)")
@@ -64,7 +71,10 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     cloud = las_io.read(source, units=args.units)
     ground = cloud.classification == np.uint8(args.ground_class)
-    dtm = dtm_lib.build(cloud, ground, cell_m=args.cell, max_edge_m=args.max_edge)
+    if args.surface == "chm":
+        dtm = dtm_lib.chm(cloud, ground, cell_m=args.cell)
+    else:
+        dtm = dtm_lib.build(cloud, ground, cell_m=args.cell, max_edge_m=args.max_edge)
     dtm.to_geotiff(args.output)
     if args.hillshade:
         dtm.to_png(args.hillshade)

@@ -45,7 +45,7 @@ RANGES: dict[str, limits.Range] = {
 }
 DEFAULTS = {"cell_m": 1.0, "max_edge_m": 100.0}
 # z and the TIN fill (float64), counts (int64), masks and the float32 copy written [bytes per cell].
-_BYTES_PER_CELL = 48
+BYTES_PER_CELL = 48
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -120,7 +120,7 @@ def memory_estimate(extent_m: tuple[float, float], cell_m: float) -> limits.Esti
     """The DTM raster over an x, y extent [m] at `cell_m` [m] (`gfjax.limits.check_memory`)."""
     w, h = (limits.raster_side(e, cell_m) for e in extent_m)
     return limits.Estimate(f"a DTM of {h:,} x {w:,} cells of {cell_m:g} m (extent / --cell)",
-                           float(h) * float(w) * _BYTES_PER_CELL)
+                           float(h) * float(w) * BYTES_PER_CELL)
 
 
 def snapped_grid(xy: np.ndarray, cell: float) -> tuple[int, int, int, int]:
@@ -248,7 +248,7 @@ def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.
     col0, row_top, h, w = snapped_grid(covered, cell)
     try:
         limits.check_memory([limits.Estimate(f"a DTM of {h:,} x {w:,} cells of {cell_m:g} m (extent / --cell)",
-                                             float(h) * float(w) * _BYTES_PER_CELL)])
+                                             float(h) * float(w) * BYTES_PER_CELL)])
     except ValueError as err:
         raise InputError(f"{name}: {err}; use a larger --cell or split the file") from None
     origin = np.array([col0 * cell, row_top * cell, 0.0])  # north-west corner, file units

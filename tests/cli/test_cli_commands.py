@@ -105,6 +105,18 @@ def test_dtm_of_isprs_sample_has_epsg_32632(tmp_path, capsys):
     assert sorted(os.listdir(tmp_path)) == ["dtm.tif", "hs.png"]
 
 
+def test_dtm_surface_chm_writes_heights_over_the_dtm_lattice(tmp_path, capsys):
+    pytest.importorskip("gfjax.dtm")
+    rasterio = pytest.importorskip("rasterio")
+    for surface in ("ground", "chm"):
+        code, _, err = run_cli(capsys, "dtm", demo_sample(), "-o", tmp_path / f"{surface}.tif", "--surface", surface)
+        assert code == 0, err
+    with rasterio.open(tmp_path / "ground.tif") as dtm, rasterio.open(tmp_path / "chm.tif") as chm:
+        assert chm.transform == dtm.transform and chm.crs == dtm.crs
+        heights = chm.read(1, masked=True)
+        assert heights.min() >= 0.0 and 5.0 < heights.max() < 60.0       # samp12: houses and trees
+
+
 def test_dtm_without_ground_points(tmp_path, capsys):
     pytest.importorskip("gfjax.dtm")
     src = write_scene(tmp_path / "in.laz")

@@ -1,0 +1,67 @@
+"""Canopy height model: per cell, the highest point's height above the ground.
+
+The forest user's first raster, as lidR's `rasterize_canopy(p2r())` and LAStools' `lasgrid
+-highest` on normalised heights make it: each point's height over the ground TIN
+(`gfjax.dtm.hag`), the highest of each cell, on the DTM's lattice (cell edges on whole
+multiples of the cell, so a CHM and a DTM of one cell size lie on each other). Heights below
+the ground (a point under the TIN between ground points) count as 0; a cell without a point is
+nodata. Noise and withheld points are left out (`cloud.ignored`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from gfjax import limits
+from gfjax.dtm.build import BYTES_PER_CELL, DTM, check_options, snapped_grid
+from gfjax.dtm.geotiff import NODATA, cloud_rasterio_crs
+from gfjax.dtm.hag import height_above_ground
+from gfjax.errors import InputError
+
+__all__ = ["chm"]
+
+
+def chm(cloud, ground, *, cell_m: float = 1.0) -> DTM:
+    """The canopy height model of `cloud` over its `ground` points.
+
+    Args:
+      cloud: the point cloud; coordinates in file units (never converted).
+      ground: bool `(n,)`, the points that make the terrain (`cloud.classification == 2`, a
+        filter's `Result.ground`).
+      cell_m: cell size in metres (`cell_m / cloud.horizontal_unit_m` file units).
+
+    Returns:
+      A raster of the `DTM` class: `z` float64 `(h, w)` heights in the file's vertical unit
+      (nodata -9999 in empty cells), `count` int32 `(h, w)` points per cell.
+
+    Raises:
+      InputError: a bad cell, a `ground` of the wrong shape, no ground point, or a grid over
+        the memory budget; the message names the file.
+    """
+    name = cloud.name
+    cell_m, _ = check_options(name, cell_m=cell_m)
+    ground = np.asarray(ground)
+    if ground.dtype != np.bool_ or ground.shape != (cloud.n_points,):
+        raise InputError(f"{name}: ground must be a bool array of shape ({cloud.n_points},), "
+                         f"got {ground.dtype} {ground.shape}")
+    if not ground.any():
+        raise InputError(f"{name}: no ground points (class 2 or filter result), cannot build a CHM")
+    cell = cell_m / cloud.horizontal_unit_m
+    used = ~np.asarray(cloud.ignored, bool) | ground
+    xyz = cloud.xyz[used]
+    col0, row_top, h, w = snapped_grid(xyz[:, :2], cell)
+    try:
+        limits.check_memory([limits.Estimate(f"a CHM of {h:,} x {w:,} cells of {cell_m:g} m (extent / --cell)",
+                                             float(h) * float(w) * BYTES_PER_CELL)])
+    except ValueError as err:
+        raise InputError(f"{name}: {err}; use a larger --cell or split the file") from None
+    height = np.maximum(height_above_ground(xyz, ground[used]), 0.0)
+    col = np.floor(xyz[:, 0] / cell).astype(np.int64) - col0          # the DTM's floors
+    row = (row_top - 1) - np.floor(xyz[:, 1] / cell).astype(np.int64)
+    flat = row * w + col
+    top = np.full(h * w, -np.inf)
+    np.maximum.at(top, flat, height)
+    count = np.bincount(flat, minlength=h * w).reshape(h, w).astype(np.int32)
+    z = np.where(np.isfinite(top), top, NODATA).reshape(h, w)
+    return DTM(z=z, count=count, origin=(float(col0 * cell), float(row_top * cell)), cell=float(cell),
+               crs=cloud_rasterio_crs(cloud), horizontal_unit_m=cloud.horizontal_unit_m,
+               vertical_unit_m=cloud.vertical_unit_m)
