@@ -85,9 +85,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="also write a DTM GeoTIFF from the ground points (a folder for several inputs)")
     parser.add_argument("--hillshade", action="store_true",
                         help="with --dtm: also write each DTM's hillshade beside it (DTM.png)")
-    parser.add_argument("--dtm-mosaic", default=None, metavar="MOSAIC.tif",
-                        help="with --dtm and several inputs: also join their DTMs into one GeoTIFF, "
-                             "written once every file is done")
+    parser.add_argument("--dtm-mosaic", default=None, metavar="MOSAIC.tif|.vrt",
+                        help="with --dtm and several inputs: also join their DTMs into one GeoTIFF, or a "
+                             "GDAL virtual mosaic (.vrt: the DTMs stay where they are), written once every "
+                             "file is done")
     parser.add_argument("--cell", type=positive_float, default=1.0, metavar="M",
                         help="DTM cell size [m] (default 1)")
     parser.add_argument("--independent", action="store_true",
@@ -135,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
     _job.check_outputs([*(("-o", t, las_io.LAS_SUFFIXES) for t in targets),
                         *(("--dtm", t, TIF_SUFFIXES) for t in dtm_targets if t is not None),
                         *(("--hillshade", t, (".png",)) for t in shades),
-                        *((("--dtm-mosaic", args.dtm_mosaic, TIF_SUFFIXES),) if args.dtm_mosaic else ())],
+                        *((("--dtm-mosaic", args.dtm_mosaic, (*TIF_SUFFIXES, ".vrt")),) if args.dtm_mosaic else ())],
                        inputs=inputs, force=args.force)
     if args.dtm_mosaic is not None and Path(args.dtm_mosaic).resolve() in set(map(Path.resolve, dtm_targets)):
         raise InputError(f"--dtm-mosaic {args.dtm_mosaic}: same path as a file's DTM")

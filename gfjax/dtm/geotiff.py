@@ -95,18 +95,20 @@ def _gdal_messages():
         held.close()
 
 
-__all__ = ["NODATA", "cloud_rasterio_crs", "write_geotiff", "mosaic"]
+__all__ = ["NODATA", "cloud_rasterio_crs", "write_geotiff", "mosaic", "write_vrt"]
 
 
 def mosaic(paths, target) -> tuple[int, int]:
     """Join DTM GeoTIFFs that lie on one lattice (`gfjax.dtm.build` snaps every cell edge to
     whole multiples of the cell) into one GeoTIFF, with `rasterio.merge.merge`; where two
     overlap, the first file in `paths` that has a value wins (a survey's DTMs agree on their
-    shared border cells). Written atomically, like `write_geotiff`.
+    shared border cells). Written atomically, like `write_geotiff`. A `target` ending in
+    `.vrt` is a GDAL virtual mosaic instead (`write_vrt`): the files stay where they are and
+    nothing is copied, so it costs no memory whatever the survey's size.
 
     Args:
       paths: the DTM files (one CRS and cell size).
-      target: the mosaic `.tif`.
+      target: the mosaic `.tif` (or `.vrt`).
 
     Returns: the mosaic's `(h, w)`.
 
@@ -117,13 +119,12 @@ def mosaic(paths, target) -> tuple[int, int]:
 
     from gfjax import limits
 
+    if str(target).lower().endswith(".vrt"):
+        return write_vrt(paths, target)
     sources = [rasterio.open(p) for p in paths]
     try:
         first = sources[0]
-        for src in sources[1:]:
-            if src.crs != first.crs or src.res != first.res:
-                raise InputError(f"{src.name}: CRS or cell size differ from {first.name}; cannot join them "
-                                 "into one mosaic")
+        _check_joinable(sources)
         left = min(s.bounds.left for s in sources)
         right = max(s.bounds.right for s in sources)
         bottom = min(s.bounds.bottom for s in sources)
@@ -132,8 +133,8 @@ def mosaic(paths, target) -> tuple[int, int]:
         try:
             limits.check_memory([limits.Estimate(f"a DTM mosaic of {h:,} x {w:,} cells", 8.0 * h * w)])
         except ValueError as err:
-            raise InputError(f"{target}: {err}; use a larger --cell, or join the DTMs with GDAL "
-                             "(gdalbuildvrt)") from None
+            raise InputError(f"{target}: {err}; use a larger --cell, or a virtual mosaic (a .vrt "
+                             "target), which copies nothing") from None
         with warnings.catch_warnings():   # rasterio.merge still composes transforms with `*`
             warnings.filterwarnings("ignore", "Use `@` matmul", PendingDeprecationWarning)
             z, transform = rasterio.merge.merge(sources, nodata=NODATA)
@@ -142,3 +143,65 @@ def mosaic(paths, target) -> tuple[int, int]:
     finally:
         for src in sources:
             src.close()
+
+
+def _check_joinable(sources) -> None:
+    first = sources[0]
+    for src in sources[1:]:
+        if src.crs != first.crs or src.res != first.res:
+            raise InputError(f"{src.name}: CRS or cell size differ from {first.name}; cannot join them "
+                             "into one mosaic")
+
+
+def write_vrt(paths, target) -> tuple[int, int]:
+    """A GDAL virtual raster (VRT, GDAL's XML format) that mosaics DTM GeoTIFFs on one lattice
+    without copying them: each file a source placed at its cells, its nodata transparent, the
+    first file of `paths` on top where two overlap (as `mosaic`). Sources are named relative
+    to the VRT's folder, so the folder can move as a whole. GDAL (`gdalinfo`, QGIS, rasterio)
+    opens it as one raster. Written atomically.
+
+    No library at hand writes one (GDAL's `BuildVRT` is not reachable through rasterio), and
+    the format is GDAL's documented XML (gdal.org, "VRT -- GDAL Virtual Format").
+
+    Returns: the mosaic's `(h, w)`.
+
+    Raises:
+      InputError: files whose CRS or cell size differ.
+    """
+    import xml.etree.ElementTree as ET
+
+    target = os.path.abspath(target)
+    sources = [rasterio.open(p) for p in paths]
+    try:
+        _check_joinable(sources)
+        first = sources[0]
+        cell_x, cell_y = first.res
+        left = min(s.bounds.left for s in sources)
+        top = max(s.bounds.top for s in sources)
+        right = max(s.bounds.right for s in sources)
+        bottom = min(s.bounds.bottom for s in sources)
+        w, h = round((right - left) / cell_x), round((top - bottom) / cell_y)
+        root = ET.Element("VRTDataset", rasterXSize=str(w), rasterYSize=str(h))
+        if first.crs is not None:
+            ET.SubElement(root, "SRS", dataAxisToSRSAxisMapping="1,2").text = first.crs.to_wkt()
+        ET.SubElement(root, "GeoTransform").text = f"{left!r}, {cell_x!r}, 0.0, {top!r}, 0.0, {-cell_y!r}"
+        band = ET.SubElement(root, "VRTRasterBand", dataType="Float32", band="1")
+        ET.SubElement(band, "NoDataValue").text = repr(NODATA)
+        for src in reversed(sources):                     # drawn in order: the first file last, on top
+            item = ET.SubElement(band, "ComplexSource")
+            name = os.path.relpath(os.path.abspath(src.name), os.path.dirname(target))
+            ET.SubElement(item, "SourceFilename", relativeToVRT="1").text = name
+            ET.SubElement(item, "SourceBand").text = "1"
+            size = dict(xSize=str(src.width), ySize=str(src.height))
+            ET.SubElement(item, "SrcRect", xOff="0", yOff="0", **size)
+            ET.SubElement(item, "DstRect", xOff=str(round((src.bounds.left - left) / cell_x)),
+                          yOff=str(round((top - src.bounds.top) / cell_y)), **size)
+            ET.SubElement(item, "NODATA").text = repr(NODATA)
+        ET.indent(root)
+        text = ET.tostring(root, encoding="unicode") + "\n"
+    finally:
+        for src in sources:
+            src.close()
+    with atomic_output(target, force=True) as tmp, open(tmp, "w", encoding="utf-8") as out:
+        out.write(text)
+    return h, w

@@ -89,3 +89,27 @@ def test_hillshade_png(samp12_dtm, tmp_path):
     np.testing.assert_array_equal(rgba[..., 3] > 0, valid)          # nodata is transparent
     shade = samp12_dtm.hillshade()
     np.testing.assert_allclose(rgba[valid, 0], shade[valid], atol=2.5 / 255)     # 256-entry LUT, 8-bit PNG
+
+
+def test_a_vrt_mosaic_reads_as_the_geotiff_mosaic_and_moves_with_its_folder(tmp_path):
+    import shutil
+
+    from gfjax.dtm import mosaic
+
+    rng = np.random.default_rng(4)
+    folder = tmp_path / "survey"
+    (folder / "dtm").mkdir(parents=True)
+    crs = rasterio.crs.CRS.from_epsg(32632)
+    paths = []
+    for k, (x0, y0, h, w) in enumerate([(500_000.0, 5_000_040.0, 30, 40), (500_038.0, 5_000_050.0, 25, 30),
+                                        (500_010.0, 5_000_010.0, 20, 20)]):
+        z = rng.uniform(100, 110, (h, w))
+        z[rng.random((h, w)) < 0.1] = -9999.0                       # holes: the next file shows through
+        paths.append(folder / "dtm" / f"t{k}.tif")
+        write_geotiff(paths[-1], z, transform=Affine(1.0, 0.0, x0, 0.0, -1.0, y0), crs=crs)
+    assert mosaic(paths, folder / "m.tif") == mosaic(paths, folder / "m.vrt")
+    shutil.move(folder, tmp_path / "moved")
+    with rasterio.open(tmp_path / "moved" / "m.tif") as tif, rasterio.open(tmp_path / "moved" / "m.vrt") as vrt:
+        assert vrt.driver == "VRT" and vrt.crs == tif.crs and vrt.transform == tif.transform
+        assert vrt.nodata == tif.nodata
+        np.testing.assert_array_equal(vrt.read(1), tif.read(1))
