@@ -16,7 +16,7 @@ install: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/gfjax demo --force
-	$(BIN)/gfjax warmup
+	$(BIN)/gfjax warmup --methods smrf
 
 test: lint
 	$(BIN)/python -m pytest -n 2 -q

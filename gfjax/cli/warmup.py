@@ -3,7 +3,7 @@
 A method that pads its rasters and point arrays to a few canonical shapes
 (`gfjax.io.tiles.canonical_sides`) runs the same handful of programs on every file; this
 command loads or compiles them into the program cache (`~/.cache/gfjax`), so the first
-`gfjax filter` of a new file starts at once. `make demo` runs it; run it again after
+`gfjax filter` of a new file starts at once. `make demo` runs it for SMRF; run it again after
 upgrading gfjax or JAX (the cached programs are keyed to both). Methods without canonical
 shapes compile on their first run of each new input size, as before.
 """
