@@ -75,10 +75,12 @@ def _gdal_messages():
     saved = os.dup(2)
     held = tempfile.TemporaryFile()
     os.dup2(held.fileno(), 2)
+    from rasterio._err import CPLE_BaseError      # GDAL's own errors (e.g. building the overviews)
+
     failed = False
     try:
         yield
-    except OSError as err:
+    except (OSError, rasterio.errors.RasterioError, CPLE_BaseError) as err:
         failed = True
         os.dup2(saved, 2)
         held.seek(0)
