@@ -32,8 +32,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import gfjax  # noqa: E402
-from experiments.common import (  # noqa: E402
-    DATA, files_parser, isprs_samples, score, write_json)
+from experiments.common import DATA, files_parser, isprs_samples, score, write_json  # noqa: E402
 from gfjax import csf  # noqa: E402
 
 DEFAULT_FILES = [*isprs_samples(), DATA / "lasR_bcts" / "bcts_1.laz"]

@@ -27,7 +27,6 @@ from pathlib import Path
 
 import numpy as np
 import psutil
-
 from survey_scale import GFJAX, ROOT, write_survey
 
 RESULTS = ROOT / "experiments" / "results"
@@ -141,7 +140,7 @@ def main():
 
         n_points = sum(laspy.open(p).header.point_count for p in paths)
         modes = {"one process": (), "--workers 1": ("--workers", "1"), "--workers 2": ("--workers", "2")}
-        for name, extra in modes.items():                    # untimed: fills the program caches
+        for extra in modes.values():                          # untimed: fills the program caches
             run(paths[:4], tmp / "warm", args.method, extra)
         for name, extra in modes.items():
             row = run(paths, tmp / "out", args.method, extra) | {"run": name, "points": n_points}

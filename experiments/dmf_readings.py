@@ -35,6 +35,7 @@ from gfjax.dmf import extract
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from experiments.common import DATA as SHARED  # noqa: E402  ($GFJAX_SHARED_DATA; docs/development.md, "Data")
+
 SAMPLES = ["samp12", "samp21", "samp22", "samp24", "samp31", "samp41", "samp42", "samp51", "samp52", "samp54", "samp71"]
 BCTS = ["bcts_1", "bcts_2"]
 FOREST_RMSE_M = 0.3           # DTM RMSE against the vendor ground at most 0.3 m

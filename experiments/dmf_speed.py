@@ -34,14 +34,15 @@ from unittest import mock
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import numpy as np  # noqa: E402
+
 import gfjax  # noqa: E402
+from experiments.common import DATA as SHARED_DATA  # noqa: E402  ($GFJAX_SHARED_DATA; docs/development.md, "Data")
 from gfjax import dmf  # noqa: E402
-from gfjax.dmf import basal, neighbours, voxels  # noqa: E402
 from gfjax.bench import harness  # noqa: E402
 from gfjax.bench.peers import PEERS  # noqa: E402
 from gfjax.bench.run import machine  # noqa: E402
-import numpy as np  # noqa: E402
-from experiments.common import DATA as SHARED_DATA  # noqa: E402  ($GFJAX_SHARED_DATA; docs/development.md, "Data")
+from gfjax.dmf import basal, neighbours, voxels  # noqa: E402
 
 REPEAT = 3
 DATA = (SHARED_DATA / "lasR_bcts" / "bcts_2.laz").resolve()

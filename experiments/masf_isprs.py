@@ -34,6 +34,7 @@ import gfjax  # noqa: E402
 from experiments.common import DATA, ISPRS_REFERENCE, ROOT, write_markdown  # noqa: E402
 from experiments.common import score as score_points  # noqa: E402
 from gfjax import masf, methods  # noqa: E402
+
 SAMPLES = ["samp12", "samp21", "samp22", "samp24", "samp31", "samp41", "samp42", "samp51", "samp52",
            "samp54", "samp71"]
 

@@ -31,10 +31,10 @@ import jax  # noqa: E402
 import jax.numpy as jnp
 import numpy as np
 from jax.experimental import serialize_executable
+from raster_speed import terrain  # noqa: E402  (a script beside this one)
 
 from gfjax.raster.morphology import opening
 from gfjax.smrf import stages
-from raster_speed import terrain  # noqa: E402  (a script beside this one)
 
 RADIUS_PX = 18
 

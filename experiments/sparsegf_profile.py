@@ -28,8 +28,8 @@ import platform
 import sys
 from pathlib import Path
 
-import jax
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 

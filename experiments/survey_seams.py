@@ -22,8 +22,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from gfjax import methods
-from gfjax import survey
+from gfjax import methods, survey
 from gfjax.io import las as las_io
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,7 +86,7 @@ def main():
             start = time.perf_counter()
             store = folder / f"store_{name}"
             store.mkdir()
-            for (cloud, result), keep in zip(survey.filtered(files, module, store, config=config), members):
+            for (_, result), keep in zip(survey.filtered(files, module, store, config=config), members):
                 catalog[keep] = result.ground
             catalog_s = time.perf_counter() - start
             start = time.perf_counter()

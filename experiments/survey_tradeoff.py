@@ -20,7 +20,6 @@ import tempfile
 from pathlib import Path
 
 import laspy
-
 from survey_scale import RESULTS, SOURCE, run, write_survey
 
 

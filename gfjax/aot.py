@@ -54,9 +54,9 @@ import stat as stat_
 import sys
 import threading
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
-from collections.abc import Callable, Sequence
 
 __all__ = ["enable", "disable", "release", "enabled_folder", "private_folder", "call", "programs", "prefetch", "prefetching", "program_key",
            "on_compile",

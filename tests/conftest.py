@@ -47,6 +47,7 @@ if os.environ.get("GFJAX_TYPECHECK", "1") == "1":
 
     jaxtyping.install_import_hook("gfjax", "typecheck.checker")
 import gfjax  # noqa: E402,F401
+
 del os.environ["GFJAX_CACHE"]
 if os.environ.get("GFJAX_TEST_JAX_CACHE", "1") == "1":
     # a program one worker or subprocess compiled, another loads: the suite spends most of its

@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 
 import gfjax
-from gfjax import aot, dmf
-from gfjax import cache
+from gfjax import aot, cache, dmf
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "dmf"))
 import dmf_scenes as scenes  # noqa: E402

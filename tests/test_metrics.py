@@ -231,7 +231,7 @@ def test_soft_losses_gradients(soft_fns, kind):
     prob, ref, valid = _soft_case(5, kind)
     for name in ("te_raw", "kappa_raw"):
         f = soft_fns[name]
-        check_grads(lambda p: f(p, ref, valid), (prob,), order=1, modes=["rev"], eps=1e-2,
+        check_grads(lambda p, f=f: f(p, ref, valid), (prob,), order=1, modes=["rev"], eps=1e-2,
                     atol=1e-2, rtol=1e-2)
         g = jax.grad(f)(prob, ref, valid)
         assert np.all(np.isfinite(np.asarray(g)))

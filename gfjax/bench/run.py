@@ -167,7 +167,7 @@ def document(records: list[dict], *, repeat: int, notes: Sequence[str], command:
     from gfjax import __version__
 
     return {"schema": SCHEMA, "gfjax_version": __version__, "command": command,
-            "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "machine": machine(), "repeat": repeat, "threads": threads,
             "compile_cache": compile_cache, "dtm_cell_m": 2.0, "notes": list(notes),
             "runs": records, "summary": summarize(records)}

@@ -119,7 +119,7 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
             if estimates is not None:
                 limits.check_memory(estimates())
             if dtm_cell_m is not None:
-                from gfjax import dtm as dtm_lib         # scipy and matplotlib: only for a DTM
+                from gfjax import dtm as dtm_lib  # scipy and matplotlib: only for a DTM
 
                 limits.check_memory([dtm_lib.memory_estimate(extent, dtm_cell_m)])
         except ValueError as err:

@@ -46,10 +46,10 @@ def _output_folder(text: str) -> Path:
 def plot_demo(path: Path, cloud, ground, dtm, *, title: str) -> None:
     """Plan view of the points coloured ground / non-ground beside the hillshaded DTM (PNG)."""
     import numpy as np
-    from scipy import ndimage
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.patches import Patch
+    from scipy import ndimage
 
     from gfjax.io.atomic import atomic_output
 

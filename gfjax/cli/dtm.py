@@ -16,8 +16,7 @@ import time
 import numpy as np
 
 from gfjax.cli import _job
-from gfjax.cli._common import (TIF_SUFFIXES, add_units_option, check_inputs, number, positive_float,
-                               ranged)
+from gfjax.cli._common import TIF_SUFFIXES, add_units_option, check_inputs, number, positive_float, ranged
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 

@@ -51,9 +51,19 @@ from pathlib import Path
 import numpy as np
 
 from gfjax.cli import _job
-from gfjax.cli._common import (TIF_SUFFIXES, add_method_options, add_units_option, method_setup,
-                               nonnegative_float, output_targets, positive_float, say_crs_warning, workers_count,
-                               say_written_versions, class_list)
+from gfjax.cli._common import (
+    TIF_SUFFIXES,
+    add_method_options,
+    add_units_option,
+    class_list,
+    method_setup,
+    nonnegative_float,
+    output_targets,
+    positive_float,
+    say_crs_warning,
+    say_written_versions,
+    workers_count,
+)
 from gfjax.errors import InputError
 from gfjax.io import atomic
 from gfjax.io import las as las_io

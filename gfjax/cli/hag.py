@@ -16,8 +16,15 @@ import time
 import numpy as np
 
 from gfjax.cli import _job
-from gfjax.cli._common import (add_method_options, add_units_option, check_inputs, method_setup,
-                               nonnegative_float, output_targets, ranged)
+from gfjax.cli._common import (
+    add_method_options,
+    add_units_option,
+    check_inputs,
+    method_setup,
+    nonnegative_float,
+    output_targets,
+    ranged,
+)
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 

@@ -16,8 +16,8 @@ from gfjax.cli import _job
 from gfjax.cli._common import add_units_option, check_inputs, ranged
 from gfjax.errors import InputError
 from gfjax.io.atomic import existing_output_message
-from gfjax.sparsegf.config import model_settings
 from gfjax.sparsegf.config import Config as _Config
+from gfjax.sparsegf.config import model_settings
 from gfjax.sparsegf.features import FEATURE_SETS
 
 DEFAULT_FEATURES = _Config.features

@@ -49,7 +49,6 @@ from gfjax.cli._common import add_units_option, check_inputs, positive_float, po
 from gfjax.errors import InputError
 
 
-
 def _positive_list(item: Callable[[str], float | int]) -> Callable[[str], tuple]:
     """argparse type: a non-empty comma-separated list, each value checked by `item`
     (`positive_float` for windows and time steps, `positive_int` for rigidness)."""
@@ -138,9 +137,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from gfjax.io import las as las_io
-
     from gfjax import methods
+    from gfjax.io import las as las_io
 
     tuning = methods.get(args.method).tuning
     if tuning is None:

@@ -54,8 +54,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from gfjax._types import Mask, Raster
 from gfjax.csf.config import DAMPING, GRAVITY, STOP_DISPLACEMENT_M, Config, double_move, single_move
-from gfjax.csf.wavefront import (EMPTY, FIXED, HALO, MOVABLE, PERIOD, Layout, add_halo, layout,
-                                 refresh_halo, relax_block)
+from gfjax.csf.wavefront import EMPTY, FIXED, HALO, MOVABLE, PERIOD, Layout, add_halo, layout, refresh_halo, relax_block
 
 __all__ = ["ClothState", "simulate", "sweep"]
 
@@ -201,7 +200,7 @@ def _result(c: _Carry, movable: Mask, *, lay: Layout) -> ClothState:
     return ClothState(u=u_end, movable=movable & ~fixed, max_step_m=c.last_max, steps=c.last_step + 1)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _runner(iterations: int, rigidness: int):
     """`run(u, u_prev, movable, present, heights, accel) -> ClothState`: steps 2-4 of step 0,
     then whole steps, until the cap or the stopping rule (`u`: heights after step 0's Verlet,

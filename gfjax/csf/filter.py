@@ -31,8 +31,8 @@ from gfjax.csf import stages
 from gfjax.csf.cloth import simulate
 from gfjax.csf.config import ADAPTED, BUFFER_PX, CLOTH_START_M, Config, Params, adapt
 from gfjax.csf.trend import trend_at
-from gfjax.io.cloud import CloudView
 from gfjax.io import groups
+from gfjax.io.cloud import CloudView
 from gfjax.io.tiled import check_memory, checked_options, filter_groups
 from gfjax.io.tiles import canonical_capacity
 from gfjax.result import Result
@@ -91,7 +91,7 @@ class Anchor(NamedTuple):
       top_u: float32 `()` the inverted height the cloth starts `CLOTH_START_M` above [m].
     """
 
-    corner_m: Float[Array, "2"]
+    corner_m: Float[Array, 2]
     top_u: Float[Array, ""]
 
 
@@ -152,7 +152,7 @@ class Surface(NamedTuple):
     heights: Raster
     has_point: Mask
     exists: Mask
-    corner_m: Float[Array, "2"]
+    corner_m: Float[Array, 2]
     start_u: Float[Array, ""]
 
 
@@ -191,7 +191,7 @@ def drop_cloth(surface: Surface, params: Params, *, config: Config) -> tuple[Ras
 
 
 @functools.partial(jax.jit, static_argnames="config")
-def classify(xyz: Points, valid: PointMask, corner_m: Float[Array, "2"], cloth_u: Raster, params: Params, *,
+def classify(xyz: Points, valid: PointMask, corner_m: Float[Array, 2], cloth_u: Raster, params: Params, *,
              config: Config) -> PointMask:
     """Step 5: ground where a valid point lies within `params.class_threshold_m` of the cloth
     (`corner_m`: the south-west particle, `Surface.corner_m`)."""

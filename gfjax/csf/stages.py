@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array, Bool, Float, Int
 
-from gfjax._types import Heights, Mask, PointMask, Raster, XY
+from gfjax._types import XY, Heights, Mask, PointMask, Raster
 from gfjax.csf.config import BUFFER_PX, MIN_SMOOTH_COMPONENT, SMOOTH_THRESHOLD_M
 from gfjax.raster import label_components
 

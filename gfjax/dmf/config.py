@@ -154,7 +154,7 @@ class Config:
         smallest voxel size W they allow (`voxel_m`, else 1 m: Eq. 1 rounds W up to whole
         metres): a batch of NGNEM tiles (`tiling` a `gfjax.io.tiles.Tiling`, None: its
         defaults), and with `extent_m` (the cloud's x, y extent [m]) the whole-cloud rasters."""
-        from gfjax.io.tiles import Tiling        # not at the top: `gfjax.io` imports laspy
+        from gfjax.io.tiles import Tiling  # not at the top: `gfjax.io` imports laspy
 
         cell = self.voxel_m if self.voxel_m is not None else _MIN_DATA_VOXEL_M
         tiling = Tiling() if tiling is None else tiling

@@ -31,8 +31,8 @@ from scipy.spatial import cKDTree
 
 from gfjax import aot
 from gfjax.dmf.config import Config, Params
-from gfjax.dmf.voxels import Voxels
 from gfjax.dmf.shapes import raster_shape
+from gfjax.dmf.voxels import Voxels
 from gfjax.io.tiles import Tiling, canonical_capacity
 from gfjax.raster import inpaint_nearest, replicate_edges, sample_bilinear
 

@@ -26,8 +26,8 @@ from gfjax import adaptive, aot, cache
 from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import extract, neighbours, shapes, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params, adapt
-from gfjax.io.cloud import CloudView
 from gfjax.io import groups
+from gfjax.io.cloud import CloudView
 from gfjax.io.tiled import check_memory, checked_options, checked_tiling, filter_groups
 from gfjax.io.tiles import Tiling
 from gfjax.raster import label_components, relabel_consecutive

@@ -26,8 +26,14 @@ from jax import lax
 from jaxtyping import Array, Bool, Float, Int
 
 from gfjax._types import Labels, Mask, Raster
-from gfjax.raster import (boundary_ring, fill_holes, label_components, max_filter,
-                          nearest_valid_index, relabel_consecutive)
+from gfjax.raster import (
+    boundary_ring,
+    fill_holes,
+    label_components,
+    max_filter,
+    nearest_valid_index,
+    relabel_consecutive,
+)
 from gfjax.raster.label import shift
 
 __all__ = ["RasterStages", "raster_stages", "fill_ngnem", "rhc", "coverage", "equal_layer_regions",

@@ -75,7 +75,7 @@ def _gdal_messages():
     saved = os.dup(2)
     held = tempfile.TemporaryFile()
     os.dup2(held.fileno(), 2)
-    from rasterio._err import CPLE_BaseError      # GDAL's own errors (e.g. building the overviews)
+    from rasterio._err import CPLE_BaseError  # GDAL's own errors (e.g. building the overviews)
 
     failed = False
     try:

@@ -1,6 +1,6 @@
 """Reading and writing LAS/LAZ, CRS and units, ASPRS classes, tiles."""
-from gfjax.io.cloud import Cloud
 from gfjax.io.atomic import atomic_output, check_output
+from gfjax.io.cloud import Cloud
 from gfjax.io.las import expand_inputs, read, read_header, write
 from gfjax.io.units import Units
 

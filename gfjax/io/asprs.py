@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Set as AbstractSet
+
 import laspy
 import numpy as np
 

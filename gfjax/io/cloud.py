@@ -135,7 +135,7 @@ class Cloud:
             las.evlrs = self.las.evlrs
         return las
 
-    def with_classes(self, *, ignore=(), keep=()) -> "Cloud":
+    def with_classes(self, *, ignore=(), keep=()) -> Cloud:
         """This cloud with the classes `ignore` (never used, never relabelled; noise always)
         and `keep` (used as context, never relabelled) of `asprs.ClassRules`."""
         return dataclasses.replace(self, classes=asprs.ClassRules(frozenset(ignore), frozenset(keep)))
@@ -196,7 +196,7 @@ class Cloud:
         return use_mask(self.ignored, self.return_number, self.number_of_returns, returns)
 
     def with_ground(self, ground: np.ndarray, *, reset_nonground: bool = False,
-                    used: np.ndarray | None = None) -> "Cloud":
+                    used: np.ndarray | None = None) -> Cloud:
         """A copy whose classification says ground (2) / non-ground, per SPEC section 1.
 
         Ground points get class 2. Non-ground points that were class 2 become 1; other
@@ -214,7 +214,7 @@ class Cloud:
         las.classification = new
         return dataclasses.replace(self, las=las)
 
-    def with_z(self, z: np.ndarray) -> "Cloud":
+    def with_z(self, z: np.ndarray) -> Cloud:
         """A copy whose z are `z` (float `(n,)`, in the file's vertical unit; e.g. heights above
         ground), stored at the file's z scale with a z offset of 0; everything else as read."""
         z = np.asarray(z, np.float64)
@@ -227,7 +227,7 @@ class Cloud:
         las.z = z
         return dataclasses.replace(self, las=las)
 
-    def with_extra_dim(self, name: str, values: np.ndarray, *, description: str = "") -> "Cloud":
+    def with_extra_dim(self, name: str, values: np.ndarray, *, description: str = "") -> Cloud:
         """A copy with an extra-bytes dimension `name` set to `values` (shape `(n,)`).
 
         The dtype of `values` becomes the dimension's type (e.g. uint32 `instance_id`). An
@@ -246,7 +246,7 @@ class Cloud:
 
     @classmethod
     def from_xyz(cls, xyz: np.ndarray, *, classification: np.ndarray | None = None,
-                 scale: float = 0.001, point_format: int = 6, version: str = "1.4") -> "Cloud":
+                 scale: float = 0.001, point_format: int = 6, version: str = "1.4") -> Cloud:
         """An in-memory cloud from float64 metres `(n, 3)` (tests, synthetic scenes)."""
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
         header = laspy.LasHeader(point_format=point_format, version=version)

@@ -34,8 +34,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from gfjax import limits
-from gfjax.io import columns
 from gfjax.errors import SettingError
+from gfjax.io import columns
 from gfjax.limits import Range
 
 __all__ = ["Tiling", "Lattice", "RANGES", "Frame", "Tile", "TileBatch", "split", "small_batches", "capacity_bucket", "shape_bucket", "canonical_sides",

@@ -31,22 +31,22 @@ point and fewer than 4 points come out all ground.
 """
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import contextlib
 import functools
 import time
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
 
-from gfjax.errors import InputError
-from gfjax.io.cloud import CloudView
 from gfjax import adaptive, cache
+from gfjax.errors import InputError
 from gfjax.io import groups
+from gfjax.io.cloud import CloudView
 from gfjax.io.tiled import check_memory, filter_groups
 from gfjax.io.tiles import Frame
-from gfjax.masf import alpha_shape, densify as densify_mod, preprocess, tin
+from gfjax.masf import alpha_shape, preprocess, tin
+from gfjax.masf import densify as densify_mod
 from gfjax.masf.config import Config, Params, adapt
 from gfjax.result import Result
 

@@ -29,7 +29,7 @@ def _programs(config: Config, shape: tuple[int, int], batched: bool):
     ], key=(config, shape), batched=batched)
 
 
-def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host, "2"], params: Params, *,
+def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host, 2], params: Params, *,
                   config: Config, shape: tuple[int, int]) -> tuple[PointMask, TileDiagnostics]:
     """SMRF on one tile (Pingel et al. 2013, Sec. 2.1-2.4).
 

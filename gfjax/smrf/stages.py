@@ -164,7 +164,7 @@ def rasterize_min(xyz: Points, valid: PointMask, *, cell_m: float, shape: tuple[
     return cells.z_min, cells.valid
 
 
-def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, "2"], params: Params, *, config: Config) -> TileDiagnostics:
+def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, 2], params: Params, *, config: Config) -> TileDiagnostics:
     """The raster part of SMRF (Sec. 2.1-2.3) on one tile: ZImin, low outliers, the progressive
     opening, ZIpro and its slope.
 
@@ -191,7 +191,7 @@ def surfaces(z_min: Raster, filled: Mask, hw: Int[Array, "2"], params: Params, *
                        zipro=zipro, slope=slope, domain=domain)
 
 
-def classify_points(xyz: Points, valid: PointMask, zipro: Raster, slope: Raster, hw: Int[Array, "2"],
+def classify_points(xyz: Points, valid: PointMask, zipro: Raster, slope: Raster, hw: Int[Array, 2],
                     params: Params, *, cell_m: float) -> PointMask:
     """Sec. 2.4: a point is ground when `|z - ZIpro(x, y)| <= threshold + scalar * slope(x, y)`,
     both rasters sampled bilinearly between cell centres. bool `(n,)`, False where `~valid`."""

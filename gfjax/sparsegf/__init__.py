@@ -22,12 +22,12 @@ and the filter itself, with the same shape as every other method:
   files; `train`: the training loop (`gfjax train`); `features`: the per-point inputs.
 """
 from gfjax.method import Method
+from gfjax.sparsegf.compress import CENTRAL_TOL_M, R_IN_M, R_OC_M, R_OO_M, Compressed, compress, compression_ratio
 from gfjax.sparsegf.config import PRESETS, RANGES, Config
 from gfjax.sparsegf.filter import Diagnostics, filter, load_model, warm
-from gfjax.sparsegf.model import NET_PRESETS, Model, NetConfig, SparseGFNet, count_parameters, init
-from gfjax.sparsegf.compress import CENTRAL_TOL_M, R_IN_M, R_OC_M, R_OO_M, Compressed, compress, compression_ratio
 from gfjax.sparsegf.hag import HAG_BIN_EDGES_M, N_HAG_BINS, HagTargets, ground_surface, hag_bins, hag_targets
 from gfjax.sparsegf.loss import HAG_WEIGHTS, LAMBDA, HeightAwareLoss, height_aware_loss
+from gfjax.sparsegf.model import NET_PRESETS, Model, NetConfig, SparseGFNet, count_parameters, init
 from gfjax.sparsegf.partition import STEP_M, Partition, PartitionConfig, PatchBatch, capacity_bucket, partition
 from gfjax.sparsegf.vote import UNCOVERED, Vote, decide, soft_vote
 

@@ -65,7 +65,7 @@ def _check_radii(r_in, r_oc, r_oo) -> None:
                          f"r_oc={r_oc}, r_oo={r_oo}")
 
 
-def compress(xyz: Float[ArrayLike, "n 3"], center: Float[ArrayLike, "2"], *,
+def compress(xyz: Float[ArrayLike, "n 3"], center: Float[ArrayLike, 2], *,
              r_in: float | Float[Array, ""] = R_IN_M, r_oc: float | Float[Array, ""] = R_OC_M,
              r_oo: float | Float[Array, ""] = R_OO_M, valid: Bool[ArrayLike, " n"] | None = None) -> Compressed:
     """Compress the periphery of one cylindrical patch towards its axis (Eqs. 1-3).

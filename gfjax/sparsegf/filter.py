@@ -5,9 +5,9 @@ import collections
 import concurrent.futures
 import dataclasses
 import functools
+from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
-from collections.abc import Callable
 
 import numpy as np
 
@@ -20,8 +20,21 @@ from gfjax.sparsegf.config import DECISION_FIELDS, DENSITY_SLACK, LEVEL_TOLERANC
 from gfjax.sparsegf.features import cloud_features, n_features
 from gfjax.sparsegf.model import Model
 from gfjax.sparsegf.partition import PartitionConfig, partition
-from gfjax.sparsegf.pipeline import (PACK_SLOTS, PACK_VOXELS, SMALL_PACK_VOXELS, WARM_KEPT, WARM_MEMBERS, capacity,
-                                     group, pack, predict, prepare, prepare_point_inputs, run_with_room, unpack)
+from gfjax.sparsegf.pipeline import (
+    PACK_SLOTS,
+    PACK_VOXELS,
+    SMALL_PACK_VOXELS,
+    WARM_KEPT,
+    WARM_MEMBERS,
+    capacity,
+    group,
+    pack,
+    predict,
+    prepare,
+    prepare_point_inputs,
+    run_with_room,
+    unpack,
+)
 from gfjax.sparsegf.smrf_prior import smrf_heights
 from gfjax.sparsegf.vote import decide, soft_vote
 

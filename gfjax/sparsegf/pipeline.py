@@ -25,8 +25,8 @@ periphery is compressed about 4-13x in radius, so its voxels stay occupied.
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
 from collections.abc import Callable
+from typing import NamedTuple
 
 import equinox as eqx
 import jax

@@ -14,19 +14,17 @@ from types import ModuleType
 import numpy as np
 
 from gfjax import methods
-from gfjax.io import atomic
-from gfjax.io import las as las_io
-from gfjax.io import stream
-from gfjax.io.asprs import DEFAULT_RULES, ClassRules
 from gfjax.errors import InputError
-from gfjax.method import Method
+from gfjax.io import atomic, stream
+from gfjax.io import las as las_io
+from gfjax.io.asprs import DEFAULT_RULES, ClassRules
 from gfjax.io.cloud import Cloud
+from gfjax.io.tiles import Lattice, Tiling
+from gfjax.method import Method
 from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog, index
-from gfjax.io.tiles import Lattice, Tiling
-from gfjax.survey.halo import (HALO_M, Points, file_of_survey, filter_file, fits_whole, survey_config,
-                               survey_labels)
+from gfjax.survey.halo import HALO_M, Points, file_of_survey, filter_file, fits_whole, survey_config, survey_labels
 from gfjax.survey.lattice import TileLabels
 
 

@@ -155,7 +155,6 @@ def sample_distances(xyz_m: np.ndarray, use: np.ndarray, *, config: csf.Config,
       config: CSF static settings; cloths: grid codes (`encode`).
     """
     from gfjax import __version__
-
     from gfjax.csf.filter import detrended
 
     use = np.asarray(use, bool)

@@ -22,8 +22,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from gfjax.io.atomic import atomic_output
-from gfjax.params import declared_defaults
 from gfjax.io.params_file import read_params
+from gfjax.params import declared_defaults
 
 __all__ = ["Bound", "bound", "to_raw", "from_raw", "prior_penalty", "write_params", "read_params"]
 
@@ -73,7 +73,7 @@ def _row(values: list[float], like: ArrayLike) -> Array:
 
 
 def prior_penalty(raw: Float[ArrayLike, "... p"], bounds: Sequence[Bound],
-                  center: Float[ArrayLike, " p"] | None = None) -> Float[Array, "..."]:
+                  center: Float[ArrayLike, " p"] | None = None) -> Float[Array, ...]:
     """`sum_k ((value_k - center_k) / (hi_k - lo_k))^2`: distance to `center` (default: the
     bounds' defaults; a fit that starts from values the cloud chose passes those) on the
     bounded scale (0 there), summed over the last axis."""

@@ -63,7 +63,7 @@ def make_params(values: Float[Array, " 3"]) -> Params:
 
 
 @functools.partial(jax.jit, static_argnames=("config", "shape"))
-def prepare_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], *, config: Config,
+def prepare_tile(xyz: Points, valid: PointMask, hw: Int[Array, 2], *, config: Config,
                  shape: tuple[int, int]) -> Prepared:
     """The minimum surface and its openings, exactly as `gfjax.pmf.programs.classify_tile` computes them."""
     domain = domain_mask(hw, shape)

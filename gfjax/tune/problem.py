@@ -20,8 +20,8 @@ import numpy as np
 
 from gfjax.errors import InputError
 from gfjax.io import tiles as tiling_lib
-from gfjax.io.tiled import lattice_of
 from gfjax.io.cloud import Cloud
+from gfjax.io.tiled import lattice_of
 from gfjax.tune import methods as tmethods
 
 __all__ = ["Sample", "Bucket", "Problem", "block_ids", "block_folds"]
@@ -61,7 +61,7 @@ class Sample(NamedTuple):
         return self.use
 
     @classmethod
-    def from_cloud(cls, cloud: Cloud, *, returns: str = "all") -> "Sample":
+    def from_cloud(cls, cloud: Cloud, *, returns: str = "all") -> Sample:
         """Reference ground = ASPRS class 2 of the cloud (ISPRS: object = class 0)."""
         try:
             use = cloud.filter_mask(returns)

@@ -24,8 +24,8 @@ def _check_temperature(temperature) -> None:
         raise ValueError(f"temperature must be > 0 (or None for the hard test), got {temperature}")
 
 
-def greater(h: Float[ArrayLike, "..."], t: Float[ArrayLike, "..."],
-            temperature: float | Float[ArrayLike, ""] | None = None) -> Bool[Array, "..."] | Float[Array, "..."]:
+def greater(h: Float[ArrayLike, ...], t: Float[ArrayLike, ...],
+            temperature: float | Float[ArrayLike, ""] | None = None) -> Bool[Array, ...] | Float[Array, ...]:
     """`h > t`: hard bool with `temperature=None`, else `sigmoid((h - t) / temperature)`.
 
     Args:
@@ -42,8 +42,8 @@ def greater(h: Float[ArrayLike, "..."], t: Float[ArrayLike, "..."],
     return jax.nn.sigmoid((h - t) / temperature)
 
 
-def less_equal(h: Float[ArrayLike, "..."], t: Float[ArrayLike, "..."],
-               temperature: float | Float[ArrayLike, ""] | None = None) -> Bool[Array, "..."] | Float[Array, "..."]:
+def less_equal(h: Float[ArrayLike, ...], t: Float[ArrayLike, ...],
+               temperature: float | Float[ArrayLike, ""] | None = None) -> Bool[Array, ...] | Float[Array, ...]:
     """`h <= t`: hard bool with `temperature=None`, else `sigmoid((t - h) / temperature)`."""
     if temperature is None:
         return h <= t
@@ -52,7 +52,7 @@ def less_equal(h: Float[ArrayLike, "..."], t: Float[ArrayLike, "..."],
 
 
 def soft_or_max(margins: Float[ArrayLike, "k ..."], temperature: float | Float[ArrayLike, ""] | None = None,
-                *, axis: int = 0) -> Bool[Array, "..."] | Float[Array, "..."]:
+                *, axis: int = 0) -> Bool[Array, ...] | Float[Array, ...]:
     """`any(margins > 0)` along `axis`: hard bool, or `sigmoid(max(margins) / temperature)`.
 
     The relaxed OR of several threshold tests `h_k > t_k` (margins `h_k - t_k`) as the

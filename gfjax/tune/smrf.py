@@ -81,7 +81,7 @@ class Prepared(NamedTuple):
     candidate: Mask
     xyz: Points
     valid: PointMask
-    hw: Int[Array, "2"]
+    hw: Int[Array, 2]
 
 
 def make_params(values: Float[Array, " 3"]) -> Params:
@@ -90,7 +90,7 @@ def make_params(values: Float[Array, " 3"]) -> Params:
 
 
 @functools.partial(jax.jit, static_argnames=("config", "shape"))
-def prepare_tile(xyz: Points, valid: PointMask, hw: Int[Array, "2"], *, config: Config,
+def prepare_tile(xyz: Points, valid: PointMask, hw: Int[Array, 2], *, config: Config,
                  shape: tuple[int, int]) -> Prepared:
     """ZImin, low outliers and the opening sequence of one tile, as `gfjax.smrf.programs.classify_tile`
     computes them (steps 1-3 without the object test), up to `config.max_radius_px`."""

@@ -21,7 +21,10 @@ SCENE_CLASSES = np.array([2, 2, 1, 3, 6, 2, 7, 0], dtype=np.uint8)
 SCENE_Z = np.array([0.0, 0.1, 0.2, 3.0, 8.0, 9.0, -5.0, 0.3])
 
 
-def write_scene(path: Path, *, crs: pyproj.CRS | None = pyproj.CRS.from_epsg(32632),
+UTM32N = pyproj.CRS.from_epsg(32632)
+
+
+def write_scene(path: Path, *, crs: pyproj.CRS | None = UTM32N,
                 returns: np.ndarray | None = None) -> Path:
     """An 8-point LAS 1.4 / format 6 file on a 2 m grid near UTM 32N coordinates."""
     header = laspy.LasHeader(point_format=6, version="1.4")

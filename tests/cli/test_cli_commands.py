@@ -11,8 +11,7 @@ import laspy
 import numpy as np
 import pyproj
 import pytest
-from cli_helpers import (SCENE_CLASSES, error_line, fake_methods, no_compilation_cache,  # noqa: F401
-                         run_cli, write_scene)
+from cli_helpers import SCENE_CLASSES, error_line, fake_methods, no_compilation_cache, run_cli, write_scene  # noqa: F401
 from conftest import shared_file
 
 from gfjax.cli import eval as eval_cli

@@ -7,8 +7,7 @@ import os
 import laspy
 import numpy as np
 import pytest
-from cli_helpers import (SCENE_CLASSES, error_line, fake_methods, no_compilation_cache,  # noqa: F401
-                         run_cli, write_scene)
+from cli_helpers import SCENE_CLASSES, error_line, fake_methods, no_compilation_cache, run_cli, write_scene  # noqa: F401
 
 from gfjax import methods
 

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import laspy
 import numpy as np
-
 from cli_helpers import SCENE_CLASSES, write_scene
 
 REPO = Path(__file__).resolve().parents[2]

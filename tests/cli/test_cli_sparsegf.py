@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import laspy
 import numpy as np
-
 from cli_helpers import error_line, run_cli, write_scene
 
 

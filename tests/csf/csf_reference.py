@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gfjax.csf.config import (DAMPING, GRAVITY, STOP_DISPLACEMENT_M, double_move, single_move)
+from gfjax.csf.config import DAMPING, GRAVITY, STOP_DISPLACEMENT_M, double_move, single_move
 
 
 def neighbour_lists(h: int, w: int) -> list[list[int]]:

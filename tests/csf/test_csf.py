@@ -2,6 +2,7 @@
 against the package itself when installed, and under jit / vmap / point permutations."""
 from __future__ import annotations
 
+import csf_reference as reference
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,8 +12,6 @@ from gfjax import csf
 from gfjax.csf import cloth, stages
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
-
-import csf_reference as reference
 
 CAPACITY = 3000
 FAST = csf.Config(iterations=200)

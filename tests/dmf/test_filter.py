@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import dataclasses
 
+import dmf_scenes as scenes
 import numpy as np
 import pytest
 
 import gfjax
 from gfjax import dmf
 from gfjax.errors import InputError
-import dmf_scenes as scenes
 
 
 @pytest.fixture(scope="session")

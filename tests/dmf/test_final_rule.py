@@ -3,6 +3,7 @@ lowest-point support elevation and the combined rule, on the shrub scene (flat g
 patch of understory 0.45 m high; W = 1 m) whose answer is known."""
 from __future__ import annotations
 
+import dmf_scenes as scenes
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -10,7 +11,6 @@ import pytest
 
 from gfjax import dmf
 from gfjax.dmf import extract
-import dmf_scenes as scenes
 
 
 @pytest.fixture(scope="session")

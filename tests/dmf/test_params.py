@@ -9,7 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gfjax import dmf, methods, params as params_lib
+from gfjax import dmf, methods
+from gfjax import params as params_lib
 from gfjax.errors import SettingError
 
 

@@ -6,12 +6,12 @@ from __future__ import annotations
 import functools
 from unittest import mock
 
+import dmf_scenes as scenes
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import dmf_scenes as scenes
 from gfjax import dmf
 from gfjax.dmf import basal, neighbours
 

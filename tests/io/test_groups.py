@@ -67,7 +67,7 @@ def test_members_of_groups_far_apart_hold_every_point_once_and_keep_the_gap(seed
     assert np.array_equal(np.sort(np.concatenate(found)), np.sort(index))
     assert [len(m) for m in found] == sorted((len(m) for m in found), reverse=True)
     position = {name: k for k, name in enumerate(index)}
-    for g, names in enumerate(found):
+    for names in found:
         inside = xy[[position[n] for n in names]]
         outside = np.delete(xy, [position[n] for n in names], axis=0)
         assert np.min(np.linalg.norm(inside[:, None] - outside[None], axis=-1)) >= 100.0

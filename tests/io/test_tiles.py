@@ -7,13 +7,11 @@ import numpy as np
 import pytest
 
 from gfjax.errors import InputError, SettingError
-
+from gfjax.io import tiled
 from gfjax.io import tiles as tiling
 from gfjax.io.cloud import Cloud
-from gfjax.smrf import Config, Params
+from gfjax.smrf import Config, Params, programs
 from gfjax.smrf import filter as smrf_filter
-from gfjax.smrf import programs
-from gfjax.io import tiled
 
 ORIGIN = np.array([512_345.0, 5_403_210.0, 250.0])        # UTM-sized: float32 would lose cm
 

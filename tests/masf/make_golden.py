@@ -12,9 +12,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 
+from scene import town  # noqa: E402
+
 from gfjax import masf  # noqa: E402
 from gfjax.io.cloud import Cloud  # noqa: E402
-from scene import town  # noqa: E402
 
 if __name__ == "__main__":
     xyz, _, _ = town()

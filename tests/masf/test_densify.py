@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scene import hilly_town
 
 from gfjax import masf
 from gfjax.io.cloud import Cloud
 from gfjax.masf.densify import buffer_cells, densify, low_seed_pits
 from gfjax.masf.ground_tin import GroundTin
 from gfjax.masf.tin import nearest_z
-
-from scene import hilly_town
 
 
 def reference_densify(points_m, seeds, layers, alphas_m, *, shape, cell_m, st, ft_m, layer_passes,

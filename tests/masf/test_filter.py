@@ -6,12 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scene import town
 
 import gfjax
-from gfjax import masf, metrics, methods
+from gfjax import masf, methods, metrics
 from gfjax.io.cloud import Cloud
-
-from scene import town
 
 GOLDEN = Path(__file__).with_name("golden_town.npz")
 

@@ -15,7 +15,7 @@ def brute_force_cell_choice(xyz, grid_m, gap_m):
     h, w = grid_shape(xyz[:, :2], grid_m=grid_m)
     chosen = {}
     cells = {}
-    for i, (x, y, z) in enumerate(xyz):
+    for i, (x, y, _) in enumerate(xyz):
         key = (h - 1 - int(np.floor(y / grid_m)), int(np.floor(x / grid_m)))
         cells.setdefault(key, []).append(i)
     for key, members in cells.items():

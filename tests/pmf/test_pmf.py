@@ -7,9 +7,9 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pmf_reference as reference
 import pytest
 
-import pmf_reference as reference
 from gfjax import pmf
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud

@@ -8,9 +8,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cli_helpers
 import pytest
 
-import cli_helpers
 from gfjax.errors import InputError
 
 REPO = Path(__file__).resolve().parents[2]

@@ -5,8 +5,16 @@ compiled without the cache, the foreign file is never unpickled, one warning lin
 and the entry is replaced by one of ours."""
 from __future__ import annotations
 
-from cache_attack_helpers import (assert_correct, entries, fake_owner, forbid_loading, new_process, one_warning,
-                                  private, run)
+from cache_attack_helpers import (
+    assert_correct,
+    entries,
+    fake_owner,
+    forbid_loading,
+    new_process,
+    one_warning,
+    private,
+    run,
+)
 
 from gfjax import aot
 

@@ -12,9 +12,23 @@ import laspy
 import numpy as np
 import pytest
 from cli_helpers import error_line, fake_methods, no_compilation_cache, run_cli  # noqa: F401
-from reliability_files import (HEADER_SIZE, MAX_X, NUMBER_OF_EVLRS, NUMBER_OF_VLRS, OFFSET, OFFSET_TO_POINTS,
-                               POINT_FORMAT, RECORD_LENGTH, SCALE, START_OF_FIRST_EVLR, VERSION_MINOR, patch,
-                               read_field, set_point_count, write_las)
+from reliability_files import (
+    HEADER_SIZE,
+    MAX_X,
+    NUMBER_OF_EVLRS,
+    NUMBER_OF_VLRS,
+    OFFSET,
+    OFFSET_TO_POINTS,
+    POINT_FORMAT,
+    RECORD_LENGTH,
+    SCALE,
+    START_OF_FIRST_EVLR,
+    VERSION_MINOR,
+    patch,
+    read_field,
+    set_point_count,
+    write_las,
+)
 
 from gfjax.errors import InputError
 from gfjax.io import las as las_io

@@ -10,9 +10,8 @@ from cli_helpers import error_line, fake_methods, no_compilation_cache, run_cli 
 from reliability_files import run_gfjax, write_las
 
 from gfjax.errors import InputError
-from gfjax.io import atomic
+from gfjax.io import atomic, las_layout
 from gfjax.io import las as las_io
-from gfjax.io import las_layout
 
 NAME_MAX = os.pathconf("/", "PC_NAME_MAX")
 

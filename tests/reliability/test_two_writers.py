@@ -11,9 +11,8 @@ import pytest
 
 import gfjax
 from gfjax.errors import InputError
-from gfjax.io import atomic
+from gfjax.io import atomic, stream
 from gfjax.io import las as las_io
-from gfjax.io import stream
 
 
 def cloud(z: float = 0.0):

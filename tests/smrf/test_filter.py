@@ -11,7 +11,8 @@ from gfjax import metrics
 from gfjax.data import demo_sample
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
-from gfjax.smrf import PRESETS, Config, Params, filter as smrf_filter
+from gfjax.smrf import PRESETS, Config, Params
+from gfjax.smrf import filter as smrf_filter
 
 SMALL = Config(window_m=6.0)
 

@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 from scipy import ndimage as ndi
 
-from gfjax.raster.morphology import disk
-from gfjax.smrf import Config, Params
 from gfjax.raster import domain_mask
-from gfjax.smrf import programs, stages
+from gfjax.raster.morphology import disk
+from gfjax.smrf import Config, Params, programs, stages
 
 CELL_M = 1.0
 SHAPE = (32, 40)

@@ -8,8 +8,17 @@ import numpy as np
 import pytest
 
 from gfjax.errors import InputError
-from gfjax.sparsegf import (CENTRAL_TOL_M, R_IN_M, R_OO_M, STEP_M, PartitionConfig, capacity_bucket, compress,
-                            partition, soft_vote)
+from gfjax.sparsegf import (
+    CENTRAL_TOL_M,
+    R_IN_M,
+    R_OO_M,
+    STEP_M,
+    PartitionConfig,
+    capacity_bucket,
+    compress,
+    partition,
+    soft_vote,
+)
 from gfjax.sparsegf.partition import grid_centers
 
 UTM = np.array([512_345.678, 5_403_210.987, 0.0])   # far from the origin: float64 input

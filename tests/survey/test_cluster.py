@@ -12,6 +12,7 @@ import pytest
 
 distributed = pytest.importorskip("distributed")
 import cloudpickle  # noqa: E402  (a dependency of distributed)
+from test_survey import SMALL_TILES, town, write_grid  # noqa: E402
 
 from gfjax import csf, dmf, smrf, survey  # noqa: E402
 from gfjax.cli.main import main  # noqa: E402
@@ -19,7 +20,6 @@ from gfjax.errors import InputError  # noqa: E402
 from gfjax.io import las as las_io  # noqa: E402
 from gfjax.method import Method  # noqa: E402
 from gfjax.survey import cluster  # noqa: E402
-from test_survey import SMALL_TILES, town, write_grid  # noqa: E402
 
 pytestmark = pytest.mark.slow
 

@@ -5,13 +5,12 @@ from __future__ import annotations
 import laspy
 import numpy as np
 import pytest
+from test_survey import SMALL_TILES, town, write_grid
 
 from gfjax import limits
 from gfjax.cli.main import main
 from gfjax.errors import InputError
 from gfjax.io import stream
-
-from test_survey import SMALL_TILES, town, write_grid
 
 pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
 

@@ -334,13 +334,15 @@ def test_methods_that_do_not_tile_grid_a_window_on_the_survey_lattice(grid, name
     want = method.filter(whole).ground
     got = np.zeros(whole.n_points, bool)
     catalog_frame = None
-    for (cloud, result), keep in zip(survey.filtered(paths, name, tmp_path), members):
+    for (_, result), keep in zip(survey.filtered(paths, name, tmp_path), members):
         got[keep] = result.ground
         diagnostics = result.diagnostics
-        origin, cell = {"dmf": lambda: (diagnostics.origin_m, diagnostics.cell_m),
-                        "masf": lambda: (diagnostics.origin_m, method.Config().grid_m),
-                        "csf": lambda: (diagnostics.origin_m + BUFFER_PX * diagnostics.cell_m,
-                                        diagnostics.cell_m)}[name]()
+        if name == "dmf":
+            origin, cell = diagnostics.origin_m, diagnostics.cell_m
+        elif name == "masf":
+            origin, cell = diagnostics.origin_m, method.Config().grid_m
+        else:
+            origin, cell = diagnostics.origin_m + BUFFER_PX * diagnostics.cell_m, diagnostics.cell_m
         catalog_frame = catalog_frame or Frame.of(whole.xyz_m[whole.filter_mask()])
         steps = (origin - catalog_frame.origin_m[:len(origin)]) / cell
         np.testing.assert_allclose(steps, np.round(steps), atol=1e-6)

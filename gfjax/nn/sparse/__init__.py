@@ -36,10 +36,20 @@ GPU alike.
 """
 from gfjax.nn.sparse.conv import sparse_conv, table_conv
 from gfjax.nn.sparse.keys import BATCH_MAX, COORD_MAX, COORD_MIN
-from gfjax.nn.sparse.layers import (SparseBatchNorm, SparseConv3d, SparseGroupNorm, SparseLinear, SparseResBlock,
-                                    relu)
-from gfjax.nn.sparse.maps import (KernelMap, NeighbourTable, downsample, inner_table, kernel_offsets, neighbour_table,
-                                  pairs_from_table, pairs_per_offset, plan_blocks, strided_map, submanifold_map)
+from gfjax.nn.sparse.layers import SparseBatchNorm, SparseConv3d, SparseGroupNorm, SparseLinear, SparseResBlock, relu
+from gfjax.nn.sparse.maps import (
+                                    KernelMap,
+                                    NeighbourTable,
+                                    downsample,
+                                    inner_table,
+                                    kernel_offsets,
+                                    neighbour_table,
+                                    pairs_from_table,
+                                    pairs_per_offset,
+                                    plan_blocks,
+                                    strided_map,
+                                    submanifold_map,
+)
 from gfjax.nn.sparse.pyramid import Pyramid, PyramidPlan, build_pyramid, plan_pyramid, standard_plan
 from gfjax.nn.sparse.tensor import SparseTensor, Voxelized, devoxelize, voxelize
 

@@ -37,7 +37,6 @@ from jaxtyping import Array, ArrayLike, Float
 
 from gfjax.nn.sparse.maps import KernelMap, NeighbourTable
 
-
 STEP_PAIRS = 8192          # pairs per step of `sparse_conv`'s default schedule
 
 

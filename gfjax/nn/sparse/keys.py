@@ -106,7 +106,7 @@ def _less(a_hi, a_lo, b_hi, b_lo):
     return (a_hi < b_hi) | ((a_hi == b_hi) & (a_lo < b_lo))
 
 
-def lower_bound(table: SortedKeys, query: Keys) -> Int[Array, "..."]:
+def lower_bound(table: SortedKeys, query: Keys) -> Int[Array, ...]:
     """Position in `table` of the first key not below each query, `(...)` int32 in `[0, n]`.
 
     A vectorised binary search: `ceil(log2(n + 1))` steps of two gathers each.
@@ -129,7 +129,7 @@ def lower_bound(table: SortedKeys, query: Keys) -> Int[Array, "..."]:
     return lo
 
 
-def lookup(table: SortedKeys, query: Keys, *, missing: int) -> Int[Array, "..."]:
+def lookup(table: SortedKeys, query: Keys, *, missing: int) -> Int[Array, ...]:
     """Row of `table` holding each query key, or `missing` where none does.
 
     Args:

@@ -24,8 +24,17 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Int
 
 from gfjax.nn.sparse import keys as K
-from gfjax.nn.sparse.maps import (KernelMap, NeighbourTable, bucket, downsample, inner_table, neighbour_table, pairs_from_table,
-                                  pairs_per_offset, plan_blocks)
+from gfjax.nn.sparse.maps import (
+    KernelMap,
+    NeighbourTable,
+    bucket,
+    downsample,
+    inner_table,
+    neighbour_table,
+    pairs_from_table,
+    pairs_per_offset,
+    plan_blocks,
+)
 
 
 class PyramidPlan(NamedTuple):
