@@ -385,6 +385,9 @@ def method_setup(args: argparse.Namespace, *, tiling: tuple[float | None, float 
 
     params_file = load_params_file(args.params) if args.params is not None else None
     name = args.method or (params_file["method"] if params_file else methods.DEFAULT_METHOD)
+    if params_file and not args.method and name not in methods.PACKAGES:
+        raise InputError(f"--params {args.params}: fitted for method {name!r}, which gfjax does not have; "
+                         f"choose from {', '.join(methods.PACKAGES)}")
     if params_file and params_file["method"] != name:
         raise InputError(f"--params {args.params}: fitted for method {params_file['method']!r}, "
                          f"not {name!r}")
