@@ -153,20 +153,29 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
     # own corner, so near a window's edge its labels may differ from one file's (as the spikes')
     ij = np.floor((xy - xy.min(axis=0)) / cell_m).astype(np.int64) + 1    # a ring of empty cells
     width = int(ij[:, 0].max()) + 2
+    n_keys = (int(ij[:, 1].max()) + 2) * width
     key = ij[:, 1] * width + ij[:, 0]
-    # the occupied cells only (sorted keys): a stray point kilometres away adds one cell, not a raster
     on_used = used[points]
-    cells, slot = np.unique(key[on_used], return_inverse=True)
-    lowest = np.full(cells.size, np.inf)
-    np.minimum.at(lowest, slot, xyz[points[on_used], 2])
     on_ground = ground[points]
     cell = key[on_ground]
     top = xyz[points[on_ground], 2] - drop_m
     stacked = np.zeros(cell.size, dtype=bool)
-    for step in (-width - 1, -width, -width + 1, -1, 0, 1, width - 1, width, width + 1):
-        near = cell + step
-        at = np.minimum(np.searchsorted(cells, near), cells.size - 1)
-        stacked |= (cells[at] == near) & (lowest[at] < top)
+    steps = (-width - 1, -width, -width + 1, -1, 0, 1, width - 1, width, width + 1)
+    if n_keys <= 4 * len(points):
+        # a box the points fill: the lowest return of every cell of it, O(n)
+        lowest = np.full(n_keys, np.inf)
+        np.minimum.at(lowest, key[on_used], xyz[points[on_used], 2])
+        for step in steps:
+            stacked |= lowest[cell + step] < top
+    else:
+        # the occupied cells only (sorted keys): a stray point kilometres away adds one cell, not a raster
+        cells, slot = np.unique(key[on_used], return_inverse=True)
+        lowest = np.full(cells.size, np.inf)
+        np.minimum.at(lowest, slot, xyz[points[on_used], 2])
+        for step in steps:
+            near = cell + step
+            at = np.minimum(np.searchsorted(cells, near), cells.size - 1)
+            stacked |= (cells[at] == near) & (lowest[at] < top)
     out = ground.copy()
     out[points[on_ground][stacked]] = False
     return out

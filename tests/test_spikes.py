@@ -105,13 +105,17 @@ def brute_force_unstack(xyz, used, ground, *, cell_m, drop_m):
     return out
 
 
+@pytest.mark.parametrize("far", [False, True], ids=["box", "stray point"])   # a dense box of cells, or sorted cells
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_unstack_matches_brute_force_on_random_labels(seed):
+def test_unstack_matches_brute_force_on_random_labels(seed, far):
     rng = np.random.default_rng(seed)
     xyz = terrain(seed=seed)
     xyz[rng.choice(400, 60, replace=False), 2] += rng.uniform(-12, 12, 60)
     ground = rng.random(400) < 0.7
     used = rng.random(400) < 0.9
+    if far:                                     # a used return 30 km away: its box holds millions of cells
+        xyz = np.concatenate([xyz, xyz[:1] + [30_000.0, 20_000.0, -50.0]])
+        ground, used = np.append(ground, False), np.append(used, True)
     for cell_m, drop_m in [(1.0, 5.0), (3.0, 2.0), (7.5, 0.5)]:
         np.testing.assert_array_equal(spikes.unstack(xyz, used, ground, cell_m=cell_m, drop_m=drop_m),
                                       brute_force_unstack(xyz, used, ground, cell_m=cell_m, drop_m=drop_m))
