@@ -84,7 +84,8 @@ def enable() -> Path | None:
     (`aot.private_folder`): private to this user (0700), every folder above it writable by no
     one else. A folder named in `JAX_COMPILATION_CACHE_DIR` is checked too (a remote URL is
     left to JAX; an empty one means no cache). A refused folder means no persistent cache for
-    this process (one warning line on stderr). Returns the local folder in use, or None.
+    this process (one warning line on stderr), and so does an entry in it that another user
+    owns, or a symbolic link (`aot.planted_entry`). Returns the local folder in use, or None.
     """
     programs = export_folder()
     if programs is not None:
@@ -97,6 +98,12 @@ def enable() -> Path | None:
     if checked is None:
         if user_folder:
             _turn_off_jax_cache(jax)
+        return None
+    planted = aot.planted_entry(checked)
+    if planted is not None:
+        aot.warn_once(f"{planted}; running without the persistent compilation cache "
+                      f"(remove the entry, or the folder, to use it again)")
+        _turn_off_jax_cache(jax)
         return None
     settings = {"jax_compilation_cache_dir": str(checked),
                 "jax_persistent_cache_min_compile_time_secs": 0.0,

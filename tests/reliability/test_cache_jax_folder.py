@@ -102,3 +102,35 @@ def test_bench_compile_cache_must_be_private(tmp_path, monkeypatch, capsys, mode
     err = capsys.readouterr().err
     assert seen["compile_cache"] == (str(cache) if shared else None)
     assert ("gfjax: warning: " in err) is not shared
+
+
+def test_a_link_planted_among_the_jax_cache_entries_turns_the_cache_off(tmp_path):
+    folder = tmp_path / "gfjax" / "jax"
+    folder.mkdir(parents=True, mode=0o700)
+    (folder / "jit_f-0123-cache").write_bytes(b"ours")
+    (folder / "jit_g-4567-cache").symlink_to(tmp_path / "elsewhere")
+    done = _enable({"XDG_CACHE_HOME": str(tmp_path), "GFJAX_EXPORT_CACHE": "0"})
+    assert done.returncode == 0 and done.stdout.split() == ["None", "None"]
+    _one_warning(done.stderr)
+    assert f"{folder / 'jit_g-4567-cache'}: a symbolic link" in done.stderr
+
+
+def test_a_jax_cache_entry_of_another_user_is_found(tmp_path, monkeypatch):
+    """Tests cannot chown: `os.lstat` reports another owner for one entry."""
+    from gfjax import aot
+
+    (tmp_path / "a-cache").write_bytes(b"ours")
+    (tmp_path / "b-cache").write_bytes(b"theirs")
+    assert aot.planted_entry(tmp_path) is None
+    real = os.lstat
+
+    def lstat(path, *args, **kwargs):
+        info = real(path, *args, **kwargs)
+        if str(path).endswith("b-cache"):
+            fields = list(tuple(info)[:10])
+            fields[4] = 12345
+            return os.stat_result(fields)
+        return info
+
+    monkeypatch.setattr(aot.os, "lstat", lstat)
+    assert aot.planted_entry(tmp_path) == f"{tmp_path / 'b-cache'} is owned by user 12345"
