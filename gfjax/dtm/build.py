@@ -45,7 +45,7 @@ RANGES: dict[str, limits.Range] = {
 }
 DEFAULTS = {"cell_m": 1.0, "max_edge_m": 100.0}
 # z and the TIN fill (float64), counts (int64), masks and the float32 copy written [bytes per cell].
-BYTES_PER_CELL = 48
+_BYTES_PER_CELL = 48
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -100,6 +100,28 @@ class DTM:
         write_png(path, self.hillshade(azimuth_deg, altitude_deg))
 
 
+def checked_ground(cloud: Cloud, ground, what: str) -> np.ndarray:
+    """`ground` as a bool array over `cloud`'s points, with at least one True; else
+    `InputError` naming the file and `what` cannot be built ("a DTM")."""
+    ground = np.asarray(ground)
+    if ground.dtype != np.bool_ or ground.shape != (cloud.n_points,):
+        raise InputError(f"{cloud.name}: ground must be a bool array of shape ({cloud.n_points},), "
+                         f"got {ground.dtype} {ground.shape}")
+    if not ground.any():
+        raise InputError(f"{cloud.name}: no ground points (class 2 or filter result), cannot build {what}")
+    return ground
+
+
+def check_grid(name: str, h: int, w: int, cell_m: float, what: str) -> None:
+    """`InputError` naming the file when a raster of `h` x `w` cells (`what`, "a DTM") passes the
+    memory budget (`_BYTES_PER_CELL` a cell)."""
+    try:
+        limits.check_memory([limits.Estimate(f"{what} of {h:,} x {w:,} cells of {cell_m:g} m (extent / --cell)",
+                                             float(h) * float(w) * _BYTES_PER_CELL)])
+    except ValueError as err:
+        raise InputError(f"{name}: {err}; use a larger --cell or split the file") from None
+
+
 def check_options(name: str, *, cell_m, max_edge_m=100.0) -> tuple[float, float]:
     """`cell_m` and `max_edge_m` as floats, checked against `RANGES`.
 
@@ -120,7 +142,7 @@ def memory_estimate(extent_m: tuple[float, float], cell_m: float) -> limits.Esti
     """The DTM raster over an x, y extent [m] at `cell_m` [m] (`gfjax.limits.check_memory`)."""
     w, h = (limits.raster_side(e, cell_m) for e in extent_m)
     return limits.Estimate(f"a DTM of {h:,} x {w:,} cells of {cell_m:g} m (extent / --cell)",
-                           float(h) * float(w) * BYTES_PER_CELL)
+                           float(h) * float(w) * _BYTES_PER_CELL)
 
 
 def snapped_grid(xy: np.ndarray, cell: float) -> tuple[int, int, int, int]:
@@ -229,12 +251,7 @@ def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.
     """
     name = cloud.name
     cell_m, max_edge_m = check_options(name, cell_m=cell_m, max_edge_m=max_edge_m)
-    ground = np.asarray(ground)
-    if ground.dtype != np.bool_ or ground.shape != (cloud.n_points,):
-        raise InputError(f"{name}: ground must be a bool array of shape ({cloud.n_points},), "
-                         f"got {ground.dtype} {ground.shape}")
-    if not ground.any():
-        raise InputError(f"{name}: no ground points (class 2 or filter result), cannot build a DTM")
+    ground = checked_ground(cloud, ground, "a DTM")
     unit_m = cloud.horizontal_unit_m
     cell = cell_m / unit_m
     max_edge = max_edge_m / unit_m
@@ -246,11 +263,7 @@ def build(cloud: Cloud, ground, *, cell_m: float = 1.0, max_edge_m: float = 100.
         xyz_g = np.concatenate([xyz_g, np.asarray(context_xyz, np.float64).reshape(-1, 3)])
         covered = np.concatenate([covered, xyz_g[:, :2]])
     col0, row_top, h, w = snapped_grid(covered, cell)
-    try:
-        limits.check_memory([limits.Estimate(f"a DTM of {h:,} x {w:,} cells of {cell_m:g} m (extent / --cell)",
-                                             float(h) * float(w) * BYTES_PER_CELL)])
-    except ValueError as err:
-        raise InputError(f"{name}: {err}; use a larger --cell or split the file") from None
+    check_grid(name, h, w, cell_m, "a DTM")
     origin = np.array([col0 * cell, row_top * cell, 0.0])  # north-west corner, file units
     col = np.floor(xyz_g[:, 0] / cell).astype(np.int64) - col0    # same floor as the grid
     row = (row_top - 1) - np.floor(xyz_g[:, 1] / cell).astype(np.int64)

@@ -11,11 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from gfjax import limits
-from gfjax.dtm.build import BYTES_PER_CELL, DTM, check_options, snapped_grid
+from gfjax.dtm.build import DTM, check_grid, check_options, checked_ground, snapped_grid
 from gfjax.dtm.geotiff import NODATA, cloud_rasterio_crs
 from gfjax.dtm.hag import height_above_ground
-from gfjax.errors import InputError
 
 __all__ = ["chm"]
 
@@ -39,21 +37,12 @@ def chm(cloud, ground, *, cell_m: float = 1.0) -> DTM:
     """
     name = cloud.name
     cell_m, _ = check_options(name, cell_m=cell_m)
-    ground = np.asarray(ground)
-    if ground.dtype != np.bool_ or ground.shape != (cloud.n_points,):
-        raise InputError(f"{name}: ground must be a bool array of shape ({cloud.n_points},), "
-                         f"got {ground.dtype} {ground.shape}")
-    if not ground.any():
-        raise InputError(f"{name}: no ground points (class 2 or filter result), cannot build a CHM")
+    ground = checked_ground(cloud, ground, "a CHM")
     cell = cell_m / cloud.horizontal_unit_m
     used = ~np.asarray(cloud.ignored, bool) | ground
     xyz = cloud.xyz[used]
     col0, row_top, h, w = snapped_grid(xyz[:, :2], cell)
-    try:
-        limits.check_memory([limits.Estimate(f"a CHM of {h:,} x {w:,} cells of {cell_m:g} m (extent / --cell)",
-                                             float(h) * float(w) * BYTES_PER_CELL)])
-    except ValueError as err:
-        raise InputError(f"{name}: {err}; use a larger --cell or split the file") from None
+    check_grid(name, h, w, cell_m, "a CHM")
     height = np.maximum(height_above_ground(xyz, ground[used]), 0.0)
     col = np.floor(xyz[:, 0] / cell).astype(np.int64) - col0          # the DTM's floors
     row = (row_top - 1) - np.floor(xyz[:, 1] / cell).astype(np.int64)

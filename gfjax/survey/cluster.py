@@ -33,13 +33,18 @@ WORKER_BYTES = 1 << 30
 WORKERS_PER_CORE = 4
 
 
+def _cores() -> int:
+    """Cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def max_local_workers() -> tuple[int, str]:
     """The most workers a local cluster may start here, and why: `WORKERS_PER_CORE` per core this
     process may run on, and no more than the memory budget (`gfjax.limits`) holds at
     `WORKER_BYTES` each; at least 1."""
     from gfjax import limits
 
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cores = _cores()
     budget = limits.memory_budget_bytes()
     most = max(1, min(WORKERS_PER_CORE * cores, int(budget // WORKER_BYTES)))
     return most, (f"{cores} cores at most {WORKERS_PER_CORE} workers each, a memory budget of "
@@ -68,8 +73,7 @@ def local_workers(asked: int | str, points: int) -> tuple[int, str | None]:
     """
     most, why = max_local_workers()
     if asked == "auto":
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        wanted = max(1, min(cores, most))
+        wanted = max(1, min(_cores(), most))
     else:
         if asked > most:
             raise InputError(f"--workers {asked}: at most {most} on this machine ({why})")
