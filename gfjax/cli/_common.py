@@ -18,6 +18,8 @@ from gfjax.limits import Range
 from gfjax.method import Method
 
 TIF_SUFFIXES = (".tif", ".tiff")
+POINTS_OUTPUT_HELP = ("output .las/.laz file (named .copc.laz: written as COPC), or an existing folder for "
+                      "several inputs")
 _NAMED = 3                  # files a warning names before it counts the rest
 
 # The valid range of every numeric option that belongs to a command rather than to a method
@@ -240,20 +242,36 @@ def say_crs_warning(found: Sequence[tuple[Path, Any]], *, metres_matter: bool = 
         print(line, file=sys.stderr)
 
 
-def say_written_versions(found: Sequence[tuple[Path, Any]]) -> None:
-    """Say once on stderr which inputs (`(path, laspy header)`) are written in another LAS
-    version than theirs (`gfjax.io.las.written_version`: LAS 1.0 as 1.2)."""
+def check_written_forms(found: Sequence[tuple[Path, Any, Path]]) -> None:
+    """Refuse, before any work, an input (`(path, laspy header, output path)`) that its output
+    cannot hold, and say once on stderr which are written in another form than theirs: LAS 1.0
+    as 1.2 (`gfjax.io.las.written_version`), a COPC output (`.copc.laz`) as LAS 1.4 in point
+    format 6-8 (`gfjax.io.copc_writer`).
+
+    Raises:
+      InputError: a COPC output of a point format that COPC cannot hold (waveform formats).
+    """
+    from gfjax.io import copc_writer
     from gfjax.io import las as las_io
 
-    by_change: dict[tuple, list[Path]] = {}
-    for path, header in found:
-        new = las_io.written_version(header)
-        if new is not None:
-            by_change.setdefault(((header.version.major, header.version.minor), new), []).append(path)
-    for (old, new), paths in by_change.items():
-        print(f"gfjax: note: {_some(paths)}: LAS {old[0]}.{old[1]}, written as LAS {new[0]}.{new[1]} "
-              f"(laspy writes no LAS {old[0]}.{old[1]}); points and classes are as in LAS {old[0]}.{old[1]}",
-              file=sys.stderr)
+    by_change: dict[str, list[Path]] = {}
+    for path, header, target in found:
+        copc_writer.check_writable(header, target, name=str(path))
+        old = f"LAS {header.version.major}.{header.version.minor}"
+        if copc_writer.is_copc_name(target):
+            fmt = header.point_format.id
+            new = copc_writer.written_format(header)
+            if (header.version.major, header.version.minor, fmt) != (1, 4, new):
+                by_change.setdefault(f"{old} point format {fmt}, written as COPC in LAS 1.4 point format {new} "
+                                     "(COPC's formats); every point and dimension kept, in the octree's order",
+                                     []).append(path)
+            continue
+        version = las_io.written_version(header)
+        if version is not None:
+            by_change.setdefault(f"{old}, written as LAS {version[0]}.{version[1]} (laspy writes no {old}); "
+                                 f"points and classes are as in {old}", []).append(path)
+    for change, paths in by_change.items():
+        print(f"gfjax: note: {_some(paths)}: {change}", file=sys.stderr)
 
 
 def check_inputs(paths: Sequence[Path], *, units: str | None, metres_matter: bool = True) -> list:

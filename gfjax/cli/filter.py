@@ -52,16 +52,17 @@ import numpy as np
 
 from gfjax.cli import _job
 from gfjax.cli._common import (
+    POINTS_OUTPUT_HELP,
     TIF_SUFFIXES,
     add_method_options,
     add_units_option,
+    check_written_forms,
     class_list,
     method_setup,
     nonnegative_float,
     output_targets,
     positive_float,
     say_crs_warning,
-    say_written_versions,
     workers_count,
 )
 from gfjax.errors import InputError
@@ -74,7 +75,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("inputs", nargs="+", metavar="IN", help="LAS/LAZ files, folders or globs")
     parser.add_argument("-o", "--output", required=True, metavar="OUT",
-                        help="output .las/.laz file, or an existing folder for several inputs")
+                        help=POINTS_OUTPUT_HELP)
     add_method_options(parser, method_help="ground filter", default_method=True, tiling=True)
     parser.add_argument("--tile-size", type=positive_float, default=None, metavar="M",
                         help="tile core side [m], for the methods that tile (listed below)")
@@ -163,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
                             dtm_cell_m=args.cell if args.dtm else None,
                             extra_bytes_per_point=4 if args.instances else 0, trust_data=args.trust_data)
     say_crs_warning([(job.source, job.crs_units) for job in planned])
-    say_written_versions([(job.source, job.header) for job in planned])
+    check_written_forms([(job.source, job.header, job.target) for job in planned])
     out_of_core = _out_of_core(args, setup, planned)
     # cleanup errors ignored: after a failed task a worker may still be writing a store there
     with atomic.scratch_folder() as folder, \
@@ -381,7 +382,11 @@ def _out_of_core(args, setup, planned) -> bool:
     if setup.lattice is None:
         raise InputError(f"{why}: method {setup.name} filters a file in memory only; smrf and pmf filter it "
                          "out of core, a tile at a time")
-    for option, given in (("--dtm", args.dtm is not None), ("--instances", args.instances)):
+    from gfjax.io import copc_writer
+
+    copcs = [job.target for job in planned if copc_writer.is_copc_name(job.target)]
+    for option, given in (("--dtm", args.dtm is not None), ("--instances", args.instances),
+                          (f"-o {copcs[0] if copcs else ''} (COPC, an octree over every point)", bool(copcs))):
         if given:
             raise InputError(f"{why}: {option} needs the file in memory; filter without it out of core")
     if not args.out_of_core:

@@ -17,9 +17,11 @@ import numpy as np
 
 from gfjax.cli import _job
 from gfjax.cli._common import (
+    POINTS_OUTPUT_HELP,
     add_method_options,
     add_units_option,
     check_inputs,
+    check_written_forms,
     method_setup,
     nonnegative_float,
     output_targets,
@@ -36,7 +38,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("inputs", nargs="+", metavar="IN", help="LAS/LAZ files, folders or globs")
     parser.add_argument("-o", "--output", required=True, metavar="OUT",
-                        help="output .las/.laz file, or an existing folder for several inputs")
+                        help=POINTS_OUTPUT_HELP)
     parser.add_argument("--ground-class", type=ranged("--ground-class"), default=2, metavar="CODE",
                         help="class code of ground points (default 2), when no --method is given")
     add_method_options(parser, method_help="classify ground first with this filter")
@@ -57,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
     _job.check_outputs([("-o", t, las_io.LAS_SUFFIXES) for t in targets], inputs=inputs, force=args.force)
     runs_method = any(v for v in (args.method, args.preset, args.params, args.set_values))
     setup = method_setup(args) if runs_method else None
-    check_inputs(inputs, units=args.units)
+    headers = check_inputs(inputs, units=args.units)
+    check_written_forms(list(zip(inputs, headers, targets, strict=True)))
     catalog, folder = None, None
     if len(inputs) > 1 and setup is None and args.buffer > 0:
         from gfjax import survey

@@ -7,8 +7,8 @@ its index in the file: the nodes lie in the file in the order of their byte offs
 node's first point is the sum of the point counts of the nodes before it. Everything else
 (the header, the checks, a full read) treats a COPC file as the LAZ file it is; a file written
 from one is plain LAZ, every point and attribute kept, without COPC's layout records
-(`without_layout`): writing COPC needs the octree built again (e.g. `pdal translate` or
-`untwine`).
+(`without_layout`), unless its name ends in `.copc.laz`: then the octree is built again
+(`gfjax.io.copc_writer`).
 """
 from __future__ import annotations
 

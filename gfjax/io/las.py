@@ -19,7 +19,7 @@ import laspy
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import asprs, copc
+from gfjax.io import asprs, copc, copc_writer
 from gfjax.io import crs as crs_lib
 from gfjax.io import units as units_lib
 from gfjax.io.atomic import atomic_output, is_temporary
@@ -264,23 +264,32 @@ def write(cloud: Cloud, path: str | os.PathLike, *, force: bool = False,
       InputError: see `check_output`; or the file could not be written.
     """
     inputs = [*input_paths, *([cloud.path] if cloud.path is not None else [])]
-    compress = Path(path).suffix.lower() == ".laz"
+    as_copc = copc_writer.is_copc_name(path)
+    compress = Path(path).suffix.lower() == ".laz" and not as_copc
     backends = _compressors(cloud.las.point_format.id, Path(path)) if compress else None
     with atomic_output(path, force=force, input_paths=inputs, suffixes=LAS_SUFFIXES, exclusive=exclusive) as tmp:
-        with open(tmp, "w+b") as raw:  # readable: laspy re-reads the header to add EVLRs
-            f = _KeepWriteError(raw)
-            try:
-                _write_las(cloud.las, f, compress=compress, backends=backends)
-            except UnicodeError as err:
-                raise InputError(f"{path}: cannot write the text fields of {cloud.name} unchanged: LAS text "
-                                 f"is ASCII ({err})") from None
-            except Exception:
-                if f.error is not None:  # a full disk under lazrs: the OSError, so exit 2
-                    raise f.error from None
-                raise
+        if as_copc:
+            copc_writer.write(cloud.las, tmp, name=str(path), wkt=crs_lib.crs_wkt(cloud))
+        else:
+            _write_file(cloud, path, tmp, compress=compress, backends=backends)
         if before_commit is not None:
             before_commit()
     return Path(path)
+
+
+def _write_file(cloud: Cloud, path, tmp: Path, *, compress: bool, backends) -> None:
+    """`cloud.las` as LAS/LAZ into the temporary `tmp` of output `path` (`write`)."""
+    with open(tmp, "w+b") as raw:  # readable: laspy re-reads the header to add EVLRs
+        f = _KeepWriteError(raw)
+        try:
+            _write_las(cloud.las, f, compress=compress, backends=backends)
+        except UnicodeError as err:
+            raise InputError(f"{path}: cannot write the text fields of {cloud.name} unchanged: LAS text "
+                             f"is ASCII ({err})") from None
+        except Exception:
+            if f.error is not None:  # a full disk under lazrs: the OSError, so exit 2
+                raise f.error from None
+            raise
 
 
 def _write_las(las: laspy.LasData, f, *, compress: bool, backends) -> None:
@@ -294,7 +303,7 @@ def _write_las(las: laspy.LasData, f, *, compress: bool, backends) -> None:
     with laspy.LasWriter(f, header, do_compress=compress, laz_backend=backends, closefd=False,
                          encoding_errors="surrogateescape") as writer:
         writer.write_points(las.points)
-        _keep_extra_bytes_statistics(header, writer.header)
+        copc_writer.keep_extra_bytes_statistics(header, writer.header)
         if header.version.minor >= 4 and evlrs:
             writer.write_evlrs(evlrs)
 
@@ -315,23 +324,6 @@ def writable(header: laspy.LasHeader, evlrs) -> tuple[laspy.LasHeader, Any]:
         new = copy.deepcopy(new) if new is header else new
         new.version = laspy.header.Version(*version)
     return new, evlrs
-
-
-def _keep_extra_bytes_statistics(read: laspy.LasHeader, written: laspy.LasHeader) -> None:
-    """Give the Extra Bytes descriptors of `written` the min/max fields of `read`, byte for byte.
-
-    laspy recomputes them from the points it writes, so a file whose producer left them unset
-    or stale would come back with other bytes than it had: a change of metadata the user did
-    not ask for. The header is rewritten when the writer closes, so this runs before that.
-    """
-    try:
-        before = read.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs
-        after = written.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs
-    except IndexError:
-        return
-    for source, target in zip(before, after, strict=True):
-        target._min[:] = source._min
-        target._max[:] = source._max
 
 
 class _KeepWriteError:

@@ -4,7 +4,8 @@
 count before any point, the int32 limits of every chunk, a truncated file at the end; its CRS
 and unit factors) in chunks of `CHUNK_POINTS`; `rewrite` copies a file into a new one with
 only the classification changed, chunk by chunk, atomically (`gfjax.io.atomic`), keeping the
-header, every VLR/EVLR and every point dimension. Memory is one chunk, whatever the file's size.
+header, every VLR/EVLR and every point dimension. Memory is one chunk, whatever the file's size
+(but for a COPC output, whose octree is built over every point: `gfjax.io.copc_writer`).
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import laspy
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import asprs
+from gfjax.io import asprs, copc_writer
 from gfjax.io import las as las_io
 from gfjax.io.atomic import atomic_output
 from gfjax.io.cloud import use_mask
@@ -108,9 +109,16 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
       The path written.
     """
     source, target = Path(source), Path(target)
-    compress = target.suffix.lower() == ".laz"
+    as_copc = copc_writer.is_copc_name(target)
+    compress = target.suffix.lower() == ".laz" and not as_copc
     # units only scale what a filter reads; a copy needs none (and a file in degrees is fine)
     with open_points(source, trust_data=trust_data, units="m") as stream:
+        if as_copc:
+            with atomic_output(target, force=force, input_paths=[*input_paths, source],
+                               suffixes=las_io.LAS_SUFFIXES, staged=staged, exclusive=exclusive) as tmp:
+                copc_writer.write(_relabelled(stream, classify), tmp, name=str(target),
+                                  wkt=None if stream.crs is None else stream.crs.to_wkt())
+            return target
         backends = las_io._compressors(stream.header.point_format.id, target) if compress else None
         with atomic_output(target, force=force, input_paths=[*input_paths, source],
                            suffixes=las_io.LAS_SUFFIXES, staged=staged, exclusive=exclusive) as tmp, open(tmp, "w+b") as raw:
@@ -135,6 +143,21 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
                     raise f.error from None
                 raise
     return target
+
+
+def _relabelled(stream: Stream, classify: Callable[[int, laspy.ScaleAwarePointRecord], np.ndarray]) -> laspy.LasData:
+    """Every point of `stream` in memory with the classes `classify` gives (as `rewrite`): a
+    COPC file's octree is built over all of its points."""
+    parts = []
+    for start, points in stream.chunks():
+        points.classification = classify(start, points)
+        parts.append(points.array)
+    header = copy.deepcopy(stream.header)
+    las = laspy.LasData(header, laspy.ScaleAwarePointRecord(
+        np.concatenate(parts) if parts else np.zeros(0, header.point_format.dtype()), header.point_format,
+        header.scales, header.offsets))
+    las.evlrs = stream._reader.evlrs
+    return las
 
 
 def relabel(source: str | os.PathLike, target: str | os.PathLike, ground: np.ndarray, *, returns: str = "all",
