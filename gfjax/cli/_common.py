@@ -18,6 +18,7 @@ from gfjax.limits import Range
 from gfjax.method import Method
 
 TIF_SUFFIXES = (".tif", ".tiff")
+NEIGHBOURS_GROUND_M = 50.0      # neighbour files' ground around a file, for its TIN [m] (hag, dtm)
 POINTS_OUTPUT_HELP = ("output .las/.laz file (named .copc.laz: written as COPC), or an existing folder for "
                       "several inputs")
 _NAMED = 3                  # files a warning names before it counts the rest
@@ -447,6 +448,37 @@ def _tiling(method: Method, given: dict[str, float]):
         return Tiling(**given)
     except ValueError as err:
         raise InputError(f"{_TILING_OPTIONS[err.keys[0]]}: {err}") from None
+
+
+def add_neighbours_option(parser: argparse.ArgumentParser) -> None:
+    """`--buffer M`: with several inputs, the ground of the neighbour files within M metres of
+    each file enters its TIN (`gfjax hag`, `gfjax dtm`), so heights and rasters agree across
+    file borders."""
+    parser.add_argument("--buffer", type=nonnegative_float, default=NEIGHBOURS_GROUND_M, metavar="M",
+                        help=f"neighbour files' ground around each file [m] (default {NEIGHBOURS_GROUND_M:g})")
+
+
+def neighbours_ground(inputs: Sequence[Path], args: argparse.Namespace):
+    """With several inputs and a `--buffer`, a catalog of the survey (`gfjax.survey.index`) in a
+    scratch folder, and `around(i, xyz_m) -> (k, 3)` [m]: the other files' ground (class
+    `args.ground_class`) within the buffer of file `i`'s points; else `(None, None)`.
+
+    Returns:
+      `(folder, around)`: the scratch folder to clean up (or None), and `around` (or None).
+    """
+    if len(inputs) < 2 or args.buffer <= 0:
+        return None, None
+    from gfjax import survey
+    from gfjax.io import atomic
+    from gfjax.survey import halo
+
+    folder = atomic.scratch_folder()
+    catalog = survey.index(inputs, folder.name, units=args.units)
+
+    def around(i: int, xyz_m):
+        return halo.classified_ground_near(catalog, i, xyz_m, args.buffer, args.ground_class)
+
+    return folder, around
 
 
 def output_targets(inputs: Sequence[Path], output: str, *, option: str = "-o",

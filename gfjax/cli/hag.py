@@ -19,18 +19,17 @@ from gfjax.cli import _job
 from gfjax.cli._common import (
     POINTS_OUTPUT_HELP,
     add_method_options,
+    add_neighbours_option,
     add_units_option,
     check_inputs,
     check_written_forms,
     method_setup,
-    nonnegative_float,
+    neighbours_ground,
     output_targets,
     ranged,
 )
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
-
-BUFFER_M = 50.0          # neighbours' ground around a file, for its TIN [m]
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -44,8 +43,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     add_method_options(parser, method_help="classify ground first with this filter")
     parser.add_argument("--normalize", action="store_true",
                         help="write the heights into z instead of a HeightAboveGround dimension")
-    parser.add_argument("--buffer", type=nonnegative_float, default=BUFFER_M, metavar="M",
-                        help=f"neighbour files' ground around each file [m] (default {BUFFER_M:g})")
+    add_neighbours_option(parser)
     add_units_option(parser)
     parser.add_argument("--force", action="store_true", help="overwrite existing output files")
     return parser
@@ -61,13 +59,7 @@ def run(args: argparse.Namespace) -> int:
     setup = method_setup(args) if runs_method else None
     headers = check_inputs(inputs, units=args.units)
     check_written_forms(list(zip(inputs, headers, targets, strict=True)))
-    catalog, folder = None, None
-    if len(inputs) > 1 and setup is None and args.buffer > 0:
-        from gfjax import survey
-        from gfjax.io import atomic
-
-        folder = atomic.scratch_folder()
-        catalog = survey.index(inputs, folder.name, units=args.units)
+    folder, around = neighbours_ground(inputs, args) if setup is None else (None, None)
 
     def one(i: int, source, target) -> None:
         start = time.perf_counter()
@@ -78,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             ground = (cloud.classification == np.uint8(args.ground_class)) & ~cloud.ignored
         xyz = cloud.xyz_m
-        context = _neighbours_ground(catalog, i, xyz, args) if catalog is not None else np.empty((0, 3))
+        context = around(i, xyz) if around is not None else np.empty((0, 3))
         if not ground.any() and not len(context):
             raise InputError(f"{source}: no ground point (class {args.ground_class}) to measure heights from"
                              if setup is None else f"{source}: {setup.name} found no ground point")
@@ -102,16 +94,3 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if folder is not None:
             folder.cleanup()
-
-
-def _neighbours_ground(catalog, i: int, xyz_m: np.ndarray, args) -> np.ndarray:
-    """The ground points (by class) of the other files within `--buffer` of file `i`'s points,
-    float64 `(k, 3)` [m]."""
-    from gfjax.survey import halo
-
-    lo, hi = xyz_m[:, :2].min(axis=0) - args.buffer, xyz_m[:, :2].max(axis=0) + args.buffer
-    parts = [np.empty((0, 3))]
-    for _, _, records in halo.within_box(catalog, lo, hi, skip=i):
-        ground = (np.asarray(records["classification"]) == args.ground_class) & ~np.asarray(records["ignored"])
-        parts.append(np.asarray(records["xyz_m"])[ground])
-    return np.concatenate(parts)

@@ -18,7 +18,7 @@ from gfjax.dtm.hag import height_above_ground
 __all__ = ["chm"]
 
 
-def chm(cloud, ground, *, cell_m: float = 1.0) -> DTM:
+def chm(cloud, ground, *, cell_m: float = 1.0, context_xyz: np.ndarray | None = None) -> DTM:
     """The canopy height model of `cloud` over its `ground` points.
 
     Args:
@@ -26,6 +26,9 @@ def chm(cloud, ground, *, cell_m: float = 1.0) -> DTM:
       ground: bool `(n,)`, the points that make the terrain (`cloud.classification == 2`, a
         filter's `Result.ground`).
       cell_m: cell size in metres (`cell_m / cloud.horizontal_unit_m` file units).
+      context_xyz: ground points around the cloud, float64 `(m, 3)` in its file units (a survey
+        file's neighbours, as `gfjax.dtm.build` takes them): they enter the ground TIN, so the
+        heights at the cloud's borders are those one CHM of the whole survey would give.
 
     Returns:
       A raster of the `DTM` class: `z` float64 `(h, w)` heights in the file's vertical unit
@@ -43,7 +46,10 @@ def chm(cloud, ground, *, cell_m: float = 1.0) -> DTM:
     xyz = cloud.xyz[used]
     col0, row_top, h, w = snapped_grid(xyz[:, :2], cell)
     check_grid(name, h, w, cell_m, "a CHM")
-    height = np.maximum(height_above_ground(xyz, ground[used]), 0.0)
+    context = np.empty((0, 3)) if context_xyz is None else np.asarray(context_xyz, np.float64).reshape(-1, 3)
+    height = np.maximum(height_above_ground(np.concatenate([xyz, context]),
+                                            np.concatenate([ground[used], np.ones(len(context), bool)]))[:len(xyz)],
+                        0.0)
     col = np.floor(xyz[:, 0] / cell).astype(np.int64) - col0          # the DTM's floors
     row = (row_top - 1) - np.floor(xyz[:, 1] / cell).astype(np.int64)
     flat = row * w + col

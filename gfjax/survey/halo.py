@@ -81,6 +81,19 @@ def ground_near(catalog: Catalog, i: int, lo: np.ndarray, hi: np.ndarray,
     return np.concatenate(parts)
 
 
+def classified_ground_near(catalog: Catalog, i: int, xyz_m: np.ndarray, buffer_m: float,
+                           ground_class: int) -> np.ndarray:
+    """The other files' points of class `ground_class` (but the ignored ones) within `buffer_m`
+    of the x-y box of file `i`'s points `xyz_m` `(n, 3)` [m]: float64 `(k, 3)` [m]. The ground a
+    file's TIN (heights above ground, a DTM, a CHM) needs at its borders."""
+    lo, hi = xyz_m[:, :2].min(axis=0) - buffer_m, xyz_m[:, :2].max(axis=0) + buffer_m
+    parts = [np.empty((0, 3), np.float64)]
+    for _, _, records in within_box(catalog, lo, hi, skip=i):
+        ground = (np.asarray(records["classification"]) == ground_class) & ~np.asarray(records["ignored"])
+        parts.append(np.asarray(records["xyz_m"])[ground])
+    return np.concatenate(parts)
+
+
 def window(catalog: Catalog, i: int, cloud: Cloud, lattice: Lattice | None) -> Points:
     """File `i` of the catalog (read as `cloud`) followed by its halo, on the survey's frame."""
     entry = catalog.entries[i]
