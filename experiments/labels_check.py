@@ -51,7 +51,7 @@ def labels_of(method: str) -> dict[str, dict]:
 
 
 def main() -> int:
-    from gfjax.methods import method_names
+    from gfjax.methods import names as method_names
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--record", action="store_true", help="write the record instead of checking against it")
