@@ -127,7 +127,7 @@ def run_file(name: str) -> dict[str, dict]:
                 ground = nearest[surface]
             if rule in ("height", "both"):
                 params = dmf.Params(height_threshold_m=t_m, height_threshold_w=t_w)
-                ground = ground & extract.height_ground(local, nodes[surface], d.voxels, params.threshold_m(d.cell_m), config)
+                ground = ground & extract.height_ground(local, nodes[surface], d.voxels, params.threshold_m(d.cell_m))
             ground_all = np.zeros(cloud.n_points, bool)
             ground_all[use] = ground
             if _is_default_step7(rule, support_z, elevation, t_m, t_w):       # same answer as the filter itself

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
-from typing import Any
 
 from gfjax.cli import _job
 from gfjax.cli._common import add_units_option, check_inputs, positive_float, positive_int, ranged
@@ -139,6 +138,7 @@ def run(args: argparse.Namespace) -> int:
 
     from gfjax import methods
     from gfjax.io import las as las_io
+    from gfjax.tune import tune
 
     tuning = methods.get(args.method).tuning
     if tuning is None:
@@ -148,167 +148,50 @@ def run(args: argparse.Namespace) -> int:
     inputs = las_io.expand_inputs(args.inputs)
     _job.check_outputs([("-o", out, (".json",))], inputs=inputs, force=args.force)
     check_inputs(inputs, units=args.units)
-    if args.grid and tuning != "grid":
+    grid = _grid(args, tuning)
+    clouds = [las_io.read(path, units=args.units) for path in inputs]
+    tuned = tune(clouds, args.method, folds=args.folds, block_m=args.block, alpha=args.alpha, grid=grid,
+                 loss=args.loss, prior=args.prior, steps=args.steps, returns=args.returns, names=[str(p) for p in inputs],
+                 progress=True)
+    tuned.write(out)
+    _summary(out, tuned, kind="1 - kappa" if args.loss == "kappa" else "total error")
+    return 0
+
+
+def _grid(args: argparse.Namespace, tuning: str) -> dict[str, tuple]:
+    """The grid `gfjax.tune.tune` searches, from `--windows`, `--time-steps`, `--rigidness` and
+    `--grid`, each checked against the method (InputError naming the option)."""
+    from gfjax import methods
+
+    given = {"--windows": ("window_m", args.windows), "--time-steps": ("time_step", args.time_steps),
+             "--rigidness": ("rigidness", args.rigidness)}
+    if tuning == "grid":
+        for option, (_, value) in given.items():
+            if value:
+                raise InputError(f"{option}: not a setting of {args.method}")
+        if args.loss != "total-error":
+            raise InputError(f"--loss {args.loss}: {args.method} is searched on total error only")
+        from gfjax.tune.run import checked_grid
+
+        return checked_grid(args.method, dict(args.grid), option="--grid")
+    if args.grid:
         searched = [name for name in methods.available() if methods.get(name).tuning == "grid"]
         raise InputError(f"--grid: only {', '.join(searched)} are tuned on a grid of settings, not {args.method}")
-    if tuning == "grid":
-        return _run_search(args, inputs, out)
-
-
-    from gfjax.tune import fit as tfit
-    from gfjax.tune import guard
-    from gfjax.tune import methods as tmethods
-    from gfjax.tune.params import write_params
-    from gfjax.tune.problem import Problem
-
-    method = tmethods.get(args.method)
-    if args.windows and method.static != "window_m":
+    if args.windows and args.method != "smrf":
         raise InputError(f"--windows: {args.method} has no window grid")
-    for option, value in (("--time-steps", args.time_steps), ("--rigidness", args.rigidness)):
-        if value and method.name != "csf":
+    for option in ("--time-steps", "--rigidness"):
+        if given[option][1] and args.method != "csf":
             raise InputError(f"{option}: only CSF has a cloth grid, not {args.method}")
     _check_grids(args)
-    samples, terrain = _labelled_samples(args, inputs)
-    config, start, settled = _start(method, terrain)
-    if method.name == "csf":
-        from gfjax.tune import csf as tcsf
-
-        windows = tuple(tcsf.encode(t, r) for r in args.rigidness or tcsf.RIGIDNESS
-                        for t in args.time_steps or tcsf.TIME_STEPS)
-    else:
-        windows = method.grid_values(config, args.windows)
-    settings = tfit.Settings(steps=args.steps, prior=args.prior, loss=args.loss, windows_m=windows)
-    problem = Problem(samples, config=config, max_window_m=max(windows), method=method, grid=windows, defaults=start)
-    v = guard.validate(problem, settings, folds=args.folds, block_m=args.block, alpha=args.alpha, progress=True)
-    names = [b.name for b in method.bounds]
-    kept = bool(v.kept[0])
-    values = {b.name: float(x) if kept else d for b, x, d in zip(method.bounds, v.values[0], start)}
-    static_values = method.params_values(float(v.window_m[0])) if method.static else {}
-    values |= static_values
-    span = {b.name: b.hi - b.lo for b in method.bounds}
-    defaults = dict(zip(names, start))
-    fitted = [k for k in names if kept and abs(values[k] - defaults[k]) > 1e-4 * span[k]]
-    kind = "1 - kappa" if args.loss == "kappa" else "total error"
-    validation = {"folds": args.folds, "measure": "total error" if args.folds >= 2 else kind,
-                  "units": ("files" if v.by_sample[0] else f"blocks of {args.block:g} m") if args.folds >= 2 else None,
-                  "default": float(v.default_error[0]), "tuned": float(v.tuned_error[0]),
-                  "shrink": float(v.shrink[0]), "p_value": float(v.p_value[0]), "alpha": args.alpha,
-                  "changed_units": int(v.units[0]), "kept": kept, "per_fold": v.fold_errors[:, 0, :].tolist()}
-    extra = {"fitted": fitted, "validation": validation, "loss": args.loss, "prior": args.prior, "steps": args.steps,
-             "training_files": [str(p) for p in inputs],
-             "start": {"values": defaults, "chosen_from_terrain": settled.chosen,
-                       "terrain": settled.terrain._asdict() if settled.terrain is not None else None}}
-    if method.static == "window_m":
-        extra |= {"grid": {method.static: list(windows)},
-                  "window_chosen_from_grid": kept and values[method.static] != method.default_static(config),
-                  "not_differentiable": {method.static: method.static_note}}
-    elif method.static:
-        static_defaults = method.params_values(method.default_static(config))
-        grid = [method.params_values(w) for w in windows]
-        extra |= {"grid": {k: sorted({g[k] for g in grid}) for k in static_values},
-                  "grid_chosen": {k: kept and static_values[k] != static_defaults[k] for k in static_values},
-                  "not_differentiable": {k: method.static_note for k in static_values}}
-    write_params(out, method=args.method, values=values, units=method.units, extra=extra)
-    _summary(out, args.method, values, validation, fitted, kind=kind, shrink=float(v.shrink[0]))
-    return 0
+    return {key: value for key, value in given.values() if value}
 
 
-def _run_search(args: argparse.Namespace, inputs, out) -> int:
-    """A method tuned on a grid (`Method.tuning`): every combination of the grid, then the guard
-    (`gfjax.tune.search`)."""
-    import importlib
-
-    from gfjax import limits, methods
-    from gfjax.tune import search
-    from gfjax.tune.params import write_params
-
-    method = methods.get(args.method)
-    tmodule = importlib.import_module(f"gfjax.tune.{args.method}")
-    config = method.Config()
-
-    for option, value in (("--windows", args.windows), ("--time-steps", args.time_steps),
-                          ("--rigidness", args.rigidness)):
-        if value:
-            raise InputError(f"{option}: not a setting of {args.method}")
-    if args.loss != "total-error":
-        raise InputError(f"--loss {args.loss}: {args.method} is searched on total error only")
-    grid = tmodule.default_grid(config)
-    for key, values in args.grid:
-        if key not in grid:
-            raise InputError(f"--grid {key}: unknown key; {args.method} searches {', '.join(grid)}")
-        allowed = tmodule.TUNER.grid_ranges.get(key, method.ranges[key])
-        if allowed.integer:             # a whole number given as "2" or "2.0" is the integer 2
-            values = tuple(int(v) if float(v).is_integer() else v for v in values)
-        for value in values:
-            try:
-                limits.check_value(key, value, allowed)
-            except ValueError as err:
-                raise InputError(f"--grid: {err}") from None
-        grid[key] = values
-    samples, _ = _labelled_samples(args, inputs)      # no value of MASF's or DMF's follows the terrain
-    try:
-        tuned = tmodule.TUNER.tune(samples, config=config, grid=grid, folds=args.folds, block_m=args.block, alpha=args.alpha,
-                           progress=True)
-    except ValueError as err:
-        raise InputError(f"--grid: {err}") from None
-    v = tuned.choice
-    defaults, chosen = tuned.combos[tuned.default], tuned.combos[v.index]
-    fitted = [k for k in chosen if chosen[k] != defaults[k]]
-    validation = {"folds": args.folds, "measure": "total error",
-                  "units": ("files" if v.by_sample else f"blocks of {args.block:g} m") if args.folds >= 2 else None,
-                  "default": v.default_error, "tuned": v.tuned_error, "p_value": v.p_value, "alpha": args.alpha,
-                  "changed_units": v.units, "kept": v.kept, "per_fold": v.fold_errors.tolist(),
-                  "best_on_all_labels": tmodule.TUNER.values(tuned.combos[v.best])}
-    extra = {"fitted": fitted, "validation": validation, "search": "exhaustive grid",
-             "choice": "one-standard-error rule: the candidate nearest the defaults within one standard error "
-                       f"plus {search.TIE_MARGIN:g} of the best" if args.folds >= 2 else "lowest training error",
-             "grid": {k: sorted({c[k] for c in tuned.combos}) for k in defaults},
-             "not_differentiable": {k: tmodule.TUNER.note for k in defaults},
-             "training_files": [str(p) for p in inputs]}
-    write_params(out, method=args.method, values=tuned.values, units=tmodule.TUNER.units, extra=extra)
-    _summary(out, args.method, tuned.values, validation, fitted)
-    return 0
-
-
-def _labelled_samples(args: argparse.Namespace, inputs) -> tuple[list, Any]:
-    """The training files as `gfjax.tune.problem.Sample`s and their terrain together
-    (`gfjax.adaptive.combine`); InputError when none holds class 2."""
-    import numpy as np
-
-    from gfjax import adaptive
-    from gfjax.io import las as las_io
-    from gfjax.tune.problem import Sample
-
-    samples, terrains = [], []
-    for path in inputs:
-        cloud = las_io.read(path, units=args.units)
-        samples.append(Sample.from_cloud(cloud, returns=args.returns))
-        use = cloud.filter_mask(args.returns)
-        if use.any():
-            xyz = cloud.xyz_m
-            terrains.append(adaptive.measure(xyz[use], xyz[cloud.filter_mask("last")]))
-    if not any(np.any(s.ref_ground[s.use]) for s in samples):
-        raise InputError(f"{', '.join(map(str, inputs))}: no reference ground (class 2) to tune on")
-    return samples, adaptive.combine(terrains)
-
-
-def _start(method, terrain) -> tuple:
-    """The Config and the values vector `(p,)` a fit of `method` (`gfjax.tune.methods.GradientTuner`)
-    starts from: the method's values that follow the data (`gfjax.adaptive`) on the training
-    files' `terrain`, as `gfjax filter` would settle them on these files; and what was chosen."""
-    from gfjax import adaptive, methods
-
-    found = methods.get(method.name)
-    settled = adaptive.settle_terrain(found.adapt, terrain, method.config_type(), found.Params())
-    start = [float(settled.chosen.get(b.name, b.default)) for b in method.bounds]   # exact, as params.json holds them
-    return settled.config, start, settled
-
-
-def _summary(out, method: str, values: dict, validation: dict, fitted: list[str], *, kind: str = "total error",
-             shrink: float | None = None) -> None:
+def _summary(out, tuned, *, kind: str = "total error") -> None:
     """The lines `gfjax tune` prints: the values written, then what the guard decided."""
-    print(f"{out}: {method} " + ", ".join(f"{k}={values[k]:.4g}" for k in values))
+    values, validation, fitted = tuned.values, tuned.validation, tuned.fitted
+    print(f"{out}: {tuned.method} " + ", ".join(f"{k}={values[k]:.4g}" for k in values))
     if validation["units"] is not None:
+        shrink = validation.get("shrink")
         level = f" (shrink {shrink:.2f})" if shrink is not None else ""
         print(f"validation ({validation['folds']} folds by {validation['units']}): out-of-fold total error defaults "
               f"{validation['default']:.4f}, tuned {validation['tuned']:.4f}{level}, "

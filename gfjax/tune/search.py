@@ -50,7 +50,7 @@ from gfjax import aot
 from gfjax.tune.guard import fold_plan, sign_flip_p
 from gfjax.tune.problem import Sample
 
-__all__ = ["Choice", "GridTuner", "TIE_MARGIN", "Tuned", "errors", "grid_candidates", "grid_distance", "one_se_choice",
+__all__ = ["Choice", "GridTuner", "TIE_MARGIN", "Searched", "errors", "grid_candidates", "grid_distance", "one_se_choice",
            "unit_errors", "validate", "wrong_table"]
 
 
@@ -259,7 +259,7 @@ def grid_distance(combos: Sequence[Mapping[str, float]], default: int) -> np.nda
     return out
 
 
-class Tuned(NamedTuple):
+class Searched(NamedTuple):
     """Outcome of `tune`: `values` to write to params.json (the defaults unless the guard kept
     the fit), `combos` (every candidate), `default` (the defaults' index), `choice`
     (`Choice`), `wrong` (per sample, the tables the choice was made from)."""
@@ -322,7 +322,7 @@ class GridTuner:
 
     def tune(self, samples: Sequence[Sample], *, config=None, grid: Mapping[str, Sequence[float]] | None = None,
              masks: Sequence[np.ndarray] | None = None, folds: int = 3, block_m: float = 50.0, alpha: float = 0.05,
-             seed: int = 0, progress: bool = False) -> Tuned:
+             seed: int = 0, progress: bool = False) -> Searched:
         """One setting for labelled `samples`: every candidate of `grid` (default
         `default_grid`) labels every sample, and `validate` chooses (equal weight per sample;
         `masks`: the labelled points that count, default every used point)."""
@@ -342,4 +342,4 @@ class GridTuner:
         choice = validate(wrong, [s.xyz_m for s in samples], masks, default=default,
                           distance=grid_distance(combos, default), folds=folds, block_m=block_m,
                           alpha=alpha, seed=seed)
-        return Tuned(self.values(combos[choice.index]), combos, default, choice, wrong)
+        return Searched(self.values(combos[choice.index]), combos, default, choice, wrong)
