@@ -17,13 +17,13 @@ import argparse
 import dataclasses
 import json
 import os
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
 import numpy as np
 
+from gfjax.bench.harness import Stopwatch, time_call
 from gfjax.io.cloud import Cloud
 from gfjax.metrics import point_metrics
 
@@ -134,14 +134,12 @@ def write_markdown(path: Path, lines: list[str]) -> None:
 
 def first_and_again(fn: Callable[[], T]) -> tuple[float, float, T, T]:
     """Call `fn` twice: `(first_s, again_s, first, again)`, wall-clock seconds of each call
-    (`time.perf_counter`); the first includes JIT compilation, the second runs warm."""
-    start = time.perf_counter()
-    first = fn()
-    first_s = time.perf_counter() - start
-    start = time.perf_counter()
-    again = fn()
-    again_s = time.perf_counter() - start
-    return first_s, again_s, first, again
+    (`gfjax.bench.harness.Stopwatch`); the first includes JIT compilation, the second runs warm."""
+    with Stopwatch() as first_watch:
+        first = fn()
+    with Stopwatch() as again_watch:
+        again = fn()
+    return first_watch.wall_s, again_watch.wall_s, first, again
 
 
 def score(ground: np.ndarray, cloud: Cloud, mask: np.ndarray | None = None) -> dict:
@@ -152,13 +150,6 @@ def score(ground: np.ndarray, cloud: Cloud, mask: np.ndarray | None = None) -> d
 
 def median_time(fn: Callable, *args, repeats: int) -> float:
     """Median wall time [s] of `repeats` calls `fn(*args)` after one warm-up call (compiles
-    apart), each waited for (`jax.block_until_ready`)."""
-    import jax
-
-    jax.block_until_ready(fn(*args))
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
+    apart), each waited for (`jax.block_until_ready`): `gfjax.bench.harness.time_call`."""
+    timing, _ = time_call(lambda: fn(*args), repeat=repeats, warmup=1, block=True)
+    return float(timing.median_s)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import laspy
@@ -28,6 +27,7 @@ from copc_writer import write_copc  # noqa: E402
 from survey_scale import RESULTS, SOURCE  # noqa: E402
 
 from experiments.common import median_time  # noqa: E402
+from gfjax.bench.harness import Stopwatch  # noqa: E402
 
 
 def main():
@@ -59,10 +59,10 @@ def main():
                 for row in range(last[1] + 1):
                     lo, hi = tiles_region(np.array([col, row]), np.array([col, row]), frame, lattice)
                     before = reader.read_points
-                    start = time.perf_counter()
-                    index, _ = reader.within(lo, hi)
+                    with Stopwatch() as watch:
+                        index, _ = reader.within(lo, hi)
                     rows.append({"tile": (col, row), "window": len(index), "read": reader.read_points - before,
-                                 "s": time.perf_counter() - start})
+                                 "s": watch.wall_s})
 
         labels = {}
         for name in ("bcts_2.copc.laz", "bcts_2.las"):

@@ -26,13 +26,13 @@ import os
 import platform
 import subprocess
 import sys
-import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.common import LABELLED, RESULTS, Labelled, labelled  # noqa: E402
+from gfjax.bench.harness import Stopwatch  # noqa: E402
 from gfjax.methods import names as method_names  # noqa: E402
 
 METHODS = tuple(method_names())
@@ -56,9 +56,9 @@ def score_file(method: str, entry: Labelled, run) -> dict:
     from gfjax import metrics
 
     cloud = gfjax.read(entry.file)
-    start = time.perf_counter()
-    ground = np.asarray(run(cloud), dtype=bool)
-    seconds = time.perf_counter() - start
+    with Stopwatch() as watch:
+        ground = np.asarray(run(cloud), dtype=bool)
+    seconds = watch.wall_s
     reference = cloud.classification == 2
     scored = metrics.scored_mask(cloud.classification)
     point = metrics.point_metrics(ground, reference, mask=scored)
@@ -83,14 +83,14 @@ def run_method(method: str, names: list[str], model: str | None = None) -> dict:
 
     entries = {e.name: e for e in LABELLED}
     warm = entries[WARM_UP]
-    start = time.perf_counter()
+    clock = Stopwatch()
     if warm.file.exists():
         score_file(method, warm, run)
     rows = [score_file(method, entries[name], run) for name in names]
     for row in rows:
         print(f"{method:9s} {row['file']:12s} TE {100 * row['total_error']:6.2f} % type I {100 * row['type1']:6.2f} % "
               f"RMSE {row['rmse_m']:.3f} m {row['seconds']:.1f} s", flush=True)
-    return {"rows": rows, "warm_up_s": time.perf_counter() - start - sum(r["seconds"] for r in rows)}
+    return {"rows": rows, "warm_up_s": clock.wall_s - sum(r["seconds"] for r in rows)}
 
 
 def _mean(rows: list[dict], key: str) -> float:

@@ -23,7 +23,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import json  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
-import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import jax  # noqa: E402
@@ -34,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import gfjax  # noqa: E402
 from experiments.common import DATA, files_parser, isprs_samples, score, write_json  # noqa: E402
 from gfjax import csf  # noqa: E402
+from gfjax.bench.harness import Stopwatch, time_call  # noqa: E402
 
 DEFAULT_FILES = [*isprs_samples(), DATA / "lasR_bcts" / "bcts_1.laz"]
 
@@ -50,9 +50,9 @@ def run_package(xyz: np.ndarray) -> tuple[np.ndarray, float, float]:
     cloth.params.interations = 500
     cloth.setPointCloud(np.ascontiguousarray(xyz, np.float64))
     ground, off = CSF.VecInt(), CSF.VecInt()
-    t0, c0 = time.perf_counter(), time.process_time()
-    cloth.do_filtering(ground, off, False)
-    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
+    with Stopwatch() as watch:
+        cloth.do_filtering(ground, off, False)
+    seconds, cpu = watch.wall_s, watch.cpu_s
     labels = np.zeros(len(xyz), bool)
     labels[np.asarray(ground, np.int64)] = True
     return labels, seconds, cpu
@@ -60,12 +60,9 @@ def run_package(xyz: np.ndarray) -> tuple[np.ndarray, float, float]:
 
 def run_gfjax(cloud) -> tuple[np.ndarray, float, float, float, int]:
     """Labels, compile seconds, wall and CPU seconds of a warm call of `gfjax.csf.filter`."""
-    t0 = time.perf_counter()
-    csf.filter(cloud)                                        # compiles for this grid shape
-    first = time.perf_counter() - t0
-    t0, c0 = time.perf_counter(), time.process_time()
-    result = csf.filter(cloud)
-    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
+    # the warm-up call compiles for this grid shape
+    timing, result = time_call(lambda: csf.filter(cloud), repeat=1, warmup=1)
+    first, seconds, cpu = timing.warmup_s[0], timing.times_s[0], timing.cpu_times_s[0]
     return result.ground, max(first - seconds, 0.0), seconds, cpu, result.diagnostics.steps
 
 

@@ -22,12 +22,13 @@ import subprocess
 import sys
 import tempfile
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import psutil
 from survey_scale import GFJAX, ROOT, write_survey
+
+from gfjax.bench.harness import Stopwatch
 
 RESULTS = ROOT / "experiments" / "results"
 
@@ -37,7 +38,7 @@ def run(paths: list[Path], out: Path, method: str, extra: tuple[str, ...]) -> di
     out.mkdir()
     argv = [*GFJAX, "-q", "filter", *map(str, paths), "-o", str(out), "--method", method, *extra]
     peaks: dict[int, int] = {}
-    start = time.perf_counter()
+    watch = Stopwatch()
     child = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL)
     root = psutil.Process(child.pid)
     stop = threading.Event()
@@ -57,7 +58,7 @@ def run(paths: list[Path], out: Path, method: str, extra: tuple[str, ...]) -> di
     poller = threading.Thread(target=poll, daemon=True)
     poller.start()
     code = child.wait()
-    wall = time.perf_counter() - start
+    wall = watch.stop().wall_s
     stop.set()
     poller.join()
     if code != 0:
@@ -79,9 +80,9 @@ def serial_rates(paths: list[Path], method: str) -> dict:
     config = module.Config()
     out = {}
     with tempfile.TemporaryDirectory(prefix="gfjax_dask_") as folder:
-        start = time.perf_counter()
-        catalog = survey.index(paths, folder)
-        out["index_s"] = time.perf_counter() - start
+        with Stopwatch() as watch:
+            catalog = survey.index(paths, folder)
+        out["index_s"] = watch.wall_s
         n_points = sum(e.n_points for e in catalog.entries)
         out["index_points_per_s"] = n_points / out["index_s"]
 
@@ -96,18 +97,18 @@ def serial_rates(paths: list[Path], method: str) -> dict:
         tile_labels(catalog, filter_fn, lattice, sample[0])            # compiled (or loaded) before timing
         times, points = [], []
         for key in sample:
-            start = time.perf_counter()
-            parts = tile_labels(catalog, filter_fn, lattice, key)
-            times.append(time.perf_counter() - start)
+            with Stopwatch() as watch:
+                parts = tile_labels(catalog, filter_fn, lattice, key)
+            times.append(watch.wall_s)
             points.append(sum(len(index) for _, index, _ in parts))
         out["tile_s"] = float(np.median(times))
         out["tile_core_points"] = float(np.median(points))
         cloud = las_io.read(paths[0])
         with tempfile.TemporaryDirectory() as written:
-            start = time.perf_counter()
-            cloud = las_io.read(paths[0])
-            las_io.write(cloud.with_ground(np.zeros(cloud.n_points, bool)), Path(written) / "a.laz")
-            out["write_points_per_s"] = cloud.n_points / (time.perf_counter() - start)
+            with Stopwatch() as watch:
+                cloud = las_io.read(paths[0])
+                las_io.write(cloud.with_ground(np.zeros(cloud.n_points, bool)), Path(written) / "a.laz")
+            out["write_points_per_s"] = cloud.n_points / watch.wall_s
     return out
 
 
@@ -117,9 +118,9 @@ def task_overhead(n_tasks: int = 2000) -> float:
 
     with cluster.client(workers=2) as client:
         client.gather(client.map(int, range(100), pure=False))
-        start = time.perf_counter()
-        client.gather(client.map(int, range(n_tasks), pure=False))
-        return (time.perf_counter() - start) / n_tasks
+        with Stopwatch() as watch:
+            client.gather(client.map(int, range(n_tasks), pure=False))
+        return watch.wall_s / n_tasks
 
 
 def main():

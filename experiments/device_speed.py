@@ -16,7 +16,6 @@ import os
 import platform
 import statistics
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -26,24 +25,18 @@ import numpy as np  # noqa: E402
 
 import gfjax  # noqa: E402
 from experiments.common import DATA, ISPRS_REFERENCE, RESULTS  # noqa: E402
+from gfjax.bench.harness import Stopwatch, time_call  # noqa: E402
 
 FILES = {"bcts_2": DATA / "lasR_bcts" / "bcts_2.laz",
          **{s: ISPRS_REFERENCE / f"{s}-utm.laz" for s in ("samp22", "samp42", "samp54")}}
 
 
-def timed(fn):
-    start = time.perf_counter()
-    out = fn()
-    jax.block_until_ready(out) if isinstance(out, jax.Array) else None
-    return time.perf_counter() - start, out
-
-
 def filter_times(name, run, clouds, repeat):
     rows = {}
     for label, cloud in clouds.items():
-        first, _ = timed(lambda: run(cloud))
-        warm = [timed(lambda: run(cloud))[0] for _ in range(repeat)]
-        rows[label] = {"points": cloud.n_points, "first_s": first, "warm_s": statistics.median(warm)}
+        timing, _ = time_call(lambda: run(cloud), repeat=repeat, warmup=1, block=True)
+        first = timing.warmup_s[0]
+        rows[label] = {"points": cloud.n_points, "first_s": first, "warm_s": timing.median_s}
         print(f"{name} {label}: first {first:.2f} s, warm {rows[label]['warm_s']:.2f} s", flush=True)
     return rows
 
@@ -68,10 +61,10 @@ def train_step_times(preset, cloud, steps):
     times = []
     for i in range(steps + 1):
         step = batches[i % len(batches)]
-        start = time.perf_counter()
-        model, opt_state, loss, _ = train.train_step(model, opt_state, step, opt, 0.0, train.LR_START)
-        jax.block_until_ready(loss.total)
-        times.append(time.perf_counter() - start)
+        with Stopwatch() as watch:
+            model, opt_state, loss, _ = train.train_step(model, opt_state, step, opt, 0.0, train.LR_START)
+            jax.block_until_ready(loss.total)
+        times.append(watch.wall_s)
     voxels = [int(b.packed.valid.sum()) for b in batches]
     return {"parameters": count_parameters(net_config), "first_s": times[0], "step_s": statistics.median(times[1:]),
             "steps_timed": len(times) - 1, "pack_rows": size, "voxels_per_pack_median": int(np.median(voxels))}
@@ -95,7 +88,7 @@ def main():
 
     clouds = {k: gfjax.read(p) for k, p in FILES.items()}
     for part in parts:
-        start = time.perf_counter()
+        watch = Stopwatch()
         try:
             if part == "smrf":
                 res = filter_times("smrf", lambda c: gfjax.smrf.filter(c).ground, clouds, args.repeat)
@@ -113,7 +106,7 @@ def main():
         except Exception as err:            # keep the other parts' figures
             res = {"error": f"{type(err).__name__}: {err}"}
             print(part, res, flush=True)
-        res_time = time.perf_counter() - start
+        res_time = watch.wall_s
         out["results"][part] = {"seconds": res_time, **({"files": res} if part in ("smrf", "sparsegf") else res)}
         save()
 

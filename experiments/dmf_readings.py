@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -30,6 +29,7 @@ import numpy as np
 
 import gfjax
 from gfjax import dmf, metrics
+from gfjax.bench.harness import Stopwatch
 from gfjax.dmf import extract
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -232,15 +232,15 @@ def main() -> None:
     jax.config.update("jax_compilation_cache_dir", "/tmp/gfjax_jax_cache")      # compiles shared across runs
     out_dir = ROOT / "experiments" / "results"
     out_dir.mkdir(parents=True, exist_ok=True)
-    start = time.perf_counter()
+    clock = Stopwatch()
     table = {}
     for name in SAMPLES + BCTS:
-        t0 = time.perf_counter()
-        table[name] = run_file(name)
-        print(f"{name}: {time.perf_counter() - t0:.1f} s", flush=True)
+        with Stopwatch() as watch:
+            table[name] = run_file(name)
+        print(f"{name}: {watch.wall_s:.1f} s", flush=True)
     sel = select(table)
     command = "nice .venv/bin/python experiments/dmf_readings.py"
-    seconds = time.perf_counter() - start
+    seconds = clock.wall_s
     (out_dir / "dmf_readings.json").write_text(json.dumps(
         {"command": command, "config_defaults": str(dmf.Config()), "params_defaults": _params_defaults(),
          "selection": sel, "per_file": table}, indent=1, default=float))

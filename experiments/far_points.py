@@ -24,6 +24,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "experiments" / "results"
 
+# A fresh process that times its own filter call with the plain clock and reports its own peak
+# memory (read by `run`): the harness is not imported there, so it adds nothing to that memory.
 _PROGRAM = r"""
 import importlib, resource, sys, time
 import numpy as np, gfjax

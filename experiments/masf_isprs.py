@@ -34,6 +34,7 @@ import gfjax  # noqa: E402
 from experiments.common import DATA, ISPRS_REFERENCE, ROOT, write_markdown  # noqa: E402
 from experiments.common import score as score_points  # noqa: E402
 from gfjax import masf, methods  # noqa: E402
+from gfjax.bench.harness import Stopwatch  # noqa: E402
 
 SAMPLES = ["samp12", "samp21", "samp22", "samp24", "samp31", "samp41", "samp42", "samp51", "samp52",
            "samp54", "samp71"]
@@ -85,9 +86,9 @@ def score(sample: str, preset: str | None, changes: dict | None = None, *, with_
     config, params = methods.make_config_and_params(masf, preset=preset)
     if changes:
         config = dataclasses.replace(config, **changes)
-    start = time.perf_counter()
-    result = masf.filter(cloud, config=config, params=params)
-    seconds = time.perf_counter() - start
+    with Stopwatch() as watch:
+        result = masf.filter(cloud, config=config, params=params)
+    seconds = watch.wall_s
     m = score_points(result.ground, cloud)
     out = {"te": 100 * m["total_error"], "t1": 100 * m["type1"], "t2": 100 * m["type2"],
            "kappa": 100 * m["kappa"], "seconds": seconds, "rebuilds": result.diagnostics.tin_rebuilds}
@@ -201,14 +202,14 @@ def speed_section(repeat: int) -> list[str]:
         for label, changes in SPEED_READINGS:
             config = dataclasses.replace(masf.Config(), **changes)
             load_before = os.getloadavg()[0]
-            start = time.perf_counter()
-            masf.filter(cloud, config=config)
-            warm_up = time.perf_counter() - start
+            with Stopwatch() as watch:
+                masf.filter(cloud, config=config)
+            warm_up = watch.wall_s
             best = None
             for _ in range(repeat):
-                cpu0, wall0 = time.process_time(), time.perf_counter()
-                result = masf.filter(cloud, config=config)
-                wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+                with Stopwatch() as watch:
+                    result = masf.filter(cloud, config=config)
+                wall, cpu = watch.wall_s, watch.cpu_s
                 if best is None or wall < best[0]:
                     best = (wall, cpu, result)
             rows.append((label, warm_up, *best, load_before, os.getloadavg()[0]))

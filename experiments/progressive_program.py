@@ -21,7 +21,6 @@ import argparse
 import functools
 import os
 import pickle
-import statistics
 import time
 from pathlib import Path
 
@@ -33,6 +32,7 @@ import numpy as np
 from jax.experimental import serialize_executable
 from raster_speed import terrain  # noqa: E402  (a script beside this one)
 
+from gfjax.bench.harness import Stopwatch, time_call
 from gfjax.raster.morphology import opening
 from gfjax.smrf import stages
 
@@ -58,23 +58,16 @@ def window(side: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def measure(fn, args, repeats: int = 5) -> dict:
-    start = time.perf_counter()
-    compiled = jax.jit(fn).lower(*args).compile()
-    compile_s = time.perf_counter() - start
+    with Stopwatch() as watch:
+        compiled = jax.jit(fn).lower(*args).compile()
+    compile_s = watch.wall_s
     blob = pickle.dumps(serialize_executable.serialize(compiled), protocol=pickle.HIGHEST_PROTOCOL)
-    loads = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        loaded = serialize_executable.deserialize_and_load(*pickle.loads(blob))
-        loads.append(time.perf_counter() - start)
+    loads, loaded = time_call(lambda: serialize_executable.deserialize_and_load(*pickle.loads(blob)),
+                              repeat=repeats, warmup=0)
     out = jax.block_until_ready(loaded(*args))
-    runs = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(loaded(*args))
-        runs.append(time.perf_counter() - start)
-    return dict(compile_s=compile_s, mb=len(blob) / 1e6, load_s=statistics.median(loads),
-                run_s=statistics.median(runs), out=np.asarray(out))
+    runs, _ = time_call(lambda: loaded(*args), repeat=repeats, warmup=0, block=True)
+    return dict(compile_s=compile_s, mb=len(blob) / 1e6, load_s=loads.median_s,
+                run_s=runs.median_s, out=np.asarray(out))
 
 
 def main() -> None:

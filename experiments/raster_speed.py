@@ -14,8 +14,6 @@ import argparse
 import functools
 import os
 import platform
-import statistics
-import time
 from pathlib import Path
 
 import jax
@@ -30,25 +28,21 @@ import skimage.measure
 import skimage.morphology
 
 from gfjax import raster
+from gfjax.bench.harness import Stopwatch, time_call
 
 RESULTS = Path(__file__).parent / "results" / "raster_speed.md"
 
 
 def timed(fn, *args, repeats: int):
     """(median wall s, median cpu s, last result) over `repeats` warm calls."""
-    walls, cpus, out = [], [], None
-    for _ in range(repeats):
-        w0, c0 = time.perf_counter(), time.process_time()
-        out = jax.block_until_ready(fn(*args))
-        walls.append(time.perf_counter() - w0)
-        cpus.append(time.process_time() - c0)
-    return statistics.median(walls), statistics.median(cpus), out
+    timing, out = time_call(lambda: fn(*args), repeat=repeats, warmup=0, block=True)
+    return timing.median_s, timing.median_cpu_s, out
 
 
 def compile_s(fn, *args) -> float:
-    t0 = time.perf_counter()
-    compiled = jax.jit(fn).lower(*args).compile()
-    seconds = time.perf_counter() - t0
+    with Stopwatch() as watch:
+        compiled = jax.jit(fn).lower(*args).compile()
+    seconds = watch.wall_s
     jax.block_until_ready(compiled(*args))                 # warm-up call
     return seconds, compiled
 

@@ -17,7 +17,6 @@ import os
 import platform
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -28,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import gfjax  # noqa: E402
 from experiments.common import ISPRS_REFERENCE, KEYS, ROOT, first_and_again, isprs_samples, score, write_markdown  # noqa: E402
 from gfjax import smrf  # noqa: E402
+from gfjax.bench.harness import Stopwatch  # noqa: E402
 
 
 def run_gfjax(cloud):
@@ -40,9 +40,10 @@ def run_pysmrf(cloud):
     import pysmrf
 
     xyz = cloud.xyz_m
-    start = time.perf_counter()
-    res = pysmrf.classify(xyz[:, 0], xyz[:, 1], xyz[:, 2], windows=18)
-    return np.asarray(res.is_ground, bool), time.perf_counter() - start
+    with Stopwatch() as watch:
+        res = pysmrf.classify(xyz[:, 0], xyz[:, 1], xyz[:, 2], windows=18)
+        ground = np.asarray(res.is_ground, bool)
+    return ground, watch.wall_s
 
 
 def main(argv=None) -> int:

@@ -23,7 +23,6 @@ import argparse
 import os
 import platform
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -34,6 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.common import median_time  # noqa: E402
+from gfjax.bench.harness import Stopwatch  # noqa: E402
 from gfjax.nn import sparse  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,9 +45,9 @@ VOXEL_M = 0.5
 
 
 def compile_time(fn, *args):
-    start = time.perf_counter()
-    fn.lower(*args).compile()
-    return time.perf_counter() - start
+    with Stopwatch() as watch:
+        fn.lower(*args).compile()
+    return watch.wall_s
 
 
 def voxels(path):
@@ -68,10 +68,10 @@ def run(name, path, args):
     weight = jnp.asarray(rng.standard_normal((27, C, C)) * np.sqrt(2 / (27 * C)), jnp.float32)
     valid = jnp.ones(n, bool)
     coords_j = jnp.asarray(coords)
-    t0 = time.perf_counter()
-    kmap = sparse.submanifold_map(coords_j, valid)
-    jax.block_until_ready(kmap.in_idx)
-    first_map_s = time.perf_counter() - t0
+    with Stopwatch() as watch:
+        kmap = sparse.submanifold_map(coords_j, valid)
+        jax.block_until_ready(kmap.in_idx)
+    first_map_s = watch.wall_s
     map_fn = jax.jit(lambda c, v: sparse.submanifold_map(c, v, block=kmap.block, n_blocks=kmap.n_blocks))
     map_s = median_time(map_fn, coords_j, valid, repeats=args.repeats)
     pairs = int(kmap.n_pairs)

@@ -17,13 +17,13 @@ import argparse
 import dataclasses
 import json
 import os
-import time
 from pathlib import Path
 
 import numpy as np
 
 import gfjax
 from gfjax import sparsegf
+from gfjax.bench.harness import time_call
 from gfjax.metrics import dtm_metrics, point_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,18 +34,12 @@ FOREST = DATA / "lasR_bcts" / "bcts_2.laz"
 RESULTS = ROOT / "experiments" / "results"
 
 
-def timed(fn):
-    start = time.perf_counter()
-    out = fn()
-    return time.perf_counter() - start, out
-
-
 def evaluate(name, run, clouds):
     """Scores of one filter `run(cloud) -> ground` on every test cloud."""
     rows = {}
     for label, cloud in clouds.items():
-        first_s, ground = timed(lambda: run(cloud))
-        again_s, ground = timed(lambda: run(cloud))
+        timing, ground = time_call(lambda: run(cloud), repeat=1, warmup=1)   # the first call, then the warm one
+        first_s, again_s = timing.warmup_s[0], timing.times_s[0]
         ref = cloud.classification == 2
         row = {"first_s": first_s, "warm_s": again_s, "points": cloud.n_points}
         if label == "bcts_2":

@@ -21,7 +21,6 @@ import json
 import os
 import platform
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -30,6 +29,7 @@ import numpy as np
 
 import gfjax
 from gfjax import sparsegf
+from gfjax.bench.harness import Stopwatch, time_call
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -47,12 +47,8 @@ COMPRESS_BATCH = jax.jit(jax.vmap(_compress_central))
 
 def _best_of(repeat: int, fn):
     """(fastest wall time of `repeat` calls [s], result of the last call)."""
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        result = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, result
+    timing, result = time_call(fn, repeat=repeat, warmup=0)
+    return timing.min_s, result
 
 
 def run_file(path: Path, *, repeat: int = 3) -> dict:
@@ -71,9 +67,9 @@ def run_file(path: Path, *, repeat: int = 3) -> dict:
 
     t_compile = 0.0
     for x, v in zip(local, valid):
-        t0 = time.perf_counter()
-        COMPRESS_BATCH.lower(x, v).compile()
-        t_compile += time.perf_counter() - t0
+        with Stopwatch() as watch:
+            COMPRESS_BATCH.lower(x, v).compile()
+        t_compile += watch.wall_s
         jax.block_until_ready(COMPRESS_BATCH(x, v))                # warm-up
     t_compress, outs = _best_of(repeat, lambda local=local, valid=valid: jax.block_until_ready(
         [COMPRESS_BATCH(x, v) for x, v in zip(local, valid)]))
@@ -110,9 +106,9 @@ def run_file(path: Path, *, repeat: int = 3) -> dict:
     )
     cls = cloud.classification
     if np.any(cls == 2):
-        t0 = time.perf_counter()
-        hag = sparsegf.hag_targets(xyz, cls)
-        row["t_hag_s"] = time.perf_counter() - t0
+        with Stopwatch() as watch:
+            hag = sparsegf.hag_targets(xyz, cls)
+        row["t_hag_s"] = watch.wall_s
         row["hag_bin_share"] = (np.bincount(hag.bins, minlength=sparsegf.N_HAG_BINS) / n).tolist()
     return row
 

@@ -23,13 +23,15 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import laspy
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from gfjax.bench.harness import Stopwatch  # noqa: E402
+
 DATA = Path(os.environ.get("GFJAX_SHARED_DATA", ROOT.parent / "shared" / "data"))
 SOURCE = DATA / "lasR_bcts" / "bcts_2.laz"
 CELL_M = (200.0, 300.0)          # the grid the copies are laid on [m]; bcts_2 spans 193 x 300 m
@@ -78,10 +80,10 @@ def run(paths: list[Path], out: Path, method: str, independent: bool, *, extra: 
     argv = [*GFJAX, "-q", "filter", *map(str, paths), "-o", str(out), "--method", method, *extra]
     if independent:
         argv.append("--independent")
-    start = time.perf_counter()
-    child = subprocess.Popen(argv, cwd=ROOT)
-    _, status, usage = os.wait4(child.pid, 0)
-    wall = time.perf_counter() - start
+    with Stopwatch() as watch:
+        child = subprocess.Popen(argv, cwd=ROOT)
+        _, status, usage = os.wait4(child.pid, 0)
+    wall = watch.wall_s
     if os.waitstatus_to_exitcode(status) != 0:
         raise SystemExit(f"{' '.join(argv)} failed ({os.waitstatus_to_exitcode(status)})")
     return {"wall_s": wall, "peak_rss_b": usage.ru_maxrss * 1024}

@@ -16,13 +16,13 @@ import argparse
 import json
 import os
 import tempfile
-import time
 from pathlib import Path
 
 import laspy
 import numpy as np
 
 from gfjax import methods, survey
+from gfjax.bench.harness import Stopwatch
 from gfjax.io import las as las_io
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,21 +78,21 @@ def main():
         for name in args.methods.split(","):
             module = methods.get(name)
             config = module.Config()
-            start = time.perf_counter()
-            want = np.asarray(module.filter(union).ground)
-            union_s = time.perf_counter() - start
+            with Stopwatch() as watch:
+                want = np.asarray(module.filter(union).ground)
+            union_s = watch.wall_s
             catalog = np.zeros(union.n_points, bool)
             alone = np.zeros(union.n_points, bool)
-            start = time.perf_counter()
-            store = folder / f"store_{name}"
-            store.mkdir()
-            for (_, result), keep in zip(survey.filtered(files, module, store, config=config), members):
-                catalog[keep] = result.ground
-            catalog_s = time.perf_counter() - start
-            start = time.perf_counter()
-            for path, keep in zip(files, members):
-                alone[keep] = module.filter(las_io.read(path)).ground
-            alone_s = time.perf_counter() - start
+            with Stopwatch() as watch:
+                store = folder / f"store_{name}"
+                store.mkdir()
+                for (_, result), keep in zip(survey.filtered(files, module, store, config=config), members):
+                    catalog[keep] = result.ground
+            catalog_s = watch.wall_s
+            with Stopwatch() as watch:
+                for path, keep in zip(files, members):
+                    alone[keep] = module.filter(las_io.read(path)).ground
+            alone_s = watch.wall_s
             row = {"method": name, "points": union.n_points, "catalog_equal_pct": 100 * float(np.mean(catalog == want)),
                    "independent_equal_pct": 100 * float(np.mean(alone == want)), "union_s": union_s,
                    "catalog_s": catalog_s, "independent_s": alone_s}

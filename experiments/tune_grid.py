@@ -30,13 +30,13 @@ import hashlib
 import json
 import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 import gfjax
 from gfjax import dmf, masf
+from gfjax.bench.harness import Stopwatch
 from gfjax.tune import dmf as tdmf
 from gfjax.tune import masf as tmasf
 from gfjax.tune import search
@@ -62,10 +62,10 @@ def table(method: str, sample: Sample, combos, cache: Path) -> tuple[np.ndarray,
     seconds = path.with_suffix(".seconds")
     if path.exists() and seconds.exists():
         return np.load(path), float(seconds.read_text())
-    start = time.perf_counter()
-    module, tmodule = METHODS[method]
-    wrong = tmodule.TUNER.wrong_table(sample, module.Config(), combos)
-    took = time.perf_counter() - start
+    with Stopwatch() as watch:
+        module, tmodule = METHODS[method]
+        wrong = tmodule.TUNER.wrong_table(sample, module.Config(), combos)
+    took = watch.wall_s
     print(f"{sample.name}: {len(combos)} runs in {took:.0f} s", flush=True)
     np.save(path, wrong)
     seconds.write_text(f"{took:.1f}")

@@ -48,7 +48,6 @@ import json
 import pickle
 import platform
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -56,6 +55,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import gfjax
+from gfjax.bench.harness import Stopwatch
 from gfjax.tune import csf as tcsf
 from gfjax.tune import fit as tfit
 from gfjax.tune import guard
@@ -93,12 +93,12 @@ def prepared(names: list[str], cache: Path, method: tmethods.GradientTuner = tme
         with path.open("rb") as fh:
             problem, seconds = pickle.load(fh)
         return problem, seconds
-    t = time.perf_counter()
-    samples = [Sample.from_cloud(gfjax.read(f)) for f in files]
-    with tcsf.cloth_cache(cloth_cache):
-        problem = Problem(samples, config=method.config_type(), max_window_m=max(method.grid, default=None),
-                          method=method, grid=method.grid if method is tmethods.CSF else None)
-    seconds = time.perf_counter() - t
+    with Stopwatch() as watch:
+        samples = [Sample.from_cloud(gfjax.read(f)) for f in files]
+        with tcsf.cloth_cache(cloth_cache):
+            problem = Problem(samples, config=method.config_type(), max_window_m=max(method.grid, default=None),
+                              method=method, grid=method.grid if method is tmethods.CSF else None)
+    seconds = watch.wall_s
     cache.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     with tmp.open("wb") as fh:
@@ -159,7 +159,7 @@ def main(argv=None) -> int:
                  "device": f"{jax.devices()[0].platform} ({platform.processor() or platform.machine()})",
                  "jax": jax.__version__, "samples": list(args.samples)}
     out = Path(args.out)
-    t0 = time.perf_counter()
+    clock = Stopwatch()                        # the whole run: progress lines and `total_s`
     method = tmethods.get(args.method)
     stem = "tune_isprs" if method is tmethods.SMRF else f"tune_isprs_{method.name}"
     res["method"] = method.name
@@ -180,19 +180,19 @@ def main(argv=None) -> int:
         (out / f"{stem}_{args.phases}.json").write_text(
             json.dumps(res, indent=1, default=lambda a: np.asarray(a).tolist()))
         write_report(out, method)
-        print(f"[{time.perf_counter() - t0:.0f}s] saved", flush=True)
+        print(f"[{clock.wall_s:.0f}s] saved", flush=True)
 
     # (a) defaults
     res["a_defaults"] = tfit.hard_errors(problem, defaults, all_masks, per, w0).tolist()
     if args.check_filter and method is tmethods.CSF:
         hard = problem.labels(tfit.hard_ground(problem, defaults, per, w0))
-        t = time.perf_counter()
-        same = [bool(np.array_equal(h, gfjax.csf.filter(gfjax.read(DATA / f"{n}-utm.laz")).ground))
-                for h, n in zip(hard, args.samples)]
-        res["a_equals_filter"] = {"labels_equal": same, "filter_s": time.perf_counter() - t}
+        with Stopwatch() as watch:
+            same = [bool(np.array_equal(h, gfjax.csf.filter(gfjax.read(DATA / f"{n}-utm.laz")).ground))
+                    for h, n in zip(hard, args.samples)]
+        res["a_equals_filter"] = {"labels_equal": same, "filter_s": watch.wall_s}
     save()
     if "b" not in args.phases:
-        return cd(args, res, problem, samples, per, defaults, all_masks, save, t0)
+        return cd(args, res, problem, samples, per, defaults, all_masks, save, clock)
 
     # timing of one hard evaluation and one value-and-grad call (all 11 samples), warm.
     radius = jnp.asarray(method.static_px(problem.config, w0), jnp.int32)
@@ -204,22 +204,22 @@ def main(argv=None) -> int:
     jax.block_until_ready(tfit._soft_value_and_grad(*args_vg, **kw))
     tfit.hard_errors(problem, defaults, all_masks, per, w0)
     reps = 5
-    t = time.perf_counter()
-    for _ in range(reps):
-        jax.block_until_ready(tfit._soft_value_and_grad(*args_vg, **kw))
-    t_vg = (time.perf_counter() - t) / reps
-    t = time.perf_counter()
-    for _ in range(reps):
-        tfit.hard_errors(problem, defaults, all_masks, per, w0)
-    t_hard = (time.perf_counter() - t) / reps
+    with Stopwatch() as watch:
+        for _ in range(reps):
+            jax.block_until_ready(tfit._soft_value_and_grad(*args_vg, **kw))
+    t_vg = watch.wall_s / reps
+    with Stopwatch() as watch:
+        for _ in range(reps):
+            tfit.hard_errors(problem, defaults, all_masks, per, w0)
+    t_hard = watch.wall_s / reps
     res["timing"] = {"hard_eval_s": t_hard, "value_and_grad_s": t_vg, "grad_in_forward_passes": t_vg / t_hard}
     save()
 
     # (b) per sample, own labels, no prior, no validation
     settings_b = tfit.Settings(steps=args.steps, prior=0.0)
-    t = time.perf_counter()
-    fb = tfit.fit(problem, settings_b, group=per)
-    wall_b = time.perf_counter() - t
+    with Stopwatch() as watch:
+        fb = tfit.fit(problem, settings_b, group=per)
+    wall_b = watch.wall_s
     res["b_tuned"] = tfit.hard_errors_at(problem, fb.values, fb.window_m, all_masks, per).tolist()
     res["b_values"] = fb.values
     res["b_window_m"] = fb.window_m
@@ -233,28 +233,28 @@ def main(argv=None) -> int:
     grids = [np.linspace(b.lo, b.hi, 5) for b in method.bounds]
     best = np.full(c, np.inf)
     best_at = np.zeros((c, len(method.bounds) + 1))
-    t = time.perf_counter()
     n_eval = 0
-    for w in method.grid_values(problem.config, None):
-        for combo in itertools.product(*grids):
-            vals = np.tile(np.asarray(combo, np.float32), (c, 1))
-            errs = tfit.hard_errors(problem, vals, all_masks, per, w)
-            n_eval += 1
-            better = errs < best
-            best = np.where(better, errs, best)
-            best_at[better] = [*combo, w]
+    with Stopwatch() as watch:
+        for w in method.grid_values(problem.config, None):
+            for combo in itertools.product(*grids):
+                vals = np.tile(np.asarray(combo, np.float32), (c, 1))
+                errs = tfit.hard_errors(problem, vals, all_masks, per, w)
+                n_eval += 1
+                better = errs < best
+                best = np.where(better, errs, best)
+                best_at[better] = [*combo, w]
     res["e_grid"] = {"best": best.tolist(), "best_at": best_at, "evaluations": n_eval,
-                     "forward_equivalents": n_eval, "wall_s": time.perf_counter() - t}
+                     "forward_equivalents": n_eval, "wall_s": watch.wall_s}
     save()
 
     if "c" in args.phases or "d" in args.phases:
-        return cd(args, res, problem, samples, per, defaults, all_masks, save, t0)
-    res["total_s"] = time.perf_counter() - t0
+        return cd(args, res, problem, samples, per, defaults, all_masks, save, clock)
+    res["total_s"] = clock.wall_s
     save()
     return 0
 
 
-def cd(args, res, problem, samples, per, defaults, all_masks, save, t0) -> int:
+def cd(args, res, problem, samples, per, defaults, all_masks, save, clock: Stopwatch) -> int:
     c = len(samples)
     w0 = problem.method.default_static(problem.config)
     # (c) half split with the tool's guard (`gfjax.tune.guard.validate`): per sample, k-fold
@@ -308,7 +308,7 @@ def cd(args, res, problem, samples, per, defaults, all_masks, save, t0) -> int:
             res["d"]["val_default"].append(float(v.default_error[0]))
             res["d"]["val_tuned"].append(float(v.tuned_error[0]))
             save()
-    res["total_s"] = time.perf_counter() - t0
+    res["total_s"] = clock.wall_s
     save()
     return 0
 

@@ -24,6 +24,8 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import NamedTuple
 
+from gfjax.bench.harness import Stopwatch
+
 TOLERANCE = 0.15       # a ratio at most this much above the recorded one passes
 PAIRS = 5              # alternated pairs timed for a case (and as many again for a failing one)
 
@@ -75,9 +77,9 @@ def time_side(side: Side) -> float:
             env["XDG_CACHE_HOME"] = scratch
             env.pop("GFJAX_EXPORT_CACHE", None)
             env.pop("JAX_COMPILATION_CACHE_DIR", None)
-        start = time.perf_counter()
-        done = subprocess.run(side.command, env=env, capture_output=True, text=True)
-        wall = time.perf_counter() - start
+        with Stopwatch() as watch:
+            done = subprocess.run(side.command, env=env, capture_output=True, text=True)
+        wall = watch.wall_s
     if done.returncode != 0:
         tail = (done.stderr or done.stdout).strip().splitlines()[-3:]
         raise GuardError(f"{' '.join(side.command)}: exit {done.returncode}: {' | '.join(tail)}")
@@ -138,9 +140,9 @@ def check(cases: Sequence[Case], recorded: Mapping[str, float], *, pairs: int = 
 def _slowed_main(argv: Sequence[str]) -> int:
     """`slowed FACTOR REPORTED -- COMMAND...`: see `slowed`."""
     factor, reported, command = float(argv[0]), argv[1] == "1", list(argv[3:])
-    start = time.perf_counter()
-    done = subprocess.run(command, capture_output=reported, text=True)
-    elapsed = time.perf_counter() - start
+    with Stopwatch() as watch:
+        done = subprocess.run(command, capture_output=reported, text=True)
+    elapsed = watch.wall_s
     if done.returncode != 0:
         return done.returncode
     if reported:
@@ -168,9 +170,9 @@ def _peer_main(argv: Sequence[str]) -> int:
 
     name, path = argv
     xyz_m = np.ascontiguousarray(gfjax.read(path).xyz_m, np.float64)
-    start = time.perf_counter()
-    ground = PEERS[name].run(xyz_m)
-    print(json.dumps({"seconds": time.perf_counter() - start, "ground": int(ground.sum())}))
+    with Stopwatch() as watch:
+        ground = PEERS[name].run(xyz_m)
+    print(json.dumps({"seconds": watch.wall_s, "ground": int(ground.sum())}))
     return 0
 
 

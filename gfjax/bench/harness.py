@@ -1,8 +1,11 @@
 """A timing harness for ground filters: warm-up, repeated wall times, JAX compile time, peak RSS.
 
-STYLE.md "Benchmarks": warm up once, then time the call until its result is on the host (our
-filters return host numpy arrays, so `fn()` returning is the end of the work; pass
-`block=True` to `time_call` for functions that return JAX arrays). Compile time is reported
+The one clock of `gfjax bench` and of the experiments in `experiments/`: `Stopwatch` (wall and
+process CPU seconds of a stretch of code) and `time_call` (warm-up calls, then repeated timed
+calls, each on a `Stopwatch`). STYLE.md "Benchmarks": warm up once, then time the call until
+its result is on the host (our filters return host numpy arrays, so `fn()` returning is the
+end of the work; pass `block=True` to `time_call` for functions that return JAX arrays, or
+wait for them inside the `Stopwatch`'s block). Compile time is reported
 apart: `CompileClock` sums the durations JAX itself records for each XLA compilation
 (`jax.monitoring` event `/jax/core/compile/backend_compile_duration`) and for tracing and
 lowering, so no second compile is needed to measure it.
@@ -15,7 +18,6 @@ Used by `gfjax bench` (`gfjax.bench.run`) and by the speed experiments in `exper
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import importlib
 import json
@@ -25,7 +27,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -41,12 +43,65 @@ _CACHE_ENV = ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIM
 _MIB = 1 << 20
 
 
+class Stopwatch:
+    """Wall-clock and process CPU seconds of a stretch of code (`time.perf_counter`,
+    `time.process_time`: CPU time of every thread of this process).
+
+        with Stopwatch() as watch:
+            ground = method.filter(cloud).ground
+        watch.wall_s, watch.cpu_s
+
+    It starts when made (and again on entering a `with` block) and stops on leaving the block
+    or at `stop()`; until it stops, `wall_s` and `cpu_s` read the time so far (a progress
+    line, the total of a long run). JAX arrays made inside are timed to their end only when
+    waited for inside (`jax.block_until_ready`).
+    """
+
+    def __init__(self) -> None:
+        self.restart()
+
+    def restart(self) -> Stopwatch:
+        """Start again from now, running."""
+        self._end: tuple[float, float] | None = None
+        self._cpu_start = time.process_time()
+        self._wall_start = time.perf_counter()          # read last: the CPU clock's read is not timed
+        return self
+
+    def stop(self) -> Stopwatch:
+        """Stop the clock (once: a later call keeps the first stop)."""
+        if self._end is None:
+            wall = time.perf_counter()                  # read first, as the start's wall clock was last
+            self._end = (wall, time.process_time())
+        return self
+
+    @property
+    def running(self) -> bool:
+        return self._end is None
+
+    @property
+    def wall_s(self) -> float:
+        """Wall-clock seconds from the start to the stop (to now while running)."""
+        return (time.perf_counter() if self._end is None else self._end[0]) - self._wall_start
+
+    @property
+    def cpu_s(self) -> float:
+        """Process CPU seconds (all threads) from the start to the stop (to now while running)."""
+        return (time.process_time() if self._end is None else self._end[1]) - self._cpu_start
+
+    def __enter__(self) -> Stopwatch:
+        return self.restart()
+
+    def __exit__(self, *exc: Any) -> None:
+        self.stop()
+
+
 @dataclasses.dataclass(frozen=True)
 class Timing:
-    """Wall times of one function: a warm-up call, then `repeat` timed calls [s]."""
+    """Wall times of one function: warm-up calls, then `repeat` timed calls [s]."""
 
     warmup_s: tuple[float, ...]   # the untimed-for-the-median calls (first one includes compiles)
     times_s: tuple[float, ...]    # the timed calls, in order
+    cpu_times_s: tuple[float, ...] = ()   # process CPU seconds of the timed calls, in order
 
     @property
     def median_s(self) -> float:
@@ -55,6 +110,10 @@ class Timing:
     @property
     def min_s(self) -> float:
         return min(self.times_s)
+
+    @property
+    def median_cpu_s(self) -> float:
+        return statistics.median(self.cpu_times_s)
 
 
 def _block(value: Any) -> Any:
@@ -69,6 +128,8 @@ def time_call(fn: Callable[[], Any], *, repeat: int = 3, warmup: int = 1,
               block: bool = False) -> tuple[Timing, Any]:
     """Call `fn()` `warmup` times, then `repeat` timed times; return the timing and last result.
 
+    Each call is timed on its own `Stopwatch` (wall and process CPU seconds).
+
     Args:
       fn: a function of no arguments (close over the inputs).
       repeat: timed calls (>= 1).
@@ -81,14 +142,18 @@ def time_call(fn: Callable[[], Any], *, repeat: int = 3, warmup: int = 1,
     if repeat < 1 or warmup < 0:
         raise ValueError(f"repeat must be >= 1 and warmup >= 0, got repeat={repeat}, warmup={warmup}")
     result = None
-    warm, timed = [], []
+    warm, timed, cpu = [], [], []
     for i in range(warmup + repeat):
-        start = time.perf_counter()
-        result = fn()
-        if block:
-            result = _block(result)
-        (warm if i < warmup else timed).append(time.perf_counter() - start)
-    return Timing(tuple(warm), tuple(timed)), result
+        with Stopwatch() as watch:
+            result = fn()
+            if block:
+                result = _block(result)
+        if i < warmup:
+            warm.append(watch.wall_s)
+        else:
+            timed.append(watch.wall_s)
+            cpu.append(watch.cpu_s)
+    return Timing(tuple(warm), tuple(timed), tuple(cpu)), result
 
 
 class CompileClock:
@@ -252,27 +317,16 @@ def _child_main(spec_json: str) -> int:
     if spec.get("cpus") is not None:
         os.sched_setaffinity(0, spec["cpus"])
     sys.path[:0] = spec["pythonpath"]
-    start = time.perf_counter()
+    watch = Stopwatch()
     module_name, _, function_name = spec["target"].partition(":")
     function = getattr(importlib.import_module(module_name), function_name)
     result = dict(function(**spec["kwargs"]))
     result["peak_rss_bytes"] = peak_rss_bytes()
     result["n_cpus"] = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    result["child_wall_s"] = time.perf_counter() - start
+    result["child_wall_s"] = watch.wall_s
     Path(spec["out"]).write_text(json.dumps(result))
     return 0
 
 
-@contextlib.contextmanager
-def stopwatch() -> Iterator[list[float]]:
-    """`with stopwatch() as t: ...` then `t[0]` is the elapsed wall time [s]."""
-    elapsed = [0.0]
-    start = time.perf_counter()
-    try:
-        yield elapsed
-    finally:
-        elapsed[0] = time.perf_counter() - start
-
-
-__all__ = ["Timing", "time_call", "CompileClock", "peak_rss_bytes", "rss_bytes", "mib",
-           "IsolatedError", "run_isolated", "choose_cpus", "compile_cache_env", "stopwatch", "BACKEND_COMPILE_EVENT"]
+__all__ = ["Stopwatch", "Timing", "time_call", "CompileClock", "peak_rss_bytes", "rss_bytes", "mib",
+           "IsolatedError", "run_isolated", "choose_cpus", "compile_cache_env", "BACKEND_COMPILE_EVENT"]

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import statistics
 import tempfile
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -79,9 +78,9 @@ def _accuracy(cloud, ground: np.ndarray) -> tuple[dict | None, dict | None]:
 
 
 def _timed(fn: Callable, *args, **kwargs):
-    start = time.perf_counter()
-    value = fn(*args, **kwargs)
-    return value, time.perf_counter() - start
+    with harness.Stopwatch() as watch:
+        value = fn(*args, **kwargs)
+    return value, watch.wall_s
 
 
 def bench_one(*, path: str, kind: str, name: str, repeat: int = 1, units: str | None = None,
@@ -122,11 +121,11 @@ def bench_one(*, path: str, kind: str, name: str, repeat: int = 1, units: str | 
     with tempfile.TemporaryDirectory(prefix="gfjax-bench-out-") as tmp:
         target = Path(tmp) / f"out{Path(path).suffix.lower() or '.laz'}"
         for _ in range(repeat):
-            start = time.perf_counter()
-            cloud, read_s = _timed(las_io.read, path, units=units)
-            ground, filter_s = _timed(run, cloud)
-            _, write_s = _timed(las_io.write, cloud.with_ground(ground), target, force=True)
-            times["job"].append(time.perf_counter() - start)
+            with harness.Stopwatch() as job:
+                cloud, read_s = _timed(las_io.read, path, units=units)
+                ground, filter_s = _timed(run, cloud)
+                _, write_s = _timed(las_io.write, cloud.with_ground(ground), target, force=True)
+            times["job"].append(job.wall_s)
             times["read"].append(read_s)
             times["filter"].append(filter_s)
             times["write"].append(write_s)

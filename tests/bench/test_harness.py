@@ -24,9 +24,10 @@ def test_time_call_counts_and_measures_a_sleep():
 
     timing, last = harness.time_call(nap, repeat=3, warmup=2)
     assert len(calls) == 5 and last == 5
-    assert len(timing.warmup_s) == 2 and len(timing.times_s) == 3
+    assert len(timing.warmup_s) == 2 and len(timing.times_s) == len(timing.cpu_times_s) == 3
     assert all(0.045 <= t < 5.0 for t in (*timing.warmup_s, *timing.times_s))
     assert timing.min_s <= timing.median_s
+    assert all(0.0 <= t < 5.0 for t in timing.cpu_times_s)
 
 
 @pytest.mark.parametrize("repeat, warmup", [(0, 1), (1, -1)])
@@ -126,8 +127,25 @@ def test_run_isolated_pins_the_child(child_module):
     assert harness.choose_cpus(None) is None
 
 
-def test_stopwatch():
-    with harness.stopwatch() as elapsed:
+def test_stopwatch_times_a_block_and_stops_at_its_end():
+    with harness.Stopwatch() as watch:
+        assert watch.running
         time.sleep(0.02)
-    assert 0.015 <= elapsed[0] < 5.0
-    assert np.isfinite(elapsed[0])
+        so_far = watch.wall_s
+    assert not watch.running
+    assert 0.015 <= so_far <= watch.wall_s < 5.0
+    assert np.isfinite(watch.wall_s)
+    assert 0.0 <= watch.cpu_s < 5.0
+    stopped = watch.wall_s
+    time.sleep(0.01)
+    assert watch.wall_s == stopped and watch.stop().wall_s == stopped
+
+
+def test_stopwatch_counts_cpu_seconds_and_runs_until_stopped():
+    watch = harness.Stopwatch()
+    end = time.process_time() + 0.03
+    while time.process_time() < end:                  # busy: CPU time goes up with the wall time
+        pass
+    assert watch.running and watch.cpu_s >= 0.025
+    watch.stop()
+    assert watch.wall_s >= 0.025 and not watch.running
