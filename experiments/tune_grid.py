@@ -3,8 +3,8 @@ tuning experiment, from one table per sample.
 
     nice .venv/bin/python experiments/tune_grid.py --method masf|dmf [--samples samp12 ...] [--folds 3]
 
-Each sample is labelled once with every candidate of the method's grid (`gfjax.tune.masf.GRID`:
-480 MASF runs on one preparation; `gfjax.tune.dmf.GRID`: 675 DMF final rules on 45
+Each sample is labelled once with every candidate of the method's grid (`gfjax.masf.tuning.GRID`:
+480 MASF runs on one preparation; `gfjax.dmf.tuning.GRID`: 675 DMF final rules on 45
 preparations), by `wrong_table`, whose defaults' row is the plain filter's errors (checked
 here on every sample); every protocol is then a choice over those tables (`gfjax.tune.search`):
 
@@ -37,8 +37,8 @@ import numpy as np
 import gfjax
 from gfjax import dmf, masf
 from gfjax.bench.harness import Stopwatch
-from gfjax.tune import dmf as tdmf
-from gfjax.tune import masf as tmasf
+from gfjax.dmf import tuning as tdmf
+from gfjax.masf import tuning as tmasf
 from gfjax.tune import search
 from gfjax.tune.problem import Sample
 

@@ -32,7 +32,7 @@ MASF and DMF (`--method masf|dmf`) are tuned by grid search: this script hands t
     nice .venv/bin/python experiments/tune_isprs.py --method dmf
 
 CSF (`--method csf`): the class threshold is fitted by gradient; time step and rigidness
-(grid `gfjax.tune.csf.GRID`, 3 x 3 cloths) are searched on the grid, each cloth simulated
+(grid `gfjax.csf.tuning.GRID`, 3 x 3 cloths) are searched on the grid, each cloth simulated
 once per sample and its point-to-cloth distances cached under --cloth-cache (in a subfolder
 keyed by the gfjax/csf sources, so a changed simulation is re-run). (e)'s grid is
 5 thresholds x the same 9 cloths. `--check-filter` also runs `gfjax.csf.filter` on every
@@ -56,10 +56,11 @@ import numpy as np
 
 import gfjax
 from gfjax.bench.harness import Stopwatch
-from gfjax.tune import csf as tcsf
+from gfjax.csf import tuning as tcsf
+from gfjax.smrf import tuning as tsmrf
 from gfjax.tune import fit as tfit
 from gfjax.tune import guard
-from gfjax.tune import methods as tmethods
+from gfjax.tune import tuners as tmethods
 from gfjax.tune.problem import Problem, Sample
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "isprs_filtertest" / "reference"
@@ -72,7 +73,7 @@ def pct(x):
     return f"{100 * x:.2f}"
 
 
-def prepared(names: list[str], cache: Path, method: tmethods.GradientTuner = tmethods.SMRF,
+def prepared(names: list[str], cache: Path, method: tmethods.GradientTuner = tsmrf.TUNER,
              cloth_cache: Path | None = None) -> tuple[Problem, float]:
     """The prepared `Problem` of the named samples, from a pickle under `cache` when one exists
     for the same files and gfjax sources (the openings to 24 m dominate the run otherwise);
@@ -85,9 +86,9 @@ def prepared(names: list[str], cache: Path, method: tmethods.GradientTuner = tme
     for src in sorted((Path(gfjax.__file__).parent).glob("**/*.py")):
         if src.parent.name in deps or src.name in (f"{method.name}.py", "relax.py"):
             key.update(src.read_bytes())
-    if method is tmethods.CSF:
+    if method is tcsf.TUNER:
         key.update(repr(method.grid).encode())
-    prefix = "problem" if method is tmethods.SMRF else f"problem_{method.name}"
+    prefix = "problem" if method is tsmrf.TUNER else f"problem_{method.name}"
     path = cache / f"{prefix}_{key.hexdigest()[:16]}.pkl"
     if path.exists():
         with path.open("rb") as fh:
@@ -97,7 +98,7 @@ def prepared(names: list[str], cache: Path, method: tmethods.GradientTuner = tme
         samples = [Sample.from_cloud(gfjax.read(f)) for f in files]
         with tcsf.cloth_cache(cloth_cache):
             problem = Problem(samples, config=method.config_type(), max_window_m=max(method.grid, default=None),
-                              method=method, grid=method.grid if method is tmethods.CSF else None)
+                              method=method, grid=method.grid if method is tcsf.TUNER else None)
     seconds = watch.wall_s
     cache.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
@@ -109,11 +110,11 @@ def prepared(names: list[str], cache: Path, method: tmethods.GradientTuner = tme
 
 def write_report(out: Path, method: tmethods.GradientTuner) -> None:
     """`<stem>.md` from every `<stem>_<phases>.json` of the method under `out` (merged in name order)."""
-    stem = "tune_isprs" if method is tmethods.SMRF else f"tune_isprs_{method.name}"
+    stem = "tune_isprs" if method is tsmrf.TUNER else f"tune_isprs_{method.name}"
     merged: dict = {}
     commands = []
     for part in sorted(out.glob(f"{stem}_*.json")):
-        if method is tmethods.SMRF and any(part.name.startswith(f"tune_isprs_{m}_") for m in tmethods.METHODS):
+        if method is tsmrf.TUNER and any(part.name.startswith(f"tune_isprs_{m}_") for m in ("smrf", "pmf", "csf")):
             continue
         data = json.loads(part.read_text())
         commands.append(data["command"])
@@ -161,7 +162,7 @@ def main(argv=None) -> int:
     out = Path(args.out)
     clock = Stopwatch()                        # the whole run: progress lines and `total_s`
     method = tmethods.get(args.method)
-    stem = "tune_isprs" if method is tmethods.SMRF else f"tune_isprs_{method.name}"
+    stem = "tune_isprs" if method is tsmrf.TUNER else f"tune_isprs_{method.name}"
     res["method"] = method.name
     static_name = {"smrf": "window_m", "pmf": "max_window_m (fixed)", "csf": "cloth (10 rigidness + time_step)"}
     res["param_names"] = [b.name for b in method.bounds] + [static_name[method.name]]
@@ -184,7 +185,7 @@ def main(argv=None) -> int:
 
     # (a) defaults
     res["a_defaults"] = tfit.hard_errors(problem, defaults, all_masks, per, w0).tolist()
-    if args.check_filter and method is tmethods.CSF:
+    if args.check_filter and method is tcsf.TUNER:
         hard = problem.labels(tfit.hard_ground(problem, defaults, per, w0))
         with Stopwatch() as watch:
             same = [bool(np.array_equal(h, gfjax.csf.filter(gfjax.read(DATA / f"{n}-utm.laz")).ground))
@@ -285,7 +286,7 @@ def cd(args, res, problem, samples, per, defaults, all_masks, save, clock: Stopw
     # (d) leave one sample out: one shared set tuned on 10 samples with the guard (k-fold by
     # sample over the 10), scored on the 11th.
     if "d" in args.phases and not args.skip_loo:
-        loo_windows = args.loo_windows or ("12,18,24" if problem.method is tmethods.SMRF else None)
+        loo_windows = args.loo_windows or ("12,18,24" if problem.method is tsmrf.TUNER else None)
         loo = dataclasses.replace(settings, windows_m=tuple(float(w) for w in loo_windows.split(","))
                                   if loo_windows else None)
         res["d"] = {"defaults": res["a_defaults"], "tuned": [], "unguarded": [], "values": [], "window_m": [],

@@ -51,7 +51,9 @@ class Method:
       load_model: `load_model(path or None) -> (model, Config it was trained with)` for a
         method whose `filter` takes `model=` (a model file; None: the one shipped; SparseGF),
         else None. A bad file raises `InputError` here, before any output is written.
-      tuning: how `gfjax tune` fits it (`TUNINGS`), or None when it cannot be tuned.
+      tuning: how `gfjax tune` fits it (`TUNINGS`: "gradient" or "grid"), or None when it
+        cannot be tuned; its package's `tuning` module holds the `TUNER` (a
+        `gfjax.tune.tuners.GradientTuner` or a `gfjax.tune.search.GridTuner`).
     """
 
     name: str

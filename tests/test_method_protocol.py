@@ -41,6 +41,21 @@ def test_filter_takes_the_common_arguments_and_exactly_its_options(name):
 
 
 @pytest.mark.parametrize("name", NAMES)
+def test_a_tunable_method_keeps_its_tuner_in_its_own_package(name):
+    from gfjax.tune import search, tuners
+
+    method = methods.get(name)
+    if method.tuning is None:
+        with pytest.raises(ValueError, match="cannot be tuned"):
+            tuners.get(name)
+        return
+    tuner = importlib.import_module(f"{methods.PACKAGES[name]}.tuning").TUNER
+    kind = {"gradient": tuners.GradientTuner, "grid": search.GridTuner}[method.tuning]
+    assert isinstance(tuner, kind) and tuner.name == name and tuners.get(name) is tuner
+    assert tuner.config_type is method.Config
+
+
+@pytest.mark.parametrize("name", NAMES)
 def test_config_params_presets_and_ranges_fit_together(name):
     method = methods.get(name)
     config = method.Config()

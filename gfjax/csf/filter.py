@@ -245,7 +245,7 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
 def detrended(local: np.ndarray, use: np.ndarray, config: Config):
     """Points `(n, 3)` in local metres as the cloth meets them: float32, less the terrain's trend
     where `config.trend_m` asks for it (`gfjax.csf.trend`); and that trend (`height(xy)`, local
-    metres) or None. The tuning (`gfjax.tune.csf`) frames its samples with it too."""
+    metres) or None. The tuning (`gfjax.csf.tuning`) frames its samples with it too."""
     local = np.asarray(local, np.float64)
     if config.trend_m is None:
         return local.astype(np.float32), None

@@ -352,7 +352,7 @@ class Prepared(NamedTuple):
     """Steps 1-6 of DMF on one cloud: everything before the support nodes and the final rule
     (Sec. 2.6). Only step 7 reads `v1`, `fill_neighbours`, `support_z`, `support_elevation` and
     `Params` (and `final_rule`, whose M-nearest search also needs `tree`), so one preparation
-    serves every value of those (`gfjax.tune.dmf` tries them on it).
+    serves every value of those (`gfjax.dmf.tuning` tries them on it).
 
     Attributes:
       config: the settings the steps ran with (`voxel_m` set on a survey's window).

@@ -87,7 +87,7 @@ class Prepared(NamedTuple):
     """What MASF computes before any alpha, ST or FT enters (Sec. 2.1 and the triangulation of
     Sec. 2.2): `prepare` reads only `grid_m`, `outlier_gap_m`, `neighbour_drop_m` and
     `low_cluster_max_m2` of the config, so one preparation serves every pyramid and threshold
-    (`gfjax.tune.masf` searches them on it).
+    (`gfjax.masf.tuning` searches them on it).
 
     Attributes:
       local: float64 `(n, 3)` the points less `origin` [m].

@@ -16,15 +16,15 @@ checked = validate(problem, Settings(), folds=3)    # keep it only where held-ou
 ```
 `run` holds `tune` (what `gfjax tune` calls), `relax` the soft thresholds, `params` the bounded parametrisation and params.json,
 `smrf` the relaxed SMRF pipeline, `pmf` the relaxed PMF point test, `csf` CSF's relaxed class
-test on cached grid cloths, `methods` what the loop needs of each (`Problem(..., method=methods.PMF)`), `fit` the optax loop, `guard` the
+test on cached grid cloths, `tuners` what the loop needs of each method (its own `gfjax.<method>.tuning.TUNER`), `fit` the optax loop, `guard` the
 cross-validated test against the defaults.
 """
-from gfjax.tune import fit, guard, methods, relax
+from gfjax.tune import fit, guard, relax, tuners
 from gfjax.tune.fit import FitResult, Settings, hard_errors
 from gfjax.tune.guard import Validation, validate
 from gfjax.tune.params import read_params, write_params
 from gfjax.tune.problem import Problem, Sample, block_folds
 from gfjax.tune.run import Tuned, tune
 
-__all__ = ["tune", "Tuned", "relax", "fit", "guard", "methods", "Sample", "Problem", "Settings", "FitResult", "Validation", "fit", "validate",
+__all__ = ["tune", "Tuned", "relax", "fit", "guard", "tuners", "Sample", "Problem", "Settings", "FitResult", "Validation", "fit", "validate",
            "hard_errors", "block_folds", "read_params", "write_params"]

@@ -6,7 +6,7 @@ to it),
     sum_c w_c * L(c; theta_g(c)) + prior * sum_g ||(theta_g - theta_default) / (hi - lo)||^2,
 
 where L is the expected total error (or 1 - soft kappa) of sample c, pooled over its tiles,
-under the relaxed pipeline (`gfjax.tune.smrf`) at a temperature annealed geometrically
+under the relaxed pipeline (`gfjax.smrf.tuning`) at a temperature annealed geometrically
 (default 0.1 m -> 0.01 m, Adam step 0.15: on 5 ISPRS samples, 40 steps, these reached a lower
 hard error than 0.3 m -> 0.02 m or a step of 0.08; SPEC section 7 suggests 1 m -> 0.05 m). Adam acts on the unconstrained `raw` parameters (`gfjax.tune.params`).
 Every `eval_every` steps the hard (plain-filter) total error is measured and the best
@@ -31,16 +31,13 @@ import optax
 from gfjax import metrics
 from gfjax.tune import params as tparams
 from gfjax.tune import relax
-from gfjax.tune import smrf as tsmrf
-from gfjax.tune.methods import SMRF, GradientTuner
 from gfjax.tune.problem import Problem
+from gfjax.tune.tuners import GradientTuner
 
 __all__ = ["Settings", "FitResult", "fit", "hard_ground", "hard_errors", "hard_errors_at", "soft_loss",
-           "LOSSES", "DEFAULTS"]
+           "LOSSES"]
 
 LOSSES = ("total-error", "kappa")
-BOUNDS = tsmrf.BOUNDS          # SMRF's (the default method); a problem's own: `problem.method.bounds`
-DEFAULTS = SMRF.defaults
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,7 +109,7 @@ def _sample_loss(conf, kind: str):
 
 @functools.partial(jax.jit, static_argnames=("config", "kind", "n_samples", "method"))
 def soft_loss(raw, radius_px, temperature, buckets, masks, group, weight, prior, *, config, kind: str,
-              n_samples: int, method: GradientTuner = SMRF, center=None):
+              n_samples: int, method: GradientTuner, center=None):
     """Relaxed objective (scalar) for unconstrained `raw` `(g, 3)` (ordered as `method.bounds`)
     with the static parameter at `radius_px` (SMRF: openings, traced int32); `group` int32
     `(c,)` maps samples to rows of `raw`, `weight` float32 `(c,)` weighs their losses; the prior

@@ -22,7 +22,7 @@ from gfjax.errors import InputError
 from gfjax.io import tiles as tiling_lib
 from gfjax.io.cloud import Cloud
 from gfjax.io.tiled import lattice_of
-from gfjax.tune import methods as tmethods
+from gfjax.tune import tuners
 
 __all__ = ["Sample", "Bucket", "Problem", "block_ids", "block_folds"]
 
@@ -113,7 +113,7 @@ def block_folds(xyz_m: np.ndarray, *, folds: int, block_m: float, seed: int = 0)
 
 
 @functools.partial(jax.jit, static_argnames=("method", "config", "shape"))
-def _prepare_batch(xyz, valid, hw, *, method: tmethods.GradientTuner, config, shape):
+def _prepare_batch(xyz, valid, hw, *, method: tuners.GradientTuner, config, shape):
     fn = functools.partial(method.prepare_tile, config=config, shape=shape)
     return jax.vmap(fn)(xyz, valid, hw)
 
@@ -127,9 +127,10 @@ class Problem:
         `max(max_window_m, config.window_m)`).
       max_window_m: SMRF: the largest window tried (openings are computed up to it);
         ignored by methods without a static grid (PMF).
-      method: `gfjax.tune.methods.SMRF` (default), `PMF` or `CSF`.
+      method: the method's `GradientTuner` (`gfjax.smrf.tuning.TUNER`, ...); None: the one
+        whose `Config` `config` is (`gfjax.tune.tuners.of_config`).
       max_batch: tiles per vmapped batch.
-      grid: the static grid to prepare (CSF: cloth codes, default `gfjax.tune.csf.GRID`;
+      grid: the static grid to prepare (CSF: cloth codes, default `gfjax.csf.tuning.GRID`;
         SMRF: openings up to its largest value); overrides `max_window_m`.
       tiling: the tiles a tiled method's samples are cut into (`gfjax.io.tiles.Tiling`, None:
         its defaults), as its `filter` cuts them.
@@ -138,8 +139,7 @@ class Problem:
         passes those the samples' terrain gives, `gfjax.adaptive`).
     """
 
-    method: tmethods.GradientTuner = tmethods.SMRF      # also for problems pickled before methods existed
-    _defaults: np.ndarray | None = None         # ... and before they carried their own defaults
+    _defaults: np.ndarray | None = None         # problems pickled before they carried their own defaults
 
     @property
     def defaults(self) -> np.ndarray:
@@ -147,10 +147,11 @@ class Problem:
         return self.method.defaults if self._defaults is None else self._defaults
 
     def __init__(self, samples: Sequence[Sample], *, config, max_window_m: float | None = None,
-                 method: tmethods.GradientTuner = tmethods.SMRF, max_batch: int = 8, grid: tuple[float, ...] | None = None,
+                 method: tuners.GradientTuner | None = None, max_batch: int = 8, grid: tuple[float, ...] | None = None,
                  tiling: tiling_lib.Tiling | None = None, defaults: Sequence[float] | np.ndarray | None = None):
         if not samples:
             raise InputError("no labelled samples to tune on")
+        method = tuners.of_config(config) if method is None else method
         if defaults is not None:
             defaults = np.asarray(defaults, np.float32).reshape(len(method.bounds))
             for b, value in zip(method.bounds, defaults):

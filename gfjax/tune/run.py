@@ -76,7 +76,7 @@ def tune(clouds: Sequence, method: str = "smrf", *, folds: int = 3, block_m: flo
         `block_m` metres; 0 or 1: no guard (the fit is kept where it lowered the training error).
       alpha: level of the guard's one-sided test.
       grid: the values searched for a key: SMRF `window_m`; CSF `time_step` and `rigidness`;
-        any key of MASF's and DMF's grids (`gfjax.tune.masf.default_grid`, `...dmf...`).
+        any key of MASF's and DMF's grids (`gfjax.masf.tuning.default_grid`, `...dmf...`).
         Keys not given keep their default values.
       loss: "total-error" or "kappa" (1 - soft kappa); a grid method uses total error only.
       prior: weight of the pull toward the start values (gradient methods).
@@ -110,19 +110,18 @@ def tune(clouds: Sequence, method: str = "smrf", *, folds: int = 3, block_m: flo
 
 def checked_grid(method: str, grid: Mapping[str, Sequence[float]], *, option: str = "grid") -> dict[str, tuple]:
     """`grid` checked against what `method` searches: SMRF `window_m`, CSF `time_step` and
-    `rigidness`, MASF's and DMF's grid keys (`gfjax.tune.<method>.default_grid`); each value in
+    `rigidness`, MASF's and DMF's grid keys (`gfjax.<method>.tuning.default_grid`); each value in
     the key's range (`gfjax.limits`), a whole number of an integer key as an int.
 
     Raises:
       InputError: an unknown key or a value out of range, naming `option`.
     """
-    import importlib
-
     from gfjax import limits, methods
+    from gfjax.tune import tuners
 
     found = methods.get(method, option="method")
     if found.tuning == "grid":
-        tuner = importlib.import_module(f"gfjax.tune.{method}").TUNER
+        tuner = tuners.get(method)
         keys, ranges = set(tuner.default_grid(found.Config())), {**found.ranges, **tuner.grid_ranges}
     else:
         keys = {"smrf": {"window_m"}, "csf": {"time_step", "rigidness"}}.get(method, set())
@@ -171,16 +170,15 @@ def _fitted(found, samples, terrain, grid, *, loss, prior, steps, folds, block_m
     """A method with a gradient: Adam on its relaxed form, its static setting on a grid, guarded."""
     from gfjax import adaptive
     from gfjax.tune import fit as tfit
-    from gfjax.tune import guard
-    from gfjax.tune import methods as tmethods
+    from gfjax.tune import guard, tuners
     from gfjax.tune.problem import Problem
 
-    method = tmethods.get(found.name)
+    method = tuners.get(found.name)
     settled = adaptive.settle_terrain(found.adapt, terrain, method.config_type(), found.Params())
     config = settled.config
     start = [float(settled.chosen.get(b.name, b.default)) for b in method.bounds]   # exact, as params.json holds them
     if method.static == "cloth":
-        from gfjax.tune import csf as tcsf
+        from gfjax.csf import tuning as tcsf
 
         windows = tuple(tcsf.encode(t, r) for r in grid.get("rigidness", tcsf.RIGIDNESS)
                         for t in grid.get("time_step", tcsf.TIME_STEPS))
@@ -221,13 +219,11 @@ def _fitted(found, samples, terrain, grid, *, loss, prior, steps, folds, block_m
 
 def _searched(found, samples, grid, *, loss, folds, block_m, alpha, names, progress) -> Tuned:
     """A method without a gradient: every combination of its grid, the guard's choice."""
-    import importlib
-
-    from gfjax.tune import search
+    from gfjax.tune import search, tuners
 
     if loss != "total-error":
         raise InputError(f"loss {loss}: {found.name} is searched on total error only")
-    tuner = importlib.import_module(f"gfjax.tune.{found.name}").TUNER
+    tuner = tuners.get(found.name)
     config = found.Config()
     searched = tuner.default_grid(config) | grid
     try:

@@ -4,7 +4,7 @@ gradient fits (`gfjax.tune.guard`).
 Some methods' thresholds reach the labels only through host code with no gradient: MASF's
 TIN densification runs on scipy triangulations, and its alpha pyramid changes which points
 exist in each layer. For them, `gfjax tune` labels every labelled sample once with each
-candidate setting (a grid, `gfjax.tune.masf.GRID`), keeps which points each candidate gets
+candidate setting (a grid, `gfjax.masf.tuning.GRID`), keeps which points each candidate gets
 wrong, and chooses among the candidates from those tables alone. Every protocol (a fold, a
 training half, all labels) is then a choice over the same tables: a grid search needs no
 re-run of the filter per fold.
@@ -285,7 +285,7 @@ def wrong_table(labels: Iterator[np.ndarray], sample: Sample, n_combos: int, *, 
 
 @dataclasses.dataclass(frozen=True)
 class GridTuner:
-    """A method tuned by grid search (`gfjax.tune.masf.TUNER`, `gfjax.tune.dmf.TUNER`).
+    """A method tuned by grid search (`gfjax.masf.tuning.TUNER`, `gfjax.dmf.tuning.TUNER`).
 
     Attributes:
       name: the method's name in `gfjax.methods` and params.json.

@@ -10,7 +10,7 @@ import numpy as np
 import gfjax
 from gfjax.io import tiles as tiling
 from gfjax.smrf import Config
-from gfjax.tune import smrf as tsmrf
+from gfjax.smrf import tuning as tsmrf
 from gfjax.tune.problem import Problem, Sample
 
 CONFIG = Config(window_m=6.0)          # 6 openings: small compiles

@@ -18,9 +18,9 @@ import gfjax
 from gfjax import metrics
 from gfjax.cli import main as cli_main
 from gfjax.cli._common import method_setup
-from gfjax.tune import csf as tcsf
+from gfjax.csf import tuning as tcsf
 from gfjax.tune import fit as tfit
-from gfjax.tune import guard, methods
+from gfjax.tune import guard
 from gfjax.tune.problem import Problem
 
 from .helpers import crop_cloud, crop_sample
@@ -31,7 +31,7 @@ GRID = (tcsf.encode(0.65, 3), tcsf.encode(0.8, 3))       # time step is traced: 
 
 @functools.cache
 def csf_problem() -> Problem:
-    return Problem([crop_sample()], config=CONFIG, method=methods.CSF, grid=GRID)
+    return Problem([crop_sample()], config=CONFIG, method=tcsf.TUNER, grid=GRID)
 
 
 def _prep() -> tcsf.Prepared:
@@ -42,7 +42,7 @@ def _prep() -> tcsf.Prepared:
 def test_grid_codes_round_trip():
     assert tcsf.decode(tcsf.encode(0.65, 3)) == (0.65, 3)
     assert [tcsf.decode(c) for c in tcsf.GRID][:3] == [(0.5, 1), (0.65, 1), (0.8, 1)]
-    assert methods.CSF.default_static(CONFIG) == tcsf.encode(0.65, 3) == 30.65
+    assert tcsf.TUNER.default_static(CONFIG) == tcsf.encode(0.65, 3) == 30.65
     with pytest.raises(ValueError, match="was not prepared"):
         csf_problem().config.index(tcsf.encode(0.5, 2))
 
@@ -103,7 +103,7 @@ def test_fit_and_guard_search_the_cloth_grid():
     assert r.window_m[0] in GRID and 0.1 <= r.values[0, 0] <= 1.5
     assert r.train_error[0] <= r.start_error[0]
     err = tfit.hard_errors(pb, r.values, pb.masks(), np.zeros(1, np.int32), float(r.window_m[0]))[0]
-    assert err + 0.01 * tfit._penalty(r.values, methods.CSF)[0] == pytest.approx(r.train_error[0])
+    assert err + 0.01 * tfit._penalty(r.values, tcsf.TUNER)[0] == pytest.approx(r.train_error[0])
     v = guard.validate(pb, tfit.Settings(steps=2, eval_every=2), folds=2, block_m=20.0)
     assert v.values.shape == (1, 1) and v.window_m[0] in GRID and np.isfinite(v.default_error[0])
 

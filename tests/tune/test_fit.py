@@ -9,8 +9,8 @@ import pytest
 
 from gfjax.cli import main as cli_main
 from gfjax.cli._common import method_setup
+from gfjax.smrf import tuning as tsmrf
 from gfjax.tune import fit as tfit
-from gfjax.tune import smrf as tsmrf
 from gfjax.tune.problem import block_folds
 
 from .helpers import WINDOWS, crop_cloud, problem
@@ -96,12 +96,18 @@ def test_cli_tune_writes_params_that_filter_reads(tmp_path, capsys):
     assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "q.json"), "--alpha", "1.5"]) == 2
 
 
-def test_methods_are_looked_up_and_pickled_by_name():
+def test_each_methods_tuner_is_found_through_the_registry_and_pickled_by_name():
     import pickle
 
-    from gfjax.tune import methods
+    import gfjax
+    from gfjax.masf import tuning as tmasf
+    from gfjax.pmf import tuning as tpmf
+    from gfjax.tune import tuners
 
-    assert methods.get("pmf") is methods.PMF
-    assert pickle.loads(pickle.dumps(methods.SMRF)) is methods.SMRF
-    with pytest.raises(ValueError, match="masf"):
-        methods.get("masf")
+    assert tuners.get("pmf") is tpmf.TUNER and tuners.get("masf") is tmasf.TUNER
+    assert tuners.of_config(gfjax.smrf.Config()) is tsmrf.TUNER
+    assert pickle.loads(pickle.dumps(tsmrf.TUNER)) is tsmrf.TUNER
+    with pytest.raises(ValueError, match="cannot be tuned; tunable: .*masf"):
+        tuners.get("sparsegf")
+    with pytest.raises(ValueError, match="no method tuned by gradient has a Config"):
+        tuners.of_config(gfjax.masf.Config())

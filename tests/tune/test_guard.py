@@ -7,6 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
+from gfjax.smrf import tuning as tsmrf
 from gfjax.tune import fit as tfit
 from gfjax.tune import guard
 
@@ -45,13 +46,13 @@ def test_guard_keeps_a_fit_that_helps_in_every_block():
     trained on nor a unit."""
     pb = problem(NAMES)
     one = np.zeros(3, np.int32)
-    hard0 = tfit.hard_errors(pb, tfit.DEFAULTS[None, :], pb.masks(), one, 6.0)[2]
+    hard0 = tfit.hard_errors(pb, tsmrf.TUNER.defaults[None, :], pb.masks(), one, 6.0)[2]
     v = guard.validate(pb, SETTINGS, weight=ROUGH_ALONE, folds=2, block_m=10.0)
     assert not v.by_sample[0] and v.units[0] >= 5
     np.testing.assert_allclose(v.default_error[0], hard0)                  # every point held out once
     assert v.kept[0] and v.p_value[0] < 0.05 and v.tuned_error[0] < v.default_error[0]
     assert v.shrink[0] in guard.SHRINK and v.fit is not None
-    expect = tfit.DEFAULTS + v.shrink[0] * (v.fit.values[0] - tfit.DEFAULTS)
+    expect = tsmrf.TUNER.defaults + v.shrink[0] * (v.fit.values[0] - tsmrf.TUNER.defaults)
     np.testing.assert_allclose(v.values[0], expect, rtol=1e-6)
     assert v.window_m[0] == v.fit.window_m[0]
     after = tfit.hard_errors_at(pb, v.values, v.window_m, pb.masks(), one)[2]
@@ -62,7 +63,7 @@ def test_guard_keeps_defaults_when_nothing_can_be_gained():
     pb = problem(NAMES)                      # flat: all ground, the defaults label it without error
     v = guard.validate(pb, SETTINGS, weight=FLAT_ALONE, folds=2, block_m=10.0)
     assert not v.kept[0] and v.fit is None and v.p_value[0] == 1.0
-    np.testing.assert_array_equal(v.values[0], tfit.DEFAULTS)
+    np.testing.assert_array_equal(v.values[0], tsmrf.TUNER.defaults)
     assert v.window_m[0] == 18.0 and v.shrink[0] == 0.0
     assert v.fold_errors.shape == (2, 1, 2)
 
@@ -73,7 +74,7 @@ def test_guard_validates_a_shared_fit_by_sample():
     pb = problem(NAMES)
     v = guard.validate(pb, SETTINGS, folds=2, block_m=10.0)
     assert v.by_sample[0] and v.units[0] <= 3 and not v.kept[0] and v.p_value[0] >= 3 / 8
-    np.testing.assert_array_equal(v.values[0], tfit.DEFAULTS)
+    np.testing.assert_array_equal(v.values[0], tsmrf.TUNER.defaults)
 
 
 def test_guard_argument_checks():

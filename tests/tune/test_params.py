@@ -12,8 +12,8 @@ from jax.test_util import check_grads
 from gfjax import methods
 from gfjax.cli._common import load_params_file, method_setup
 from gfjax.errors import InputError
+from gfjax.smrf import tuning as tsmrf
 from gfjax.tune import params as tparams
-from gfjax.tune import smrf as tsmrf
 
 B = tsmrf.BOUNDS
 

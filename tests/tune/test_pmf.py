@@ -19,9 +19,8 @@ from gfjax.cli import main as cli_main
 from gfjax.cli._common import method_setup
 from gfjax.io import tiles as tiling
 from gfjax.pmf import Config, Params, programs
+from gfjax.pmf import tuning as tpmf
 from gfjax.tune import fit as tfit
-from gfjax.tune import methods
-from gfjax.tune import pmf as tpmf
 from gfjax.tune.problem import Problem
 
 from .helpers import crop_batch, crop_cloud, crop_sample
@@ -87,14 +86,14 @@ def test_loss_finite_on_one_class_tiles(all_ground):
 
 @functools.cache
 def pmf_problem() -> Problem:
-    return Problem([crop_sample()], config=CONFIG, method=methods.PMF)
+    return Problem([crop_sample()], config=CONFIG, method=tpmf.TUNER)
 
 
 def test_problem_hard_labels_equal_pmf_filter_and_fit_improves_training_error():
     pb = pmf_problem()
     one = np.zeros(1, np.int32)
     plain = gfjax.pmf.filter(crop_cloud(), config=CONFIG).ground
-    (labels,) = pb.labels(tfit.hard_ground(pb, methods.PMF.defaults[None, :], one, CONFIG.max_window_m))
+    (labels,) = pb.labels(tfit.hard_ground(pb, tpmf.TUNER.defaults[None, :], one, CONFIG.max_window_m))
     np.testing.assert_array_equal(labels, plain)
     r = tfit.fit(pb, tfit.Settings(steps=4, eval_every=2))
     assert r.window_m[0] == CONFIG.max_window_m and set(r.history) == {CONFIG.max_window_m}
@@ -102,7 +101,7 @@ def test_problem_hard_labels_equal_pmf_filter_and_fit_improves_training_error():
     assert np.all((r.values[0] >= lo) & (r.values[0] <= hi))
     assert r.train_error[0] < r.start_error[0]          # the defaults are off on this crop (7.6 %)
     err = tfit.hard_errors(pb, r.values, pb.masks(), one, CONFIG.max_window_m)[0]
-    assert err + 0.01 * tfit._penalty(r.values, methods.PMF)[0] == pytest.approx(r.train_error[0])
+    assert err + 0.01 * tfit._penalty(r.values, tpmf.TUNER)[0] == pytest.approx(r.train_error[0])
 
 
 def test_cli_tune_pmf_writes_params_that_filter_reads(tmp_path, capsys):

@@ -1,4 +1,4 @@
-"""Tuning by grid search (`gfjax.tune.search`) and MASF's grid (`gfjax.tune.masf`): the choice
+"""Tuning by grid search (`gfjax.tune.search`) and MASF's grid (`gfjax.masf.tuning`): the choice
 and its guard against brute force, and every candidate's labels equal to the plain filter's."""
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import gfjax
 from gfjax import dmf, masf
 from gfjax.cli import main as cli_main
 from gfjax.cli._common import method_setup
-from gfjax.tune import dmf as tdmf
-from gfjax.tune import masf as tmasf
+from gfjax.dmf import tuning as tdmf
+from gfjax.masf import tuning as tmasf
 from gfjax.tune import search
 from gfjax.tune.guard import sign_flip_p
 from gfjax.tune.problem import Sample, block_folds, block_ids

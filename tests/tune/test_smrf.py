@@ -12,9 +12,9 @@ from jax.test_util import check_grads
 
 import gfjax
 from gfjax.smrf import Params, programs, stages
+from gfjax.smrf import tuning as tsmrf
 from gfjax.tune import fit as tfit
 from gfjax.tune import params as tparams
-from gfjax.tune import smrf as tsmrf
 
 from .helpers import CONFIG, crop_batch, crop_cloud, crop_prepared, problem
 
@@ -49,7 +49,7 @@ def test_hard_evaluation_equals_smrf_filter():
     weights = jax.vmap(hard_weight(), in_axes=(0, None))(bucket.prep, Params())
     (labels,) = pb.labels([np.asarray(weights)])
     np.testing.assert_array_equal(labels, plain)
-    errs = tfit.hard_errors(pb, tfit.DEFAULTS[None, :], pb.masks(), np.zeros(1, np.int32), CONFIG.window_m)
+    errs = tfit.hard_errors(pb, tsmrf.TUNER.defaults[None, :], pb.masks(), np.zeros(1, np.int32), CONFIG.window_m)
     ref = pb.samples[0].ref_ground
     np.testing.assert_allclose(errs[0], np.mean(plain != ref), rtol=1e-12)
 

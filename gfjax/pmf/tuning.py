@@ -13,7 +13,7 @@ only through the windows whose threshold is capped, `initial_distance_m` and `sl
 the others). With `temperature=None` the labels are `stages.classify_points` itself, so they
 equal the plain filter bit for bit (tested).
 
-`gfjax.tune.methods.PMF` plugs it into `gfjax.tune.fit`, the guard and `gfjax tune --method pmf`
+`gfjax.pmf.tuning.TUNER` plugs it into `gfjax.tune.fit`, the guard and `gfjax tune --method pmf`
 (the window series is not searched).
 """
 from __future__ import annotations
@@ -31,8 +31,9 @@ from gfjax.pmf.config import Config, Params
 from gfjax.raster.grid import cell_index, domain_mask
 from gfjax.tune import relax
 from gfjax.tune.params import bound
+from gfjax.tune.tuners import GradientTuner
 
-__all__ = ["BOUNDS", "UNITS", "Prepared", "prepare_tile", "ground_weight", "make_params"]
+__all__ = ["TUNER", "BOUNDS", "UNITS", "Prepared", "prepare_tile", "ground_weight", "make_params"]
 
 BOUNDS = (
     bound(Params, "slope", 0.1, 3.0, "1 (rise over run)"),
@@ -85,3 +86,15 @@ def ground_weight(prep: Prepared, params: Params, *, config: Config,
     dz = prep.xyz[None, :, 2] - prep.opened[:, row, col]                  # (k, n)
     weight = 1 - relax.soft_or_max(dz - dh[:, None], temperature)
     return jnp.where(prep.valid & inside, weight, jnp.zeros((), weight.dtype))
+
+
+def _ground_weight(prep, values, *, config, static_px, temperature):
+    del static_px                       # the window series is static (config.windows_px)
+    return ground_weight(prep, make_params(values), config=config, temperature=temperature)
+
+
+TUNER = GradientTuner(
+    name="pmf", bounds=BOUNDS, units=UNITS, config_type=Config, static=None, grid=(),
+    prepare_tile=prepare_tile.__wrapped__, ground_weight=_ground_weight,
+    static_px=lambda config, value: 0, default_static=lambda config: config.max_window_m,
+    prepared_config=lambda config, grid: config)

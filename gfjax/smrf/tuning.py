@@ -48,8 +48,9 @@ from gfjax.smrf import stages
 from gfjax.smrf.config import Config, Params
 from gfjax.tune import relax
 from gfjax.tune.params import bound
+from gfjax.tune.tuners import GradientTuner
 
-__all__ = ["BOUNDS", "GRID", "UNITS", "Prepared", "prepare_tile", "ground_weight", "make_params",
+__all__ = ["TUNER", "BOUNDS", "GRID", "UNITS", "Prepared", "prepare_tile", "ground_weight", "make_params",
            "soft_inpaint", "radius_for"]
 
 # Tuned scalars with PDAL's defaults and the bounds the optimiser keeps them in; a 5-value
@@ -216,3 +217,15 @@ def radius_for(config: Config, window_m: float) -> int:
     """Openings of a window: `Config.max_radius_px` of `config` with `window_m`."""
     return dataclasses.replace(config, window_m=float(window_m)).max_radius_px
 
+
+
+def _ground_weight(prep, values, *, config, static_px, temperature):
+    return ground_weight(prep, make_params(values), config=config, radius_px=static_px, temperature=temperature)
+
+
+TUNER = GradientTuner(
+    name="smrf", bounds=BOUNDS, units=UNITS, config_type=Config, static="window_m",
+    grid=GRID["window_m"], prepare_tile=prepare_tile.__wrapped__, ground_weight=_ground_weight,
+    static_px=radius_for, default_static=lambda config: Config().window_m,
+    prepared_config=lambda config, grid: dataclasses.replace(
+        config, window_m=float(max(max(grid), config.window_m))))

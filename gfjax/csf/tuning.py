@@ -49,8 +49,9 @@ from gfjax.csf.config import BUFFER_PX
 from gfjax.io import tiles as tiling
 from gfjax.tune import relax
 from gfjax.tune.params import bound
+from gfjax.tune.tuners import GradientTuner
 
-__all__ = ["BOUNDS", "UNITS", "TIME_STEPS", "RIGIDNESS", "GRID", "TuneConfig", "Prepared", "encode", "decode",
+__all__ = ["TUNER", "BOUNDS", "UNITS", "TIME_STEPS", "RIGIDNESS", "GRID", "TuneConfig", "Prepared", "encode", "decode",
            "cloth_distances", "sample_distances", "prepare_samples", "ground_weight", "cloth_cache"]
 
 BOUNDS = (bound(csf.Params, "class_threshold_m", 0.1, 1.5, "m"),)
@@ -227,3 +228,26 @@ def ground_weight(prep: Prepared, class_threshold_m: Float[Array, ""], cloth: in
         return prep.valid & stages.is_ground(d, class_threshold_m)
     weight = relax.less_equal(jnp.abs(d), class_threshold_m, temperature)
     return jnp.where(prep.valid, weight, jnp.zeros((), weight.dtype))
+
+
+def _ground_weight(prep, values, *, config, static_px, temperature):
+    del config
+    return ground_weight(prep, values[0], static_px, temperature=temperature)
+
+
+def _grid_values(code: float) -> dict:
+    time_step, rigidness = decode(code)
+    return {"time_step": time_step, "rigidness": rigidness}
+
+
+TUNER = GradientTuner(
+    name="csf", bounds=BOUNDS, units=UNITS, config_type=csf.Config, static="cloth",
+    grid=GRID, prepare_tile=None, ground_weight=_ground_weight,
+    static_px=lambda config, value: config.index(value),
+    default_static=lambda config: encode(float(csf.Params().time_step), getattr(config, "csf", config).rigidness),
+    prepared_config=lambda config, grid: TuneConfig(config, tuple(sorted({*grid, encode(
+        float(csf.Params().time_step), config.rigidness)}))),
+    prepare_samples=prepare_samples, static_values=_grid_values,
+    static_note="time_step and rigidness act through the cloth simulation, a while loop with a "
+                "displacement stopping rule (no reverse-mode gradient; rigidness is a loop count): "
+                "grid search over cloths simulated once per sample, never gradient-fitted")
