@@ -160,28 +160,26 @@ def run(args: argparse.Namespace) -> int:
 
 def _grid(args: argparse.Namespace, tuning: str) -> dict[str, tuple]:
     """The grid `gfjax.tune.tune` searches, from `--windows`, `--time-steps`, `--rigidness` and
-    `--grid`, each checked against the method (InputError naming the option)."""
+    `--grid`, each checked against the method's tuner (InputError naming the option)."""
     from gfjax import methods
+    from gfjax.tune import tuners
 
+    tuner = tuners.get(args.method)
     given = {"--windows": ("window_m", args.windows), "--time-steps": ("time_step", args.time_steps),
              "--rigidness": ("rigidness", args.rigidness)}
     if tuning == "grid":
-        for option, (_, value) in given.items():
-            if value:
-                raise InputError(f"{option}: not a setting of {args.method}")
         if args.loss != "total-error":
             raise InputError(f"--loss {args.loss}: {args.method} is searched on total error only")
+    elif args.grid:
+        searched = [name for name in methods.available() if methods.get(name).tuning == "grid"]
+        raise InputError(f"--grid: only {', '.join(searched)} are tuned on a grid of settings, not {args.method}")
+    for option, (key, value) in given.items():
+        if value and key not in getattr(tuner, "grid_keys", ()):
+            raise InputError(f"{option}: not a setting of {args.method}'s tuning grid")
+    if tuning == "grid":
         from gfjax.tune.run import checked_grid
 
         return checked_grid(args.method, dict(args.grid), option="--grid")
-    if args.grid:
-        searched = [name for name in methods.available() if methods.get(name).tuning == "grid"]
-        raise InputError(f"--grid: only {', '.join(searched)} are tuned on a grid of settings, not {args.method}")
-    if args.windows and args.method != "smrf":
-        raise InputError(f"--windows: {args.method} has no window grid")
-    for option in ("--time-steps", "--rigidness"):
-        if given[option][1] and args.method != "csf":
-            raise InputError(f"{option}: only CSF has a cloth grid, not {args.method}")
     _check_grids(args)
     return {key: value for key, value in given.values() if value}
 

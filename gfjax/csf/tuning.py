@@ -247,7 +247,9 @@ TUNER = GradientTuner(
     default_static=lambda config: encode(float(csf.Params().time_step), getattr(config, "csf", config).rigidness),
     prepared_config=lambda config, grid: TuneConfig(config, tuple(sorted({*grid, encode(
         float(csf.Params().time_step), config.rigidness)}))),
-    prepare_samples=prepare_samples, static_values=_grid_values,
+    prepare_samples=prepare_samples, static_values=_grid_values, grid_keys=("time_step", "rigidness"),
+    from_keys=lambda requested: tuple(encode(t, r) for r in requested.get("rigidness", RIGIDNESS)
+                                      for t in requested.get("time_step", TIME_STEPS)),
     static_note="time_step and rigidness act through the cloth simulation, a while loop with a "
                 "displacement stopping rule (no reverse-mode gradient; rigidness is a loop count): "
                 "grid search over cloths simulated once per sample, never gradient-fitted")

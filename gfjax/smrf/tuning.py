@@ -226,6 +226,6 @@ def _ground_weight(prep, values, *, config, static_px, temperature):
 TUNER = GradientTuner(
     name="smrf", bounds=BOUNDS, units=UNITS, config_type=Config, static="window_m",
     grid=GRID["window_m"], prepare_tile=prepare_tile.__wrapped__, ground_weight=_ground_weight,
-    static_px=radius_for, default_static=lambda config: Config().window_m,
+    static_px=radius_for, default_static=lambda config: Config().window_m, grid_keys=("window_m",),
     prepared_config=lambda config, grid: dataclasses.replace(
         config, window_m=float(max(max(grid), config.window_m))))

@@ -120,12 +120,11 @@ def checked_grid(method: str, grid: Mapping[str, Sequence[float]], *, option: st
     from gfjax.tune import tuners
 
     found = methods.get(method, option="method")
+    tuner = tuners.get(method)
     if found.tuning == "grid":
-        tuner = tuners.get(method)
         keys, ranges = set(tuner.default_grid(found.Config())), {**found.ranges, **tuner.grid_ranges}
     else:
-        keys = {"smrf": {"window_m"}, "csf": {"time_step", "rigidness"}}.get(method, set())
-        ranges = found.ranges
+        keys, ranges = set(tuner.grid_keys), found.ranges
     out = {}
     for key, values in grid.items():
         if key not in keys:
@@ -177,13 +176,7 @@ def _fitted(found, samples, terrain, grid, *, loss, prior, steps, folds, block_m
     settled = adaptive.settle_terrain(found.adapt, terrain, method.config_type(), found.Params())
     config = settled.config
     start = [float(settled.chosen.get(b.name, b.default)) for b in method.bounds]   # exact, as params.json holds them
-    if method.static == "cloth":
-        from gfjax.csf import tuning as tcsf
-
-        windows = tuple(tcsf.encode(t, r) for r in grid.get("rigidness", tcsf.RIGIDNESS)
-                        for t in grid.get("time_step", tcsf.TIME_STEPS))
-    else:
-        windows = method.grid_values(config, grid.get("window_m"))
+    windows = method.grid_values(config, method.static_grid(grid))
     settings = tfit.Settings(steps=steps, prior=prior, loss=loss, windows_m=windows)
     problem = Problem(samples, config=config, max_window_m=max(windows), method=method, grid=windows, defaults=start)
     v = guard.validate(problem, settings, folds=folds, block_m=block_m, alpha=alpha, progress=progress)

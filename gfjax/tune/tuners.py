@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -42,6 +42,11 @@ class GradientTuner:
         core_index, shape)]` for a method that filters whole clouds (CSF).
       static_values: None (params.json gets `{static: value}`), or `(value) -> {key: value}`.
       static_note: why the static parameter is searched on a grid (params.json).
+      grid_keys: the keys a user sets the static grid with (`gfjax.tune.tune(grid=...)`): SMRF
+        `window_m`; CSF `time_step` and `rigidness`; none for PMF.
+      from_keys: None (the grid is the values given for `static`), or `({key: values}) ->
+        static grid` where several keys make one static value (CSF: a cloth per time step and
+        rigidness, the defaults for a key not given).
     """
 
     name: str
@@ -58,6 +63,8 @@ class GradientTuner:
     prepare_samples: Callable | None = None
     static_values: Callable | None = None
     static_note: str = "loop count of the progressive opening: grid search"
+    grid_keys: tuple[str, ...] = ()
+    from_keys: Callable | None = None
 
     @property
     def defaults(self) -> np.ndarray:
@@ -77,6 +84,13 @@ class GradientTuner:
             return tuple(requested)
         prepared = getattr(config, "cloths", None)          # a CSF problem's own grid
         return tuple(prepared) if prepared else self.grid
+
+    def static_grid(self, requested: Mapping[str, Sequence[float]]) -> tuple[float, ...] | None:
+        """The static grid a user's `{key: values}` (keys of `grid_keys`) asks for; None: the default."""
+        if self.from_keys is not None:
+            return tuple(self.from_keys(requested))
+        values = requested.get(self.static) if self.static else None
+        return tuple(values) if values else None
 
     def params_values(self, value: float) -> dict:
         """The params.json entries of a static grid value."""

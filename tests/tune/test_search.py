@@ -251,7 +251,7 @@ def test_cli_tune_masf_writes_params_that_filter_reads(tmp_path, capsys):
     (["--grid", "alpha_top_m=-1"], "--grid: alpha_top_m must be"),
     (["--grid", "st=1", "--method", "smrf"], "only dmf, masf are tuned on a grid"),
     (["--loss", "kappa"], "--loss kappa: masf is searched on total error only"),
-    (["--windows", "12"], "--windows: not a setting of masf"),
+    (["--windows", "12"], "--windows: not a setting of masf's tuning grid"),
     (["--method", "dmf", "--grid", "max_filter_px=1.5"], "--grid: max_filter_px must be an integer"),
     (["--method", "dmf", "--grid", "alpha_max_m=20"], "--grid alpha_max_m: unknown key; dmf searches"),
 ], ids=["unknown-key", "out-of-range", "top-out-of-range", "not-a-grid-method", "kappa", "windows", "dmf-integer", "dmf-key-of-masf"])
