@@ -3,14 +3,21 @@ bar): the cloth, its stopping step and the labels of the one-program simulation,
 blocks are cut."""
 from __future__ import annotations
 
+import functools
+import importlib
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_csf import surface
+from test_csf import FAST, scene, surface
 
 from gfjax import csf
 from gfjax.csf import cloth
+from gfjax.io import las
+from gfjax.io.cloud import Cloud
+
+filter_module = importlib.import_module("gfjax.csf.filter")
 
 # (surface, start above its top [m], time step, cap): settling by the displacement rule, a
 # cloth stopped by the cap, one resting everywhere at once (no movable particle), and a time
@@ -67,3 +74,72 @@ def test_a_stopped_run_advances_no_further():
     again = cloth.advance(run, jnp.int32(cloth.NO_LIMIT), config=config)
     for a, b in zip(jax.tree.leaves(run), jax.tree.leaves(again)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.fixture
+def one_block_chunks(monkeypatch):
+    """A progress bar's run one block per call: the most cuts a run can have."""
+    monkeypatch.setattr(filter_module, "CHUNK_SLOTS", 1)
+
+
+def _one_program(monkeypatch):
+    """`filter` as it was before the chunks: the whole simulation one program (`drop_cloth`)."""
+    monkeypatch.setattr(filter_module, "drop_cloth_in_chunks", lambda surface, params, *, config, progress=False:
+                        filter_module.drop_cloth(surface, params, config=config))
+
+
+def _same(a, b):
+    np.testing.assert_array_equal(a.ground, b.ground)
+    for name in ("cloth_z", "surface_z", "movable", "steps", "origin_m"):
+        np.testing.assert_array_equal(getattr(a.diagnostics, name), getattr(b.diagnostics, name), name)
+
+
+@pytest.mark.parametrize("config", [FAST, csf.Config(iterations=6)], ids=["settles", "cap"])
+def test_filter_with_a_bar_labels_as_the_one_program_and_says_where_it_stopped(config, one_block_chunks,
+                                                                               monkeypatch, capsys):
+    cloud = Cloud.from_xyz(scene("plane_box", seed=4) + [3e5, 4e6, 0.0])
+    shown = csf.filter(cloud, config=config, progress=True)
+    bar = capsys.readouterr().err
+    quiet = csf.filter(cloud, config=config)
+    assert capsys.readouterr().err == ""                          # progress=False draws nothing
+    with monkeypatch.context() as patch:
+        _one_program(patch)
+        whole = csf.filter(cloud, config=config)
+    _same(shown, whole)
+    _same(quiet, whole)
+    steps, cap = shown.diagnostics.steps, config.iterations
+    assert "csf cloth" in bar and "block" in bar
+    last = bar.replace("\r", "\n").strip().splitlines()[-1]
+    if steps < cap:
+        assert f"settled at step {steps}/{cap}" in last and "100%" in last
+    else:
+        assert f"step {cap}/{cap}" in last and "100%" in last and "settled" not in bar
+
+
+def test_a_disabled_bar_still_runs_to_the_stop(one_block_chunks, monkeypatch, capsys):
+    """`-q` (TQDM_DISABLE): the bar counts nothing, the chunks go on to the cloth's stop."""
+    import tqdm.auto
+
+    monkeypatch.setattr(tqdm.auto, "tqdm", functools.partial(tqdm.auto.tqdm, disable=True))
+    cloud = Cloud.from_xyz(scene("terrace", seed=2))
+    quiet = csf.filter(cloud, config=FAST, progress=True)
+    assert capsys.readouterr().err == ""
+    _same(quiet, csf.filter(cloud, config=FAST))
+
+
+@pytest.mark.data
+@pytest.mark.parametrize("name", ["samp24", "samp31"])
+def test_labels_on_isprs_samples_are_the_one_program_labels(name, one_block_chunks, monkeypatch):
+    """On real samples with the default settings (the trend taken off, a soft cloth), a bar's
+    run of one block per call and a run without one give the labels, cloth and stopping step
+    of the whole simulation as one program (`drop_cloth`, the program before the chunks)."""
+    from conftest import shared_file
+
+    cloud = las.read(shared_file(f"isprs_filtertest/reference/{name}-utm.laz"))
+    shown, quiet = csf.filter(cloud, progress=True), csf.filter(cloud)
+    with monkeypatch.context() as patch:
+        _one_program(patch)
+        whole = csf.filter(cloud)
+    _same(shown, whole)
+    _same(quiet, whole)
+    assert 0 < shown.diagnostics.steps < csf.Config().iterations and shown.ground.any()
