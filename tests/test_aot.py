@@ -345,10 +345,11 @@ def test_program_that_cannot_be_stored_runs_through_plain_jit(folder, monkeypatc
     np.testing.assert_allclose(_call(solve, a, b), [1.0, 2.0], rtol=1e-6)
 
 
-@pytest.mark.parametrize("method, stored", [("smrf", (3, 0)), ("pmf", (3, 0)), ("csf", (3, 0))])
+@pytest.mark.parametrize("method, stored", [("smrf", (3, 0)), ("pmf", (3, 0)), ("csf", (5, 0))])
 def test_method_through_the_cache_equals_the_plain_call(folder, method, stored):
-    """A method's programs (three each, stored as executables: none holds a custom call, so
-    none is exported), reloaded as in a new process: the same labels."""
+    """A method's programs (three each, CSF five: its cloth is three; stored as executables:
+    none holds a custom call, so none is exported), reloaded as in a new process: the same
+    labels, with a progress bar too (CSF's cloth then runs a chunk per call, its state donated)."""
     module = getattr(gfjax, method)
     cloud, _, _ = scenes.box_scene()
     aot.disable()
@@ -358,7 +359,9 @@ def test_method_through_the_cache_equals_the_plain_call(folder, method, stored):
     assert (len(_files(folder)), len(_files(folder, "export"))) == stored
     aot._loaded.clear()
     loaded = module.filter(cloud)
-    for result in (first, loaded):
+    shown = module.filter(cloud, progress=True)
+    assert len(_files(folder)) == stored[0]
+    for result in (first, loaded, shown):
         np.testing.assert_array_equal(result.ground, plain.ground)
 
 
