@@ -128,7 +128,7 @@ def test_a_disabled_bar_still_runs_to_the_stop(one_block_chunks, monkeypatch, ca
 
 
 @pytest.mark.data
-@pytest.mark.parametrize("name", ["samp24", "samp31"])
+@pytest.mark.parametrize("name", ["samp24"])
 def test_labels_on_isprs_samples_are_the_one_program_labels(name, one_block_chunks, monkeypatch):
     """On real samples with the default settings (the trend taken off, a soft cloth), a bar's
     run of one block per call and a run without one give the labels, cloth and stopping step
