@@ -26,6 +26,11 @@ concrete (numpy or JAX arrays, numpy scalars): under `jit`, `vmap` or `grad`, `c
 that cannot be stored (custom calls that cannot be exported, an output pytree that does not
 survive pickling) leaves a marker and runs through plain jit in later processes.
 
+A program whose `jax.jit` donates arguments (`donate_argnums`) donates them stored too: the
+stored executable may write its result into those arguments' buffers (a loop state handed
+from call to call then never exists twice); the key records which. An exported program
+(custom calls) does not donate.
+
 The files hold pickled pytree definitions next to machine code, so nothing another user could
 have written is ever loaded. The folder must be private: owned by this user, mode 0700 (`enable`
 creates it so, and tightens a folder of ours that others can only read), and every folder above
@@ -312,6 +317,25 @@ def _name(fn) -> str | None:
     return getattr(fn, "__qualname__", None) or getattr(fn, "__name__", None)
 
 
+def _donated(fn) -> tuple[int, ...]:
+    """The positional arguments `fn`'s `jax.jit` donates (`donate_argnums`), or `()`."""
+    info = getattr(fn, "_jit_info", None)
+    return tuple(sorted(getattr(info, "donate_argnums", None) or ()))
+
+
+def _donated_leaves(fn, args: tuple) -> tuple[int, ...]:
+    """The indices, among the leaves of `args`, of the leaves of the arguments `fn` donates."""
+    import jax
+
+    donated, out, start = set(_donated(fn)), [], 0
+    for i, arg in enumerate(args):
+        count = len(jax.tree.leaves(arg))
+        if i in donated:
+            out.extend(range(start, start + count))
+        start += count
+    return tuple(out)
+
+
 def _cacheable(fn, tag) -> bool:
     """A program the key can tell apart: tagged, or a module-level gfjax function (its code is
     in the fingerprint). Closures, partials and functions from elsewhere take plain jit."""
@@ -380,6 +404,9 @@ def program_key(fn: Callable, args: tuple, static: dict, tag=None) -> str:
                  for a in leaves]
     name = repr(tag) if tag is not None else f"{fn.__module__}.{_name(fn)}"
     parts = [name, _static_repr(static), str(treedef), ";".join(signature), _trace_options(), _fingerprint()]
+    donated = _donated(fn)
+    if donated:
+        parts.append(f"donate {donated}")
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
@@ -809,13 +836,15 @@ def _compile_fresh(fn, args, static):
     bound to the compiling process) is not compiled here: its executable crashes when run in
     another process (SMRF's harmonic fill, jaxlib 0.10.2 CPU: a segmentation fault).
 
+    The arguments `fn`'s `jax.jit` donates are donated by the stored program too.
+
     Returns: `(compiled, fresh)`: `(None, False)` for a program with custom calls; `fresh` is
     False if JAX reports a cache hit all the same (then it is used but not stored).
     """
     import jax
 
     program, leaves = _leaf_program(fn, args, static)
-    lowered = jax.jit(program).lower(*leaves)
+    lowered = jax.jit(program, donate_argnums=_donated_leaves(fn, args)).lower(*leaves)
     if "custom_call" in lowered.as_text():
         return None, False
     _watch_cache_hits()

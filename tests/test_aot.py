@@ -128,6 +128,34 @@ def test_one_file_per_program(folder):
     assert len(_files(folder)) == 3
 
 
+@functools.partial(jax.jit, donate_argnums=0)
+def add_into(state: Pair, x):
+    return Pair(scaled=state.scaled + x, total=state.total + jnp.sum(x))
+
+
+def test_a_stored_program_donates_what_its_jit_donates(folder):
+    """A loop state handed from call to call: the stored program, compiled or loaded, writes
+    its result into the donated state's buffers (the state is deleted), as plain jit does;
+    the key says which arguments are donated."""
+    x = np.arange(4, dtype=np.float32)
+
+    def state():
+        return Pair(jnp.zeros(4, jnp.float32), jnp.zeros((), jnp.float32))
+
+    assert aot._donated(add_into) == (0,) and aot._donated(scale_and_sum) == ()
+    assert aot._donated_leaves(add_into, (state(), x)) == (0, 1)
+    for _ in range(2):                                    # compiled and stored, then loaded
+        before = state()
+        out = _call(add_into, _call(add_into, before, x), x)
+        assert before.scaled.is_deleted() and before.total.is_deleted()
+        np.testing.assert_array_equal(out.scaled, 2 * x)
+        assert float(out.total) == 12.0
+        aot._loaded.clear()                               # as a new process would start
+    assert len(_files(folder)) == 1
+    plain = jax.jit(add_into.__wrapped__)
+    assert aot.program_key(add_into, (state(), x), {}, tag="t") != aot.program_key(plain, (state(), x), {}, tag="t")
+
+
 def test_corrupt_artifact_is_compiled_again(folder):
     _call(scale_and_sum, *_args(), factor=3)
     (path,) = _files(folder)
@@ -317,10 +345,11 @@ def test_program_that_cannot_be_stored_runs_through_plain_jit(folder, monkeypatc
     np.testing.assert_allclose(_call(solve, a, b), [1.0, 2.0], rtol=1e-6)
 
 
-@pytest.mark.parametrize("method, stored", [("smrf", (3, 0)), ("pmf", (3, 0)), ("csf", (3, 0))])
+@pytest.mark.parametrize("method, stored", [("smrf", (3, 0)), ("pmf", (3, 0)), ("csf", (5, 0))])
 def test_method_through_the_cache_equals_the_plain_call(folder, method, stored):
-    """A method's programs (three each, stored as executables: none holds a custom call, so
-    none is exported), reloaded as in a new process: the same labels."""
+    """A method's programs (three each, CSF five: its cloth is three; stored as executables:
+    none holds a custom call, so none is exported), reloaded as in a new process: the same
+    labels, with a progress bar too (CSF's cloth then runs a chunk per call, its state donated)."""
     module = getattr(gfjax, method)
     cloud, _, _ = scenes.box_scene()
     aot.disable()
@@ -330,7 +359,9 @@ def test_method_through_the_cache_equals_the_plain_call(folder, method, stored):
     assert (len(_files(folder)), len(_files(folder, "export"))) == stored
     aot._loaded.clear()
     loaded = module.filter(cloud)
-    for result in (first, loaded):
+    shown = module.filter(cloud, progress=True)
+    assert len(_files(folder)) == stored[0]
+    for result in (first, loaded, shown):
         np.testing.assert_array_equal(result.ground, plain.ground)
 
 

@@ -101,9 +101,13 @@ print(len(compiled), int(ground.sum()))
 
 
 def test_after_csf_warm_its_cloth_program_is_loaded_not_compiled(tmp_path):
-    """CSF's cloth (`drop_cloth`) is warmed per grid; its two point programs compile on first use."""
+    """CSF's cloth programs (`start_cloth`, `advance_cloth`, `finish_cloth`) are warmed per
+    grid; its two point programs compile on first use. A run with a progress bar (the command
+    line's) runs the very programs a run without one does."""
     cold, warmed = tmp_path / "cold", tmp_path / "warm"
     compiled_cold, ground_cold = _python(_CSF_FILTER, cold).split()
     assert _python("from gfjax import csf; print(csf.warm(sides=(128, 192)))", warmed) == "4"
     compiled, ground = _python(_CSF_FILTER, warmed).split()
-    assert (compiled_cold, compiled) == ("3", "2") and ground == ground_cold and int(ground) > 0
+    assert (compiled_cold, compiled) == ("5", "2") and ground == ground_cold and int(ground) > 0
+    shown = _python(_CSF_FILTER.replace("csf.filter(cloud)", "csf.filter(cloud, progress=True)"), warmed)
+    assert shown.split() == ["0", ground]                 # the point programs: stored by the run above

@@ -38,6 +38,14 @@ to a ring of `groups` snapshots, from which the cloth at the stopping step is re
 Cost: `PERIOD * (steps + groups)` iterations of `groups * lanes` particles each (about
 `h * w / 21 * 1.25` for a square grid); memory: the ring holds `groups + 1` copies of the grid.
 
+Chunks. `start`, `advance` and `finish` are `simulate` cut at block boundaries: `advance(run,
+until)` runs blocks until the cloth stops or block `until` is next, and returns the whole loop
+state (`Run`: slots, ring, the stopping rule's state, the block counter) for the next call.
+The blocks, their order and the stopping rule are `simulate`'s, so the cloth, its stopping
+step and its fixed particles are too, however the blocks are cut; between calls a caller may
+draw a progress bar (`gfjax.csf.filter`). Step `s` is complete after block `s + last_group`
+(`steps_done`); a run to the cap takes `blocks_to_cap` blocks.
+
 Batches (`jax.vmap`): the cloths share the block counter, so every slice stays a slice (a
 batched counter would turn them into gathers), and the loop runs until the last cloth stops; a
 stopped cloth is frozen (no block is live, its ring writes go to a spare slot).
@@ -56,7 +64,9 @@ from gfjax._types import Mask, Raster
 from gfjax.csf.config import DAMPING, GRAVITY, STOP_DISPLACEMENT_M, Config, double_move, single_move
 from gfjax.csf.wavefront import EMPTY, FIXED, HALO, MOVABLE, PERIOD, Layout, add_halo, layout, refresh_halo, relax_block
 
-__all__ = ["ClothState", "simulate", "sweep"]
+__all__ = ["ClothState", "Run", "NO_LIMIT", "simulate", "start", "advance", "finish", "steps_done", "blocks_to_cap", "sweep"]
+
+NO_LIMIT = 2**31 - 1                          # an `advance` limit never reached: run to the stop
 
 
 class ClothState(NamedTuple):
@@ -200,6 +210,46 @@ def _result(c: _Carry, movable: Mask, *, lay: Layout) -> ClothState:
     return ClothState(u=u_end, movable=movable & ~fixed, max_step_m=c.last_max, steps=c.last_step + 1)
 
 
+class Run(NamedTuple):
+    """One cloth part way through its simulation, between two `advance` calls (a pytree of
+    arrays: it stays on the device, and a program may take it, donated, and return the next).
+
+    Attributes:
+      carry: the loop state (`_Carry`: slots, snapshot ring, the stopping rule's state).
+      block: the next block counter `b` (iterations `PERIOD b + phase` come next), int32 scalar.
+      heights: the inverted surface in phase-major slots `(PERIOD, groups, lanes)` [m].
+      accel: Verlet gravity term, scalar [m per step].
+      movable: particles free to move at step 0, bool `(h, w)`.
+    """
+
+    carry: _Carry
+    block: Int[Array, ""]
+    heights: Array
+    accel: Float[Array, ""]
+    movable: Mask
+
+
+def _start(u: Raster, u_prev: Raster, movable: Mask, present: Mask, heights: Raster, accel: Float[Array, ""], *,
+           iterations: int) -> Run:
+    """The `Run` before block 0 (arguments as `_run`)."""
+    init, surface = _init(u, u_prev, movable, present, heights, iterations=iterations)
+    return Run(carry=init, block=jnp.int32(0), heights=surface, accel=accel, movable=movable)
+
+
+def _advance(run: Run, until: Int[Array, ""], *, iterations: int, rigidness: int) -> Run:
+    """Blocks `run.block, run.block + 1, ...` until the cloth stops or block `until` is next."""
+    body = functools.partial(_block, run.heights, run.accel, lay=layout(run.movable.shape), iterations=iterations,
+                             rigidness=rigidness)
+    block, c = lax.while_loop(lambda bc: ~bc[1].stopped & (bc[0] < until), lambda bc: (bc[0] + 1, body(bc[1], bc[0])),
+                              (run.block, run.carry))
+    return run._replace(carry=c, block=block)
+
+
+def _finish(run: Run) -> ClothState:
+    """The cloth at the stopping step (of a stopped `run`)."""
+    return _result(run.carry, run.movable, lay=layout(run.movable.shape))
+
+
 @functools.cache
 def _runner(iterations: int, rigidness: int):
     """`run(u, u_prev, movable, present, heights, accel) -> ClothState`: steps 2-4 of step 0,
@@ -210,12 +260,8 @@ def _runner(iterations: int, rigidness: int):
 
     @jax.custom_batching.custom_vmap
     def run(u, u_prev, movable, present, heights, accel):
-        lay = layout(u.shape)
-        init, surface = _init(u, u_prev, movable, present, heights, iterations=iterations)
-        body = functools.partial(_block, surface, accel, lay=lay, **static)
-        _, c = lax.while_loop(lambda bc: ~bc[1].stopped, lambda bc: (bc[0] + 1, body(bc[1], bc[0])),
-                              (jnp.int32(0), init))
-        return _result(c, movable, lay=lay)
+        started = _start(u, u_prev, movable, present, heights, accel, iterations=iterations)
+        return _finish(_advance(started, jnp.int32(NO_LIMIT), **static))
 
     @run.def_vmap
     def run_batched(axis_size, in_batched, *args):
@@ -263,12 +309,58 @@ def simulate(heights: Raster, exists: Mask, start_u: Float[Array, ""], time_step
     Returns:
       The final `ClothState`; `steps` says how many steps ran (<= `config.iterations`).
     """
+    u1, u0, accel = _dropped(heights, exists, start_u, time_step)
+    return _run(u1, u0, exists, exists, heights, accel, iterations=config.iterations,
+                rigidness=config.rigidness)
+
+
+def _dropped(heights: Raster, exists: Mask, start_u: Float[Array, ""],
+             time_step: Float[Array, ""]) -> tuple[Raster, Raster, Float[Array, ""]]:
+    """`(u1, u0, accel)`: the cloth after and before step 0's Verlet, and gravity's term."""
     dtype = heights.dtype
     accel = (-GRAVITY * time_step ** 4).astype(dtype)
     u0 = jnp.where(exists, start_u.astype(dtype), heights)
     u1 = jnp.where(exists, u0 + (u0 - u0) * (1.0 - DAMPING) + accel, u0)     # step 0's Verlet
-    return _run(u1, u0, exists, exists, heights, accel, iterations=config.iterations,
-                rigidness=config.rigidness)
+    return u1, u0, accel
+
+
+# `simulate` a chunk of blocks at a time: `finish(advance(... advance(start(...), until_1) ...))`
+# runs the very blocks `simulate` runs, in the same order, and gives its `ClothState`, however
+# the blocks are cut; between two `advance` calls the caller may report progress.
+
+@functools.partial(jax.jit, static_argnames="config")
+def start(heights: Raster, exists: Mask, start_u: Float[Array, ""], time_step: Float[Array, ""], *,
+          config: Config) -> Run:
+    """The cloth of `simulate` (same arguments) before its first block, as a `Run`."""
+    u1, u0, accel = _dropped(heights, exists, start_u, time_step)
+    return _start(u1, u0, exists, exists, heights, accel, iterations=config.iterations)
+
+
+@functools.partial(jax.jit, static_argnames="config")
+def advance(run: Run, until: Int[Array, ""], *, config: Config) -> Run:
+    """Run blocks until the cloth stops (the cap or the stopping rule, as `simulate`) or block
+    `until` (int32 scalar, a block counter; `NO_LIMIT`: to the stop) would be next; a stopped
+    `run` is returned as it is. `config`: as `start`'s."""
+    return _advance(run, until, iterations=config.iterations, rigidness=config.rigidness)
+
+
+@jax.jit
+def finish(run: Run) -> ClothState:
+    """The final `ClothState` of a stopped `run` (`run.carry.stopped`): `simulate`'s."""
+    return _finish(run)
+
+
+def steps_done(block: int, shape: tuple[int, int], *, iterations: int) -> int:
+    """Steps whose sweep is complete once blocks `0 .. block - 1` ran, on a grid `shape`
+    `(h, w)` (host ints): step `s` finishes at block `s + last_group` (`Layout`), so the
+    first `last_group` blocks (the pipeline filling) finish none."""
+    return min(max(block - layout(shape).last_group, 0), iterations)
+
+
+def blocks_to_cap(shape: tuple[int, int], *, iterations: int) -> int:
+    """Blocks a cloth on a grid `shape` `(h, w)` runs when it stops at the cap `iterations`:
+    one per step, and `last_group` more while the pipeline fills (host int)."""
+    return iterations + layout(shape).last_group
 
 
 @functools.partial(jax.jit, static_argnames="rigidness")

@@ -12,7 +12,10 @@ implementation, the `cloth-simulation-filter` package (CSF.cpp `do_cloth`, `do_f
 5. a point is ground when `|cloth(x, y) - u| < class_threshold` (bilinear cloth).
 
 `filter_points` is the whole pipeline for one padded point buffer, jitted; it is correct
-under `jax.vmap` (a batch of tiles padded to one capacity and one grid shape).
+under `jax.vmap` (a batch of tiles padded to one capacity and one grid shape). `filter` runs
+the same stages as programs kept across processes (`gfjax.aot`), steps 2-4 as three of them
+(`start_cloth`, `advance_cloth` a chunk of the simulation at a time, `finish_cloth`), so that
+a progress bar moves between chunks: a program with a host callback could not be stored.
 """
 from __future__ import annotations
 
@@ -27,18 +30,20 @@ from jaxtyping import Array, Float, Int
 
 from gfjax import adaptive, aot, cache
 from gfjax._types import Mask, PointMask, Points, Raster
-from gfjax.csf import stages
-from gfjax.csf.cloth import simulate
+from gfjax.csf import cloth, stages
+from gfjax.csf.cloth import ClothState, simulate
 from gfjax.csf.config import ADAPTED, BUFFER_PX, CLOTH_START_M, Config, Params, adapt
 from gfjax.csf.trend import trend_at
+from gfjax.csf.wavefront import layout
 from gfjax.io import groups
 from gfjax.io.cloud import CloudView
 from gfjax.io.tiled import check_memory, checked_options, filter_groups
 from gfjax.io.tiles import canonical_capacity
 from gfjax.result import Result
 
-__all__ = ["filter", "filter_points", "point_surface", "drop_cloth", "classify", "warm", "grid_shape", "Anchor",
-           "Surface", "TileDiagnostics", "Diagnostics"]
+__all__ = ["filter", "filter_points", "point_surface", "drop_cloth", "start_cloth", "advance_cloth", "finish_cloth",
+           "drop_cloth_in_chunks", "chunk_blocks", "classify", "warm", "grid_shape", "Anchor", "Surface",
+           "TileDiagnostics", "Diagnostics"]
 
 
 class TileDiagnostics(NamedTuple):
@@ -101,6 +106,10 @@ class Anchor(NamedTuple):
 WARM_SIDES = (128, 192, 256, 384, 512)
 _LARGE_STEP = 64
 TREND_CELLS = 6               # cells of the trend's surface across its window (`trend.trend_at`)
+# Slot updates (`wavefront.Layout`: rows x lanes per block) in one `advance_cloth` call of a
+# progress bar's run: 0.1-0.3 s on a CPU core pair (30-80 ns a slot and block), so the
+# bar moves a few times a second and the calls between chunks cost nothing measurable.
+CHUNK_SLOTS = 1 << 22
 _FEW_POINTS_UP_TO = 1 << 18
 _LARGE_POINT_STEP = 1 << 16
 
@@ -184,10 +193,91 @@ def drop_cloth(surface: Surface, params: Params, *, config: Config) -> tuple[Ras
     """
     filled = stages.scanline_fill(surface.heights, surface.has_point)
     state = simulate(filled, surface.exists, surface.start_u, params.time_step, config=config)
+    return _smoothed(state, filled, surface.exists, config=config)
+
+
+def _smoothed(state: ClothState, filled: Raster, exists: Mask, *,
+              config: Config) -> tuple[Raster, Raster, Mask, Int[Array, ""]]:
+    """Step 4 on the stopped cloth; `(cloth_u, surface_u, movable, steps)` as `drop_cloth`."""
     cloth_u, movable = state.u, state.movable
     if config.slope_smooth:
-        cloth_u, movable = stages.smooth_slopes(cloth_u, movable, surface.exists, filled)
+        cloth_u, movable = stages.smooth_slopes(cloth_u, movable, exists, filled)
     return cloth_u, filled, movable, state.steps
+
+
+# `drop_cloth` as three programs (`cloth.start`, `cloth.advance`, `cloth.finish`), each
+# compiled once per grid and kept across processes as `drop_cloth` would be: the same cloth,
+# whichever chunks `advance_cloth` runs; between two chunks `filter` moves its progress bar.
+
+@functools.partial(jax.jit, static_argnames="config")
+def start_cloth(surface: Surface, params: Params, *, config: Config) -> tuple[Raster, cloth.Run]:
+    """`drop_cloth` up to its simulation: `(surface_u, run)`, the gap-filled surface `(h, w)`
+    [m] and the cloth before its first block (`cloth.Run`)."""
+    filled = stages.scanline_fill(surface.heights, surface.has_point)
+    return filled, cloth.start(filled, surface.exists, surface.start_u, params.time_step, config=config)
+
+
+@functools.partial(jax.jit, static_argnames="config", donate_argnums=0)
+def advance_cloth(run: cloth.Run, until: Int[Array, ""], *, config: Config) -> cloth.Run:
+    """`cloth.advance`: blocks until the cloth stops or block `until` (int32 scalar, a block
+    counter; `cloth.NO_LIMIT`: to the stop) is next.
+    `run` is donated: the result is written into its buffers, so one snapshot ring is ever
+    held (`Config.memory_estimates`); the caller must not use `run` again."""
+    return cloth.advance(run, until, config=config)
+
+
+@functools.partial(jax.jit, static_argnames="config")
+def finish_cloth(run: cloth.Run, filled: Raster, exists: Mask, *,
+                 config: Config) -> tuple[Raster, Raster, Mask, Int[Array, ""]]:
+    """`drop_cloth` from its stopped simulation (`filled`: `start_cloth`'s surface, `exists`:
+    `Surface.exists`): slopes smoothed; returns as `drop_cloth`."""
+    return _smoothed(cloth.finish(run), filled, exists, config=config)
+
+
+def chunk_blocks(shape: tuple[int, int]) -> int:
+    """Blocks in one `advance_cloth` call of a progress bar's run on a particle grid `shape`:
+    `CHUNK_SLOTS` slot updates, at least one block."""
+    lay = layout(shape)
+    return max(1, CHUNK_SLOTS // (lay.rows * lay.lanes))
+
+
+def drop_cloth_in_chunks(surface: Surface, params: Params, *, config: Config,
+                         progress: bool = False) -> tuple[Raster, Raster, Mask, Int[Array, ""]]:
+    """`drop_cloth` (same arguments and results, bit for bit) through the program store
+    (`gfjax.aot`): `start_cloth`, `advance_cloth`, `finish_cloth`. Without `progress`, one
+    `advance_cloth` call runs the simulation to its stop; with it, calls of `chunk_blocks`
+    blocks each, and a progress bar on stderr between them (`_advance_with_bar`)."""
+    filled, run = aot.call(start_cloth, surface, params, config=config)
+    if progress:
+        run = _advance_with_bar(run, tuple(surface.heights.shape), config)
+    else:
+        run = aot.call(advance_cloth, run, np.int32(cloth.NO_LIMIT), config=config)
+    return aot.call(finish_cloth, run, filled, surface.exists, config=config)
+
+
+def _advance_with_bar(run: cloth.Run, shape: tuple[int, int], config: Config) -> cloth.Run:
+    """`run` advanced to its stop a chunk at a time, a tqdm bar moved after each chunk: blocks
+    run, of the blocks a run to the cap takes (`cloth.blocks_to_cap`: the time left is the
+    time to the cap), and the steps complete beside them; a cloth that settles before the cap
+    completes the bar there, which says at which step."""
+    from tqdm.auto import tqdm
+
+    iterations, chunk = config.iterations, chunk_blocks(shape)
+    with tqdm(total=cloth.blocks_to_cap(shape, iterations=iterations), desc="csf cloth", unit="block",
+              postfix=f"step 0/{iterations}") as bar:
+        block, stopped = 0, False                   # (a disabled bar counts nothing: TQDM_DISABLE)
+        while not stopped:
+            run = aot.call(advance_cloth, run, np.int32(block + chunk), config=config)
+            block, stopped, last_step = (int(v) for v in jax.device_get((run.block, run.carry.stopped,
+                                                                            run.carry.last_step)))
+            if stopped and last_step + 1 < iterations:
+                bar.total = block
+                bar.set_postfix_str(f"settled at step {last_step + 1}/{iterations}", refresh=False)
+            else:
+                bar.set_postfix_str(f"step {cloth.steps_done(block, shape, iterations=iterations)}/{iterations}",
+                                    refresh=False)
+            bar.update(block - bar.n)
+    return run
 
 
 @functools.partial(jax.jit, static_argnames="config")
@@ -225,19 +315,20 @@ def filter_points(xyz: Points, valid: PointMask, params: Params, anchor: Anchor 
 @cache.persistent
 def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False,
          sides: tuple[int, ...] = WARM_SIDES) -> int:
-    """Load, or compile and store (`gfjax.aot`), `drop_cloth` (the program whose compile
-    dominates a run: about 1 s, against 0.1 s for `point_surface` and `classify`, which
-    compile on first use) on every grid `(h, w)` of two `sides` (default: every canonical
-    grid up to 512 particles a side, 25 programs), for `config` (default: the values a run
-    without one settles on, `config.ADAPTED`). Nothing runs; nothing is kept when the program
-    cache is off. Returns the number of programs prepared (`gfjax warmup`)."""
+    """Load, or compile and store (`gfjax.aot`), the cloth's programs `start_cloth`,
+    `advance_cloth` and `finish_cloth` (those whose compile dominates a run: about 1 s, against
+    0.1 s for `point_surface` and `classify`, which compile on first use) on every grid `(h, w)`
+    of two `sides` (default: every canonical grid up to 512 particles a side, 25 grids), for
+    `config` (default: the values a run without one settles on, `config.ADAPTED`). Nothing
+    runs; nothing is kept when the program cache is off. Returns the number of grids prepared,
+    three programs each (`gfjax warmup`)."""
     config, params = config or dataclasses.replace(Config(), **ADAPTED), params or Params()
     spec = jax.ShapeDtypeStruct
 
     def job(grid):
         surface = Surface(spec(grid, np.float32), spec(grid, np.bool_), spec(grid, np.bool_), spec((2,), np.float32),
                           spec((), np.float32))
-        return lambda: aot.prefetch(drop_cloth, surface, params, config=config)
+        return lambda: drop_cloth_in_chunks(surface, params, config=config)     # under `aot.prefetching`
 
     return aot.warm_all([job((h, w)) for h in sides for w in sides], progress=progress, desc="csf programs")
 
@@ -267,14 +358,19 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
         slope smoothing on).
       params: traced settings (default `Params()`: class threshold 0.5 m, time step 0.65).
       returns: "all" or "last": which returns are filtered.
-      progress: accepted for the common method signature; one cloth, no progress bar.
+      progress: a progress bar over the cloth's simulation on stderr (tqdm; `TQDM_DISABLE`
+        hides it): blocks of its pipelined loop run (`gfjax.csf.cloth`), of those a run to
+        `config.iterations` steps takes, so the time left is the time to that cap, with the
+        steps complete beside them; a cloth that settles sooner completes the bar where it
+        stopped, which says at which step. False: nothing is drawn, and the simulation runs
+        in one call. The labels are the same either way. A cloud filtered as groups far
+        apart draws no bar (as DMF and MASF).
 
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points;
       `diagnostics` a `Diagnostics` (None for a cloud with no usable point, and for one
       whose groups of points far apart were filtered one by one: `gfjax.io.tiled.filter_groups`).
     """
-    del progress
     config, params, use = checked_options(cloud, config, params, returns, config_type=Config,
                                           params_type=Params, package="gfjax.csf")
     if not use.any():
@@ -302,7 +398,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     valid = np.zeros(capacity, bool)
     valid[:n] = use
     surface = aot.call(point_surface, points, valid, anchor, config=config, shape=canonical_grid((h, w)))
-    cloth_u, filled, movable, steps = aot.call(drop_cloth, surface, params, config=config)
+    cloth_u, filled, movable, steps = drop_cloth_in_chunks(surface, params, config=config, progress=progress)
     ground = aot.call(classify, points, valid, surface.corner_m, cloth_u, params, config=config)
     ground = np.asarray(ground)[:n] & use
     diag = TileDiagnostics(*(np.asarray(a)[:h, :w] for a in (cloth_u, filled, movable, surface.exists)), steps)

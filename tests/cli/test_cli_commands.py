@@ -258,3 +258,20 @@ def test_quiet_run_prints_no_progress_bar(tmp_path):
     out = subprocess.run([sys.executable, "-c", "from gfjax.cli.main import main; main()", "filter", str(scene), "-o", str(tmp_path / "b.las"),
                           "--method", "pmf", "--quiet"], capture_output=True, text=True, env=env, check=True)
     assert out.stderr.strip() == "" and "b.las" in out.stdout
+
+
+def test_csf_run_shows_its_cloth_bar_unless_quiet(tmp_path):
+    """CSF's cloth has a bar like the other methods' stages (on stderr; `-q`: none), which
+    says at which step the cloth settled; the labels do not depend on it."""
+    scene = write_scene(tmp_path / "a.las")
+    env = {k: v for k, v in os.environ.items() if k not in ("GFJAX_EXPORT_CACHE", "JAX_COMPILATION_CACHE_DIR")}
+    env.update(GFJAX_CACHE="1", XDG_CACHE_HOME=str(tmp_path / "cache"))       # the quiet run loads the programs
+    command = [sys.executable, "-c", "from gfjax.cli.main import main; main()", "filter", str(scene), "--method", "csf"]
+    shown = subprocess.run([*command, "-o", str(tmp_path / "b.las")], capture_output=True, text=True, env=env,
+                           check=True)
+    quiet = subprocess.run([*command, "-o", str(tmp_path / "c.las"), "-q"], capture_output=True, text=True, env=env,
+                           check=True)
+    assert "csf cloth" in shown.stderr and "settled at step" in shown.stderr
+    assert quiet.stderr.strip() == ""
+    np.testing.assert_array_equal(laspy.read(tmp_path / "b.las").classification,
+                                  laspy.read(tmp_path / "c.las").classification)
