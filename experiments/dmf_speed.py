@@ -97,15 +97,15 @@ def _listen(event, duration_s, **_):
     jit[event] = jit.get(event, 0.0) + duration_s
     jit[event + " count"] = jit.get(event + " count", 0) + 1
 monitoring.register_event_duration_secs_listener(_listen)
-from gfjax import aot
-_load = aot._load
+from gfjax.aot import store
+_load = store.load
 def _timed_load(*args):
     start = time.time()
     out = _load(*args)
     jit["aot load"] = jit.get("aot load", 0.0) + time.time() - start
     jit["aot load count"] = jit.get("aot load count", 0) + (out is not None)   # misses: no file
     return out
-aot._load = _timed_load
+store.load = _timed_load
 marks.append(("import jax", time.time()))
 from gfjax import methods
 from gfjax.io import las as las_io

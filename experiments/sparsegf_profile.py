@@ -7,7 +7,7 @@ Warm timings (every program compiled by a first call), each the median of `--rep
 - the whole `filter` call, and SMRF on the same cloud (`gfjax.smrf.filter`), its ratio;
 - the stages of the pipeline: SMRF's prior surface (`smrf_prior.smrf_heights`), the per-point
   cloud features, the patches (partition, per-patch features, compression, voxels: host and
-  small jitted programs), packing, and the network over every pack (`pipeline.predict`);
+  small jitted programs), packing, and the network over every pack (`programs.predict`);
 - inside one full pack: the whole network call, the pyramid of kernel maps alone
   (`sparse.build_pyramid`), and its parts (key sort, the stem's kernel-5 table, a kernel-3
   table, one downsampling, the level-0 pairs);
@@ -43,6 +43,7 @@ from gfjax.nn.sparse import conv as C  # noqa: E402
 from gfjax.nn.sparse import keys as K  # noqa: E402
 from gfjax.nn.sparse import maps as M  # noqa: E402
 from gfjax.sparsegf import pipeline as P  # noqa: E402
+from gfjax.sparsegf import programs  # noqa: E402
 from gfjax.sparsegf.features import cloud_features  # noqa: E402
 from gfjax.sparsegf.smrf_prior import smrf_heights  # noqa: E402
 
@@ -76,7 +77,7 @@ def main() -> None:
         median_time(lambda: len(list(F.patches(xyz, config, cloud_feats=feats))), repeats=args.repeats), f"({len(patches)} patches)")
     packs = [P.pack(g, P.PACK_SLOTS) for g in P.group(patches, P.PACK_SLOTS)]
     row("pack", median_time(lambda: [P.pack(g, P.PACK_SLOTS) for g in P.group(patches, P.PACK_SLOTS)], repeats=args.repeats))
-    row("network over every pack", median_time(lambda: [P.predict(model, p)[0] for p in packs], repeats=args.repeats),
+    row("network over every pack", median_time(lambda: [programs.predict(model, p)[0] for p in packs], repeats=args.repeats),
         f"({len(packs)} packs)")
     valid = sum(int(p.valid.sum()) for p in packs)
     computed = sum(len(p.valid) for p in packs)
@@ -84,7 +85,7 @@ def main() -> None:
     full = max(packs, key=lambda p: int(p.valid.sum()))
     c, v = jnp.asarray(full.coords), jnp.asarray(full.valid)
     n = c.shape[0]
-    row("one pack: network", median_time(lambda: P.predict(model, full)[0], repeats=args.repeats), f"({int(full.valid.sum()):,} voxels)")
+    row("one pack: network", median_time(lambda: programs.predict(model, full)[0], repeats=args.repeats), f"({int(full.valid.sum()):,} voxels)")
     pyramid = jax.jit(sparse.build_pyramid, static_argnames="plan")
     row("one pack: pyramid of kernel maps", median_time(lambda: pyramid(c, v, plan=full.plan), repeats=args.repeats))
     sort = jax.jit(lambda c, v: K.sort_keys(K.pack(c, v)))

@@ -14,6 +14,7 @@ import pytest
 
 import gfjax
 from gfjax import aot, cache, dmf
+from gfjax.aot import build, calls, keys, store
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "dmf"))
 import dmf_scenes as scenes  # noqa: E402
@@ -70,7 +71,7 @@ def test_compiles_once_then_loads_from_disk(folder, monkeypatch):
     expected = scale_and_sum(*_args(), factor=3)
     _same(_call(scale_and_sum, *_args(), factor=3), expected)
     assert len(_files(folder)) == 1
-    aot._loaded.clear()                                   # as a new process would start
+    calls._loaded.clear()                                 # as a new process would start
 
     def no_compile(*_, **__):
         raise AssertionError("the stored program should have been loaded")
@@ -85,7 +86,7 @@ def test_on_compile_is_called_before_a_compile_not_a_load(folder):
     try:
         _call(scale_and_sum, *_args(), factor=5)
         _call(scale_and_sum, *_args(), factor=5)          # in this process: no new compile
-        aot._loaded.clear()                               # as a new process would start
+        calls._loaded.clear()                             # as a new process would start
         _call(scale_and_sum, *_args(), factor=5)          # loaded from the folder
     finally:
         aot.on_compile(None)
@@ -142,15 +143,15 @@ def test_a_stored_program_donates_what_its_jit_donates(folder):
     def state():
         return Pair(jnp.zeros(4, jnp.float32), jnp.zeros((), jnp.float32))
 
-    assert aot._donated(add_into) == (0,) and aot._donated(scale_and_sum) == ()
-    assert aot._donated_leaves(add_into, (state(), x)) == (0, 1)
+    assert keys.donated(add_into) == (0,) and keys.donated(scale_and_sum) == ()
+    assert keys.donated_leaves(add_into, (state(), x)) == (0, 1)
     for _ in range(2):                                    # compiled and stored, then loaded
         before = state()
         out = _call(add_into, _call(add_into, before, x), x)
         assert before.scaled.is_deleted() and before.total.is_deleted()
         np.testing.assert_array_equal(out.scaled, 2 * x)
         assert float(out.total) == 12.0
-        aot._loaded.clear()                               # as a new process would start
+        calls._loaded.clear()                             # as a new process would start
     assert len(_files(folder)) == 1
     plain = jax.jit(add_into.__wrapped__)
     assert aot.program_key(add_into, (state(), x), {}, tag="t") != aot.program_key(plain, (state(), x), {}, tag="t")
@@ -160,7 +161,7 @@ def test_corrupt_artifact_is_compiled_again(folder):
     _call(scale_and_sum, *_args(), factor=3)
     (path,) = _files(folder)
     path.write_bytes(b"not a program")
-    aot._loaded.clear()
+    calls._loaded.clear()
     _same(_call(scale_and_sum, *_args(), factor=3), scale_and_sum(*_args(), factor=3))
     assert path.stat().st_size > 100
 
@@ -173,7 +174,7 @@ def test_unwritable_folder_is_no_error(folder, monkeypatch):
             raise PermissionError("read-only cache")
         return real_open(path, flags, *args, **kwargs)
 
-    monkeypatch.setattr(aot.os, "open", refuse)
+    monkeypatch.setattr(store.os, "open", refuse)
     _same(_call(scale_and_sum, *_args(), factor=5), scale_and_sum(*_args(), factor=5))
     assert _files(folder) == []
 
@@ -191,12 +192,12 @@ def test_traced_arguments_take_the_plain_path(folder):
 
 
 def test_least_recently_used_are_pruned(folder, monkeypatch):
-    monkeypatch.setattr(aot, "MAX_FILES", 2)
+    monkeypatch.setattr(store, "MAX_FILES", 2)
     for n in (3, 4, 5, 6):
         _call(scale_and_sum, *_args(n), factor=2)
     assert len(_files(folder)) == 2
     newest = {p.name for p in _files(folder)}
-    aot._loaded.clear()
+    calls._loaded.clear()
     _call(scale_and_sum, *_args(6), factor=2)               # a load refreshes its file
     _call(scale_and_sum, *_args(7), factor=2)
     assert len(_files(folder)) == 2 and len(newest & {p.name for p in _files(folder)}) == 1
@@ -205,7 +206,7 @@ def test_least_recently_used_are_pruned(folder, monkeypatch):
 def test_pruned_to_the_byte_bound(folder, monkeypatch):
     _call(scale_and_sum, *_args(3), factor=2)
     (first,) = _files(folder)
-    monkeypatch.setattr(aot, "MAX_BYTES", int(first.stat().st_size * 1.5))
+    monkeypatch.setattr(store, "MAX_BYTES", int(first.stat().st_size * 1.5))
     _call(scale_and_sum, *_args(4), factor=2)
     assert len(_files(folder)) == 1 and not first.exists()
 
@@ -213,10 +214,10 @@ def test_pruned_to_the_byte_bound(folder, monkeypatch):
 def test_key_follows_the_machine(monkeypatch):
     """An executable is machine code: another CPU (instruction-set flags) is another key."""
     key = aot.program_key(scale_and_sum, _args(5), {"factor": 2})
-    monkeypatch.setitem(aot._state, "fingerprint", None)
-    monkeypatch.setattr(aot, "_cpu_flags", lambda: "fpu sse2")
+    monkeypatch.setitem(keys._state, "fingerprint", None)
+    monkeypatch.setattr(keys, "_cpu_flags", lambda: "fpu sse2")
     assert aot.program_key(scale_and_sum, _args(5), {"factor": 2}) != key
-    monkeypatch.setitem(aot._state, "fingerprint", None)
+    monkeypatch.setitem(keys._state, "fingerprint", None)
 
 
 def test_dmf_through_the_cache_equals_the_plain_call(folder):
@@ -228,7 +229,7 @@ def test_dmf_through_the_cache_equals_the_plain_call(folder):
     aot.enable(folder)
     exported = dmf.filter(cloud)
     assert len(_files(folder)) == 4
-    aot._loaded.clear()
+    calls._loaded.clear()
     loaded = dmf.filter(cloud)
     for result in (exported, loaded):
         np.testing.assert_array_equal(result.ground, plain.ground)
@@ -302,7 +303,7 @@ def test_prefetch_loads_what_call_runs(folder, monkeypatch):
     spec = jax.ShapeDtypeStruct
     aot.prefetch(scale_and_sum, spec((4,), np.float32), spec((4,), np.bool_), factor=3,
                  tag=("tests.test_aot", "scale_and_sum"))
-    assert len(_files(folder)) == 1 and len(aot._loaded) == 1
+    assert len(_files(folder)) == 1 and len(calls._loaded) == 1
     monkeypatch.setattr(jax.stages.Lowered, "compile", lambda *_, **__: pytest.fail("prefetched program compiled again"))
     _same(_call(scale_and_sum, *_args(4), factor=3), scale_and_sum(*_args(4), factor=3))
 
@@ -310,7 +311,7 @@ def test_prefetch_loads_what_call_runs(folder, monkeypatch):
 def test_prefetch_is_nothing_when_off(tmp_path):
     aot.prefetch(scale_and_sum, jax.ShapeDtypeStruct((4,), np.float32), jax.ShapeDtypeStruct((4,), np.bool_),
                  tag=("tests.test_aot", "scale_and_sum"))
-    assert aot._loaded == {}
+    assert calls._loaded == {}
 
 
 @jax.jit
@@ -325,23 +326,23 @@ def test_program_with_custom_calls_is_exported(folder, monkeypatch):
     b = np.array([9.0, 8.0], np.float32)
     np.testing.assert_allclose(_call(solve, a, b), np.linalg.solve(a, b), rtol=1e-6)
     assert _files(folder) == [] and len(_files(folder, "export")) == 1
-    aot._loaded.clear()                                   # as a new process would start
+    calls._loaded.clear()                                 # as a new process would start
     monkeypatch.setattr(jax.export, "export", lambda *_, **__: pytest.fail("the stored export should be loaded"))
-    monkeypatch.setattr(aot, "_compile_fresh", lambda *_: pytest.fail("the stored export should be loaded"))
+    monkeypatch.setattr(build, "compile_fresh", lambda *_: pytest.fail("the stored export should be loaded"))
     np.testing.assert_allclose(_call(solve, a, b), np.linalg.solve(a, b), rtol=1e-6)
 
 
 def test_program_that_cannot_be_stored_runs_through_plain_jit(folder, monkeypatch):
     """Without flatbuffers (jax.export's format) a program with custom calls is not stored;
     a marker sends later processes straight to plain jit."""
-    real = aot.importlib.util.find_spec
-    monkeypatch.setattr(aot.importlib.util, "find_spec", lambda name: None if name == "flatbuffers" else real(name))
+    real = build.importlib.util.find_spec
+    monkeypatch.setattr(build.importlib.util, "find_spec", lambda name: None if name == "flatbuffers" else real(name))
     a = np.array([[2.0, 0.0], [0.0, 4.0]], np.float32)
     b = np.array([2.0, 8.0], np.float32)
     np.testing.assert_allclose(_call(solve, a, b), [1.0, 2.0], rtol=1e-6)
     assert _files(folder) == [] and _files(folder, "export") == [] and len(_files(folder, "plain")) == 1
-    aot._plain.clear()
-    monkeypatch.setattr(aot, "_compile_fresh", lambda *_: pytest.fail("the marker should skip the compile"))
+    calls._plain.clear()
+    monkeypatch.setattr(build, "compile_fresh", lambda *_: pytest.fail("the marker should skip the compile"))
     np.testing.assert_allclose(_call(solve, a, b), [1.0, 2.0], rtol=1e-6)
 
 
@@ -357,7 +358,7 @@ def test_method_through_the_cache_equals_the_plain_call(folder, method, stored):
     aot.enable(folder)
     first = module.filter(cloud)
     assert (len(_files(folder)), len(_files(folder, "export"))) == stored
-    aot._loaded.clear()
+    calls._loaded.clear()
     loaded = module.filter(cloud)
     shown = module.filter(cloud, progress=True)
     assert len(_files(folder)) == stored[0]
@@ -410,7 +411,7 @@ def test_failed_write_leaves_no_temporary_file(folder, monkeypatch):
     def full(*_, **__):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(aot.os, "replace", full)
+    monkeypatch.setattr(store.os, "replace", full)
     _same(_call(scale_and_sum, *_args(3), factor=2), scale_and_sum(*_args(3), factor=2))
     assert [p.name for p in folder.iterdir() if p.name.endswith(".tmp")] == []
 
@@ -431,7 +432,7 @@ def test_prefetching_an_exported_program_compiles_it_too(folder):
     with aot.prefetching():
         out = _call(solve, a, jax.ShapeDtypeStruct((2,), np.float32))
     assert out.shape == (2,) and len(_files(folder, "export")) == 1
-    (program,) = aot._loaded.values()
+    (program,) = calls._loaded.values()
     assert hasattr(program, "compile")            # its executable went to JAX's cache as well
 
 

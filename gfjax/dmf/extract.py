@@ -6,7 +6,7 @@ elevation; every other node takes the mean of its `fill_neighbours` (24) nearest
 (2D). All nodes are lowered by `v1 * W`. A node's own elevation is its ND_CE's (the centroid of
 the column's lowest voxel, the paper) or, as a reading (R), the column's lowest point
 (`column_lowest_z`). Host part: the KD-tree queries (scipy). The per-point
-bookkeeping is jitted JAX.
+bookkeeping is jitted JAX (`gfjax.dmf.programs`).
 
 Final rules (`Config.final_rule`, R):
 * "m_nearest" (the paper's bidirectional KD-tree engine): each point finds its 3D-nearest
@@ -19,25 +19,20 @@ Final rules (`Config.final_rule`, R):
 """
 from __future__ import annotations
 
-import functools
 import math
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
 from scipy.spatial import cKDTree
 
-from gfjax import aot
+from gfjax.dmf import programs
 from gfjax.dmf.config import Config, Params
 from gfjax.dmf.shapes import raster_shape
 from gfjax.dmf.voxels import Voxels
 from gfjax.io.tiles import Tiling, canonical_capacity
-from gfjax.raster import inpaint_nearest, replicate_edges, sample_bilinear
 
-__all__ = ["extract_ground", "SupportNodes", "support_nodes", "column_lowest_z", "m_nearest_ground", "height_ground",
-           "mark_ground"]
+__all__ = ["extract_ground", "SupportNodes", "support_nodes", "column_lowest_z", "m_nearest_ground", "height_ground"]
 
 
 class SupportNodes(NamedTuple):
@@ -106,20 +101,6 @@ def support_nodes(vox: Voxels, object_cell: np.ndarray, in_ndng: np.ndarray, *, 
                         cell=vox.cell, from_ndng=known)
 
 
-@functools.partial(jax.jit, static_argnames="n_points")
-def mark_ground(nearest: Int[Array, " n"], node_ground: Bool[Array, " s"], taken: Int[Array, "g m"],
-                *, n_points: int) -> Bool[Array, " n"]:
-    """Ground = among the M nearest points of some TP_G, and own nearest node is a TP_G.
-
-    Args:
-      nearest: each point's 3D-nearest support node, int32 `(n,)`.
-      node_ground: TP_G flag per node, bool `(s,)`.
-      taken: the M nearest points of each TP_G, int32 `(g, M)`; `n_points` marks "none".
-    """
-    hit = jnp.zeros(n_points + 1, bool).at[taken.reshape(-1)].set(True)[:n_points]
-    return hit & node_ground[nearest]
-
-
 def m_nearest_ground(points: np.ndarray, nodes: SupportNodes, *, points_tree: cKDTree | None = None) -> tuple[np.ndarray, int]:
     """The paper's bidirectional KD-tree rule (Sec. 2.6, Fig. 4).
 
@@ -142,35 +123,8 @@ def m_nearest_ground(points: np.ndarray, nodes: SupportNodes, *, points_tree: cK
         return np.zeros(n, bool), m
     _, taken = tree.query(g_nodes, k=min(m, n))
     taken = np.asarray(taken).reshape(len(g_nodes), -1).astype(np.int32)
-    ground = aot.call(mark_ground, nearest.astype(np.int32), nodes.ground, taken, n_points=n)
+    ground = programs.mark_ground(nearest.astype(np.int32), nodes.ground, taken, n_points=n)
     return np.asarray(ground), m
-
-
-@jax.jit
-def _fill_surface(surface: Float[Array, "h w"], valid: Bool[Array, "h w"], hw: Int[Array, " 2"]) -> Float[Array, "h w"]:
-    """The support surface with its empty cells taken from the nearest node, on a raster padded
-    to a canonical shape (the data in its south-west corner, `hw` rows and columns; the
-    padding repeats the data's edges, so that sampling clamps there as on the unpadded one)."""
-    return replicate_edges(inpaint_nearest(surface, valid), hw)
-
-
-@jax.jit
-def _height_test(filled: Float[Array, "h w"], points: Float[Array, "n 3"], cell_m: Float[Array, ""],
-                 threshold_m: Float[Array, ""]) -> Bool[Array, " n"]:
-    """`z - S(x, y) <= threshold_m` for points in local metres (x, y from the raster's
-    south-west corner), S sampled bilinearly between the centres of cells of `cell_m` (traced:
-    one program serves every W)."""
-    s = sample_bilinear(filled, points[:, :2] / cell_m, cell_m=1.0)
-    return points[:, 2] - s <= threshold_m
-
-
-def prefetch_height_rule(n_points: int, shape: tuple[int, int]) -> None:
-    """Load the stored programs `height_ground` will run (`gfjax.aot.prefetch`), for `n_points`
-    points (padded: `canonical_capacity`) on a raster of padded `shape` (`shapes.raster_shape`)."""
-    spec = jax.ShapeDtypeStruct
-    aot.prefetch(_fill_surface, spec(shape, np.float32), spec(shape, np.bool_), spec((2,), np.int32))
-    aot.prefetch(_height_test, spec(shape, np.float32), spec((canonical_capacity(n_points), 3), np.float32),
-                 spec((), np.float32), spec((), np.float32))
 
 
 def height_ground(points: np.ndarray, nodes: SupportNodes, vox: Voxels, threshold_m,
@@ -193,8 +147,8 @@ def height_ground(points: np.ndarray, nodes: SupportNodes, vox: Voxels, threshol
     padded = np.zeros((canonical_capacity(n), 3), np.float32)
     padded[:n] = points
     threshold_m = threshold_m if isinstance(threshold_m, jax.Array) else np.float32(threshold_m)
-    filled = aot.call(_fill_surface, surface, valid, np.asarray([h, w], np.int32))
-    out = aot.call(_height_test, filled, padded, np.float32(vox.cell_m), threshold_m)
+    out = programs.height_test(surface, valid, np.asarray([h, w], np.int32), padded, np.float32(vox.cell_m),
+                               threshold_m)
     return np.asarray(out)[:n]
 
 

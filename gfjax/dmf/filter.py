@@ -6,7 +6,9 @@ cloud --(host) W (Eq. 1), voxels, ND_CE (Sec. 2.1-2.2)
       --(JAX, vmap over NGNEM tiles) NGNEM, R_HC, NGNEM_BI, NGNEM_RC, instances (Sec. 2.4-2.5)
       --(host KD-trees + JAX bookkeeping) support nodes, ground points (Sec. 2.6)
 ```
-W is computed once per cloud, so every NGNEM tile of a batch shares one cell size.
+W is computed once per cloud, so every NGNEM tile of a batch shares one cell size. The jitted
+steps run as programs of `gfjax.dmf.programs` (kept across processes by `gfjax.aot`); this
+module drives them and the host steps between.
 """
 from __future__ import annotations
 
@@ -23,8 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from gfjax import adaptive, aot, cache
-from gfjax.dmf import basal as basal_lib
-from gfjax.dmf import extract, neighbours, shapes, stages, voxels
+from gfjax.dmf import extract, neighbours, programs, shapes, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params, adapt
 from gfjax.io import groups
 from gfjax.io.cloud import CloudView
@@ -33,8 +34,7 @@ from gfjax.io.tiles import Tiling
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
 
-__all__ = ["Diagnostics", "Prepared", "prepare", "filter", "warm", "run_raster_stages", "stage_options",
-           "batched_stages", "MAX_BATCH"]
+__all__ = ["Diagnostics", "Prepared", "prepare", "filter", "warm", "run_raster_stages", "MAX_BATCH"]
 
 
 class Diagnostics(NamedTuple):
@@ -115,12 +115,11 @@ def _dispatch_raster_stages(z, layer, valid, cell_m, config, tiling: Tiling, *, 
     h, w = z.shape
     core = _tile_core_px(cell_m, tiling)
     buf = math.ceil(tiling.buffer_m / cell_m)
-    kwargs = stage_options(config)
     w_m = np.float32(cell_m)                 # host scalars and arrays go to the jitted calls as
     share = np.float32(config.rc_min_share)  # numpy: no conversion program compiles or runs
     shape = _one_tile_shape((h, w), cell_m, tiling)
     if shape is not None:
-        out = aot.call(stages.raster_stages, *_pad_tile(z, layer, valid, shape), w_m, share, **kwargs)
+        out = programs.raster_tile(*_pad_tile(z, layer, valid, shape), w_m, share, config)
         return lambda: stages.RasterStages(*[np.asarray(a)[:h, :w] if np.ndim(a) == 2 else np.asarray(a) for a in out])
     windows = []
     for r0 in range(0, h, core):
@@ -142,7 +141,7 @@ def _dispatch_raster_stages(z, layer, valid, cell_m, config, tiling: Tiling, *, 
         group = windows[s:s + MAX_BATCH]
         tiles = [_pad_tile(z[a:b, c:d], layer[a:b, c:d], valid[a:b, c:d], shape) for _, _, (a, b), (c, d) in group]
         tiles += [tiles[-1]] * (MAX_BATCH - len(tiles))           # one batch shape: one compile
-        out = aot.call(batched_stages, *[np.stack(parts) for parts in zip(*tiles)], w_m, share, **kwargs)
+        out = programs.raster_batch(*[np.stack(parts) for parts in zip(*tiles)], w_m, share, config)
         converged &= bool(np.all(np.asarray(out.converged)[:len(group)]))
         for i, (r0, c0, (a, _), (c, _)) in enumerate(group):
             r1, c1 = min(h, r0 + core), min(w, c0 + core)
@@ -153,20 +152,6 @@ def _dispatch_raster_stages(z, layer, valid, cell_m, config, tiling: Tiling, *, 
     instances, _ = relabel_consecutive(labels)
     done = stages.RasterStages(**fields, instances=np.asarray(instances), converged=converged and bool(conv))
     return lambda: done
-
-
-@functools.partial(jax.jit, static_argnames=("max_filter_px", "max_close_px", "border_patches", "hole_test",
-                                             "close_all"))
-def batched_stages(z, layer, valid, inside, cell_m, rc_min_share, **static) -> stages.RasterStages:
-    """`stages.raster_stages` vmapped over a batch `(b, h, w)` of padded tiles sharing W."""
-    return jax.vmap(lambda a, b, c, d: stages.raster_stages(a, b, c, d, cell_m, rc_min_share, **static))(
-        z, layer, valid, inside)
-
-
-def stage_options(config: Config) -> dict:
-    """The static keyword arguments of `stages.raster_stages` for a `Config`."""
-    return dict(max_filter_px=config.max_filter_px, max_close_px=config.close_max_px // 2,
-                border_patches=config.border_patches, hole_test=config.hole_test, close_all=config.close_all)
 
 
 def _tile_core_px(cell_m: float, tiling: Tiling) -> int:
@@ -216,20 +201,12 @@ def _voxels(local: np.ndarray, config: Config, tiling: Tiling, worker) -> tuple[
                                               minimum=config.sample_min, tree=tree, sample=sample)
     # The raster's shape is known from W: its stored program loads while the voxels are binned.
     shape = tuple(int(v) for v in np.floor(local[:, 1::-1].max(axis=0) / cell_m) + 1)
-    worker.submit(_prefetch_raster_program, shape, cell_m, config, tiling)
-    if config.final_rule in ("height", "both"):
-        worker.submit(extract.prefetch_height_rule, len(local), shapes.raster_shape(shape, cell_m, tiling))
-    return tree, cell_m, mean_nn, voxels.bin_voxels(local, cell_m)
-
-
-def _prefetch_raster_program(shape: tuple[int, int], cell_m: float, config: Config, tiling: Tiling) -> None:
-    """`gfjax.aot.prefetch` of the raster stages for an NGNEM of `shape` (one tile only)."""
     padded = _one_tile_shape(shape, cell_m, tiling)
-    if padded is None:
-        return
-    spec = jax.ShapeDtypeStruct
-    aot.prefetch(stages.raster_stages, spec(padded, np.float32), spec(padded, np.int32), spec(padded, np.bool_),
-                 spec(padded, np.bool_), spec((), np.float32), spec((), np.float32), **stage_options(config))
+    if padded is not None:                          # a tiled raster's programs are not prefetched
+        worker.submit(programs.prefetch_raster, padded, config)
+    if config.final_rule in ("height", "both"):
+        worker.submit(programs.prefetch_height_rule, len(local), shapes.raster_shape(shape, cell_m, tiling))
+    return tree, cell_m, mean_nn, voxels.bin_voxels(local, cell_m)
 
 
 @cache.persistent
@@ -244,8 +221,6 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
     from gfjax.io.tiles import canonical_capacities
 
     config, tiling = config or Config(), tiling or Tiling()
-    spec = jax.ShapeDtypeStruct
-    options = stage_options(config)
     one_tile, batched = set(), set()
     for cell_m in shapes.WARM_VOXELS_M:
         core = _tile_core_px(cell_m, tiling)
@@ -253,29 +228,17 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
         one_tile.update(s for s in sides if s <= shapes.raster_shape((core, core), cell_m, tiling)[0])
         batched.add(sides[-1])
 
-    def tile_specs(batch, side):
-        lead = (batch,) if batch else ()
-        return (spec((*lead, side, side), np.float32), spec((*lead, side, side), np.int32),
-                spec((*lead, side, side), np.bool_), spec((*lead, side, side), np.bool_),
-                spec((), np.float32), spec((), np.float32))
-
-    jobs = [(stages.raster_stages, tile_specs(0, s), options) for s in sorted(one_tile)]
-    jobs += [(batched_stages, tile_specs(MAX_BATCH, s), options) for s in sorted(batched)]
-    width = config.basal_table_width
+    jobs = [functools.partial(programs.prefetch_raster, (s, s), config) for s in sorted(one_tile)]
+    jobs += [functools.partial(programs.prefetch_raster, (s, s), config, batch=MAX_BATCH) for s in sorted(batched)]
     cap = shapes.NODE_MIN_CAPACITY
     while cap <= shapes.NODE_WARM_MAX_CAPACITY:
-        jobs.append((basal_lib.basal_layer, (spec((cap, 3), np.float32), spec((cap, width), np.int32),
-                                             spec((cap, width), np.bool_), spec((), np.float32)),
-                     dict(stop=config.basal_stop, max_iter=config.basal_max_iter)))
+        jobs.append(functools.partial(programs.prefetch_basal, cap, config))
         cap *= 2
     if config.final_rule in ("height", "both"):
         for side in sorted(one_tile):
             for n in canonical_capacities():
-                jobs.append((extract.prefetch_height_rule, (n, (side, side)), None))
-    def job(fn, args, static):
-        return lambda: fn(*args) if static is None else aot.prefetch(fn, *args, **static)
-
-    return aot.warm_all([job(*spec_) for spec_ in jobs], progress=progress, desc="dmf programs")
+                jobs.append(functools.partial(programs.prefetch_height_rule, n, (side, side)))
+    return aot.warm_all(jobs, progress=progress, desc="dmf programs")
 
 
 def _padded_nodes(centroid: np.ndarray, table: neighbours.NeighbourTable, width: int):
@@ -311,8 +274,8 @@ def _layers(vox: voxels.Voxels, cell_m: float, config: Config, tiling: Tiling, w
                                       k=config.basal_neighbours, max_width=config.basal_table_width)
     cap = np.inf if config.basal_sink_cap_w is None else config.basal_sink_cap_w * cell_m
     m = len(vox.centroid)
-    basal = aot.call(basal_lib.basal_layer, *_padded_nodes(vox.centroid, table, config.basal_table_width),
-                     np.float32(cap), stop=config.basal_stop, max_iter=config.basal_max_iter)
+    basal = programs.basal_layer(*_padded_nodes(vox.centroid, table, config.basal_table_width), np.float32(cap),
+                                 config)
     node_tree = cKDTree(vox.centroid)                       # while the basal loop runs
     basal_z = np.asarray(basal.z)[:m]
     basal_xyz = np.concatenate([vox.centroid[:, :2], basal_z[:, None].astype(np.float64)], axis=1)

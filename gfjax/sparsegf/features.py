@@ -55,7 +55,7 @@ def n_features(features: str) -> int:
 
 
 def patch_features(features: str) -> int:
-    """Input channels computed per patch (`_point_inputs`): the set's xyz and top-hat ones."""
+    """Input channels computed per patch (`programs.point_inputs`): the set's xyz and top-hat ones."""
     return 4 if features == "xyz" else 4 + 1 + len(TOPHAT_RADII_PX)
 
 

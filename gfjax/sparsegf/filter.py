@@ -29,12 +29,11 @@ from gfjax.sparsegf.pipeline import (
     capacity,
     group,
     pack,
-    predict,
     prepare,
-    prepare_point_inputs,
     run_with_room,
     unpack,
 )
+from gfjax.sparsegf.programs import predict, prepare_point_inputs
 from gfjax.sparsegf.smrf_prior import smrf_heights
 from gfjax.sparsegf.vote import decide, soft_vote
 

@@ -1,7 +1,7 @@
 """From a cloud to network inputs and back: partition -> features -> compress -> voxelize ->
 pack -> network -> soft vote.
 
-Host code drives jitted array functions:
+Host code drives jitted array functions (`gfjax.sparsegf.programs`):
 
 1. `partition` cuts the cloud into cylinders (R_oo = 150 m on a 50 m grid).
 2. `prepare` (one patch): the per-point features on the patch's own points (`features`),
@@ -15,8 +15,8 @@ Host code drives jitted array functions:
    so a machine compiles the network once, not once per patch shape (each compiled program
    also holds thousands of memory maps, and a process may only have 65,530). Every patch of a capacity shares one pyramid plan
    (`standard_plan`, grown from the data only when a pack does not fit it: `run_with_room`).
-4. `predict` runs the network on a pack: the ground probability of each central point, and
-   `soft_vote` merges the patches (Algorithm 1).
+4. `programs.predict` runs the network on a pack: the ground probability of each central
+   point, and `soft_vote` merges the patches (Algorithm 1).
 
 Context thinning (a CPU budget, not in the paper): a patch keeps every central point and at
 most `max_context_points` peripheral ones, drawn at random with a seed fixed by the patch; the
@@ -24,29 +24,23 @@ periphery is compressed about 4-13x in radius, so its voxels stay occupied.
 """
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from typing import NamedTuple
 
-import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from gfjax import aot
 from gfjax.nn import sparse
 from gfjax.nn.sparse import keys as K
-from gfjax.sparsegf import features as F
-from gfjax.sparsegf.compress import compress
-from gfjax.sparsegf.model import Model, SparseGFNet
+from gfjax.sparsegf.programs import point_inputs
 
 DEPTH = 4                  # levels of the U-Net below the input
 PACK_VOXELS = 65_536       # voxel rows of a pack: patches are packed up to this many
 MIN_POINTS = 4_096         # smallest point capacity of the per-patch feature program
 # The padded sizes of a patch (its members, the points it keeps) whose feature program
-# `gfjax warmup` compiles ahead (`prepare_point_inputs`): members of a patch's 150 m cylinder
-# from 16,384 (0.23 points/m²) to 2,097,152 (30 points/m²), kept points up to 131,072; a cloud
-# sparser or denser than that compiles its own on first use (0.85 s each).
+# `gfjax warmup` compiles ahead (`programs.prepare_point_inputs`): members of a patch's 150 m
+# cylinder from 16,384 (0.23 points/m²) to 2,097,152 (30 points/m²), kept points up to 131,072;
+# a cloud sparser or denser than that compiles its own on first use (0.85 s each).
 WARM_MEMBERS = tuple(2 ** i for i in range(14, 22))
 WARM_KEPT = tuple(2 ** i for i in range(14, 18))
 # The pack of a cloud whose patches hold this many voxels in all, or fewer: the network costs
@@ -90,43 +84,6 @@ class Patch(NamedTuple):
     def central_counts(self) -> np.ndarray:
         """Central points per voxel `(m,)` float32."""
         return np.bincount(self.point_voxel, minlength=len(self.coords)).astype(np.float32)
-
-
-@functools.partial(jax.jit, static_argnames=("features", "r_in", "r_oc", "r_oo", "use_compression"))
-def _point_inputs(local_xyz, valid, keep, keep_valid, angle, *, features, r_in, r_oc, r_oo, use_compression):
-    """Compressed xyz `(k, 3)` (z relative to the patch's mean), central mask `(k,)` and input
-    features `(k, f)` of the kept points `local_xyz[keep]` of one patch; every valid point of
-    `local_xyz` `(n, 3)` shapes the top-hat surfaces."""
-    kept = local_xyz[keep]
-    c, s = jnp.cos(angle), jnp.sin(angle)
-    rot = jnp.stack([jnp.stack([c, -s]), jnp.stack([s, c])])
-    xyz = jnp.concatenate([kept[:, :2] @ rot.T, kept[:, 2:]], axis=1)
-    out = compress(xyz, jnp.zeros(2, jnp.float32), r_in=r_in, r_oc=r_oc, r_oo=r_oo, valid=keep_valid)
-    pts = out.xyz if use_compression else xyz
-    z_mean = jnp.sum(jnp.where(keep_valid, pts[:, 2], 0.0)) / jnp.maximum(jnp.sum(keep_valid), 1).astype(pts.dtype)
-    pts = pts.at[:, 2].add(-z_mean)
-    f = F.xyz_features(pts, keep_valid, r_oc_m=r_oc)
-    if features != "xyz":
-        # heights over the surfaces of all the patch's points, before thinning, rotation (a
-        # property of the point, not of the augmentation) and compression
-        surfaces = F.tophat_surfaces(local_xyz, valid, half_extent_m=r_oo)
-        f = jnp.concatenate([f, F.signed_log(F.heights_above(surfaces, kept, keep_valid, half_extent_m=r_oo))], axis=1)
-    return pts, out.central, f
-
-
-def _statics(config) -> dict:
-    """The static arguments of `_point_inputs` under `config`."""
-    return dict(features=config.features, r_in=config.r_in_m, r_oc=config.r_oc_m, r_oo=config.r_oo_m,
-                use_compression=config.compression)
-
-
-def prepare_point_inputs(config, members: int, kept: int) -> None:
-    """Compile, without running it, the feature program `prepare` runs for a patch padded to
-    `members` points of which `kept` are kept (powers of two, at least `MIN_POINTS`): JAX's
-    persistent cache keeps it (`gfjax warmup`)."""
-    spec = jax.ShapeDtypeStruct
-    _point_inputs.lower(spec((members, 3), np.float32), spec((members,), np.bool_), spec((kept,), np.int32),
-                        spec((kept,), np.bool_), spec((), np.float32), **_statics(config)).compile()
 
 
 def thin_context(central: np.ndarray, max_points: int | np.integer, seed: int | np.integer) -> np.ndarray:
@@ -177,9 +134,9 @@ def prepare(xyz_m: np.ndarray, members: np.ndarray, center_m: np.ndarray, patch_
     near = np.hypot(local[:, 0], local[:, 1]) <= config.r_in_m + 1e-3
     keep = thin_context(near, config.max_context_points, seed + patch_id)
     n, k = capacity(len(members), MIN_POINTS), capacity(len(keep), MIN_POINTS)
-    pts, central, feats = jax.device_get(_point_inputs(
+    pts, central, feats = jax.device_get(point_inputs(
         _padded(local, n), np.arange(n) < len(members), _padded(keep.astype(np.int32), k), np.arange(k) < len(keep),
-        np.float32(angle), **_statics(config)))
+        np.float32(angle), config=config))
     pts, central, feats = pts[:len(keep)], central[:len(keep)], feats[:len(keep)]
     if cloud_feats is not None:
         feats = np.concatenate([feats, cloud_feats[members[keep]]], axis=1)
@@ -295,64 +252,6 @@ def run_with_room(run: Callable, packed: Pack, plans: dict[int, sparse.PyramidPl
         if bool(overflowed):
             raise RuntimeError("sparsegf: a pyramid plan grown from the data did not fit the data")
     return result
-
-
-class Inputs(NamedTuple):
-    """The arrays of a pack that the network reads (`Pack`'s fields of the same names)."""
-
-    coords: jax.Array
-    feats: jax.Array
-    valid: jax.Array
-    weight: jax.Array
-    point_row: jax.Array
-    point_feats: jax.Array
-    point_valid: jax.Array
-
-
-def inputs(packed: Pack) -> Inputs:
-    """The network's arrays of `packed` (its plan and slot count are passed as static)."""
-    return Inputs(*(getattr(packed, name) for name in Inputs._fields))
-
-
-def forward(net: SparseGFNet, state, x: Inputs, plan, slots: int):
-    """Per-point logits of a pack's central points, the new state and whether its pyramid
-    overflowed `plan` (jit-able with `plan` and `slots` static)."""
-    pyramid = sparse.build_pyramid(x.coords, x.valid, plan)
-    voxels = sparse.SparseTensor(x.coords, jnp.where(x.valid[:, None], x.feats, 0.0), x.valid, 1, slots)
-    out, state = net(voxels, pyramid, x.weight, x.point_row, x.point_feats, x.point_valid, state)
-    return out, state, pyramid.overflowed
-
-
-@functools.partial(jax.jit, static_argnames=("skeleton", "plan", "slots"))
-def predict_points(arrays, state, x: Inputs, *, skeleton, plan: sparse.PyramidPlan, slots: int):
-    """Ground probability `(P,)` of every central point of a pack and whether it overflowed
-    `plan`; the network is `eqx.combine(arrays, skeleton)`, its batch norms in inference mode."""
-    out, _, overflowed = forward(eqx.combine(arrays, skeleton), state, x, plan, slots)
-    return jax.nn.softmax(out.cls, axis=-1)[:, 1], overflowed
-
-
-def predict(model: Model, packed: Pack):
-    """Ground probability `(P,)` of every central point row of a pack (meaningful where
-    `point_valid`) and whether the pack overflowed its plan (the probabilities are then wrong).
-    Returns JAX arrays without waiting for them (asynchronous dispatch). The program is kept
-    across processes when `gfjax.aot` is on (the command line turns it on): its arguments are
-    arrays, and the rest of the network (layer settings, the inference flags) is static."""
-    arrays, skeleton = _inference_split(model)
-    return aot.call(predict_points, arrays, model.state, inputs(packed), skeleton=skeleton, plan=packed.plan,
-                    slots=packed.slots)
-
-
-_SPLIT: dict[int, tuple] = {}
-
-
-def _inference_split(model: Model):
-    """`(arrays, skeleton)` of the model's network in inference mode, made once per model: the
-    same skeleton object every call, so the program cache prints it once."""
-    known = _SPLIT.get(id(model))
-    if known is None or known[0] is not model:
-        _SPLIT.clear()
-        known = _SPLIT[id(model)] = (model, *eqx.partition(eqx.nn.inference_mode(model.net), eqx.is_array))
-    return known[1], known[2]
 
 
 def unpack(packed: Pack, point_values: np.ndarray) -> list[np.ndarray]:

@@ -26,7 +26,8 @@ from gfjax.sparsegf.filter import patches
 from gfjax.sparsegf.hag import hag_targets
 from gfjax.sparsegf.loss import LAMBDA, height_aware_loss
 from gfjax.sparsegf.model import Model
-from gfjax.sparsegf.pipeline import Pack, forward, group, inputs, pack, run_with_room
+from gfjax.sparsegf.pipeline import Pack, group, pack, run_with_room
+from gfjax.sparsegf.programs import forward, inputs
 from gfjax.sparsegf.vote import decide
 
 # The paper's cosine schedule runs from 1e-1 to 1e-3 (Sec. 3.3). With Adam, group norms and

@@ -229,23 +229,23 @@ def test_a_closed_output_ends_every_command_quietly(tmp_path, capsys, monkeypatc
 
 
 def test_a_command_that_compiles_says_so_once_naming_the_method(capsys):
-    from gfjax import aot
+    from gfjax.aot import calls
 
     with cli_main._talk(quiet=False, method="pmf"):
-        aot._state["on_compile"]("gfjax.raster.morphology")   # a shared kernel: the command's method
-        aot._state["on_compile"]("gfjax.smrf.stages")
+        calls._state["on_compile"]("gfjax.raster.morphology") # a shared kernel: the command's method
+        calls._state["on_compile"]("gfjax.smrf.stages")
     err = capsys.readouterr().err
     assert err.count("compiling") == 1
     assert "gfjax: compiling pmf for a new input shape (kept, so later runs of this shape start at once)" in err
-    assert aot._state["on_compile"] is None
+    assert calls._state["on_compile"] is None
 
 
 def test_quiet_turns_off_progress_bars_and_compile_notices(monkeypatch):
-    from gfjax import aot
+    from gfjax.aot import calls
 
     monkeypatch.delenv("TQDM_DISABLE", raising=False)
     with cli_main._talk(quiet=True, method="smrf"):
-        assert os.environ["TQDM_DISABLE"] == "1" and aot._state.get("on_compile") is None
+        assert os.environ["TQDM_DISABLE"] == "1" and calls._state.get("on_compile") is None
     assert "TQDM_DISABLE" not in os.environ
     args = cli_main.build_parser(["filter", "a.laz", "-o", "b.laz", "-q"])[0].parse_args(
         ["filter", "a.laz", "-o", "b.laz", "-q"])

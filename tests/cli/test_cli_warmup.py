@@ -8,6 +8,7 @@ import pytest
 from cli_helpers import no_compilation_cache  # noqa: F401 (autouse fixture)
 
 from gfjax import aot, smrf
+from gfjax.aot import calls
 
 
 def test_warmup_needs_the_program_cache(capsys):
@@ -40,7 +41,7 @@ def test_warmup_does_not_announce_each_compile(capsys, tmp_path, monkeypatch):
     aot.enable(tmp_path / "export")
 
     def warm(progress=False):
-        hook = aot._state.get("on_compile")
+        hook = calls._state.get("on_compile")
         if hook is not None:
             hook("gfjax.smrf.stages")              # what a compile inside warm would call
         return 30

@@ -11,7 +11,8 @@ from scipy import ndimage as ndi
 
 from gfjax import raster
 from gfjax.dmf import Config, stages
-from gfjax.dmf.filter import MAX_BATCH, batched_stages, stage_options
+from gfjax.dmf.config import MAX_BATCH
+from gfjax.dmf.programs import batched_stages, stage_options
 
 TILE = (40, 44)
 PADDED = (48, 48)        # padded batch of MAX_BATCH: the compile is shared with the tiled filter test

@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 
 from gfjax import aot
+from gfjax.aot import calls, store
+from gfjax.aot import folder as aot_folder
 
 SUFFIX = ".gfjaxexe"
 
@@ -49,15 +51,15 @@ def entries(folder) -> list:
 
 def new_process() -> None:
     """Forget what this process loaded, as a new `gfjax` process would start."""
-    aot._loaded.clear()
-    aot._from_disk.clear()
-    aot._plain.clear()
+    calls._loaded.clear()
+    calls._from_disk.clear()
+    calls._plain.clear()
 
 
 @pytest.fixture
 def private(tmp_path, monkeypatch):
     """An enabled, private program cache folder; warnings of earlier tests forgotten."""
-    monkeypatch.setitem(aot._state, "warned", False)
+    monkeypatch.setitem(aot_folder._state, "warned", False)
     folder = aot.enable(tmp_path / "cache")
     assert folder is not None and folder.stat().st_mode & 0o777 == 0o700
     yield folder
@@ -72,14 +74,14 @@ def forbid_loading(monkeypatch) -> list:
     def refuse(*_, **__):
         raise AssertionError("a cache artifact was loaded")
 
-    read = aot._read_entry
+    read = store.read_entry
 
     def read_nothing(*a, **k):
         payload = read(*a, **k)
         assert payload is None, "a cache artifact was unpickled"
         return payload
 
-    monkeypatch.setattr(aot, "_read_entry", read_nothing)
+    monkeypatch.setattr(store, "read_entry", read_nothing)
     monkeypatch.setattr(serialize_executable, "deserialize_and_load", refuse)
     compiles = []
     real = jax.stages.Lowered.compile
@@ -109,7 +111,7 @@ def fake_owner(monkeypatch, *, match, uid: int) -> None:
         fields[4] = uid
         return os.stat_result(fields)
 
-    monkeypatch.setattr(aot.os, "fstat", fstat)
+    monkeypatch.setattr(aot_folder.os, "fstat", fstat)
 
 
 def one_warning(err: str) -> None:

@@ -11,6 +11,7 @@ import numpy as np
 from cache_attack_helpers import assert_correct, entries, new_process, private, run
 
 from gfjax import aot
+from gfjax.aot import store
 
 __all__ = ["private"]
 
@@ -32,7 +33,7 @@ def _disk_full(monkeypatch):
         def write(self, _):
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(aot.os, "fdopen", Full)
+    monkeypatch.setattr(store.os, "fdopen", Full)
 
 
 def test_disk_full_while_storing_leaves_no_marker(private, monkeypatch):

@@ -17,6 +17,8 @@ from cache_attack_helpers import (
 )
 
 from gfjax import aot
+from gfjax.aot import calls
+from gfjax.aot import folder as aot_folder
 
 __all__ = ["private"]
 
@@ -40,14 +42,14 @@ def test_foreign_owned_folder_is_refused_at_use_time(private, monkeypatch, capfd
     fake_owner(monkeypatch, match=private.name, uid=12345)  # the folder changed hands after start
     compiles = forbid_loading(monkeypatch)
     assert_correct(run())
-    assert compiles == [] and aot._loaded == {}             # plain jit
+    assert compiles == [] and calls._loaded == {}           # plain jit
     err = capfd.readouterr().err
     one_warning(err)
     assert "owned by user 12345" in err
 
 
 def test_foreign_owned_folder_is_refused_at_start(tmp_path, monkeypatch, capfd):
-    monkeypatch.setitem(aot._state, "warned", False)
+    monkeypatch.setitem(aot_folder._state, "warned", False)
     (tmp_path / "cache").mkdir(mode=0o700)
     fake_owner(monkeypatch, match="cache", uid=12345)
     assert aot.enable(tmp_path / "cache") is None and aot.enabled_folder() is None

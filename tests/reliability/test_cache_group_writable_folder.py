@@ -6,6 +6,8 @@ from __future__ import annotations
 from cache_attack_helpers import assert_correct, entries, forbid_loading, new_process, one_warning, private, run
 
 from gfjax import aot
+from gfjax.aot import calls
+from gfjax.aot import folder as aot_folder
 
 __all__ = ["private"]
 
@@ -18,7 +20,7 @@ def test_group_writable_folder_is_refused_at_use_time(private, monkeypatch, capf
     compiles = forbid_loading(monkeypatch)
     assert_correct(run())
     assert_correct(run(factor=4), factor=4)                 # a new program: not stored there either
-    assert compiles == [] and aot._loaded == {}             # plain jit
+    assert compiles == [] and calls._loaded == {}           # plain jit
     assert {p.name: p.stat().st_mtime_ns for p in private.iterdir()} == before
     err = capfd.readouterr().err
     one_warning(err)
@@ -26,7 +28,7 @@ def test_group_writable_folder_is_refused_at_use_time(private, monkeypatch, capf
 
 
 def test_writable_folder_above_is_refused(tmp_path, monkeypatch, capfd):
-    monkeypatch.setitem(aot._state, "warned", False)
+    monkeypatch.setitem(aot_folder._state, "warned", False)
     parent = tmp_path / "shared"
     parent.mkdir()
     parent.chmod(0o777)                                     # not sticky: others may rename ours
@@ -36,7 +38,7 @@ def test_writable_folder_above_is_refused(tmp_path, monkeypatch, capfd):
 
 
 def test_group_writable_folder_is_refused_at_start(tmp_path, monkeypatch, capfd):
-    monkeypatch.setitem(aot._state, "warned", False)
+    monkeypatch.setitem(aot_folder._state, "warned", False)
     folder = tmp_path / "cache"
     folder.mkdir()
     folder.chmod(0o775)

@@ -82,11 +82,11 @@ def test_bench_compile_cache_must_be_private(tmp_path, monkeypatch, capsys, mode
     write is not shared (one warning line), a private one is."""
     from bench_helpers import write_scene_laz
 
-    from gfjax import aot
+    from gfjax.aot import folder as aot_folder
     from gfjax.bench import run as bench
     from gfjax.cli.main import main
 
-    monkeypatch.setitem(aot._state, "warned", False)
+    monkeypatch.setitem(aot_folder._state, "warned", False)
     scene = write_scene_laz(tmp_path / "scene.laz")
     cache = tmp_path / "cache"
     cache.mkdir()
@@ -118,6 +118,7 @@ def test_a_link_planted_among_the_jax_cache_entries_turns_the_cache_off(tmp_path
 def test_a_jax_cache_entry_of_another_user_is_found(tmp_path, monkeypatch):
     """Tests cannot chown: `os.lstat` reports another owner for one entry."""
     from gfjax import aot
+    from gfjax.aot import folder as aot_folder
 
     (tmp_path / "a-cache").write_bytes(b"ours")
     (tmp_path / "b-cache").write_bytes(b"theirs")
@@ -132,5 +133,5 @@ def test_a_jax_cache_entry_of_another_user_is_found(tmp_path, monkeypatch):
             return os.stat_result(fields)
         return info
 
-    monkeypatch.setattr(aot.os, "lstat", lstat)
+    monkeypatch.setattr(aot_folder.os, "lstat", lstat)
     assert aot.planted_entry(tmp_path) == f"{tmp_path / 'b-cache'} is owned by user 12345"

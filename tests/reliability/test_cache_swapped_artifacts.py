@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from cache_attack_helpers import assert_correct, entries, forbid_loading, new_process, private, run
 
-from gfjax import aot
+from gfjax.aot import calls, store
 
 __all__ = ["private"]
 
@@ -31,7 +31,7 @@ def test_swapped_artifacts_are_compiled_again_and_replaced(private, monkeypatch)
     new_process()
     assert_correct(run(factor=2), factor=2)                 # the replaced entries load
     assert_correct(run(factor=3), factor=3)
-    assert len(aot._from_disk) == 2
+    assert len(calls._from_disk) == 2
 
 
 def test_damaged_artifact_is_compiled_again_and_replaced(private, monkeypatch):
@@ -56,10 +56,10 @@ def test_program_that_does_not_fit_its_caller_falls_back(private, monkeypatch):
     def misfit(*_):
         raise TypeError("Argument types differ from the types for which this computation was compiled")
 
-    real = aot._load
-    monkeypatch.setattr(aot, "_load", lambda *a: misfit if real(*a) is not None else None)
+    real = store.load
+    monkeypatch.setattr(store, "load", lambda *a: misfit if real(*a) is not None else None)
     assert_correct(run())
-    assert not entry.exists() and aot._loaded == {}
+    assert not entry.exists() and calls._loaded == {}
     monkeypatch.undo()
     assert_correct(run())
     assert entry.exists()
@@ -99,4 +99,4 @@ def test_gfjax_filter_with_swapped_artifacts_exits_0_with_the_same_labels(tmp_pa
     assert main(["filter", str(scene), "-o", str(second), "--method", "dmf"]) == 0, capsys.readouterr().err
     np.testing.assert_array_equal(laspy.read(second).classification, laspy.read(first).classification)
     for entry in (a, b):                                    # replaced by the right programs
-        assert entry.read_bytes().startswith(aot._MAGIC + entry.name.split(".")[0].encode() + b"\n")
+        assert entry.read_bytes().startswith(store.MAGIC + entry.name.split(".")[0].encode() + b"\n")

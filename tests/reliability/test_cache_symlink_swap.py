@@ -8,6 +8,8 @@ import shutil
 from cache_attack_helpers import assert_correct, entries, forbid_loading, new_process, one_warning, private, run
 
 from gfjax import aot
+from gfjax.aot import calls
+from gfjax.aot import folder as aot_folder
 
 __all__ = ["private"]
 
@@ -29,7 +31,7 @@ def test_folder_swapped_for_a_link_after_start(private, tmp_path, monkeypatch, c
     compiles = forbid_loading(monkeypatch)
     assert_correct(run())
     assert_correct(run(factor=5), factor=5)
-    assert compiles == [] and aot._loaded == {}             # plain jit
+    assert compiles == [] and calls._loaded == {}           # plain jit
     assert len(entries(planted)) == 1                       # nothing written through the link
     err = capfd.readouterr().err
     one_warning(err)
@@ -37,7 +39,7 @@ def test_folder_swapped_for_a_link_after_start(private, tmp_path, monkeypatch, c
 
 
 def test_folder_above_swapped_for_a_link_after_start(tmp_path, monkeypatch, capfd):
-    monkeypatch.setitem(aot._state, "warned", False)
+    monkeypatch.setitem(aot_folder._state, "warned", False)
     folder = aot.enable(tmp_path / "home" / "cache")
     run()
     planted = tmp_path / "planted"
@@ -48,6 +50,6 @@ def test_folder_above_swapped_for_a_link_after_start(tmp_path, monkeypatch, capf
     new_process()
     compiles = forbid_loading(monkeypatch)
     assert_correct(run())
-    assert compiles == [] and aot._loaded == {}
+    assert compiles == [] and calls._loaded == {}
     one_warning(capfd.readouterr().err)
     aot.disable()

@@ -7,7 +7,7 @@ import os
 
 from cache_attack_helpers import assert_correct, entries, forbid_loading, new_process, one_warning, private, run
 
-from gfjax import aot
+from gfjax.aot import calls
 
 __all__ = ["private"]
 
@@ -27,7 +27,7 @@ def test_world_writable_artifact_is_not_loaded(private, monkeypatch, capfd):
     assert entry.stat().st_mode & 0o777 == 0o600            # replaced by an entry of ours
     new_process()
     assert_correct(run())
-    assert aot._from_disk                                   # ... which later processes load
+    assert calls._from_disk                                 # ... which later processes load
 
 
 def test_symbolic_link_artifact_is_not_followed(private, tmp_path, monkeypatch, capfd):

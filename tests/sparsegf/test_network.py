@@ -14,7 +14,7 @@ import gfjax
 from gfjax import sparsegf
 from gfjax.errors import InputError
 from gfjax.io.cloud import Cloud
-from gfjax.sparsegf import checkpoint, pipeline, train
+from gfjax.sparsegf import checkpoint, pipeline, programs, train
 from gfjax.sparsegf.config import SMRF_OBJECT_PROBABILITY, Config, model_settings
 from gfjax.sparsegf.features import n_features
 from gfjax.sparsegf.filter import patches
@@ -105,9 +105,9 @@ def test_a_patch_gets_the_same_output_alone_or_packed_with_others(net):
     alone = []
     for p in found:
         single = pipeline.pack([p], 8)
-        alone += pipeline.unpack(single, np.asarray(pipeline.predict(net, single)[0]))
+        alone += pipeline.unpack(single, np.asarray(programs.predict(net, single)[0]))
     packed = pipeline.pack(found, 8)
-    together = np.asarray(pipeline.predict(net, packed)[0])
+    together = np.asarray(programs.predict(net, packed)[0])
     single = pipeline.pack(found[:1], 8)
     assert packed.coords.shape == single.coords.shape and packed.point_row.shape == single.point_row.shape
     for values, own in zip(pipeline.unpack(packed, together), alone):
@@ -118,7 +118,7 @@ def test_points_of_one_voxel_can_get_different_outputs(net):
     xyz, _ = scene()
     patch = next(patches(xyz, Config(features=FEATURES)))
     packed = pipeline.pack([patch], 8)
-    prob = pipeline.unpack(packed, np.asarray(pipeline.predict(net, packed)[0]))[0]
+    prob = pipeline.unpack(packed, np.asarray(programs.predict(net, packed)[0]))[0]
     shared = np.flatnonzero(patch.central_counts() >= 2)
     assert len(shared)
     spread = [np.ptp(prob[patch.point_voxel == v]) for v in shared]
@@ -248,7 +248,7 @@ def test_a_pack_that_overflows_the_standard_plan_runs_again_with_a_grown_plan(ne
     calls = []
 
     def run(packed):
-        prob, overflowed = pipeline.predict(net, packed)
+        prob, overflowed = programs.predict(net, packed)
         calls.append(bool(overflowed))
         return prob, overflowed
 
