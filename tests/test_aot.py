@@ -38,7 +38,10 @@ def _call(fn, *args, **static):
 
 
 @pytest.fixture
-def folder(tmp_path):
+def folder(tmp_path, monkeypatch):
+    # as if this process had turned its caches on already: a method's first call in a test
+    # worker would otherwise point the store at the session's folder (`cache.persistent`)
+    monkeypatch.setitem(cache._state, "set_up", True)
     out = aot.enable(tmp_path / "export")
     assert out == tmp_path / "export"
     yield out
