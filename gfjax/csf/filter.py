@@ -31,11 +31,12 @@ from gfjax.csf import stages
 from gfjax.csf.cloth import simulate
 from gfjax.csf.config import ADAPTED, BUFFER_PX, CLOTH_START_M, Config, Params, adapt
 from gfjax.csf.trend import trend_at
-from gfjax.io import groups
 from gfjax.io.cloud import CloudView
-from gfjax.io.tiled import check_memory, checked_options, filter_groups
-from gfjax.io.tiles import canonical_capacity
 from gfjax.result import Result
+from gfjax.tiling import groups
+from gfjax.tiling.buckets import canonical_capacity
+from gfjax.tiling.checks import check_memory, checked_options
+from gfjax.tiling.driver import filter_groups
 
 __all__ = ["filter", "filter_points", "point_surface", "drop_cloth", "classify", "warm", "grid_shape", "Anchor",
            "Surface", "TileDiagnostics", "Diagnostics"]
@@ -272,7 +273,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points;
       `diagnostics` a `Diagnostics` (None for a cloud with no usable point, and for one
-      whose groups of points far apart were filtered one by one: `gfjax.io.tiled.filter_groups`).
+      whose groups of points far apart were filtered one by one: `gfjax.tiling.driver.filter_groups`).
     """
     del progress
     config, params, use = checked_options(cloud, config, params, returns, config_type=Config,

@@ -33,8 +33,9 @@ from gfjax import aot
 from gfjax.dmf.config import Config, Params
 from gfjax.dmf.shapes import raster_shape
 from gfjax.dmf.voxels import Voxels
-from gfjax.io.tiles import Tiling, canonical_capacity
 from gfjax.raster import inpaint_nearest, replicate_edges, sample_bilinear
+from gfjax.tiling.buckets import canonical_capacity
+from gfjax.tiling.tiles import Tiling
 
 __all__ = ["extract_ground", "SupportNodes", "support_nodes", "column_lowest_z", "m_nearest_ground", "height_ground",
            "mark_ground"]

@@ -26,12 +26,13 @@ from gfjax import adaptive, aot, cache
 from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import extract, neighbours, shapes, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params, adapt
-from gfjax.io import groups
 from gfjax.io.cloud import CloudView
-from gfjax.io.tiled import check_memory, checked_options, checked_tiling, filter_groups
-from gfjax.io.tiles import Tiling
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
+from gfjax.tiling import groups
+from gfjax.tiling.checks import check_memory, checked_options, checked_tiling
+from gfjax.tiling.driver import filter_groups
+from gfjax.tiling.tiles import Tiling
 
 __all__ = ["Diagnostics", "Prepared", "prepare", "filter", "warm", "run_raster_stages", "stage_options",
            "batched_stages", "MAX_BATCH"]
@@ -241,7 +242,7 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
     `shapes.NODE_WARM_MAX_CAPACITY`, and the height rule on every side with every canonical
     point capacity. Nothing runs; nothing is kept when the program cache is off. Returns the
     number of programs prepared (`gfjax warmup`)."""
-    from gfjax.io.tiles import canonical_capacities
+    from gfjax.tiling.buckets import canonical_capacities
 
     config, tiling = config or Config(), tiling or Tiling()
     spec = jax.ShapeDtypeStruct
@@ -437,11 +438,11 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       returns: "all" or "last" returns.
       progress: show a progress bar over NGNEM tile batches.
       tiling: the tile cores and buffers the NGNEM raster is cut into for the batched raster
-        stages (default `Tiling()`: 500 m, 50 m; `gfjax.io.tiles.Tiling`).
+        stages (default `Tiling()`: 500 m, 50 m; `gfjax.tiling.tiles.Tiling`).
 
     Returns:
       `Result(ground, diagnostics, instance_id)`: ground bool `(n,)`; `Diagnostics` (None
-      when groups of points far apart were filtered one by one: `gfjax.io.tiled.filter_groups`);
+      when groups of points far apart were filtered one by one: `gfjax.tiling.driver.filter_groups`);
       instance_id uint32 `(n,)`: the object region (NGNEM_RC instance) of each non-ground
       point's cell, 0 for ground points and points outside every object region.
     """

@@ -1,16 +1,17 @@
 """The canonical shapes DMF's compiled programs run on: raster sides and node capacities.
 
 Every raster DMF hands to a compiled program (an NGNEM tile, the support surface) is padded to
-a square of one of a few sides (`gfjax.io.tiles.canonical_sides` of the NGNEM's tiling at W),
+a square of one of a few sides (`gfjax.tiling.buckets.canonical_sides` of the NGNEM's tiling at W),
 every array of ND_CE to a power-of-two capacity and every array of points to a canonical
-capacity (`gfjax.io.tiles.canonical_capacity`): a machine compiles DMF's programs a handful
+capacity (`gfjax.tiling.buckets.canonical_capacity`): a machine compiles DMF's programs a handful
 of times in its life, not once per file size (`gfjax warmup` does it ahead). The stages are
 unchanged by the padding (padded cells lie outside `inside` or the data's extent, padded
 nodes have no neighbours, padded points are sliced off), so the labels are the same.
 """
 from __future__ import annotations
 
-from gfjax.io.tiles import Tiling, canonical_sides
+from gfjax.tiling.buckets import canonical_sides
+from gfjax.tiling.tiles import Tiling
 
 NODE_MIN_CAPACITY = 1 << 12        # the smallest ND_CE capacity [nodes]
 NODE_WARM_MAX_CAPACITY = 1 << 18   # the largest ND_CE capacity `warm` compiles ahead (a 500 m tile at W = 1 m)
