@@ -6,8 +6,10 @@ chosen here, outside jit, from the data: a machine compiles each program a handf
 in its life, not once per input size. Padding is always masked (`valid`, `inside`) or sliced
 off, so it changes no label.
 
-- `capacity_bucket`: a minimum times `2^k` or `1.5 * 2^k`: at most half as many slots again
-  as items (tuning's batches, small windows, CSF's tuning samples).
+- `capacity_bucket`: the ladder 1, 2, 3, 4, 6, 8, 12, ... (`2^k` and `1.5 * 2^k`), at least a
+  minimum: at most half as many slots again as items (tuning's batches, small windows, CSF's
+  tuning samples, SparseGF's patches, MASF's triangles).
+- `power_bucket`: the minimum times a power of two (DMF's ND_CE, SparseGF's packs and patches).
 - `canonical_capacity` / `canonical_capacities`: point capacities in powers of 4, the few a
   filter's windows are padded to and `gfjax warmup` compiles ahead.
 - `canonical_sides`, `shape_bucket`: raster sides of a tiling's windows.
@@ -19,7 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-__all__ = ["capacity_bucket", "canonical_capacity", "canonical_capacities", "canonical_sides",
+__all__ = ["capacity_bucket", "power_bucket", "canonical_capacity", "canonical_capacities", "canonical_sides",
            "canonical_square", "shape_bucket", "max_window_px", "check_lattice"]
 
 MIN_CAPACITY = 256
@@ -42,14 +44,24 @@ def check_lattice(tile_size_m: float, buffer_m: float, cell_m: float) -> None:
 
 
 def capacity_bucket(n: int, *, minimum: int = MIN_CAPACITY) -> int:
-    """Smallest of `minimum * {1, 1.5} * 2^k` holding `n` points (few shapes ever compile)."""
+    """The smallest of `minimum` and the ladder `2^k`, `1.5 * 2^k` (1, 2, 3, 4, 6, 8, 12, ...)
+    holding `n` items: few shapes ever compile, and at most half the slots are padding above
+    the minimum. The ladder does not depend on `minimum`, so callers with different minimums
+    share its sizes."""
+    if n <= minimum:
+        return minimum
+    high = 1 << (n - 1).bit_length()          # the smallest power of two >= n
+    three = 3 * high // 4                     # 1.5 times the power of two below it
+    return three if three >= n else high
+
+
+def power_bucket(n: int, *, minimum: int) -> int:
+    """The smallest `minimum * 2^k` holding `n` items: fewer sizes than `capacity_bucket`, at
+    most twice the items, for programs that are costly to compile."""
     size = minimum
-    while True:
-        if n <= size:
-            return size
-        if n <= size * 3 // 2:
-            return size * 3 // 2
+    while size < n:
         size *= 2
+    return size
 
 
 def shape_bucket(shape: tuple[int, int], *, quantum_px: int = SHAPE_QUANTUM_PX) -> tuple[int, int]:

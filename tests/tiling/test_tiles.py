@@ -89,22 +89,6 @@ def test_windows_of_a_filled_box_are_not_cut(scene, monkeypatch):
     assert all(np.array_equal(a.index, b.index) for a, b in zip(cut, whole))
 
 
-def test_buckets():
-    assert [buckets.capacity_bucket(n) for n in (1, 256, 257, 385, 1000)] == [256, 256, 384, 512, 1024]
-    assert buckets.shape_bucket((1, 600)) == (64, 640)
-
-
-def test_canonical_sides_and_capacities():
-    assert buckets.canonical_sides(500.0, 50.0, 1.0) == (128, 192, 256, 384, 512, 640)
-    assert buckets.max_window_px(500.0, 50.0, 1.0) == 601
-    assert buckets.canonical_sides(100.0, 10.0, 1.0) == (128,)
-    assert buckets.canonical_sides(500.0, 50.0, 0.5) == (128, 192, 256, 384, 512, 768, 1024, 1216)
-    assert [buckets.canonical_capacity(n) for n in (1, 16384, 16385, 70_000, 300_000, 4194304, 5_100_000,
-                                                   9_000_000)] == \
-        [16384, 16384, 65536, 262144, 1048576, 4194304, 8388608, 16777216]     # x2 beyond the largest warmed
-    assert buckets.canonical_capacities() == (16384, 65536, 262144, 1048576, 4194304)
-
-
 @pytest.mark.parametrize("size_m, tile_m", [(64, 500.0), (150, 60.0), (333, 100.0)])
 def test_canonical_batches_use_only_canonical_shapes(size_m, tile_m):
     rng = np.random.default_rng(size_m)
