@@ -29,10 +29,14 @@ from gfjax.dmf.config import MAX_BATCH, Config, Params, adapt
 from gfjax.io.cloud import CloudView
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
-from gfjax.tiling import groups
+from gfjax.tiling import groups, windows
 from gfjax.tiling.checks import check_memory, checked_options, checked_tiling
 from gfjax.tiling.driver import filter_groups
 from gfjax.tiling.tiles import Tiling
+
+# The raster stages' outputs pasted from each NGNEM tile's core into the whole raster.
+_RASTER_FIELDS = {"ngnem": np.float32, "layer": np.int32, "rhc": bool, "ngnem_bi": bool, "ngnem_rc0": bool,
+                  "ngnem_rc": bool}
 
 __all__ = ["Diagnostics", "Prepared", "prepare", "filter", "warm", "run_raster_stages", "stage_options",
            "batched_stages", "MAX_BATCH"]
@@ -112,7 +116,8 @@ def _dispatch_raster_stages(z, layer, valid, cell_m, config, tiling: Tiling, *, 
     """`run_raster_stages` in two halves: this call starts the work, the returned function
     waits for it and returns the host `RasterStages`. A raster that fits one tile is one
     asynchronous jitted call, so host work between the halves overlaps its execution; a tiled
-    raster (host steps between batches) is done at once."""
+    raster (host steps between batches) is done at once, its windows driven by the tiling
+    layer (`gfjax.tiling.windows`: cores of the tiling at W, full batches, cores pasted)."""
     h, w = z.shape
     core = _tile_core_px(cell_m, tiling)
     buf = math.ceil(tiling.buffer_m / cell_m)
@@ -123,33 +128,20 @@ def _dispatch_raster_stages(z, layer, valid, cell_m, config, tiling: Tiling, *, 
     if shape is not None:
         out = aot.call(stages.raster_stages, *_pad_tile(z, layer, valid, shape), w_m, share, **kwargs)
         return lambda: stages.RasterStages(*[np.asarray(a)[:h, :w] if np.ndim(a) == 2 else np.asarray(a) for a in out])
-    windows = []
-    for r0 in range(0, h, core):
-        for c0 in range(0, w, core):
-            rows = (max(0, r0 - buf), min(h, r0 + core + buf))
-            cols = (max(0, c0 - buf), min(w, c0 + core + buf))
-            windows.append((r0, c0, rows, cols))
     side = shapes.raster_sides(cell_m, tiling)[-1]          # every window fits the largest: one program per W
     shape = (side, side)
-    fields = {name: np.zeros((h, w), dtype) for name, dtype in
-              (("ngnem", np.float32), ("layer", np.int32), ("rhc", bool), ("ngnem_bi", bool),
-               ("ngnem_rc0", bool), ("ngnem_rc", bool))}
-    converged = True
-    starts = range(0, len(windows), MAX_BATCH)
-    if progress:
-        from tqdm import tqdm
-        starts = tqdm(starts, desc="dmf raster tiles", unit="batch")
-    for s in starts:
-        group = windows[s:s + MAX_BATCH]
-        tiles = [_pad_tile(z[a:b, c:d], layer[a:b, c:d], valid[a:b, c:d], shape) for _, _, (a, b), (c, d) in group]
-        tiles += [tiles[-1]] * (MAX_BATCH - len(tiles))           # one batch shape: one compile
-        out = aot.call(batched_stages, *[np.stack(parts) for parts in zip(*tiles)], w_m, share, **kwargs)
-        converged &= bool(np.all(np.asarray(out.converged)[:len(group)]))
-        for i, (r0, c0, (a, _), (c, _)) in enumerate(group):
-            r1, c1 = min(h, r0 + core), min(w, c0 + core)
-            for name in fields:
-                tile = np.asarray(getattr(out, name)[i])
-                fields[name][r0:r1, c0:c1] = tile[r0 - a:r1 - a, c0 - c:c1 - c]
+
+    def tile_of(window: windows.Window):
+        (a, b), (c, d) = window.rows, window.cols
+        return _pad_tile(z[a:b, c:d], layer[a:b, c:d], valid[a:b, c:d], shape)
+
+    def run_batch(*tiles):                   # every batch filled to MAX_BATCH tiles: one compile
+        return aot.call(batched_stages, *tiles, w_m, share, **kwargs)
+
+    fields, outputs = windows.run_windows((h, w), windows.raster_windows((h, w), core_px=core, buffer_px=buf),
+                                          tile_of, run_batch, names=_RASTER_FIELDS, max_batch=MAX_BATCH,
+                                          progress=progress, desc="dmf raster tiles")
+    converged = all(bool(np.all(np.asarray(out.converged)[:n])) for out, n in outputs)
     labels, conv = label_components(jax.device_put(fields["ngnem_rc"]), connectivity=8)
     instances, _ = relabel_consecutive(labels)
     done = stages.RasterStages(**fields, instances=np.asarray(instances), converged=converged and bool(conv))
