@@ -124,7 +124,7 @@ def _canonical_side(side: int) -> int:
 
 
 def canonical_points(n: int) -> int:
-    """The point capacity a cloud of `n` points is padded to: `tiles.canonical_capacity` up to
+    """The point capacity a cloud of `n` points is padded to: `buckets.canonical_capacity` up to
     2^18 points, then a multiple of 2^16 (padded points are not valid: they change nothing)."""
     return canonical_capacity(n) if n <= _FEW_POINTS_UP_TO else -(-n // _LARGE_POINT_STEP) * _LARGE_POINT_STEP
 
