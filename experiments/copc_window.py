@@ -39,8 +39,9 @@ def main():
 
     from gfjax import smrf, survey
     from gfjax.io import copc
-    from gfjax.io.tiles import Frame, Tiling
+    from gfjax.io.cloud import Frame
     from gfjax.survey.halo import tiles_region
+    from gfjax.tiling.tiles import Tiling
 
     rows = []
     with tempfile.TemporaryDirectory(prefix="gfjax_copc_") as tmp:

@@ -7,8 +7,8 @@
 `--spread-km` x `--spread-km`. Each run is a fresh process (`GFJAX_CACHE=0`, so every run
 compiles alike) that reports its filter call's time and its peak resident memory. The
 whole-cloud methods move groups of points far apart side by side before they build a raster,
-the tiled ones filter each group as a cloud of its own (`gfjax.io.groups`,
-`gfjax.io.tiled.classify_groups`); the labels of the 20,000 points are compared between the
+the tiled ones filter each group as a cloud of its own (`gfjax.tiling.groups`,
+`gfjax.tiling.driver.classify_groups`); the labels of the 20,000 points are compared between the
 first two runs. Writes `experiments/results/far_points.md`.
 """
 from __future__ import annotations

@@ -6,7 +6,7 @@
         -o experiments/results/canonical_shapes.md
 
 1. Padding cost, in one process with warm programs: `<method>.filter` on each file with the
-   canonical shapes (`gfjax.io.tiles.canonical_sides`, the default) against the windows
+   canonical shapes (`gfjax.tiling.buckets.canonical_sides`, the default) against the windows
    rounded up to 64 cells and point capacities of `capacity_bucket` (the former rule, which
    compiles once per new size). Runs alternate A B A B; the median of the per-pair ratios.
 2. First runs: a fresh `XDG_CACHE_HOME`, `gfjax warmup` (timed), then per method and file
@@ -36,9 +36,9 @@ from gfjax.bench.harness import Stopwatch  # noqa: E402
 def _padding_cost(files: list[str], methods: list[str], runs: int) -> list[str]:
     import gfjax
     from gfjax import methods as registry
-    from gfjax.io import tiles
+    from gfjax.tiling import buckets
 
-    canonical = tiles.canonical_sides
+    canonical = buckets.canonical_sides
     rows = ["| method | file | canonical s (median) | former s (median) | ratio canonical / former (median, min-max) |",
             "|---|---|---|---|---|"]
     for path in files:
@@ -47,13 +47,13 @@ def _padding_cost(files: list[str], methods: list[str], runs: int) -> list[str]:
             module = registry.get(name)
 
             def once(sides) -> float:
-                tiles.canonical_sides = sides
+                buckets.canonical_sides = sides
                 try:
                     with Stopwatch() as watch:
                         module.filter(cloud)
                     return watch.wall_s
                 finally:
-                    tiles.canonical_sides = canonical
+                    buckets.canonical_sides = canonical
 
             former = lambda *a: None                    # noqa: E731 (batches(sides=None): the former rule)
             for sides in (canonical, former):          # compile both first

@@ -21,9 +21,9 @@ from gfjax.result import Result
 
 __version__ = "0.1.0"
 
-_LAZY = {"data", "bench", "raster", "dtm", "metrics", "tune", "io", "methods", "method", "cache", "aot",
+_LAZY = {"data", "bench", "raster", "dtm", "metrics", "tune", "io", "tiling", "methods", "method", "cache", "aot",
          *(package.removeprefix("gfjax.") for package in _PACKAGES.values())}
-_LAZY_FUNCS = {"read": "gfjax.io.las", "write": "gfjax.io.las", "Tiling": "gfjax.io.tiles"}
+_LAZY_FUNCS = {"read": "gfjax.io.las", "write": "gfjax.io.las", "Tiling": "gfjax.tiling.tiles"}
 
 
 def __getattr__(name: str):

@@ -72,7 +72,7 @@ def cost_cell_m(terrain: Terrain) -> float:
     """The finest cell [m] whose raster over the points' area holds at most `CELLS_PER_POINT`
     cells a point, rounded up to 0.5 m; 0 for fewer than `_POINTS_PER_COVER_CELL` points, whose
     area is not measured (a few points cost little, and points far apart are filtered as
-    groups: `gfjax.io.groups`)."""
+    groups: `gfjax.tiling.groups`)."""
     if terrain.n_points < _POINTS_PER_COVER_CELL:
         return 0.0
     return math.ceil(math.sqrt(terrain.area_m2 / (CELLS_PER_POINT * terrain.n_points)) / 0.5) * 0.5

@@ -79,12 +79,12 @@ def of(method: Method | ModuleType | str) -> Method:
 
 
 def lattice(method: Method, config: Any, tiling: Any = None) -> Any:
-    """The tile lattice a survey runs `method` on tile by tile (`gfjax.io.tiles.Lattice`:
+    """The tile lattice a survey runs `method` on tile by tile (`gfjax.tiling.tiles.Lattice`:
     `tiling`, None for its defaults, at `config.cell_m`), for a method whose tiles' labels
     depend on their windows only (`Method.tile_labels`); None for any other method."""
     if not method.tile_labels:
         return None
-    from gfjax.io.tiled import lattice_of
+    from gfjax.tiling.checks import lattice_of
 
     return lattice_of(tiling, config.cell_m)
 

@@ -187,7 +187,7 @@ def method_table(*, default_method: bool = False, tiling: bool = False) -> str:
         if method.tiles:
             tiled.append(name)
     if tiling:
-        from gfjax.io.tiles import Tiling
+        from gfjax.tiling.tiles import Tiling
 
         taken = ", ".join(tiled) if tiled else "none"
         lines.append(textwrap.fill(f"--tile-size and --buffer apply to the methods that tile: {taken} (default "
@@ -440,7 +440,7 @@ _TILING_OPTIONS = {"tile_size_m": "--tile-size", "buffer_m": "--buffer"}
 def _tiling(method: Method, given: dict[str, float]):
     """The `gfjax.Tiling` of `--tile-size` / `--buffer` (`given`: their fields), range-checked;
     against the method's cell and the memory budget by `make_config_and_params`."""
-    from gfjax.io.tiles import Tiling
+    from gfjax.tiling.tiles import Tiling
 
     if not method.tiles:
         raise InputError(f"{_TILING_OPTIONS[next(iter(given))]}: method {method.name} does not tile")

@@ -97,7 +97,7 @@ def precheck(inputs: Sequence[Path], targets: Sequence[Path], dtm_targets: Seque
         the rasters its settings fix, such as a batch of tiles), checked against the memory
         budget; None: no check. Those
         over a cloud's extent are not: every method filters groups of points far apart
-        one by one (`gfjax.io.tiled`), so the header's box says little of them;
+        one by one (`gfjax.tiling.driver`), so the header's box says little of them;
         the method checks them once it has read the points, before anything is written.
       dtm_cell_m: the DTM cell [m] when a DTM is written, else None.
       extra_bytes_per_point: bytes each output point gains (`--instances`: 4).

@@ -10,7 +10,7 @@ from gfjax import methods
 from gfjax.cli import _common
 from gfjax.dtm.build import DEFAULTS as DTM_DEFAULTS
 from gfjax.dtm.build import RANGES as DTM_RANGES
-from gfjax.io import tiles
+from gfjax.tiling import tiles
 
 # Owners of options other than the methods, in the table's order: (row label, RANGES, defaults, classes).
 OTHERS = (

@@ -1,7 +1,7 @@
 """`gfjax warmup`: compile each method's programs for every canonical input shape, ahead.
 
 A method that pads its rasters and point arrays to a few canonical shapes
-(`gfjax.io.tiles.canonical_sides`) runs the same handful of programs on every file; this
+(`gfjax.tiling.buckets.canonical_sides`) runs the same handful of programs on every file; this
 command loads or compiles them into the program cache (`~/.cache/gfjax`), so the first
 `gfjax filter` of a new file starts at once. `make demo` runs it for SMRF; run it again after
 upgrading gfjax or JAX (the cached programs are keyed to both). Methods without canonical

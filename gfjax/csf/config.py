@@ -99,7 +99,7 @@ class Config:
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
         """The largest allocation these settings imply, checked by `gfjax.limits.check_memory` where a
-        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): with
+        job starts (`gfjax.methods.make_config_and_params`, `gfjax.tiling.checks.checked_options`): with
         `extent_m` (the cloud's x, y extent [m]), the cloth over the whole cloud."""
         if extent_m is None:
             return []

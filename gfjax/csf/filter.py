@@ -35,11 +35,12 @@ from gfjax.csf.cloth import ClothState, simulate
 from gfjax.csf.config import ADAPTED, BUFFER_PX, CLOTH_START_M, Config, Params, adapt
 from gfjax.csf.trend import trend_at
 from gfjax.csf.wavefront import layout
-from gfjax.io import groups
 from gfjax.io.cloud import CloudView
-from gfjax.io.tiled import check_memory, checked_options, filter_groups
-from gfjax.io.tiles import canonical_capacity
 from gfjax.result import Result
+from gfjax.tiling import groups
+from gfjax.tiling.buckets import canonical_capacity
+from gfjax.tiling.checks import check_memory, checked_options
+from gfjax.tiling.driver import filter_groups
 
 __all__ = ["filter", "filter_points", "point_surface", "drop_cloth", "start_cloth", "advance_cloth", "finish_cloth",
            "drop_cloth_in_chunks", "chunk_blocks", "classify", "warm", "grid_shape", "Anchor", "Surface",
@@ -132,7 +133,7 @@ def _canonical_side(side: int) -> int:
 
 
 def canonical_points(n: int) -> int:
-    """The point capacity a cloud of `n` points is padded to: `tiles.canonical_capacity` up to
+    """The point capacity a cloud of `n` points is padded to: `buckets.canonical_capacity` up to
     2^18 points, then a multiple of 2^16 (padded points are not valid: they change nothing)."""
     return canonical_capacity(n) if n <= _FEW_POINTS_UP_TO else -(-n // _LARGE_POINT_STEP) * _LARGE_POINT_STEP
 
@@ -369,7 +370,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points;
       `diagnostics` a `Diagnostics` (None for a cloud with no usable point, and for one
-      whose groups of points far apart were filtered one by one: `gfjax.io.tiled.filter_groups`).
+      whose groups of points far apart were filtered one by one: `gfjax.tiling.driver.filter_groups`).
     """
     config, params, use = checked_options(cloud, config, params, returns, config_type=Config,
                                           params_type=Params, package="gfjax.csf")

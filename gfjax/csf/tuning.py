@@ -46,7 +46,7 @@ from gfjax import csf
 from gfjax._types import PointMask, Points
 from gfjax.csf import stages
 from gfjax.csf.config import BUFFER_PX
-from gfjax.io import tiles as tiling
+from gfjax.tiling import buckets
 from gfjax.tune import relax
 from gfjax.tune.params import bound
 from gfjax.tune.tuners import GradientTuner
@@ -195,7 +195,7 @@ def prepare_samples(samples: Sequence, config: TuneConfig, *, max_batch: int = 8
     by_cap: dict[int, list[int]] = {}
     for i, s in enumerate(samples):
         if np.any(s.use):
-            by_cap.setdefault(tiling.capacity_bucket(int(len(s.xyz_m))), []).append(i)
+            by_cap.setdefault(buckets.capacity_bucket(int(len(s.xyz_m))), []).append(i)
     out = []
     for cap, members in sorted(by_cap.items()):
         for start in range(0, len(members), max_batch):

@@ -150,11 +150,11 @@ class Config:
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None, tiling=None) -> list[limits.Estimate]:
         """The largest allocations these settings imply, checked by `gfjax.limits.check_memory` where a
-        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`) at the
+        job starts (`gfjax.methods.make_config_and_params`, `gfjax.tiling.checks.checked_options`) at the
         smallest voxel size W they allow (`voxel_m`, else 1 m: Eq. 1 rounds W up to whole
-        metres): a batch of NGNEM tiles (`tiling` a `gfjax.io.tiles.Tiling`, None: its
+        metres): a batch of NGNEM tiles (`tiling` a `gfjax.tiling.tiles.Tiling`, None: its
         defaults), and with `extent_m` (the cloud's x, y extent [m]) the whole-cloud rasters."""
-        from gfjax.io.tiles import Tiling  # not at the top: `gfjax.io` imports laspy
+        from gfjax.tiling.tiles import Tiling  # not at the top: `gfjax.tiling` imports `gfjax.io`, laspy
 
         cell = self.voxel_m if self.voxel_m is not None else _MIN_DATA_VOXEL_M
         tiling = Tiling() if tiling is None else tiling

@@ -30,7 +30,8 @@ from gfjax.dmf import programs
 from gfjax.dmf.config import Config, Params
 from gfjax.dmf.shapes import raster_shape
 from gfjax.dmf.voxels import Voxels
-from gfjax.io.tiles import Tiling, canonical_capacity
+from gfjax.tiling.buckets import canonical_capacity
+from gfjax.tiling.tiles import Tiling
 
 __all__ = ["extract_ground", "SupportNodes", "support_nodes", "column_lowest_z", "m_nearest_ground", "height_ground"]
 

@@ -27,12 +27,17 @@ from scipy.spatial import cKDTree
 from gfjax import adaptive, aot, cache
 from gfjax.dmf import extract, neighbours, programs, shapes, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params, adapt
-from gfjax.io import groups
 from gfjax.io.cloud import CloudView
-from gfjax.io.tiled import check_memory, checked_options, checked_tiling, filter_groups
-from gfjax.io.tiles import Tiling
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
+from gfjax.tiling import groups, windows
+from gfjax.tiling.checks import check_memory, checked_options, checked_tiling
+from gfjax.tiling.driver import filter_groups
+from gfjax.tiling.tiles import Tiling
+
+# The raster stages' outputs pasted from each NGNEM tile's core into the whole raster.
+_RASTER_FIELDS = {"ngnem": np.float32, "layer": np.int32, "rhc": bool, "ngnem_bi": bool, "ngnem_rc0": bool,
+                  "ngnem_rc": bool}
 
 __all__ = ["Diagnostics", "Prepared", "prepare", "filter", "warm", "run_raster_stages", "MAX_BATCH"]
 
@@ -111,7 +116,8 @@ def _dispatch_raster_stages(z, layer, valid, cell_m, config, tiling: Tiling, *, 
     """`run_raster_stages` in two halves: this call starts the work, the returned function
     waits for it and returns the host `RasterStages`. A raster that fits one tile is one
     asynchronous jitted call, so host work between the halves overlaps its execution; a tiled
-    raster (host steps between batches) is done at once."""
+    raster (host steps between batches) is done at once, its windows driven by the tiling
+    layer (`gfjax.tiling.windows`: cores of the tiling at W, full batches, cores pasted)."""
     h, w = z.shape
     core = _tile_core_px(cell_m, tiling)
     buf = math.ceil(tiling.buffer_m / cell_m)
@@ -121,33 +127,20 @@ def _dispatch_raster_stages(z, layer, valid, cell_m, config, tiling: Tiling, *, 
     if shape is not None:
         out = programs.raster_tile(*_pad_tile(z, layer, valid, shape), w_m, share, config)
         return lambda: stages.RasterStages(*[np.asarray(a)[:h, :w] if np.ndim(a) == 2 else np.asarray(a) for a in out])
-    windows = []
-    for r0 in range(0, h, core):
-        for c0 in range(0, w, core):
-            rows = (max(0, r0 - buf), min(h, r0 + core + buf))
-            cols = (max(0, c0 - buf), min(w, c0 + core + buf))
-            windows.append((r0, c0, rows, cols))
     side = shapes.raster_sides(cell_m, tiling)[-1]          # every window fits the largest: one program per W
     shape = (side, side)
-    fields = {name: np.zeros((h, w), dtype) for name, dtype in
-              (("ngnem", np.float32), ("layer", np.int32), ("rhc", bool), ("ngnem_bi", bool),
-               ("ngnem_rc0", bool), ("ngnem_rc", bool))}
-    converged = True
-    starts = range(0, len(windows), MAX_BATCH)
-    if progress:
-        from tqdm import tqdm
-        starts = tqdm(starts, desc="dmf raster tiles", unit="batch")
-    for s in starts:
-        group = windows[s:s + MAX_BATCH]
-        tiles = [_pad_tile(z[a:b, c:d], layer[a:b, c:d], valid[a:b, c:d], shape) for _, _, (a, b), (c, d) in group]
-        tiles += [tiles[-1]] * (MAX_BATCH - len(tiles))           # one batch shape: one compile
-        out = programs.raster_batch(*[np.stack(parts) for parts in zip(*tiles)], w_m, share, config)
-        converged &= bool(np.all(np.asarray(out.converged)[:len(group)]))
-        for i, (r0, c0, (a, _), (c, _)) in enumerate(group):
-            r1, c1 = min(h, r0 + core), min(w, c0 + core)
-            for name in fields:
-                tile = np.asarray(getattr(out, name)[i])
-                fields[name][r0:r1, c0:c1] = tile[r0 - a:r1 - a, c0 - c:c1 - c]
+
+    def tile_of(window: windows.Window):
+        (a, b), (c, d) = window.rows, window.cols
+        return _pad_tile(z[a:b, c:d], layer[a:b, c:d], valid[a:b, c:d], shape)
+
+    def run_batch(*tiles):                   # every batch filled to MAX_BATCH tiles: one compile
+        return programs.raster_batch(*tiles, w_m, share, config)
+
+    fields, outputs = windows.run_windows((h, w), windows.raster_windows((h, w), core_px=core, buffer_px=buf),
+                                          tile_of, run_batch, names=_RASTER_FIELDS, max_batch=MAX_BATCH,
+                                          progress=progress, desc="dmf raster tiles")
+    converged = all(bool(np.all(np.asarray(out.converged)[:n])) for out, n in outputs)
     labels, conv = label_components(jax.device_put(fields["ngnem_rc"]), connectivity=8)
     instances, _ = relabel_consecutive(labels)
     done = stages.RasterStages(**fields, instances=np.asarray(instances), converged=converged and bool(conv))
@@ -218,7 +211,7 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
     `shapes.NODE_WARM_MAX_CAPACITY`, and the height rule on every side with every canonical
     point capacity. Nothing runs; nothing is kept when the program cache is off. Returns the
     number of programs prepared (`gfjax warmup`)."""
-    from gfjax.io.tiles import canonical_capacities
+    from gfjax.tiling.buckets import canonical_capacities
 
     config, tiling = config or Config(), tiling or Tiling()
     one_tile, batched = set(), set()
@@ -400,11 +393,11 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       returns: "all" or "last" returns.
       progress: show a progress bar over NGNEM tile batches.
       tiling: the tile cores and buffers the NGNEM raster is cut into for the batched raster
-        stages (default `Tiling()`: 500 m, 50 m; `gfjax.io.tiles.Tiling`).
+        stages (default `Tiling()`: 500 m, 50 m; `gfjax.tiling.tiles.Tiling`).
 
     Returns:
       `Result(ground, diagnostics, instance_id)`: ground bool `(n,)`; `Diagnostics` (None
-      when groups of points far apart were filtered one by one: `gfjax.io.tiled.filter_groups`);
+      when groups of points far apart were filtered one by one: `gfjax.tiling.driver.filter_groups`);
       instance_id uint32 `(n,)`: the object region (NGNEM_RC instance) of each non-ground
       point's cell, 0 for ground points and points outside every object region.
     """

@@ -24,8 +24,8 @@ from gfjax import aot
 from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import stages
 from gfjax.dmf.config import Config
-from gfjax.io.tiles import canonical_capacity
 from gfjax.raster import inpaint_nearest, replicate_edges, sample_bilinear
+from gfjax.tiling.buckets import canonical_capacity
 
 __all__ = ["stage_options", "batched_stages", "raster_tile", "raster_batch", "prefetch_raster", "basal_layer",
            "prefetch_basal", "mark_ground", "height_test", "prefetch_height_rule"]

@@ -3,23 +3,63 @@
 The full `laspy.LasData` is kept untouched (header, VLRs/EVLRs, every point dimension, extra
 bytes) so that writing it back changes nothing but the classification. Filters work on
 `xyz_m` (float64 metres, converted from the file's horizontal/vertical units) or on
-`local_xyz_m()` (float32 metres relative to an origin, what JAX code receives).
+`local_xyz_m()` (float32 metres relative to an origin, what JAX code receives), and on
+`frame` (a `Frame`: the box its tiles and grids are laid on, a survey's so adjacent files agree).
 """
 from __future__ import annotations
 
 import copy
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, NamedTuple, Protocol, runtime_checkable
 
 import laspy
 import numpy as np
 
 from gfjax.io import asprs, columns
-from gfjax.io.tiles import Frame
 
 if TYPE_CHECKING:
     import pyproj
+
+
+class Frame(NamedTuple):
+    """The box a tiling is laid on: its lattice starts at `origin_m` and windows stop at `upper_m`.
+
+    A cloud carries it (`Cloud.frame`, `Points.frame`; None: the cloud's own box), so it lives
+    with the cloud; `gfjax.tiling.tiles.split` lays its tiles on it, and the methods that do not
+    tile snap their grids to it (`snap`).
+
+    Attributes:
+      origin_m: float64 `(3,)` minimum x, y, z of the points filtered [m].
+      upper_m: float64 `(2,)` maximum x, y [m].
+      cores: the keys `(col, row)` of the only tiles `gfjax.tiling.tiles.split` makes (None: every tile holding a
+        point): a survey filters each tile of its lattice once, from a window of its points
+        that also holds parts of the neighbouring tiles (`gfjax.survey.lattice`).
+    """
+
+    origin_m: np.ndarray
+    upper_m: np.ndarray
+    cores: frozenset[tuple[int, int]] | None = None
+
+    @classmethod
+    def of(cls, xyz_m: np.ndarray) -> Frame:
+        """The frame of points `(n, 3)` (n >= 1): their bounding box."""
+        xyz_m = np.asarray(xyz_m, np.float64)
+        return cls(columns.lows(xyz_m), columns.highs(xyz_m[:, :2]))
+
+    def union(self, other: Frame) -> Frame:
+        return Frame(np.minimum(self.origin_m, other.origin_m), np.maximum(self.upper_m, other.upper_m))
+
+    def only(self, cores) -> Frame:
+        """This frame, with `split` making only the tiles of the keys `cores` `(col, row)`."""
+        return self._replace(cores=frozenset((int(c), int(r)) for c, r in cores))
+
+    def snap(self, corner_m: np.ndarray, cell_m: float) -> np.ndarray:
+        """The corner of the cell of this frame's lattice (cubes of `cell_m` from `origin_m`)
+        that holds `corner_m` (float64 `(3,)` [m]): a window of a survey anchored there grids
+        its points into the cells the whole survey in one file would use."""
+        origin = np.asarray(self.origin_m, np.float64)
+        return origin + np.floor((np.asarray(corner_m, np.float64) - origin) / cell_m) * cell_m
 
 
 @runtime_checkable
@@ -54,7 +94,7 @@ def use_mask(ignored: np.ndarray, return_number: np.ndarray, number_of_returns: 
 class Points:
     """The views a filter reads from a cloud (`Cloud.xyz_m`, `filter_mask`, ...), as plain arrays:
     a survey's window (a file and its neighbours' points, `gfjax.survey`), or some points of a
-    cloud filtered as a cloud of their own (`gfjax.io.tiled.filter_groups`).
+    cloud filtered as a cloud of their own (`gfjax.tiling.groups.filter_groups`).
 
     Attributes:
       xyz_m: float64 `(n, 3)` [m].
@@ -108,7 +148,7 @@ class Cloud:
       crs: the file's coordinate reference system (`pyproj.CRS`), or None when it states none.
       units_source: where the unit factors came from ("CRS", "--units ft", "no CRS in file:
         metres assumed", ...), for `gfjax info` and logs.
-      frame: the box the tiled filters lay their lattice on (`gfjax.io.tiles.Frame`; a
+      frame: the box the tiled filters lay their lattice on (`Frame`; a
         survey's, so adjacent files agree), or None for the cloud's own.
       classes: which classes filters ignore and which keep their class (`asprs.ClassRules`;
         default: noise and withheld points ignored, every other class relabelled); set with

@@ -23,7 +23,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-__all__ = ["TriangleGeometry", "triangle_geometry", "layer_membership", "layer_points", "bucket"]
+from gfjax.tiling.buckets import capacity_bucket
+
+__all__ = ["TriangleGeometry", "triangle_geometry", "layer_membership", "layer_points"]
+
+MIN_TRIANGLES = 1024     # the smallest triangle capacity of `layer_points`
 
 
 class TriangleGeometry(NamedTuple):
@@ -88,14 +92,6 @@ def triangle_geometry(xyz_m: np.ndarray, faces: np.ndarray, opposite: np.ndarray
         t_lo = np.where(blocked, np.inf, t_lo)
         t_hi = np.where(blocked, -np.inf, t_hi)
     return TriangleGeometry(centre, normal, radius, t_lo, t_hi)
-
-
-def bucket(n: int, *, minimum: int = 1024) -> int:
-    """Capacity for `n` items: the next of 1, 1.5 times a power of two (few compiles)."""
-    size = minimum
-    while size < n:
-        size = size * 3 // 2 if (size & (size - 1)) == 0 else (size // 3) * 4
-    return size
 
 
 def _sample_bilinear(z: Float[Array, "h w"], x: Float[Array, " f"], y: Float[Array, " f"],
@@ -164,7 +160,8 @@ def layer_points(xyz_m: np.ndarray, faces: np.ndarray, geometry: TriangleGeometr
     """Points of each layer: the vertices of its triangles (host wrapper of `layer_membership`).
 
     Triangles that can be in no layer (no empty sphere, or rho above the largest alpha) are
-    dropped first; the rest are padded to a `bucket` capacity so few shapes compile.
+    dropped first; the rest are padded to a `capacity_bucket` of at least `MIN_TRIANGLES`
+    (`2^k` or `1.5 * 2^k`) so few shapes compile; padding rows are in no layer.
 
     Returns:
       bool `(L, p)` numpy, point i is in layer l.
@@ -175,7 +172,7 @@ def layer_points(xyz_m: np.ndarray, faces: np.ndarray, geometry: TriangleGeometr
     if not useful.any():
         return layers
     picked = np.flatnonzero(useful)
-    capacity = bucket(len(picked))
+    capacity = capacity_bucket(len(picked), minimum=MIN_TRIANGLES)
     pad = capacity - len(picked)
 
     def padded(a: np.ndarray, fill: float) -> jnp.ndarray:

@@ -121,7 +121,7 @@ class Config:
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None) -> list[limits.Estimate]:
         """The largest allocation these settings imply, checked by `gfjax.limits.check_memory` where a
-        job starts (`gfjax.methods.make_config_and_params`, `gfjax.io.tiled.checked_options`): with
+        job starts (`gfjax.methods.make_config_and_params`, `gfjax.tiling.checks.checked_options`): with
         `extent_m` (the cloud's x, y extent [m]), the preprocessing grid over the whole cloud."""
         if extent_m is None:
             return []
@@ -138,7 +138,7 @@ class Config:
     def reach_m(self) -> float:
         """How far apart two points can sit and still meet in one triangle of the pyramid: the
         largest alpha circle's diameter, `2 max(alpha_max, alpha_top)` [m]. Groups of points
-        farther apart never interact (what `gfjax.io.groups` may move)."""
+        farther apart never interact (what `gfjax.tiling.groups` may move)."""
         return 2.0 * max(self.alpha_max_m, self.alpha_top_m or 0.0)
 
     @property

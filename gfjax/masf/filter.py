@@ -41,14 +41,14 @@ import numpy as np
 
 from gfjax import adaptive, cache
 from gfjax.errors import InputError
-from gfjax.io import groups
-from gfjax.io.cloud import CloudView
-from gfjax.io.tiled import check_memory, filter_groups
-from gfjax.io.tiles import Frame
+from gfjax.io.cloud import CloudView, Frame
 from gfjax.masf import alpha_shape, preprocess, tin
 from gfjax.masf import densify as densify_mod
 from gfjax.masf.config import Config, Params, adapt
 from gfjax.result import Result
+from gfjax.tiling import groups
+from gfjax.tiling.checks import check_memory
+from gfjax.tiling.driver import filter_groups
 
 __all__ = ["filter", "Diagnostics", "filter_points", "Prepared", "prepare", "pyramid", "densify"]
 
@@ -122,7 +122,7 @@ def prepare(xyz_m: np.ndarray, config: Config, frame: Frame | None = None, *,
     Args:
       xyz_m: float64 `(n, 3)` metres (any origin; the minimum corner is subtracted here).
       config: the settings (only those named in `Prepared` are read).
-      frame: a survey's frame (`gfjax.io.tiles.Frame`): the grid's origin is then the corner of
+      frame: a survey's frame (`gfjax.io.cloud.Frame`): the grid's origin is then the corner of
         the survey's lattice cell that holds the minimum corner, so a window of the survey
         grids its points as the whole survey in one file does.
       step: told when each of its `PREPARE_STEPS` stages is done (a progress bar).
@@ -233,7 +233,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
     Returns:
       `Result(ground, diagnostics)`: bool `(n,)` over the whole cloud (unused points False) and
       a `Diagnostics` whose `potential_ground` indexes the whole cloud (None when groups of
-      points far apart were filtered one by one: `gfjax.io.tiled.filter_groups`).
+      points far apart were filtered one by one: `gfjax.tiling.driver.filter_groups`).
 
     Raises:
       InputError: a bad `returns`, `params` out of range, naming the option, or a grid over

@@ -19,11 +19,11 @@ from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 
-from gfjax.io import groups
 from gfjax.limits import Range
 from gfjax.masf.config import Config, Params
 from gfjax.masf.filter import Prepared, densify, prepare, pyramid
 from gfjax.params import declared_defaults
+from gfjax.tiling import groups
 from gfjax.tune import search
 from gfjax.tune.problem import Sample
 
@@ -88,7 +88,7 @@ def _settings(config: Config, combo: Mapping[str, float]) -> tuple[Config, Param
 def labels(sample: Sample, config: Config, combos: Sequence[Mapping[str, float]]) -> Iterator[np.ndarray]:
     """MASF's ground (bool `(n,)`) on `sample` with each combination in turn, run as
     `gfjax.masf.filter` runs a cloud (groups of points far apart each alone, a lone point
-    ground: `gfjax.io.tiled.filter_groups`; the same stages; unused points are never ground):
+    ground: `gfjax.tiling.driver.filter_groups`; the same stages; unused points are never ground):
     the defaults' labels are the plain filter's, point for point (tested). Each group is
     prepared once per separating gap; a group's pyramid is built again only when the alpha
     settings change from one combination to the next."""

@@ -11,9 +11,9 @@ from jaxtyping import Array, Float
 
 from gfjax import adaptive, limits, params
 from gfjax.errors import SettingError
-from gfjax.io import tiles
 from gfjax.limits import Range
 from gfjax.params import param
+from gfjax.tiling import tiles
 
 __all__ = ["Config", "Params", "PRESETS", "RANGES", "adapt"]
 
@@ -55,7 +55,7 @@ class Config:
             raise SettingError(f"max_window_m must be <= {MAX_WINDOW_PX} cell_m (max_window_m / cell_m sets the "
                                f"largest window), got {self.max_window_m!r}", "max_window_m", "cell_m")
 
-    # The largest allocations these settings imply with a tiling (`gfjax.io.tiles.Tiling`),
+    # The largest allocations these settings imply with a tiling (`gfjax.tiling.tiles.Tiling`),
     # checked against the memory budget where a job starts: per tile cell about 16 float32 or
     # int32 rasters (stage inputs, work arrays, diagnostics: an estimate, not a measurement),
     # per cloud cell three float64 diagnostics rasters.

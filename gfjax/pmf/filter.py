@@ -7,8 +7,8 @@
    becomes the surface;
 3. the points that passed every window are ground.
 
-The cloud is cut into buffered tiles (`gfjax.io.tiles`); each batch of equal-shape tiles runs
-through one jitted, vmapped call of `programs.classify_batch` (`gfjax.io.tiled` drives the tiles
+The cloud is cut into buffered tiles (`gfjax.tiling.tiles`); each batch of equal-shape tiles runs
+through one jitted, vmapped call of `programs.classify_batch` (`gfjax.tiling.driver` drives the tiles
 and mosaics the tile cores).
 """
 from __future__ import annotations
@@ -18,12 +18,12 @@ from typing import NamedTuple
 import numpy as np
 
 from gfjax import adaptive, cache
-from gfjax.io import tiled
 from gfjax.io.cloud import CloudView
-from gfjax.io.tiles import Tiling
 from gfjax.pmf import programs
 from gfjax.pmf.config import MAX_BATCH, Config, Params, adapt
 from gfjax.result import Result
+from gfjax.tiling import driver
+from gfjax.tiling.tiles import Tiling
 
 __all__ = ["filter", "warm", "Diagnostics", "MAX_BATCH"]
 
@@ -62,14 +62,14 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
       returns: "all" or "last": which returns are filtered.
       progress: show a progress bar over tile batches.
       tiling: how the cloud is cut into buffered tiles (default `Tiling()`: 500 m cores,
-        50 m buffers; `gfjax.io.tiles.Tiling`).
+        50 m buffers; `gfjax.tiling.tiles.Tiling`).
 
     Returns:
       `Result(ground, diagnostics)`: `ground` bool `(n,)`, False for ignored points;
       `diagnostics` a `Diagnostics` (None for a cloud with no usable point, and for one whose
-      groups of points far apart were filtered one by one: `gfjax.io.tiled.classify_groups`).
+      groups of points far apart were filtered one by one: `gfjax.tiling.driver.classify_groups`).
     """
-    done = tiled.filter_cloud(cloud, config, params, returns, tiling=tiling, config_type=Config, params_type=Params,
+    done = driver.filter_cloud(cloud, config, params, returns, tiling=tiling, config_type=Config, params_type=Params,
                               package="gfjax.pmf", classify_batch=programs.classify_batch, max_batch=MAX_BATCH,
                               rasters=("zimin", "surface", "empty"), heights=("zimin", "surface"), progress=progress)
     if done.cores is None:
@@ -82,7 +82,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
 @cache.persistent
 def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False,
          tiling: Tiling | None = None) -> int:
-    """Prepare the programs `filter` runs on a file of one tile of any size (`tiled.warm`):
+    """Prepare the programs `filter` runs on a file of one tile of any size (`driver.warm`):
     later first runs load them instead of compiling. Returns the number of shapes prepared."""
     config, params = config or Config(), params or Params()
-    return tiled.warm(programs.classify_batch, params, config, tiling=tiling, progress=progress, desc="pmf shapes")
+    return driver.warm(programs.classify_batch, params, config, tiling=tiling, progress=progress, desc="pmf shapes")

@@ -87,7 +87,7 @@ def domain_mask(hw: Int[Array, " 2"], shape: tuple[int, int]) -> Mask:
     """Cells of a `shape` raster inside a data extent `hw = (rows, cols)` anchored at the
     south-west corner (rows `h - hw[0] ..`, columns `.. hw[1] - 1`). bool `(h, w)`.
 
-    The layout of a tile padded by `tiles.batches` (row 0 = north); `hw` may be traced, so
+    The layout of a tile padded by `gfjax.tiling.batches` (row 0 = north); `hw` may be traced, so
     tiles of different extents share one compiled shape."""
     h, w = shape
     rows = jnp.arange(h, dtype=jnp.int32) >= h - hw[0]

@@ -14,9 +14,9 @@ from jaxtyping import Array, Float
 
 from gfjax import adaptive, limits, params
 from gfjax.errors import SettingError
-from gfjax.io import tiles
 from gfjax.limits import Range
 from gfjax.params import param
+from gfjax.tiling import tiles
 
 __all__ = ["Config", "Params", "PRESETS", "INPAINT_METHODS", "RANGES", "adapt"]
 
@@ -76,7 +76,7 @@ class Config:
             if not ok:
                 raise SettingError(f"{message}, got {getattr(self, keys[0])!r}", *keys)
 
-    # The largest allocations these settings imply with a tiling (`gfjax.io.tiles.Tiling`),
+    # The largest allocations these settings imply with a tiling (`gfjax.tiling.tiles.Tiling`),
     # checked against the memory budget where a job starts: per tile cell about 32 float32 or
     # int32 rasters (stage inputs, work arrays, diagnostics: an estimate, not a measurement),
     # per cloud cell six float64 diagnostics rasters.

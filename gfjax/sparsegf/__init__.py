@@ -28,7 +28,7 @@ from gfjax.sparsegf.filter import Diagnostics, filter, load_model, warm
 from gfjax.sparsegf.hag import HAG_BIN_EDGES_M, N_HAG_BINS, HagTargets, ground_surface, hag_bins, hag_targets
 from gfjax.sparsegf.loss import HAG_WEIGHTS, LAMBDA, HeightAwareLoss, height_aware_loss
 from gfjax.sparsegf.model import NET_PRESETS, Model, NetConfig, SparseGFNet, count_parameters, init
-from gfjax.sparsegf.partition import STEP_M, Partition, PartitionConfig, PatchBatch, capacity_bucket, partition
+from gfjax.sparsegf.partition import STEP_M, Partition, PartitionConfig, PatchBatch, partition
 from gfjax.sparsegf.vote import UNCOVERED, Vote, decide, soft_vote
 
 Params = None      # no thresholds: the network's weights are SparseGF's parameters
@@ -41,6 +41,6 @@ __all__ = [
     "CENTRAL_TOL_M", "R_IN_M", "R_OC_M", "R_OO_M", "STEP_M", "HAG_BIN_EDGES_M", "N_HAG_BINS",
     "HAG_WEIGHTS", "LAMBDA", "UNCOVERED",
     "Compressed", "HagTargets", "HeightAwareLoss", "Partition", "PartitionConfig", "PatchBatch", "Vote",
-    "capacity_bucket", "compress", "compression_ratio", "ground_surface", "hag_bins", "hag_targets",
+    "compress", "compression_ratio", "ground_surface", "hag_bins", "hag_targets",
     "height_aware_loss", "partition", "decide", "soft_vote",
 ]

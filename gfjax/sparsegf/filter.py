@@ -26,7 +26,6 @@ from gfjax.sparsegf.pipeline import (
     SMALL_PACK_VOXELS,
     WARM_KEPT,
     WARM_MEMBERS,
-    capacity,
     group,
     pack,
     prepare,
@@ -36,6 +35,7 @@ from gfjax.sparsegf.pipeline import (
 from gfjax.sparsegf.programs import predict, prepare_point_inputs
 from gfjax.sparsegf.smrf_prior import smrf_heights
 from gfjax.sparsegf.vote import decide, soft_vote
+from gfjax.tiling.buckets import power_bucket
 
 
 class Diagnostics(NamedTuple):
@@ -123,9 +123,9 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
     # votes and points padded to powers of two: the vote compiles a few times per machine,
     # not once per cloud
     votes = np.concatenate(index)
-    size = capacity(len(votes), 1024)
+    size = power_bucket(len(votes), minimum=1024)
     vote = soft_vote(np.concatenate([votes, np.full(size - len(votes), -1)]),
-                     np.concatenate([*prob, np.zeros(size - len(votes), np.float32)]), capacity(n, 1024))
+                     np.concatenate([*prob, np.zeros(size - len(votes), np.float32)]), power_bucket(n, minimum=1024))
     return np.asarray(vote.prob_ground)[:n], np.asarray(vote.count)[:n], len(index)
 
 

@@ -11,7 +11,8 @@ corner or edge is central in up to four patches; `soft_vote` merges their predic
 Host code (numpy; runs once per cloud, outside jit). Points are bucketed by home cell, and
 each cylinder gathers the buckets its disc can reach and keeps the points within R_oo
 (distances in float64). Patches whose central region is empty are dropped. Patches are
-padded to a few capacity buckets (`2**j` and `1.5 * 2**j`) with a `valid` mask and
+padded to a few capacity buckets (`2**j` and `1.5 * 2**j`, `gfjax.tiling.buckets.capacity_bucket`)
+with a `valid` mask and
 grouped by capacity, so one batch of each capacity runs under `jax.vmap` and only a
 handful of shapes ever compile (the jax-md pattern: allocate outside jit, compute inside).
 """
@@ -25,6 +26,7 @@ import numpy as np
 
 from gfjax.errors import InputError
 from gfjax.sparsegf.compress import CENTRAL_TOL_M, R_IN_M, R_OO_M
+from gfjax.tiling.buckets import capacity_bucket
 
 STEP_M = 50.0            # grid step of the patch centres [m] (Sec. 3.3)
 MIN_CAPACITY = 256       # the smallest capacity bucket [points]
@@ -106,14 +108,6 @@ class Partition(NamedTuple):
     n_points: np.ndarray
     batches: tuple[PatchBatch, ...]
     config: PartitionConfig
-
-
-def capacity_bucket(n: int, *, min_capacity: int = MIN_CAPACITY) -> int:
-    """The smallest of `min_capacity`, `2**j`, `1.5 * 2**j` (j >= 1) that is >= n."""
-    if n <= max(min_capacity, 2):
-        return max(min_capacity, n)
-    j = max(1, math.ceil(math.log2(n)) - 1)          # 2**j < n <= 2**(j + 1)
-    return 3 * 2 ** (j - 1) if 3 * 2 ** (j - 1) >= n else 2 ** (j + 1)
 
 
 def grid_centers(xy_min: np.ndarray, xy_max: np.ndarray, step_m: float) -> tuple[np.ndarray, tuple[int, int], np.ndarray]:
@@ -208,7 +202,7 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
 
     centers = centers[kept]
     n_points = np.array([len(m) for m in members], dtype=np.int64)
-    caps = np.array([capacity_bucket(int(n), min_capacity=config.min_capacity) for n in n_points])
+    caps = np.array([capacity_bucket(int(n), minimum=config.min_capacity) for n in n_points])
     batches = []
     for cap in np.unique(caps):
         ids = np.flatnonzero(caps == cap)

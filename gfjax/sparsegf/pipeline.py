@@ -33,6 +33,7 @@ import numpy as np
 from gfjax.nn import sparse
 from gfjax.nn.sparse import keys as K
 from gfjax.sparsegf.programs import point_inputs
+from gfjax.tiling.buckets import power_bucket
 
 DEPTH = 4                  # levels of the U-Net below the input
 PACK_VOXELS = 65_536       # voxel rows of a pack: patches are packed up to this many
@@ -52,14 +53,6 @@ POINTS_PER_VOXEL = 4       # central point rows of a pack per voxel row
 # holds, so small patches (a sparse cloud's, a cloud's edges) share one; the batch index only
 # keeps them apart, and the one compiled program serves every cloud.
 PACK_SLOTS = 1024
-
-
-def capacity(n: int, minimum: int = PACK_VOXELS) -> int:
-    """The power of two (at least `minimum`) holding `n` rows."""
-    size = minimum
-    while size < n:
-        size *= 2
-    return size
 
 
 class Patch(NamedTuple):
@@ -133,7 +126,7 @@ def prepare(xyz_m: np.ndarray, members: np.ndarray, center_m: np.ndarray, patch_
     # a superset of what `compress` will call central: those are never thinned away
     near = np.hypot(local[:, 0], local[:, 1]) <= config.r_in_m + 1e-3
     keep = thin_context(near, config.max_context_points, seed + patch_id)
-    n, k = capacity(len(members), MIN_POINTS), capacity(len(keep), MIN_POINTS)
+    n, k = power_bucket(len(members), minimum=MIN_POINTS), power_bucket(len(keep), minimum=MIN_POINTS)
     pts, central, feats = jax.device_get(point_inputs(
         _padded(local, n), np.arange(n) < len(members), _padded(keep.astype(np.int32), k), np.arange(k) < len(keep),
         np.float32(angle), config=config))
@@ -192,9 +185,9 @@ def pack(patches: list[Patch], slots: int, plans: dict[int, sparse.PyramidPlan] 
     if not 1 <= len(patches) <= slots:
         raise ValueError(f"pack: 1..{slots} patches, got {len(patches)}")
     total = sum(len(p.coords) for p in patches)
-    size = capacity(total, min_capacity)
+    size = power_bucket(total, minimum=min_capacity)
     n_points = sum(len(p.point_index) for p in patches)
-    points = capacity(n_points, POINTS_PER_VOXEL * size)
+    points = power_bucket(n_points, minimum=POINTS_PER_VOXEL * size)
     coords = np.zeros((size, 4), np.int32)
     feats = np.zeros((size, patches[0].feats.shape[1]), np.float32)
     weight = np.zeros(size, np.float32)

@@ -32,26 +32,27 @@ def smrf_heights(xyz_m: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 2"]:
     """`(dz, margin)` `(n, 2)` float32 [m] of every point (module docstring), raw (not logged).
 
     SMRF runs over the cloud's buffered tiles as `gfjax.smrf.filter` does (groups of points
-    far apart each on tiles of its own, `gfjax.io.tiled.classify_groups`), and each point is
+    far apart each on tiles of its own, `gfjax.tiling.driver.classify_groups`), and each point is
     read off the rasters of the tile whose core holds it, sampled as SMRF's own point test
     samples them."""
     from gfjax import adaptive
-    from gfjax.io import groups, tiled, tiles
     from gfjax.smrf import programs
     from gfjax.smrf.config import MAX_BATCH, Config, Params, adapt
+    from gfjax.tiling import driver, groups, tiles
+    from gfjax.tiling.checks import lattice_of
 
     xyz_m = np.asarray(xyz_m, np.float64)
     if len(xyz_m) == 0:
         return np.zeros((0, N_SMRF_FEATURES), np.float32)
     config, params = Config(**adapt(adaptive.measure(xyz_m))), Params()
-    lattice = tiled.lattice_of(None, config.cell_m)
+    lattice = lattice_of(None, config.cell_m)
     use = np.ones(len(xyz_m), bool)
-    members = groups.members(xyz_m[:, :2], max(tiled.GROUP_GAP_M, lattice.buffer_m))
+    members = groups.members(xyz_m[:, :2], max(driver.GROUP_GAP_M, lattice.buffer_m))
     if members is None:
-        run = tiled.classify_cloud(xyz_m, use, programs.classify_batch, params, config, lattice=lattice,
+        run = driver.classify_cloud(xyz_m, use, programs.classify_batch, params, config, lattice=lattice,
                                    max_batch=MAX_BATCH)
     else:
-        run = tiled.classify_groups(xyz_m, use, members, programs.classify_batch, params, config, lattice=lattice,
+        run = driver.classify_groups(xyz_m, use, members, programs.classify_batch, params, config, lattice=lattice,
                                     max_batch=MAX_BATCH, keep_diagnostics=True)
     dzs, margins = [], []
     for tile, diag in zip(run.tiles, run.diagnostics):

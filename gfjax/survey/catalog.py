@@ -21,8 +21,7 @@ import numpy as np
 from gfjax.errors import InputError
 from gfjax.io import asprs, columns, copc, stream
 from gfjax.io import las as las_io
-from gfjax.io.cloud import use_mask
-from gfjax.io.tiles import Frame
+from gfjax.io.cloud import Frame, use_mask
 
 BLOCK_POINTS = 1 << 20          # rows of a store read at a time
 STORE = np.dtype([("xyz_m", "<f8", (3,)), ("classification", "u1"), ("return_number", "u1"),

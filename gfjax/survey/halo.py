@@ -19,11 +19,11 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from gfjax import adaptive, limits
-from gfjax.io.cloud import Cloud, Points, use_mask
-from gfjax.io.tiles import Frame, Lattice
+from gfjax.io.cloud import Cloud, Frame, Points, use_mask
 from gfjax.method import Method
 from gfjax.result import Result
 from gfjax.survey.catalog import STORE, Catalog
+from gfjax.tiling.tiles import Lattice
 
 HALO_M = 50.0           # context around a file for methods that do not tile [m]
 
@@ -32,7 +32,7 @@ def halo_region(box: Frame, frame: Frame, lattice: Lattice | None) -> tuple[np.n
     """The x-y box `(lo (2,), hi (2,))` [m] whose points can share a window with a point of `box`.
 
     A tiled method (`lattice`, its tiling at its cell): the windows of the tiles whose cores
-    meet `box`, laid on `frame` as `gfjax.io.tiles.split` lays them, grown by one cell; other
+    meet `box`, laid on `frame` as `gfjax.tiling.tiles.split` lays them, grown by one cell; other
     methods (None): `box` grown by `HALO_M`.
     """
     lo, hi = np.asarray(box.origin_m[:2], np.float64), np.asarray(box.upper_m, np.float64)

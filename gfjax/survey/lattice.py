@@ -18,11 +18,11 @@ import numpy as np
 
 from gfjax.io import columns
 from gfjax.io.cloud import use_mask
-from gfjax.io.tiles import Lattice
 from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog
 from gfjax.survey.halo import Points, ground_near, tiles_region, within_box
+from gfjax.tiling.tiles import Lattice
 
 
 class TileLabels:
@@ -113,7 +113,7 @@ class TileLabels:
 
 def tile_key(xy_m: np.ndarray, catalog: Catalog, lattice: Lattice) -> np.ndarray:
     """Tile key `(col, row)` int64 `(n, 2)` of points `xy_m` `(n, 2)` [m] on the survey's
-    lattice, as `gfjax.io.tiles.split` computes it."""
+    lattice, as `gfjax.tiling.tiles.split` computes it."""
     origin = np.asarray(catalog.frame.origin_m[:2], np.float64)
     return np.floor((np.asarray(xy_m, np.float64) - origin) / lattice.tile_size_m).astype(np.int64)
 

@@ -19,13 +19,13 @@ from gfjax.io import atomic, stream
 from gfjax.io import las as las_io
 from gfjax.io.asprs import DEFAULT_RULES, ClassRules
 from gfjax.io.cloud import Cloud
-from gfjax.io.tiles import Lattice, Tiling
 from gfjax.method import Method
 from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog, index
 from gfjax.survey.halo import HALO_M, Points, file_of_survey, filter_file, fits_whole, survey_config, survey_labels
 from gfjax.survey.lattice import TileLabels
+from gfjax.tiling.tiles import Lattice, Tiling
 
 
 class Runner:

@@ -2,7 +2,7 @@
 
 A `Problem` holds, for a list of labelled clouds, the parameter-free part of a method's
 pipeline (`GradientTuner.prepare_tile`: SMRF's openings, PMF's openings; CSF: whole samples and
-their point-to-cloth distances, `GradientTuner.prepare_samples`) per shape bucket of `gfjax.io.tiles`, with the
+their point-to-cloth distances, `GradientTuner.prepare_samples`) per shape bucket of `gfjax.tiling.batches`, with the
 reference labels padded alike. Which labelled points count (a training half, a fold) is an
 array argument (`Problem.masks`), not part of the compiled shapes, so every protocol of a
 run reuses the same preparation and the same compiled loss.
@@ -19,9 +19,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import tiles as tiling_lib
 from gfjax.io.cloud import Cloud
-from gfjax.io.tiled import lattice_of
+from gfjax.tiling import batches as batches_lib
+from gfjax.tiling import tiles as tiling_lib
+from gfjax.tiling.checks import lattice_of
 from gfjax.tune import tuners
 
 __all__ = ["Sample", "Bucket", "Problem", "block_ids", "block_folds"]
@@ -132,7 +133,7 @@ class Problem:
       max_batch: tiles per vmapped batch.
       grid: the static grid to prepare (CSF: cloth codes, default `gfjax.csf.tuning.GRID`;
         SMRF: openings up to its largest value); overrides `max_window_m`.
-      tiling: the tiles a tiled method's samples are cut into (`gfjax.io.tiles.Tiling`, None:
+      tiling: the tiles a tiled method's samples are cut into (`gfjax.tiling.tiles.Tiling`, None:
         its defaults), as its `filter` cuts them.
       defaults: float `(p,)` the values a fit starts from, is pulled toward and is guarded
         against, ordered as `method.bounds` (None: the method's fixed defaults; `gfjax tune`
@@ -179,7 +180,7 @@ class Problem:
         if not tiles:
             raise InputError("the labelled samples hold no usable point")
         self.buckets: list[Bucket] = []
-        for batch in tiling_lib.batches(tiles, max_batch=max_batch):
+        for batch in batches_lib.batches(tiles, max_batch=max_batch):
             prep = _prepare_batch(batch.xyz, batch.valid, batch.hw, method=method, config=self.config,
                                   shape=batch.shape)
             b, cap = batch.valid.shape

@@ -11,7 +11,7 @@ from gfjax.cli.main import main
 from gfjax.errors import InputError
 from gfjax.io import copc
 from gfjax.io.cloud import Cloud
-from gfjax.io.tiles import Tiling
+from gfjax.tiling.tiles import Tiling
 
 pytest.importorskip("copclib")
 from copc_writer import write_copc  # noqa: E402

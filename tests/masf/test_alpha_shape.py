@@ -178,8 +178,3 @@ def test_block_points_are_not_in_the_top_layer(case):
     layers = alpha_shape.layer_points(xyz, faces, geometry, z_raster, inside, ALPHAS, cell_m=CELL_M, tol_m=TOL_M)
     block = (np.abs(xyz[:, 0] - 8) < 2.5) & (np.abs(xyz[:, 1] - 8) < 2.5)
     assert layers[0].sum() > 50 and not (layers[0] & block).any()
-
-
-@pytest.mark.parametrize("n, expected", [(0, 1024), (1024, 1024), (1025, 1536), (1537, 2048), (5000, 6144)])
-def test_bucket(n, expected):
-    assert alpha_shape.bucket(n) == expected

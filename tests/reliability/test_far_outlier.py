@@ -1,7 +1,7 @@
 """A stray point kilometres from the others must not cost memory for the empty box between
 them: every method filters each group of points far apart as a cloud of its own (the tiled
-ones, SMRF and PMF, `gfjax.io.tiled.classify_groups`; the whole-cloud ones, CSF, DMF and
-MASF, `gfjax.io.tiled.filter_groups`), and on a survey's frame, where the lattice may not move,
+ones, SMRF and PMF, `gfjax.tiling.driver.classify_groups`; the whole-cloud ones, CSF, DMF and
+MASF, `gfjax.tiling.driver.filter_groups`), and on a survey's frame, where the lattice may not move,
 the tiles skip empty ground and the whole-cloud diagnostic rasters only touch the pages of
 the tiles' cores."""
 from __future__ import annotations
@@ -16,9 +16,8 @@ import numpy as np
 import pytest
 
 from gfjax import csf, dmf, masf, pmf, smrf
-from gfjax.io import groups
-from gfjax.io.cloud import Cloud
-from gfjax.io.tiles import Frame
+from gfjax.io.cloud import Cloud, Frame
+from gfjax.tiling import groups
 
 pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
 
@@ -35,7 +34,7 @@ if sys.argv[1] == "outlier":
     xy = np.vstack([xy, [[10_000.0, 10_000.0]]])
 cloud = gfjax.Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], 100 + rng.normal(0, 0.1, len(xy))]))
 if sys.argv[3] == "frame":                    # a survey's frame: SMRF's lattice may not move
-    from gfjax.io.tiles import Frame
+    from gfjax.io.cloud import Frame
     cloud = dataclasses.replace(cloud, frame=Frame.of(cloud.xyz_m))
 result = method.filter(cloud)
 rows = result.diagnostics.zimin.shape[0] if sys.argv[3] == "frame" else 0

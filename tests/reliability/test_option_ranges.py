@@ -17,7 +17,7 @@ from gfjax import limits, methods
 from gfjax.cli import ranges
 from gfjax.errors import InputError, SettingError
 from gfjax.io import las as las_io
-from gfjax.io.tiles import Tiling
+from gfjax.tiling.tiles import Tiling
 
 REPO = Path(__file__).resolve().parents[2]
 METHOD_NAMES = methods.names()
@@ -180,7 +180,7 @@ def test_smaller_tiles_bring_the_same_cell_within_the_budget(tmp_path, monkeypat
 
 @pytest.mark.parametrize("method", ["csf", "smrf"])
 def test_two_points_far_apart_are_filtered_apart(method, tmp_path, capsys, monkeypatch):
-    """Two points 50 km apart are two groups, each filtered alone (`gfjax.io.tiled`): the
+    """Two points 50 km apart are two groups, each filtered alone (`gfjax.tiling.driver`): the
     header's box says nothing of the rasters, so it is not refused before reading."""
     las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
     las.x, las.y, las.z = np.array([0.0, 50_000.0]), np.array([0.0, 50_000.0]), np.array([0.0, 1.0])

@@ -14,12 +14,12 @@ from gfjax.sparsegf import (
     R_OO_M,
     STEP_M,
     PartitionConfig,
-    capacity_bucket,
     compress,
     partition,
     soft_vote,
 )
 from gfjax.sparsegf.partition import grid_centers
+from gfjax.tiling.buckets import capacity_bucket
 
 UTM = np.array([512_345.678, 5_403_210.987, 0.0])   # far from the origin: float64 input
 
@@ -159,14 +159,6 @@ def test_local_xyz_is_relative_to_the_axis():
                                                      np.zeros((v.sum(), 1))], axis=1)
     np.testing.assert_allclose(local[v], expected, rtol=0, atol=1e-4)
     assert np.all(local[~v] == 0)
-
-
-def test_capacity_buckets():
-    assert [capacity_bucket(n, min_capacity=4) for n in (1, 4, 5, 6, 7, 8, 9, 13, 24, 25)] == \
-        [4, 4, 6, 6, 8, 8, 12, 16, 24, 32]
-    for n in range(1, 5000, 37):
-        cap = capacity_bucket(n)
-        assert cap >= n and cap >= 256 and (cap <= 256 or cap < 1.5 * n)
 
 
 def test_empty_cloud_has_no_patches():

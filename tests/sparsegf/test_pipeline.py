@@ -7,6 +7,7 @@ import pytest
 from gfjax.nn import sparse
 from gfjax.sparsegf import pipeline
 from gfjax.sparsegf.partition import PartitionConfig, partition
+from gfjax.tiling.buckets import power_bucket
 
 
 def test_host_voxels_equal_the_jax_voxelize():
@@ -42,7 +43,7 @@ def test_packs_hold_at_most_their_slots_and_voxels_in_order():
     groups = list(pipeline.group(found, 3, max_voxels=65_536))
     assert [[p.patch_id for p in g] for g in groups] == [[0, 1, 2], [3], [4], [5, 6]]
     packed = pipeline.pack(groups[0], 3)
-    assert packed.coords.shape == (pipeline.capacity(30_300), 4) and packed.slots == 3
+    assert packed.coords.shape == (power_bucket(30_300, minimum=pipeline.PACK_VOXELS), 4) and packed.slots == 3
     np.testing.assert_array_equal(packed.starts, [0, 100, 300])
     np.testing.assert_array_equal(packed.coords[:30_300, 0], np.repeat([0, 1, 2], [100, 200, 30_000]))
     assert packed.valid.sum() == 30_300 and packed.weight.sum() == 9

@@ -9,10 +9,10 @@ from gfjax.cli.main import main
 from gfjax.csf.config import BUFFER_PX
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
-from gfjax.io.cloud import Cloud
-from gfjax.io.tiles import Frame, Tiling, split
+from gfjax.io.cloud import Cloud, Frame
 from gfjax.survey import run as survey_run
 from gfjax.survey.halo import HALO_M
+from gfjax.tiling.tiles import Tiling, split
 
 pytestmark = pytest.mark.slow          # tens of seconds per test: run first (conftest)
 
@@ -302,7 +302,7 @@ def test_only_methods_whose_tiles_label_alone_run_a_survey_tile_by_tile(grid, tm
     """SMRF and PMF lay the survey's lattice at their cell; DMF tiles its NGNEM but labels
     from the whole window (no lattice); CSF does not tile at all, so a tiling is refused."""
     from gfjax import csf, dmf
-    from gfjax.io.tiles import Lattice
+    from gfjax.tiling.tiles import Lattice
 
     assert methods.lattice(smrf.METHOD, smrf.Config(cell_m=2.0), Tiling(tile_size_m=100.0, buffer_m=10.0)) == Lattice(100.0, 10.0, 2.0)
     assert methods.lattice(pmf.METHOD, pmf.Config()) == Lattice(500.0, 50.0, 1.0)

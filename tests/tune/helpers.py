@@ -8,9 +8,10 @@ from importlib.resources import files
 import numpy as np
 
 import gfjax
-from gfjax.io import tiles as tiling
 from gfjax.smrf import Config
 from gfjax.smrf import tuning as tsmrf
+from gfjax.tiling import batches
+from gfjax.tiling import tiles as tiling
 from gfjax.tune.problem import Problem, Sample
 
 CONFIG = Config(window_m=6.0)          # 6 openings: small compiles
@@ -35,10 +36,10 @@ def crop_sample() -> Sample:
 
 
 @functools.cache
-def crop_batch() -> tiling.TileBatch:
+def crop_batch() -> batches.TileBatch:
     s = crop_sample()
     tiles = tiling.split(s.xyz_m, **tiling.Tiling().lattice(CONFIG.cell_m)._asdict(), use=s.use)
-    (batch,) = list(tiling.batches(tiles))
+    (batch,) = list(batches.batches(tiles))
     return batch
 
 

@@ -17,9 +17,9 @@ import gfjax
 from gfjax import metrics
 from gfjax.cli import main as cli_main
 from gfjax.cli._common import method_setup
-from gfjax.io import tiles as tiling
 from gfjax.pmf import Config, Params, programs
 from gfjax.pmf import tuning as tpmf
+from gfjax.tiling import tiles as tiling
 from gfjax.tune import fit as tfit
 from gfjax.tune.problem import Problem
 

@@ -6,7 +6,7 @@ lines kilometres apart, or points spread thinly over a large area would cost the
 time of the empty box. `separate` finds the groups of points separated by at least `gap_m` of
 emptiness (the connected components of the occupied `gap_m` cells, 8-neighbourhood), so a
 method that looks no further than `gap_m` around a point can filter each group as a cloud of
-its own (`gfjax.io.tiled.filter_groups`, `classify_groups`). A cloud whose groups fill its
+its own (`driver.filter_groups`, `driver.classify_groups`). A cloud whose groups fill its
 box (every ordinary tile: more than `1 / MIN_SAVING` of its `gap_m` cells occupied) is one
 cloud (`far_apart`, `members` return None).
 
@@ -103,7 +103,7 @@ def far_apart(xy_m: Float[np.ndarray, "n 2"], gap_m: float = GAP_M, *,
               min_saving: float = MIN_SAVING) -> tuple[Int[np.ndarray, " n"], int] | None:
     """The groups of `separate`, or None when the points fill their box (their occupied `gap_m`
     cells are more than `1 / min_saving` of it) or are one group: a cloud of groups far apart,
-    which a tiled method filters group by group (`gfjax.io.tiled`)."""
+    which a tiled method filters group by group (`driver.classify_groups`)."""
     found = _far_groups(xy_m, gap_m, min_saving)
     if found is None:
         return None

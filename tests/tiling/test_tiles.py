@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from gfjax.errors import InputError, SettingError
-from gfjax.io import tiled
-from gfjax.io import tiles as tiling
 from gfjax.io.cloud import Cloud
 from gfjax.smrf import Config, Params, programs
 from gfjax.smrf import filter as smrf_filter
+from gfjax.tiling import batches, buckets, driver
+from gfjax.tiling import tiles as tiling
 
 ORIGIN = np.array([512_345.0, 5_403_210.0, 250.0])        # UTM-sized: float32 would lose cm
 
@@ -89,43 +89,27 @@ def test_windows_of_a_filled_box_are_not_cut(scene, monkeypatch):
     assert all(np.array_equal(a.index, b.index) for a, b in zip(cut, whole))
 
 
-def test_buckets():
-    assert [tiling.capacity_bucket(n) for n in (1, 256, 257, 385, 1000)] == [256, 256, 384, 512, 1024]
-    assert tiling.shape_bucket((1, 600)) == (64, 640)
-
-
-def test_canonical_sides_and_capacities():
-    assert tiling.canonical_sides(500.0, 50.0, 1.0) == (128, 192, 256, 384, 512, 640)
-    assert tiling.max_window_px(500.0, 50.0, 1.0) == 601
-    assert tiling.canonical_sides(100.0, 10.0, 1.0) == (128,)
-    assert tiling.canonical_sides(500.0, 50.0, 0.5) == (128, 192, 256, 384, 512, 768, 1024, 1216)
-    assert [tiling.canonical_capacity(n) for n in (1, 16384, 16385, 70_000, 300_000, 4194304, 5_100_000,
-                                                   9_000_000)] == \
-        [16384, 16384, 65536, 262144, 1048576, 4194304, 8388608, 16777216]     # x2 beyond the largest warmed
-    assert tiling.canonical_capacities() == (16384, 65536, 262144, 1048576, 4194304)
-
-
 @pytest.mark.parametrize("size_m, tile_m", [(64, 500.0), (150, 60.0), (333, 100.0)])
 def test_canonical_batches_use_only_canonical_shapes(size_m, tile_m):
     rng = np.random.default_rng(size_m)
     xyz = np.column_stack([rng.uniform(0, size_m, (3000, 2)), rng.normal(0, 1, 3000)]) + ORIGIN
     tiles = tiling.split(xyz, tile_size_m=tile_m, buffer_m=10.0, cell_m=1.0)
-    sides = tiling.canonical_sides(tile_m, 10.0, 1.0)
-    found = list(tiling.batches(tiles, max_batch=3, sides=sides))
+    sides = buckets.canonical_sides(tile_m, 10.0, 1.0)
+    found = list(batches.batches(tiles, max_batch=3, sides=sides))
     assert sorted(t.key for b in found for t in b.tiles) == sorted(t.key for t in tiles)
     for batch in found:
         assert batch.shape[0] == batch.shape[1] and batch.shape[0] in sides
         assert len(batch.tiles) in (1, 3)                       # a full batch, or one tile
-        assert batch.xyz.shape[1] in tiling.canonical_capacities()
+        assert batch.xyz.shape[1] in buckets.canonical_capacities()
         side = min(s for s in sides if s >= max(max(t.shape) for t in batch.tiles))
         assert batch.shape[0] == side                           # the smallest side that holds it
 
 
 def test_batches_cover_every_tile_once(scene):
     tiles = tiling.split(scene, tile_size_m=32.0, buffer_m=16.0, cell_m=1.0)
-    seen = [t.key for b in tiling.batches(tiles, max_batch=4) for t in b.tiles]
+    seen = [t.key for b in batches.batches(tiles, max_batch=4) for t in b.tiles]
     assert sorted(seen) == sorted(t.key for t in tiles) and len(tiles) == 4
-    for batch in tiling.batches(tiles, max_batch=4):
+    for batch in batches.batches(tiles, max_batch=4):
         np.testing.assert_array_equal(batch.valid.sum(axis=1), [t.n_points for t in batch.tiles])
 
 
@@ -186,7 +170,7 @@ def test_smrf_whole_equals_tiled(scene, whole, whole_labels):
 
 def test_vmap_batch_equals_tile_by_tile(scene):
     tiles = tiling.split(scene, tile_size_m=32.0, buffer_m=16.0, cell_m=1.0)
-    batch = next(tiling.batches(tiles))
+    batch = next(batches.batches(tiles))
     assert len(batch.tiles) == 4
     ground, diag = programs.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=CONFIG, shape=batch.shape)
     for i in range(4):
@@ -206,10 +190,10 @@ def test_padding_invariance(scene, whole_labels):
     """More point capacity and a larger shape bucket (padding cells outside the tile's domain)
     change no label when every domain cell holds a point."""
     tiles = tiling.split(scene, tile_size_m=500.0, buffer_m=16.0, cell_m=1.0)
-    labels, _ = tiled.run_batches(tiles, programs.classify_batch, Params(), CONFIG, lattice=WHOLE.lattice(1.0),
+    labels, _ = driver.run_batches(tiles, programs.classify_batch, Params(), CONFIG, lattice=WHOLE.lattice(1.0),
                                   max_batch=8, keep_diagnostics=False)
     np.testing.assert_array_equal(tiling.merge(len(scene), tiles, labels), whole_labels)
-    batch = next(tiling.batches(tiles, shape=(96, 80), capacity=2 * tiling.capacity_bucket(tiles[0].n_points)))
+    batch = next(batches.batches(tiles, shape=(96, 80), capacity=2 * buckets.capacity_bucket(tiles[0].n_points)))
     ground = np.asarray(programs.classify_batch(batch.xyz, batch.valid, batch.hw, Params(), config=CONFIG,
                                               shape=batch.shape)[0])[0]
     np.testing.assert_array_equal(tiling.merge(len(scene), tiles, [ground]), whole_labels)
@@ -223,11 +207,11 @@ def test_small_batches_are_full_and_hold_every_small_tile_once():
     tiles = [t for k in range(500) for t in tiling.split(xyz[k:k + 1] if k % 7 else xyz[k:k + 20],
                                                            tile_size_m=500.0, buffer_m=50.0)]
     seen = []
-    for batch in tiling.small_batches(tiles, max_batch=2):
+    for batch in batches.small_batches(tiles, max_batch=2):
         side = batch.shape[0]
-        assert batch.shape == (side, side) and side in tiling.SMALL_SIDES_PX
+        assert batch.shape == (side, side) and side in buckets.SMALL_SIDES_PX
         assert batch.xyz.shape[0] == batch.valid.shape[0] == batch.hw.shape[0] == 2 * (128 // side) ** 2
-        assert batch.xyz.shape[1] == tiling.capacity_bucket(max(t.n_points for t in batch.tiles))
+        assert batch.xyz.shape[1] == buckets.capacity_bucket(max(t.n_points for t in batch.tiles))
         for i, tile in enumerate(batch.tiles):
             assert batch.valid[i].sum() == tile.n_points and max(tile.shape) <= side
         np.testing.assert_array_equal(batch.xyz[len(batch.tiles):], np.broadcast_to(

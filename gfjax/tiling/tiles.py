@@ -1,4 +1,4 @@
-"""Buffered square tiles, padded into fixed-shape batches for `jax.vmap`, and the label merge.
+"""Buffered square tiles of a cloud, and the merge of their core labels.
 
 A cloud's metre coordinates are cut into square tile *cores* of `tile_size_m` on a lattice
 anchored at the minimum corner of the points used, or at the corner of a given `Frame` (a
@@ -13,22 +13,17 @@ point falls in the same raster cell whichever tile holds it (the float32 local c
 are clamped into their float64 cell), and they are clipped to the cloud's extent. A window
 is cut to its core points' box grown by the buffer when that is at most a quarter of it
 (`CROP_SAVING`): a core of a few points keeps the context a buffer gives them, and a cloud
-spread thin over a large box rasterises about its points, not its tiles. For
-`vmap`, tiles are padded to a few *capacity buckets* (points) and *shape buckets* (raster
-rows/columns) and carry `valid` masks; the tile's own extent sits in the south-west corner
-of the padded raster (row 0 = north, docs/ARCHITECTURE.md). A filter pads to *canonical*
-shapes (`canonical_sides`: a handful of square sides fixed by the tiling, point capacities in
-powers of 4, batches of one tile or of `max_batch`), so a machine compiles each method's
-programs a few times in its life, not once per input size, and `gfjax warmup` can compile
-them all ahead.
+spread thin over a large box rasterises about its points, not its tiles. The tiles are
+padded into batches for `jax.vmap` by `gfjax.tiling.batches`, to the sizes of
+`gfjax.tiling.buckets`.
 
-Host-side numpy (float64); JAX receives `TileBatch.xyz` (float32 local metres).
+Host-side numpy (float64); a tile's `local_xyz` is float32 local metres.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -36,17 +31,12 @@ import numpy as np
 from gfjax import limits
 from gfjax.errors import SettingError
 from gfjax.io import columns
+from gfjax.io.cloud import Frame
 from gfjax.limits import Range
+from gfjax.tiling.buckets import check_lattice
 
-__all__ = ["Tiling", "Lattice", "RANGES", "Frame", "Tile", "TileBatch", "split", "small_batches", "capacity_bucket", "shape_bucket", "canonical_sides",
-           "canonical_capacities", "canonical_capacity", "batches", "merge"]
+__all__ = ["Tiling", "Lattice", "RANGES", "Tile", "split", "merge", "tiled_estimator"]
 
-MIN_CAPACITY = 256
-SHAPE_QUANTUM_PX = 64
-SMALLEST_SIDE_PX = 128        # the smallest canonical raster side (`canonical_sides`)
-SMALL_SIDES_PX = (8, 16, 32, 64)   # the sides of `small_batches`, below the canonical ones
-CANONICAL_MIN_CAPACITY = 1 << 14
-CANONICAL_MAX_CAPACITY = 1 << 22   # the largest capacity `gfjax warmup` compiles ahead
 CROP_SAVING = 4.0             # a window shrinks to its core points' box + buffer when that is this many times smaller
 FEW_CORES = 4                 # `split` finds the points of at most this many named tiles by masks
 
@@ -59,7 +49,8 @@ RANGES: dict[str, Range] = {
 
 
 class Lattice(NamedTuple):
-    """A tiling at a method's raster cell: the three numbers `split` and `canonical_sides` take.
+    """A tiling at a method's raster cell: the three numbers `split` and
+    `buckets.canonical_sides` take.
 
     Attributes:
       tile_size_m: side of a tile core [m].
@@ -99,42 +90,6 @@ class Tiling:
         return Lattice(float(self.tile_size_m), float(self.buffer_m), float(cell_m))
 
 
-class Frame(NamedTuple):
-    """The box a tiling is laid on: its lattice starts at `origin_m` and windows stop at `upper_m`.
-
-    Attributes:
-      origin_m: float64 `(3,)` minimum x, y, z of the points filtered [m].
-      upper_m: float64 `(2,)` maximum x, y [m].
-      cores: the keys `(col, row)` of the only tiles `split` makes (None: every tile holding a
-        point): a survey filters each tile of its lattice once, from a window of its points
-        that also holds parts of the neighbouring tiles (`gfjax.survey.lattice`).
-    """
-
-    origin_m: np.ndarray
-    upper_m: np.ndarray
-    cores: frozenset[tuple[int, int]] | None = None
-
-    @classmethod
-    def of(cls, xyz_m: np.ndarray) -> Frame:
-        """The frame of points `(n, 3)` (n >= 1): their bounding box."""
-        xyz_m = np.asarray(xyz_m, np.float64)
-        return cls(columns.lows(xyz_m), columns.highs(xyz_m[:, :2]))
-
-    def union(self, other: Frame) -> Frame:
-        return Frame(np.minimum(self.origin_m, other.origin_m), np.maximum(self.upper_m, other.upper_m))
-
-    def only(self, cores) -> Frame:
-        """This frame, with `split` making only the tiles of the keys `cores` `(col, row)`."""
-        return self._replace(cores=frozenset((int(c), int(r)) for c, r in cores))
-
-    def snap(self, corner_m: np.ndarray, cell_m: float) -> np.ndarray:
-        """The corner of the cell of this frame's lattice (cubes of `cell_m` from `origin_m`)
-        that holds `corner_m` (float64 `(3,)` [m]): a window of a survey anchored there grids
-        its points into the cells the whole survey in one file would use."""
-        origin = np.asarray(self.origin_m, np.float64)
-        return origin + np.floor((np.asarray(corner_m, np.float64) - origin) / cell_m) * cell_m
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class Tile:
     """One buffered tile.
@@ -166,33 +121,6 @@ class Tile:
     @property
     def n_points(self) -> int:
         return int(self.index.shape[0])
-
-
-class TileBatch(NamedTuple):
-    """Tiles padded to one capacity and one raster shape, stacked for `jax.vmap`.
-
-    Attributes:
-      xyz: float32 `(b, cap, 3)` local metres (zeros on padding).
-      valid: bool `(b, cap)` real points.
-      hw: int32 `(b, 2)` each tile's own raster extent (rows, cols) inside `shape`.
-      shape: the padded raster `(h, w)` (static for jit).
-      tiles: the `b` tiles, in batch order.
-    """
-
-    xyz: np.ndarray
-    valid: np.ndarray
-    hw: np.ndarray
-    shape: tuple[int, int]
-    tiles: tuple[Tile, ...]
-
-
-def _check(tile_size_m: float, buffer_m: float, cell_m: float) -> None:
-    if not (math.isfinite(cell_m) and cell_m > 0):
-        raise ValueError(f"cell_m must be > 0, got {cell_m}")
-    if not (math.isfinite(tile_size_m) and tile_size_m >= cell_m):
-        raise ValueError(f"tile_size_m must be >= cell_m ({cell_m}), got {tile_size_m}")
-    if not (math.isfinite(buffer_m) and buffer_m >= 0):
-        raise ValueError(f"buffer_m must be >= 0, got {buffer_m}")
 
 
 def _clamp_into_cells(local: np.ndarray, cell: np.ndarray, cell_m: float) -> np.ndarray:
@@ -244,7 +172,7 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
       core (of a tile made, with `frame.cores`); a tile's window holds the used points within
       `buffer_m` of its core.
     """
-    _check(tile_size_m, buffer_m, cell_m)
+    check_lattice(tile_size_m, buffer_m, cell_m)
     xyz_m = np.asarray(xyz_m, dtype=np.float64)
     if xyz_m.ndim != 2 or xyz_m.shape[1] != 3:
         raise ValueError(f"xyz_m must have shape (n, 3), got {xyz_m.shape}")
@@ -340,161 +268,6 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
                           core=in_core, local_xyz=local32, window_px=(int(lo[0]), int(lo[1])),
                           core_px=(int(core_lo[0]), int(core_lo[1]), int(core_hi[0]), int(core_hi[1]))))
     return tiles
-
-
-def capacity_bucket(n: int, *, minimum: int = MIN_CAPACITY) -> int:
-    """Smallest of `minimum * {1, 1.5} * 2^k` holding `n` points (few shapes ever compile)."""
-    size = minimum
-    while True:
-        if n <= size:
-            return size
-        if n <= size * 3 // 2:
-            return size * 3 // 2
-        size *= 2
-
-
-def shape_bucket(shape: tuple[int, int], *, quantum_px: int = SHAPE_QUANTUM_PX) -> tuple[int, int]:
-    """Raster shape rounded up to a multiple of `quantum_px` rows and columns."""
-    return tuple(int(-(-s // quantum_px) * quantum_px) for s in shape)
-
-
-def max_window_px(tile_size_m: float, buffer_m: float, cell_m: float) -> int:
-    """The largest side [cells] a buffered window of `split` can have (a core snapped
-    outwards to the lattice, plus a buffer each side)."""
-    return math.ceil(tile_size_m / cell_m - 1e-9) + 1 + 2 * math.ceil(buffer_m / cell_m - 1e-9)
-
-
-def canonical_sides(tile_size_m: float, buffer_m: float, cell_m: float) -> tuple[int, ...]:
-    """The square raster sides [cells] every window of this tiling is padded to: 128, 192,
-    256, 384, 512, ... (2^k and 1.5 * 2^k) below the largest window, and the largest window
-    rounded up to `SHAPE_QUANTUM_PX` (128, 192, 256, 384, 512, 640 for 500 m tiles, 50 m
-    buffers and 1 m cells). Padding a window to the next side costs at most 2.25 times its
-    cells (more for a thin strip), far less than compiling a raster program for each new
-    window size (`experiments/results/canonical_shapes.md`)."""
-    _check(tile_size_m, buffer_m, cell_m)
-    largest = shape_bucket((max_window_px(tile_size_m, buffer_m, cell_m),) * 2)[0]
-    sides, side = [], SMALLEST_SIDE_PX
-    while side < largest:
-        sides.append(side)
-        if side * 3 // 2 < largest:
-            sides.append(side * 3 // 2)
-        side *= 2
-    return (*sides, largest)
-
-
-def canonical_capacities() -> tuple[int, ...]:
-    """Point capacities `warmup` compiles: `CANONICAL_MIN_CAPACITY` times powers of 4 up to
-    `CANONICAL_MAX_CAPACITY` (larger windows still run, at capacities compiled on demand)."""
-    caps, cap = [], CANONICAL_MIN_CAPACITY
-    while cap <= CANONICAL_MAX_CAPACITY:
-        caps.append(cap)
-        cap *= 4
-    return tuple(caps)
-
-
-def canonical_capacity(n: int) -> int:
-    """Smallest `CANONICAL_MIN_CAPACITY * 4^k` holding `n` points, then powers of 2 beyond
-    `CANONICAL_MAX_CAPACITY` (compiled on demand anyway: there the padding's memory counts
-    more than a compile, a 5 M-point window padded to 8 M points, not 16 M)."""
-    cap = CANONICAL_MIN_CAPACITY
-    while cap < n:
-        cap *= 4 if cap < CANONICAL_MAX_CAPACITY else 2
-    return cap
-
-
-def _canonical_shape(shape: tuple[int, int], sides: Sequence[int]) -> tuple[int, int]:
-    need = max(shape)
-    side = next((s for s in sides if s >= need), None)
-    if side is None:
-        raise ValueError(f"a window of {shape} cells is larger than the canonical sides {tuple(sides)}")
-    return side, side
-
-
-def _pad(tiles: Sequence[Tile], capacity: int, shape: tuple[int, int]) -> TileBatch:
-    b = len(tiles)
-    xyz = np.zeros((b, capacity, 3), np.float32)
-    valid = np.zeros((b, capacity), bool)
-    hw = np.zeros((b, 2), np.int32)
-    for i, tile in enumerate(tiles):
-        if tile.n_points > capacity or tile.shape[0] > shape[0] or tile.shape[1] > shape[1]:
-            raise ValueError(f"tile {tile.key} ({tile.n_points} points, {tile.shape}) does not fit "
-                             f"capacity {capacity} / shape {shape}")
-        xyz[i, :tile.n_points] = tile.local_xyz
-        valid[i, :tile.n_points] = True
-        hw[i] = tile.shape
-    return TileBatch(xyz=xyz, valid=valid, hw=hw, shape=tuple(shape), tiles=tuple(tiles))
-
-
-def batches(tiles: Sequence[Tile], *, max_batch: int = 8, capacity: int | None = None,
-            shape: tuple[int, int] | None = None, quantum_px: int = SHAPE_QUANTUM_PX,
-            sides: Sequence[int] | None = None) -> Iterator[TileBatch]:
-    """Group tiles by raster shape, and pad each group into batches of similar point counts.
-
-    Args:
-      tiles: from `split`.
-      max_batch: most tiles per batch (bounds memory).
-      capacity: force one point capacity (default: the bucket of the largest tile of a batch).
-      shape: force one raster shape (default: each tile's shape bucket).
-      quantum_px: shape bucket step in cells.
-      sides: canonical square sides (`canonical_sides`): each tile is padded to the smallest
-        that holds it, capacities are `canonical_capacity`, and a group runs in batches of
-        exactly `max_batch` tiles, then one tile at a time, so only canonical shapes compile.
-        None: shapes rounded to `quantum_px`, capacities `capacity_bucket`, batches of up to
-        `max_batch` (fewest calls, for a fixed set of samples such as tuning's).
-
-    Yields:
-      `TileBatch`es; every tile appears in exactly one.
-    """
-    if max_batch < 1:
-        raise ValueError(f"max_batch must be >= 1, got {max_batch}")
-    groups: dict[tuple[int, int], list[Tile]] = {}
-    for tile in tiles:
-        if shape is not None:
-            key = tuple(shape)
-        elif sides is not None:
-            key = _canonical_shape(tile.shape, sides)
-        else:
-            key = shape_bucket(tile.shape, quantum_px=quantum_px)
-        groups.setdefault(key, []).append(tile)
-    bucket = capacity_bucket if sides is None else canonical_capacity
-    for group_shape, members in sorted(groups.items()):
-        members = sorted(members, key=lambda t: t.n_points)
-        if sides is None:
-            chunks = [members[i:i + max_batch] for i in range(0, len(members), max_batch)]
-        else:
-            full = len(members) - len(members) % max_batch
-            chunks = [members[i:i + max_batch] for i in range(0, full, max_batch)] + [[t] for t in members[full:]]
-        for chunk in chunks:
-            cap = capacity if capacity is not None else bucket(max(t.n_points for t in chunk))
-            yield _pad(chunk, cap, group_shape)
-
-
-def small_batches(tiles: Sequence[Tile], *, max_batch: int = 8) -> Iterator[TileBatch]:
-    """Batches of windows of at most `SMALL_SIDES_PX[-1]` cells a side (a cloud of small groups
-    far apart: `gfjax.io.tiled`), each padded to the smallest of `SMALL_SIDES_PX` holding it.
-
-    A batch holds the cells of `max_batch` windows of the smallest canonical side, so more
-    tiles when they are smaller (2,048 tiles of 8 x 8 cells for `max_batch` 8), and every batch
-    is full: the last one is padded with copies of its last tile, whose outputs are not read
-    (`TileBatch.tiles` holds the real ones), so each side compiles one program and a lone tile
-    none of its own. Capacities are `capacity_bucket`s: a few points need no 16,384 slots.
-    """
-    if max_batch < 1:
-        raise ValueError(f"max_batch must be >= 1, got {max_batch}")
-    groups: dict[tuple[int, int], list[Tile]] = {}
-    for tile in tiles:
-        groups.setdefault(_canonical_shape(tile.shape, SMALL_SIDES_PX), []).append(tile)
-    for shape, members in sorted(groups.items()):
-        size = max_batch * (SMALLEST_SIDE_PX // shape[0]) ** 2
-        members = sorted(members, key=lambda t: t.n_points)
-        for start in range(0, len(members), size):
-            chunk = members[start:start + size]
-            batch = _pad(chunk, capacity_bucket(max(t.n_points for t in chunk)), shape)
-            extra = size - len(chunk)
-            if extra:
-                batch = batch._replace(**{name: np.concatenate([a, np.repeat(a[-1:], extra, axis=0)])
-                                          for name, a in (("xyz", batch.xyz), ("valid", batch.valid), ("hw", batch.hw))})
-            yield batch
 
 
 def merge(n_points: int, tiles: Sequence[Tile], labels: Sequence[np.ndarray], *,

@@ -1,12 +1,14 @@
-"""Run a per-tile-batch classifier over a cloud's buffered tiles and mosaic the tile cores.
+"""Run a per-tile-batch classifier over a cloud's buffered tiles; filter groups far apart alone.
 
-The whole-cloud driver shared by the raster filters that work tile by tile (`gfjax.smrf`,
-`gfjax.pmf`): cut the cloud into buffered tiles (`gfjax.io.tiles.split`), pad them into
-batches of one raster shape (`tiles.batches`), run each batch through one jitted, vmapped
-`classify_batch` (one compile per batch shape), keep the core points' labels (`tiles.merge`),
-and paste each tile's core out of its per-tile rasters into whole-cloud rasters (row 0 =
-north, docs/ARCHITECTURE.md) (the padded tile layout is `gfjax.raster.domain_mask`). Also the
-option checks at the top of every method's `filter`.
+The driver of the raster filters that work tile by tile (`gfjax.smrf`, `gfjax.pmf`, and
+SparseGF's SMRF prior): cut the cloud into buffered tiles (`tiles.split`), pad them into
+batches of one raster shape (`batches.batches`, sizes from `buckets`), run each batch through
+one jitted, vmapped `classify_batch` (one compile per batch shape), keep the core points'
+labels (`tiles.merge`), and paste each tile's core out of its per-tile rasters into
+whole-cloud rasters (`mosaic`; the padded tile layout is `gfjax.raster.domain_mask`). A cloud
+of groups of points far apart (`groups.members`) is classified group by group
+(`classify_groups`), and the whole-cloud methods (CSF, DMF, MASF) filter such a cloud group
+by group through `filter_groups`.
 
 Host-side numpy around the jitted batch function.
 """
@@ -15,24 +17,21 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple, TypeVar
+from typing import Any, NamedTuple
 
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from gfjax import limits
-from gfjax.errors import InputError
-from gfjax.io import columns, groups
-from gfjax.io import tiles as tiles_lib
 from gfjax.io.cloud import CloudView, Points
 from gfjax.result import Result
+from gfjax.tiling import batches as batches_lib
+from gfjax.tiling import buckets, groups
+from gfjax.tiling import tiles as tiles_lib
+from gfjax.tiling.checks import Estimates, check_memory, checked_options, lattice_of
+from gfjax.tiling.mosaic import Mosaic, mosaic
 
-__all__ = ["checked_options", "check_memory", "filter_groups", "checked_tiling", "lattice_of", "ClassifyBatch", "run_batches", "warm", "mosaic", "Mosaic",
-           "classify_cloud", "classify_groups", "TiledRun"]
-
-ConfigT = TypeVar("ConfigT")
-
-ParamsT = TypeVar("ParamsT")
+__all__ = ["GROUP_GAP_M", "ClassifyBatch", "filter_groups", "run_batches", "warm", "classify_cloud",
+           "classify_groups", "TiledRun", "Filtered", "filter_cloud"]
 
 # A cloud whose groups of points at least this far apart (or a tiling's buffer, if larger) fill a
 # quarter of its box or less is filtered group by group, each group as a cloud of its own
@@ -40,67 +39,10 @@ ParamsT = TypeVar("ParamsT")
 # points are another's context, and the empty box between groups costs nothing [m].
 GROUP_GAP_M = 50.0
 
-Estimates = Callable[[tuple[float, float] | None], list[limits.Estimate]]
-"""`estimates(extent_m)`: a method's `Config.memory_estimates` with its settings bound."""
-
 ClassifyBatch = Callable[..., tuple[Bool[Array, "b n"], tuple]]
 """`classify_batch(xyz (b, n, 3) float32, valid (b, n) bool, hw (b, 2) int32, params, *, config,
 shape=(h, w)) -> (ground (b, n) bool, diagnostics)`, every diagnostics field a `(b, h, w)`
 raster whose tile data sit in the south-west corner (`gfjax.raster.domain_mask`)."""
-
-
-def checked_tiling(tiling: tiles_lib.Tiling | None) -> tiles_lib.Tiling:
-    """A method's `tiling` argument: `Tiling()` for None; not a `Tiling` raises `InputError`."""
-    tiling = tiles_lib.Tiling() if tiling is None else tiling
-    if not isinstance(tiling, tiles_lib.Tiling):
-        raise InputError(f"tiling must be a gfjax.Tiling, got {type(tiling).__name__}")
-    return tiling
-
-
-def lattice_of(tiling: tiles_lib.Tiling | None, cell_m: float, *, name: str = "") -> tiles_lib.Lattice:
-    """`tiling` (`checked_tiling`) at a method's raster cell `cell_m` [m]; a core smaller than
-    a cell raises `InputError` (naming `name`, a cloud)."""
-    tiling = checked_tiling(tiling)
-    try:
-        return tiling.lattice(cell_m)
-    except ValueError as err:
-        raise InputError(f"{name}: {err}" if name else str(err)) from None
-
-
-def checked_options(cloud: object, config: ConfigT | None, params: ParamsT | None, returns: str, *,
-                    config_type: type[ConfigT], params_type: type[ParamsT],
-                    package: str) -> tuple[ConfigT, ParamsT, np.ndarray]:
-    """The checks at the top of a method's `filter`: defaults, types, `params.check()`, returns.
-
-    Args:
-      cloud: the cloud to filter.
-      config, params: the caller's settings, None for the defaults `config_type()`, `params_type()`.
-      returns: "all" or "last" (`Cloud.filter_mask`).
-      config_type, params_type: the method's `Config` and `Params` classes.
-      package: the method's package for messages, e.g. "gfjax.smrf".
-
-    Returns:
-      `(config, params, use)`: `use` bool `(n,)`, the points to filter.
-
-    Raises:
-      InputError: not a cloud, a config or params of the wrong type, a params out of range (the message
-        names the cloud), a bad `returns`. The rasters are checked against the memory budget
-        once the points are known (`check_memory`, `filter_groups`).
-    """
-    if not isinstance(cloud, CloudView):
-        raise InputError(f"{package}.filter: expected a gfjax Cloud (or survey.Points), got {type(cloud).__name__}")
-    config = config_type() if config is None else config
-    params = params_type() if params is None else params
-    if not isinstance(config, config_type):
-        raise InputError(f"config must be a {package}.Config, got {type(config).__name__}")
-    if not isinstance(params, params_type):
-        raise InputError(f"params must be a {package}.Params, got {type(params).__name__}")
-    try:
-        params.check()
-        use = cloud.filter_mask(returns)
-    except ValueError as err:
-        raise InputError(f"{cloud.name}: {err}") from None
-    return config, params, use
 
 
 def filter_groups(cloud: CloudView, use: np.ndarray, filter_one: Callable[[CloudView], Result], *,
@@ -118,7 +60,7 @@ def filter_groups(cloud: CloudView, use: np.ndarray, filter_one: Callable[[Cloud
     survey's lattice.
 
     Args:
-      cloud: the cloud; use: bool `(n,)` its points to filter (`checked_options`).
+      cloud: the cloud; use: bool `(n,)` its points to filter (`checks.checked_options`).
       filter_one: the method's `filter` on a cloud whose points are all used.
       gap_m: the emptiness that separates groups (`groups.GAP_M` or the method's reach) [m].
       estimates: the method's memory estimates, checked on the largest group's box first.
@@ -152,26 +94,10 @@ def filter_groups(cloud: CloudView, use: np.ndarray, filter_one: Callable[[Cloud
     return Result(ground=ground, diagnostics=None, instance_id=instance_id)
 
 
-def check_memory(name: str, estimates: Estimates | None, xy_m: np.ndarray | None) -> None:
-    """Raise `InputError` naming `name` when `estimates` (None: no check) puts the rasters over
-    points `xy_m` `(n, 2)` [m] (None: only those the settings fix, such as a batch of tiles)
-    over the memory budget (`gfjax.limits`)."""
-    if estimates is None or (xy_m is not None and len(xy_m) == 0):
-        return
-    extent = None
-    if xy_m is not None:
-        span = columns.highs(xy_m) - columns.lows(xy_m)
-        extent = (float(span[0]), float(span[1]))
-    try:
-        limits.check_memory(estimates(extent))
-    except ValueError as err:
-        raise InputError(f"{name}: {err}") from None
-
-
 def run_batches(tiles: Sequence[tiles_lib.Tile], classify_batch: ClassifyBatch, params: Any, config: Any, *,
                 lattice: tiles_lib.Lattice, max_batch: int, progress: bool = False, desc: str = "tiles",
                 keep_diagnostics: bool = True, small: bool = False) -> tuple[list[np.ndarray], list[tuple | None]]:
-    """Classify tiles batch by batch (`tiles.batches`, one `classify_batch` call per batch).
+    """Classify tiles batch by batch (`batches.batches`, one `classify_batch` call per batch).
 
     Args:
       tiles: from `tiles.split`.
@@ -181,8 +107,8 @@ def run_batches(tiles: Sequence[tiles_lib.Tile], classify_batch: ClassifyBatch, 
       max_batch: most tiles per call.
       progress: show a progress bar over batches, labelled `desc`.
       keep_diagnostics: crop and keep the per-tile rasters (else None per tile).
-      small: windows of at most `tiles.SMALL_SIDES_PX[-1]` cells a side run in
-        `tiles.small_batches` when there are more than `max_batch` of them (a cloud of small
+      small: windows of at most `buckets.SMALL_SIDES_PX[-1]` cells a side run in
+        `batches.small_batches` when there are more than `max_batch` of them (a cloud of small
         groups far apart, `classify_groups`).
 
     Returns:
@@ -193,21 +119,21 @@ def run_batches(tiles: Sequence[tiles_lib.Tile], classify_batch: ClassifyBatch, 
     position = {id(tile): i for i, tile in enumerate(tiles)}
     labels: list[np.ndarray | None] = [None] * len(tiles)
     diagnostics: list[tuple | None] = [None] * len(tiles)
-    sides = tiles_lib.canonical_sides(*lattice)
-    fits = [small and max(tile.shape) <= tiles_lib.SMALL_SIDES_PX[-1] for tile in tiles]
+    sides = buckets.canonical_sides(*lattice)
+    fits = [small and max(tile.shape) <= buckets.SMALL_SIDES_PX[-1] for tile in tiles]
     if sum(fits) <= max_batch:
         # a few run as canonical windows, padded to the side of the others' smallest if there are
         # others: no program beyond those the others (or `gfjax warmup`) compiled
         fits = [False] * len(tiles)
         if small:
-            floor = min((max(t.shape) for t in tiles if max(t.shape) > tiles_lib.SMALL_SIDES_PX[-1]), default=0)
+            floor = min((max(t.shape) for t in tiles if max(t.shape) > buckets.SMALL_SIDES_PX[-1]), default=0)
             sides = tuple(s for s in sides if s >= floor) or sides[-1:]
-    groups = [*tiles_lib.small_batches([t for t, f in zip(tiles, fits) if f], max_batch=max_batch),
-              *tiles_lib.batches([t for t, f in zip(tiles, fits) if not f], max_batch=max_batch, sides=sides)]
+    padded = [*batches_lib.small_batches([t for t, f in zip(tiles, fits) if f], max_batch=max_batch),
+              *batches_lib.batches([t for t, f in zip(tiles, fits) if not f], max_batch=max_batch, sides=sides)]
     if progress:
         from tqdm.auto import tqdm
-        groups = tqdm(groups, desc=desc, unit="batch")
-    for batch in groups:
+        padded = tqdm(padded, desc=desc, unit="batch")
+    for batch in padded:
         ground, diag = classify_batch(batch.xyz, batch.valid, batch.hw, params, config=config,
                                       shape=batch.shape)
         ground = np.asarray(ground)
@@ -222,24 +148,12 @@ def run_batches(tiles: Sequence[tiles_lib.Tile], classify_batch: ClassifyBatch, 
     return labels, diagnostics
 
 
-class Mosaic(NamedTuple):
-    """Whole-cloud rasters from tile cores (host numpy, row 0 = north).
-
-    Attributes:
-      rasters: name -> `(h, w)` raster over the cloud's cell lattice; float fields as float64
-        (heights shifted to the cloud's vertical frame [m]), bool fields as bool.
-      origin_m: float64 `(2,)`, x and y of the raster's south-west corner [m].
-    """
-
-    rasters: dict[str, np.ndarray]
-    origin_m: np.ndarray
-
-
 def warm(classify_batch: ClassifyBatch, params: Any, config: Any, *, tiling: tiles_lib.Tiling | None = None,
          progress: bool = False, desc: str = "programs") -> int:
     """Load, or compile and store (`gfjax.aot`), every program `run_batches` runs for a
-    one-tile batch of `tiling` (None: `Tiling()`) at `config.cell_m`: each canonical raster side (`tiles.canonical_sides`) with
-    each canonical point capacity (`tiles.canonical_capacities`). Nothing runs; batches of
+    one-tile batch of `tiling` (None: `Tiling()`) at `config.cell_m`: each canonical raster side
+    (`buckets.canonical_sides`) with each canonical point capacity (`buckets.canonical_capacities`).
+    Nothing runs; batches of
     `max_batch` tiles (surveys of many tiles) still compile on first use. Nothing is kept
     when the program cache is off. Returns the number of shape pairs prepared."""
     import jax
@@ -252,48 +166,8 @@ def warm(classify_batch: ClassifyBatch, params: Any, config: Any, *, tiling: til
         return lambda: classify_batch(spec((1, cap, 3), np.float32), spec((1, cap), np.bool_), spec((1, 2), np.int32),
                                       params, config=config, shape=(side, side))
 
-    return aot.warm_all([job(side, cap) for side in tiles_lib.canonical_sides(*lattice_of(tiling, config.cell_m))
-                         for cap in tiles_lib.canonical_capacities()], progress=progress, desc=desc)
-
-
-def mosaic(tiles: Sequence[tiles_lib.Tile], diagnostics: Sequence[tuple], *, names: Sequence[str],
-           heights: Sequence[str] = (), cell_m: float) -> Mosaic:
-    """Paste each tile's core cells of its cropped rasters into whole-cloud rasters.
-
-    Args:
-      tiles: from `tiles.split` (at least one).
-      diagnostics: per tile, a NamedTuple of `tile.shape` rasters (row 0 = north), as
-        `run_batches` returns them.
-      names: the fields to mosaic.
-      heights: those of `names` holding tile-local heights; the cloud's z origin is added [m].
-      cell_m: the tiles' raster cell [m].
-
-    Returns:
-      `Mosaic`: rasters `(H, W)` over the bounding box of the cores, and its south-west corner;
-      cells of no tile's core hold 0 and are never written, so a box that is mostly empty (a
-      stray point kilometres away) costs memory only for its tiles' pages.
-    """
-    col0 = min(t.core_px[0] for t in tiles)
-    row0 = min(t.core_px[1] for t in tiles)
-    width = max(t.core_px[2] for t in tiles) - col0
-    height = max(t.core_px[3] for t in tiles) - row0
-    first = diagnostics[0]
-    z0 = float(tiles[0].origin_m[2])
-    out = {}
-    for name in names:
-        dtype = np.asarray(getattr(first, name)).dtype
-        out[name] = np.zeros((height, width), np.float64 if np.issubdtype(dtype, np.floating) else dtype)
-    for tile, diag in zip(tiles, diagnostics):
-        c0, r0, c1, r1 = tile.core_px
-        wc, wr = tile.window_px
-        h = tile.shape[0]
-        src_rows = slice(h - (r1 - wr), h - (r0 - wr))             # rows from the south -> north-up
-        dst_rows = slice(height - (r1 - row0), height - (r0 - row0))
-        for name in names:
-            cells = getattr(diag, name)[src_rows, c0 - wc:c1 - wc]
-            out[name][dst_rows, c0 - col0:c1 - col0] = cells + z0 if name in heights else cells
-    origin = tiles[0].origin_m[:2] + (np.asarray([col0, row0]) - np.asarray(tiles[0].window_px)) * cell_m
-    return Mosaic(rasters=out, origin_m=origin)
+    return aot.warm_all([job(side, cap) for side in buckets.canonical_sides(*lattice_of(tiling, config.cell_m))
+                         for cap in buckets.canonical_capacities()], progress=progress, desc=desc)
 
 
 class TiledRun(NamedTuple):
@@ -408,4 +282,3 @@ def filter_cloud(cloud: Any, config: Any, params: Any, returns: str, *, tiling: 
     if run.tiles:
         cores = mosaic(run.tiles, run.diagnostics, names=rasters, heights=heights, cell_m=config.cell_m)
     return Filtered(ground=run.ground, config=config, cores=cores, n_tiles=len(run.tiles))
-

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from gfjax.io import groups
+from gfjax.tiling import groups
 
 
 def _clusters(rng, centres, per=50, spread=20.0):
