@@ -8,7 +8,8 @@ result = gfjax.csf.filter(cloud, config=gfjax.csf.Config(rigidness=1),
 ```
 """
 from gfjax.csf.config import PRESETS, RANGES, TREND_M, Config, Params, adapt
-from gfjax.csf.filter import Diagnostics, TileDiagnostics, filter, filter_points, grid_shape, warm
+from gfjax.csf.filter import Diagnostics, filter, warm
+from gfjax.csf.programs import TileDiagnostics, filter_points, grid_shape
 from gfjax.method import Method
 
 # The cloth settles over the whole cloud: a point's label can depend on points far away, so no

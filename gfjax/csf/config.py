@@ -34,7 +34,7 @@ RANGES: dict[str, Range] = {
 # per block in flight (`gfjax.csf.wavefront.blocks_in_flight`) [bytes per particle and block]:
 # the temporary buffers XLA gives the compiled cloth on grids of 256², 512² and 1,024²
 # particles are 405, 710 and 1,320 bytes a particle, where these give 440, 770 and 1,440; run a
-# chunk at a time (`gfjax.csf.filter.advance_cloth`, its state donated from call to call), the
+# chunk at a time (`gfjax.csf.programs.advance_cloth`, its state donated from call to call), the
 # largest of its three programs holds 400, 720 and 1,330 (arguments and results included).
 _BYTES_PER_PARTICLE = 24 * 4
 _BYTES_PER_PARTICLE_BLOCK = 5.5

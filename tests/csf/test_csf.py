@@ -301,7 +301,7 @@ def test_filter_ignores_noise_and_checks_input():
 
 
 def test_canonical_grids_and_capacities_bound_the_padding():
-    from gfjax.csf.filter import WARM_SIDES, canonical_grid, canonical_points
+    from gfjax.csf.programs import WARM_SIDES, canonical_grid, canonical_points
 
     sides = sorted({canonical_grid((s, s))[0] for s in range(1, 513)})
     assert sides == list(WARM_SIDES) == [128, 192, 256, 384, 512]     # `warm` compiles every pair
@@ -334,7 +334,7 @@ def test_the_memory_estimate_covers_the_compiled_cloth(side):
 
     from gfjax.csf.config import ADAPTED, BUFFER_PX, Config, Params
 
-    filter_module = importlib.import_module("gfjax.csf.filter")
+    filter_module = importlib.import_module("gfjax.csf.programs")
     config = dataclasses.replace(Config(), **ADAPTED)
     grid, flag = jax.ShapeDtypeStruct((side, side), np.float32), jax.ShapeDtypeStruct((side, side), np.bool_)
     surface = filter_module.Surface(grid, flag, flag, jax.ShapeDtypeStruct((2,), np.float32),

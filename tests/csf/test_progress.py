@@ -18,6 +18,7 @@ from gfjax.io import las
 from gfjax.io.cloud import Cloud
 
 filter_module = importlib.import_module("gfjax.csf.filter")
+programs = importlib.import_module("gfjax.csf.programs")
 
 # (surface, start above its top [m], time step, cap): settling by the displacement rule, a
 # cloth stopped by the cap, one resting everywhere at once (no movable particle), and a time
@@ -79,13 +80,13 @@ def test_a_stopped_run_advances_no_further():
 @pytest.fixture
 def one_block_chunks(monkeypatch):
     """A progress bar's run one block per call: the most cuts a run can have."""
-    monkeypatch.setattr(filter_module, "CHUNK_SLOTS", 1)
+    monkeypatch.setattr(programs, "CHUNK_SLOTS", 1)
 
 
 def _one_program(monkeypatch):
     """`filter` as it was before the chunks: the whole simulation one program (`drop_cloth`)."""
     monkeypatch.setattr(filter_module, "drop_cloth_in_chunks", lambda surface, params, *, config, progress=False:
-                        filter_module.drop_cloth(surface, params, config=config))
+                        programs.drop_cloth(surface, params, config=config))
 
 
 def _same(a, b):
