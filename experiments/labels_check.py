@@ -2,7 +2,8 @@
 label (a refactor, a speed-up) is shown not to.
 
     nice python experiments/labels_check.py --record   # writes results/labels_check.json
-    nice python experiments/labels_check.py            # exit 1 naming each (method, file) that moved
+    nice python experiments/labels_check.py            # exit 1 naming each (method, file) that moved;
+                                                       # results/labels_check.md says what was found
 
 Each method runs with its defaults (`filter(cloud, progress=False)`) on the 11 ISPRS reference
 samples, the 3 ISPRS sites, bcts_1/2, Topography and autzen; the record holds, per method and
@@ -24,6 +25,7 @@ sys.path.insert(0, str(HERE.parent))
 from experiments.common import DATA, RESULTS  # noqa: E402
 
 RECORD = RESULTS / "labels_check.json"
+REPORT = RESULTS / "labels_check.md"
 FILES = (*(f"isprs_filtertest/reference/samp{k}-utm.laz" for k in (12, 21, 22, 24, 31, 41, 42, 51, 52, 54, 71)),
          "isprs_filtertest/sites/CSite3_orig-utm.laz", "isprs_filtertest/sites/CSite4_orig-utm.laz",
          "isprs_filtertest/sites/FSite8_orig-utm.laz", "lasR_bcts/bcts_1.laz", "lasR_bcts/bcts_2.laz",
@@ -68,6 +70,8 @@ def main() -> int:
         print("\n".join(lines), flush=True)
         got[method] = json.loads(last)
     if args.record:
+        got["_commit"] = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                        cwd=HERE).stdout.strip()
         RECORD.write_text(json.dumps(got, indent=1, sort_keys=True) + "\n")
         print(f"wrote {RECORD}")
         return 0
@@ -79,7 +83,15 @@ def main() -> int:
     for m, f in missing:
         print(f"NOT RUN {m} {f}")
     n = sum(len(v) for v in got.values())
-    print(f"{n - len(moved)} of {n} (method, file) labels as recorded" + ("" if moved else ": unchanged"))
+    summary = f"{n - len(moved)} of {n} (method, file) labels as recorded" + ("" if moved else ": unchanged")
+    print(summary)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                            cwd=HERE).stdout.strip()
+    REPORT.write_text("\n".join([
+        "# Labels against the record", "",
+        f"`nice python experiments/labels_check.py` at commit {commit or 'unknown'}, against "
+        f"`labels_check.json` (recorded at commit {record.get('_commit', 'unknown')}): {summary}.", "",
+        *(f"- moved: {m} {f}" for m, f in moved), *(f"- not run: {m} {f}" for m, f in missing)]) + "\n")
     return 1 if moved else 0
 
 
