@@ -16,10 +16,7 @@ and spacing NaN, infinite, 0, negative or huge, its root page's offset and size 
 """
 from __future__ import annotations
 
-import contextlib
-import faulthandler
 import io
-import signal
 import struct
 from typing import NamedTuple
 
@@ -28,6 +25,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("copclib")
+from fuzz_deadline import Hang, deadline  # noqa: E402
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
@@ -115,29 +113,6 @@ def seed(tmp_path_factory):
     path = tmp_path_factory.mktemp("copc") / "seed.copc.laz"
     written = write_copc(_seed_las(), path, depth=3, capacity=200)
     return Seed((*paged(path.read_bytes()), written.points))
-
-
-class Hang(BaseException):
-    """Raised in the main thread when a case passes `HANG_S` (not an `Exception`: the reader's
-    own `except Exception` must not turn it into a refusal)."""
-
-
-@contextlib.contextmanager
-def deadline(seconds: float):
-    """Raise `Hang` after `seconds` (SIGALRM; Python code only); a hang in native code is cut by
-    faulthandler, which ends the process with every thread's traceback, at twice that."""
-    def _raise(*_):
-        raise Hang(f"still reading after {seconds:g} s")
-
-    previous = signal.signal(signal.SIGALRM, _raise)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    faulthandler.dump_traceback_later(2 * seconds, exit=True)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        faulthandler.cancel_dump_traceback_later()
-        signal.signal(signal.SIGALRM, previous)
 
 
 def _value(layout: Layout, data: bytes, entry: int, spec):
