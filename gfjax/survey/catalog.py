@@ -199,12 +199,15 @@ def _gathered(client, jobs: list, options: dict) -> Iterator[_Indexed]:
 def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: str | None = None,
                trust_data: bool = False, classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> _Indexed:
     """File `path` read once, a chunk at a time: its `STORE` records written to `store` (none
-    for a COPC file), the box of its points filtered, its bounds checked."""
+    for a COPC file: its hierarchy is checked, and each point against its octree node, so that
+    its windows are read from the octree as a full read finds them), the box of its points
+    filtered, its bounds checked."""
     with stream.open_points(path, units=units, trust_data=trust_data) as points:
         scale = (points.horizontal_unit_m, points.horizontal_unit_m, points.vertical_unit_m)
-        if copc.is_copc(path, points.header):
-            store = None
         with contextlib.ExitStack() as stack:
+            octree = None
+            if copc.is_copc(path, points.header):    # its hierarchy checked, each point against its node
+                store, octree = None, stack.enter_context(copc.Reader(path))
             if store is not None:       # a chunk at a time: mapped pages would stay resident
                 offset = np.lib.format.open_memmap(store, mode="w+", dtype=STORE, shape=(points.n_points,)).offset
                 out = stack.enter_context(open(store, "r+b"))
@@ -212,6 +215,8 @@ def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: 
             high = np.full(3, -np.inf)
             box_lo, box_hi = np.full(3, np.inf), np.full(2, -np.inf)
             for start, chunk in points.chunks():
+                if octree is not None:
+                    octree.check_points(start, np.asarray(chunk.x), np.asarray(chunk.y))
                 part = to_records(chunk, scale, classes)
                 xyz = part["xyz_m"]
                 low = np.minimum(low, columns.lows(xyz) / scale)

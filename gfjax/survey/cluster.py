@@ -144,13 +144,18 @@ def client(workers: int | None = None, scheduler: str | None = None) -> Iterator
         port = re.search(r":(\d+)/?$", scheduler)
         if port is not None and not 0 < int(port.group(1)) <= 65535:
             raise InputError(f"--scheduler {scheduler}: port {port.group(1)} is not a TCP port (1-65535)")
+        try:                # as Dask reads an address, before connecting: later ValueErrors are the peer's
+            from distributed.comm import get_address_host, parse_address, registry
+
+            registry.get_backend(parse_address(scheduler)[0])
+            get_address_host(scheduler)
+        except ValueError as err:                # not an address ("http://...", "host:")
+            raise InputError(f"--scheduler {scheduler}: not a Dask scheduler address ({err}); "
+                             "e.g. tcp://host:8786") from None
         try:
             c = _connect(Client, scheduler)
         except (OSError, TimeoutError) as err:
             raise InputError(f"--scheduler {scheduler}: no Dask scheduler answers there ({err})") from None
-        except ValueError as err:                # not an address ("http://...", "host:")
-            raise InputError(f"--scheduler {scheduler}: not a Dask scheduler address ({err}); "
-                             "e.g. tcp://host:8786") from None
         except Exception as err:  # noqa: BLE001 (decoding a peer's bytes: a peer that is no scheduler, not a bug)
             raise InputError(f"--scheduler {scheduler}: what answers there is not a Dask scheduler "
                              f"({type(err).__name__}: {err})") from None

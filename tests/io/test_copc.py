@@ -145,3 +145,68 @@ def test_a_copc_hierarchy_page_that_names_itself_is_refused_not_followed_for_eve
     path.write_bytes(outside)
     with pytest.raises(InputError, match="lies outside the file"):
         copc.Reader(path)
+
+
+def _entry_at(data: bytes) -> dict[tuple[int, int, int, int], int]:
+    """Byte offset of each entry of a one-page COPC hierarchy, by voxel key."""
+    import io
+    import struct
+
+    info = laspy.CopcReader(io.BytesIO(data)).copc_info
+    root, length = info.hierarchy_root_offset, info.hierarchy_root_size
+    return {struct.unpack_from("<iiii", data, at): at for at in range(root, root + length, 32)}
+
+
+def _swap_chunks(data: bytes) -> bytes:
+    """Two level-1 nodes given each other's chunk (offset, bytes, points): each key lies."""
+    at = _entry_at(data)
+    a, b = at[(1, 0, 0, 0)], at[(1, 1, 1, 0)]
+    blob = bytearray(data)
+    blob[a + 16:a + 32], blob[b + 16:b + 32] = data[b + 16:b + 32], data[a + 16:a + 32]
+    return bytes(blob)
+
+
+def _shift_chunk(data: bytes) -> bytes:
+    """A level-1 node's chunk offset one byte late."""
+    import struct
+
+    blob = bytearray(data)
+    at = _entry_at(data)[(1, 0, 0, 0)] + 16
+    struct.pack_into("<Q", blob, at, struct.unpack_from("<Q", data, at)[0] + 1)
+    return bytes(blob)
+
+
+def _cube(field: int, value: float):
+    """The info record's center x, y, z (field 0-2) or half size (3) set to `value`."""
+    def edit(data: bytes) -> bytes:
+        import struct
+
+        header_size = struct.unpack_from("<H", data, 94)[0]
+        blob = bytearray(data)
+        struct.pack_into("<d", blob, header_size + 54 + 8 * field, value)
+        return bytes(blob)
+
+    return edit
+
+
+@pytest.mark.parametrize("edit, problem", [
+    (lambda data: _with_root_entry(data, 0, 32, -1)[0], r"page at byte 0 does not hold node \(0, 0, 0, 0\)"),
+    (_swap_chunks, r"point [\d,]+ \(.*\) lies outside the square of its COPC octree node \(1, (0, 0|1, 1), 0\)"),
+    (_shift_chunk, "its COPC hierarchy does not match its LAZ chunks: a node of"),
+    (_cube(3, 0.0), "cube .* is not a cube"), (_cube(0, float("nan")), "cube .* is not a cube")],
+    ids=["page-without-its-node", "chunks-swapped", "chunk-a-byte-late", "cube-of-size-0", "nan-center"])
+def test_a_copc_hierarchy_that_lies_about_its_nodes_is_refused_when_indexed(pair, tmp_path, edit, problem):
+    """Found by tests/reliability/test_fuzz_copc.py. Before: laspy followed a child-page entry
+    whose page lacks the node for ever (a hang), and a survey's windows silently missed points
+    or gave other points' indices when nodes named the wrong chunks or squares."""
+    from gfjax.survey import catalog
+
+    path = tmp_path / "lies.copc.laz"
+    path.write_bytes(edit(pair[0].read_bytes()))
+    with pytest.raises(InputError, match=f"lies.copc.laz: .*{problem}"):
+        catalog.index_file(0, path, tmp_path / "store.npy", units="m")
+    whole = laspy.read(pair[1])
+    lo, hi = np.asarray(whole.header.mins[:2]), np.asarray(whole.header.mins[:2]) + 60
+    with pytest.raises(InputError, match=f"lies.copc.laz: .*{problem}"):         # the windows' reader alone
+        with copc.Reader(path) as reader:
+            reader.within(lo, hi)

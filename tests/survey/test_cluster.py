@@ -230,9 +230,16 @@ def test_a_peer_that_accepts_and_never_answers_is_refused_after_the_connect_time
                 pass
 
 
-@pytest.mark.parametrize("reply", [b"\x01" + bytes(7) + (2**63).to_bytes(8, "little"), b"HTTP/1.1 200 OK\r\n\r\n"],
-                         ids=["8-EiB-frame", "http"])
-def test_a_peer_that_sends_what_no_scheduler_sends_is_bad_input(reply):
+# an empty msgpack map (0x80) as Dask's TCP comm frames a message: total bytes, frame count, frame size
+EMPTY_MAP = (17).to_bytes(8, "little") + (1).to_bytes(8, "little") + (1).to_bytes(8, "little") + b"\x80"
+
+
+@pytest.mark.parametrize("reply, problem", [
+    (b"\x01" + bytes(7) + (2**63).to_bytes(8, "little"), ""), (b"HTTP/1.1 200 OK\r\n\r\n", ""),
+    (EMPTY_MAP, "what answers there is not a Dask scheduler")], ids=["8-EiB-frame", "http", "empty-handshake"])
+def test_a_peer_that_sends_what_no_scheduler_sends_is_bad_input(reply, problem):
+    """Found by tests/reliability/test_fuzz_dask_peers.py: a handshake of an empty map makes Dask
+    raise ValueError, which was taken for a bad address ("not a Dask scheduler address")."""
     import socket
     import threading
 
@@ -249,9 +256,10 @@ def test_a_peer_that_sends_what_no_scheduler_sends_is_bad_input(reply):
 
         threading.Thread(target=answer, daemon=True).start()
         address = f"tcp://127.0.0.1:{peer.getsockname()[1]}"
-        with pytest.raises(InputError, match=f"--scheduler {address}: "):
+        with pytest.raises(InputError, match=f"--scheduler {address}: {problem}") as refused:
             with cluster.client(scheduler=address):
                 pass
+        assert "not a Dask scheduler address" not in str(refused.value)
 
 
 @pytest.mark.parametrize("asked, points, workers", [
