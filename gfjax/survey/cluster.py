@@ -102,20 +102,38 @@ CONNECT_S = 45.0     # a scheduler answers within distributed's 30 s connect tim
 def _connect(client_type, scheduler: str):
     """`client_type(scheduler)`, or TimeoutError after `CONNECT_S`: a peer that accepts the
     connection and never answers its handshake holds `Client` forever, whatever its
-    `timeout`. The attempt runs in a daemon thread, left behind if it never returns."""
+    `timeout`. The attempt runs in a daemon thread, left behind if it never returns.
+
+    A `Client` that fails to connect (or connects after the caller gave up) is closed in that
+    thread, not left to the garbage collector: its `__del__` stops Dask's loop runner under
+    the lock that `LoopRunner.start` holds, so a collection that runs inside `start` (any
+    thread starting a `Client` or `LocalCluster`) deadlocks there, and every later one with it.
+    """
     done: dict = {}
+    finished, abandoned = threading.Event(), threading.Event()
 
     def attempt():
+        made = client_type.__new__(client_type)          # held before __init__ can fail
         try:
-            done["client"] = client_type(scheduler)
+            made.__init__(scheduler)
         except BaseException as err:             # noqa: BLE001 (handed to the caller's thread)
             done["error"] = err
+            finished.set()
+            with contextlib.suppress(Exception):
+                made.close()
+            return
+        done["client"] = made
+        finished.set()
+        if abandoned.is_set():
+            with contextlib.suppress(Exception):
+                made.close()
 
     thread = threading.Thread(target=attempt, name="gfjax-scheduler-connect", daemon=True)
     thread.start()
-    thread.join(CONNECT_S)
-    if thread.is_alive():
-        raise TimeoutError(f"nothing answered within {CONNECT_S:g} s")
+    if not finished.wait(CONNECT_S):
+        abandoned.set()
+        if not finished.is_set():
+            raise TimeoutError(f"nothing answered within {CONNECT_S:g} s")
     if "error" in done:
         raise done["error"]
     return done["client"]

@@ -262,6 +262,47 @@ def test_a_peer_that_sends_what_no_scheduler_sends_is_bad_input(reply, problem):
         assert "not a Dask scheduler address" not in str(refused.value)
 
 
+# A process that fails to connect to a peer (EMPTY_MAP for its handshake), then collects its
+# garbage as `LoopRunner.start` would, holding Dask's loop lock.
+_COLLECTED_UNDER_THE_LOOP_LOCK = f"""
+import contextlib, gc, socket, threading
+from distributed.utils import LoopRunner
+from gfjax.errors import InputError
+from gfjax.survey import cluster
+
+with socket.socket() as peer:
+    peer.bind(("127.0.0.1", 0))
+    peer.listen(4)
+
+    def answer():
+        with contextlib.suppress(OSError):
+            while True:
+                connection, _ = peer.accept()
+                with connection:
+                    connection.sendall({EMPTY_MAP!r})
+
+    threading.Thread(target=answer, daemon=True).start()
+    with contextlib.suppress(InputError), cluster.client(scheduler=f"tcp://127.0.0.1:{{peer.getsockname()[1]}}"):
+        raise SystemExit("connected")
+with LoopRunner._lock:
+    gc.collect()
+print("collected")
+"""
+
+
+def test_a_client_that_fails_to_connect_leaves_no_deadlock_to_the_garbage_collector():
+    """Found by tests/reliability/test_fuzz_dask_peers.py, after which the next local cluster
+    in the same process hung for ever: a `Client` that failed to connect was left to the garbage
+    collector, and its `__del__` stops Dask's loop runner under `LoopRunner._lock`, which
+    `LoopRunner.start` holds while it allocates; a collection there deadlocked, and every later
+    `Client` or `LocalCluster` waited on the lock. In a subprocess, which a regression hangs."""
+    import subprocess
+
+    done = subprocess.run([sys.executable, "-c", _COLLECTED_UNDER_THE_LOOP_LOCK], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 0 and done.stdout.strip() == "collected", done.stderr[-2000:]
+
+
 @pytest.mark.parametrize("asked, points, workers", [
     (2, 1_000, 0), (2, 5_999_999, 0), (2, 6_000_000, 2), (4, 9_000_000, 3), (1, 3_000_000, 1), (1, 2_999_999, 0),
     ("auto", 1_000, 0)])
