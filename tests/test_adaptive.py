@@ -177,7 +177,24 @@ def test_dmf_masf_rules_set_nothing_yet_csf_takes_the_trend_off_any_terrain():
     for xyz in (grid_plane(1.0, 100.0), grid_plane(0.2, 60.0)):
         terrain = adaptive.measure(xyz)
         assert dmf.adapt(terrain) == masf.adapt(terrain) == {}
-        assert csf.adapt(terrain) == {"trend_m": csf.TREND_M, "rigidness": 1}
+        assert csf.adapt(terrain) == {"trend_m": csf.TREND_M, "rigidness": 1, "class_threshold_m": 0.5}
+
+
+@pytest.mark.parametrize("slope, threshold_m, time_step", [
+    (0.0, 0.5, None),            # flat: the package's threshold and time step
+    (0.1, 0.7, None),            # a gentle slope: its rise over two 1 m cells on top, the same time step
+    (0.3, 1.0, 1.0),             # relief: the threshold at its cap, the cloth falls harder
+    (0.6, 1.0, 1.0),
+])
+def test_csf_threshold_and_time_step_follow_the_slope(slope, threshold_m, time_step):
+    from gfjax import csf
+
+    terrain = adaptive.measure(grid_plane(1.0, 200.0, slope=slope))
+    assert terrain.slope_p90 == pytest.approx(slope, abs=0.01)
+    chosen = csf.adapt(terrain)
+    assert chosen["class_threshold_m"] == pytest.approx(threshold_m, abs=0.02)
+    assert chosen.get("time_step") == time_step
+    assert (chosen["trend_m"], chosen["rigidness"]) == (csf.TREND_M, 1)
 
 
 def test_finish_drops_a_spike_only_where_the_values_followed_the_cloud():

@@ -7,7 +7,7 @@ result = gfjax.csf.filter(cloud, config=gfjax.csf.Config(rigidness=1),
                           params=gfjax.csf.Params(class_threshold_m=0.3))
 ```
 """
-from gfjax.csf.config import PRESETS, RANGES, TREND_M, Config, Params, adapt
+from gfjax.csf.config import MAX_THRESHOLD_M, PRESETS, RANGES, RELIEF_TIME_STEP, TREND_M, Config, Params, adapt
 from gfjax.csf.filter import Diagnostics, filter, warm
 from gfjax.csf.programs import TileDiagnostics, filter_points, grid_shape
 from gfjax.method import Method
@@ -17,5 +17,5 @@ from gfjax.method import Method
 METHOD = Method("csf", filter, Config, Params, PRESETS, RANGES, adapt=adapt, warm=warm, whole_cloud=True,
                 tuning="gradient")
 
-__all__ = ["METHOD", "filter", "adapt", "warm", "Config", "Params", "PRESETS", "TREND_M", "filter_points", "grid_shape",
+__all__ = ["METHOD", "filter", "adapt", "warm", "Config", "Params", "PRESETS", "TREND_M", "MAX_THRESHOLD_M", "RELIEF_TIME_STEP", "filter_points", "grid_shape",
            "Diagnostics", "TileDiagnostics"]

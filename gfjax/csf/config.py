@@ -16,7 +16,8 @@ from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.params import param
 
-__all__ = ["Config", "Params", "PRESETS", "adapt", "ADAPTED", "TREND_M", "GRAVITY", "DAMPING", "CLOTH_START_M", "BUFFER_PX",
+__all__ = ["Config", "Params", "PRESETS", "adapt", "ADAPTED", "TREND_M", "RELIEF_SLOPE", "RELIEF_TIME_STEP",
+           "THRESHOLD_RISE_CELLS", "MAX_THRESHOLD_M", "GRAVITY", "DAMPING", "CLOTH_START_M", "BUFFER_PX",
            "STOP_DISPLACEMENT_M", "SMOOTH_THRESHOLD_M", "MIN_SMOOTH_COMPONENT", "single_move",
            "double_move", "RANGES"]
 
@@ -47,7 +48,20 @@ STOP_DISPLACEMENT_M = 0.005   # CSF.cpp: stop when 0 < max particle displacement
 SMOOTH_THRESHOLD_M = 0.3      # CSF.cpp: `Cloth(..., 0.3, 9999, ...)`, smoothThreshold
 MIN_SMOOTH_COMPONENT = 50     # Cloth.h: MAX_PARTICLE_FOR_POSTPROCESSIN (components > 50)
 TREND_M = 30.0                # the trend `adapt` takes off: objects up to this wide stay on it [m]
-ADAPTED = {"trend_m": TREND_M, "rigidness": 1}   # what `adapt` sets, on every terrain
+ADAPTED = {"trend_m": TREND_M, "rigidness": 1}   # the static values `adapt` sets, on every terrain
+# Where the terrain has relief (90th-percentile slope of the minimum surface at least this), the
+# soft cloth also falls with a longer time step: gravity moves a free particle by
+# `GRAVITY * time_step**4` a step, so 1.0 pulls it 4.2x as hard as the package's 0.65 and the
+# cloth sags into the hollows of the inverted terrain (the knolls and banks narrower than the
+# trend) that it otherwise bridges. On flat ground it would sag into the buildings too, so it
+# stays 0.65 there. Chosen on the training files (`experiments/results/adaptive_rules_csf.md`).
+RELIEF_SLOPE = 0.2
+RELIEF_TIME_STEP = 1.0
+# The class threshold grows with that slope: the terrain's rise over this many cloth cells on
+# top of the package's 0.5 m, at most `MAX_THRESHOLD_M`, since a cloth that follows a slope
+# within a cell still misses its bends by about that much.
+THRESHOLD_RISE_CELLS = 2.0
+MAX_THRESHOLD_M = 1.0
 
 
 # Particle.h, `singleMove1` / `doubleMove1`: `rigidness` relaxations of 0.3 each folded into
@@ -139,11 +153,25 @@ PRESETS: dict[str, dict[str, float | int | bool]] = {
 
 
 def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
-    """CSF's values that follow the cloud (`gfjax.adaptive`): the terrain's 30 m trend taken off
-    before a soft cloth (rigidness 1) falls. Chosen on the training files by leave-one-survey-out
-    (`experiments/results/adaptive_rules_csf.md`: 12 -> 15 of 21 files pass); the same for every
-    terrain, since a flat one has no trend to take. The cloth is no finer than
-    `adaptive.cost_cell_m` (a cloud spread thinner than a point per 64 m²). A call that settles
-    it also runs the guard (`adaptive.finish`)."""
-    cell = adaptive.cost_cell_m(terrain)
-    return {**ADAPTED, "cell_m": cell} if cell > Config().cell_m else dict(ADAPTED)
+    """CSF's values that follow the cloud (`gfjax.adaptive`), chosen on the training files by
+    leave-one-survey-out (`experiments/results/adaptive_rules_csf.md`: 15 -> 17 of 21 files
+    pass, 16 held out):
+
+    - the terrain's 30 m trend is taken off before a soft cloth (rigidness 1) falls (`ADAPTED`;
+      a flat terrain has no trend to take);
+    - the class threshold is 0.5 m plus the terrain's rise over `THRESHOLD_RISE_CELLS` cloth
+      cells at its 90th-percentile slope, at most `MAX_THRESHOLD_M`;
+    - on terrain with relief (`RELIEF_SLOPE`), the time step is `RELIEF_TIME_STEP`.
+
+    The cloth is no finer than `adaptive.cost_cell_m` (a cloud spread thinner than a point per
+    64 m²). A call that settles them also runs the guard (`adaptive.finish`)."""
+    base = Config()
+    cell = max(base.cell_m, adaptive.cost_cell_m(terrain))
+    rise = THRESHOLD_RISE_CELLS * cell * terrain.slope_p90
+    values: dict[str, float] = {**ADAPTED,
+                                "class_threshold_m": round(min(MAX_THRESHOLD_M, float(Params().class_threshold_m) + rise), 3)}
+    if cell > base.cell_m:
+        values["cell_m"] = cell
+    if terrain.slope_p90 >= RELIEF_SLOPE:
+        values["time_step"] = RELIEF_TIME_STEP
+    return values

@@ -93,7 +93,8 @@ def test_a_cloth_on_the_trend_keeps_a_steep_slope_the_plain_cloth_loses():
     cloud = gfjax.Cloud.from_xyz(np.column_stack([xy, z]))
     plain = csf.filter(cloud, config=csf.Config())
     followed = csf.filter(cloud)                                        # the values that follow the cloud
-    assert followed.settled.chosen == {"trend_m": csf.TREND_M, "rigidness": 1}
+    assert followed.settled.chosen == {"trend_m": csf.TREND_M, "rigidness": 1, "class_threshold_m": csf.MAX_THRESHOLD_M,
+                                       "time_step": csf.RELIEF_TIME_STEP}
     assert np.mean(plain.ground) < 0.2 < 0.9 < np.mean(followed.ground)
     d = followed.diagnostics                                            # the cloth where the terrain is
     h, w = d.cloth_z.shape
@@ -102,3 +103,23 @@ def test_a_cloth_on_the_trend_keeps_a_steep_slope_the_plain_cloth_loses():
     y = d.origin_m[1] + (h - 1 - rows) * d.cell_m
     inside = (x > 5) & (x < 95) & (y > 5) & (y < 95)
     assert np.abs(np.median((d.cloth_z - (100 + 0.6 * x))[inside])) < 0.05
+
+
+def test_on_relief_the_cloth_reaches_knolls_narrower_than_the_trend():
+    """A 0.3 slope under knolls 10 m across and 3 m high: the soft cloth of the trend alone
+    bridges their tops (the inverted terrain's hollows); the longer time step and the slope's
+    threshold, which relief sets, bring it down on them."""
+    import dataclasses
+
+    import gfjax
+    from gfjax import csf
+
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 150, (40_000, 2))
+    z = (100 + 0.3 * xy[:, 0] + 1.5 * np.sin(2 * np.pi * xy[:, 0] / 20) * np.sin(2 * np.pi * xy[:, 1] / 20)
+         + rng.normal(0, 0.02, len(xy)))
+    cloud = gfjax.Cloud.from_xyz(np.column_stack([xy, z]))
+    trend_only = csf.filter(cloud, config=dataclasses.replace(csf.Config(), **csf.config.ADAPTED))
+    followed = csf.filter(cloud)
+    assert followed.settled.chosen["time_step"] == csf.RELIEF_TIME_STEP
+    assert np.mean(trend_only.ground) < 0.95 < 0.995 < np.mean(followed.ground)
