@@ -200,6 +200,12 @@ PRESETS: dict[str, dict[str, float]] = {
 }
 
 
+# Low outliers are not hidden from MASF (`gfjax.low_outliers`): its preprocessing has its own low-outlier
+# tests (the cell gap, low clusters, pits among the seeds), and hiding some outliers but not others can make a
+# valley floor read as a pit of outliers (`experiments/results/low_outliers_methods.md`).
+HIDES_LOW_OUTLIERS = False
+
+
 def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
     """MASF's values that follow the cloud (`gfjax.adaptive`): the 1 m grid, or the coarser
     `adaptive.cost_cell_m` of a cloud spread thinner than a point per 64 m² (no labelled file
