@@ -14,12 +14,17 @@ surface is the canopy. So the values that depend on the data are set from the cl
 - `settle_cloud` / `settle_terrain`: a method's `Config` / `Params` with the rules' values,
   except the fields in `fixed` (a user's `--set`, `--params` or preset values, which always
   win), and what was chosen (`Settled`: `gfjax filter -v`, `Result.settled`).
-- `finish`: a run whose values followed the cloud also drops ground spikes (`gfjax.spikes`).
+- `run`: the one sequence of a run whose values followed the cloud: the method's low outliers
+  hidden from it first (`gfjax.low_outliers`, for a method that asks: `Method.hides_low_outliers`)
+  and labelled non-ground, the method run, then ground spikes dropped (`finish`,
+  `gfjax.spikes`). The `follows` decorator and `gfjax filter` (`MethodSetup.filter`) both call it,
+  so a Python call, the command line and a survey's window get the same labels.
 - `follows`: the decorator that gives a method's `filter` all of this when it is called
   without a `config`.
 
 A caller that wants the fixed values passes them: `filter(cloud, config=Config())` uses
-`Config()` as it is, with no spike guard; `--preset fixed` does the same on the command line.
+`Config()` as it is, with no pre-step and no spike guard; `--preset fixed` does the same on the
+command line.
 """
 from __future__ import annotations
 
@@ -31,13 +36,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from gfjax import spikes
+from gfjax import low_outliers, spikes
 from gfjax.errors import InputError, SettingError
-from gfjax.io.cloud import CloudView
+from gfjax.io.cloud import CloudView, Frame
 
 RETURNS = ("all", "last")
 
-__all__ = ["Terrain", "measure", "follows", "finish", "raster_cell_m", "settle_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
+__all__ = ["Terrain", "measure", "follows", "run", "finish", "hide", "Hidden", "raster_cell_m", "settle_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
 
 # The preset name that keeps a method's fixed defaults (no rule applied).
 FIXED_PRESET = "fixed"
@@ -283,11 +288,13 @@ def _show(value: Any) -> str:
     return str(value)
 
 
-def follows(rule: Callable[[Terrain], dict[str, Any]], config_type: type, params_type: type | None):
+def follows(rule: Callable[[Terrain], dict[str, Any]], config_type: type, params_type: type | None, *,
+            hides_low_outliers: bool = False):
     """Decorate a method's `filter(cloud, *, config=None, params=None, returns="all", ...)` so
     that a call without a `config` settles the method's values on the cloud (`rule`: the
-    method's `adapt`; a given `params` is kept whole), runs, and then drops ground spikes
-    (`finish`). A call with a `config` runs it as given: nothing follows the data.
+    method's `adapt`; a given `params` is kept whole) and runs the method as `run` does: its low
+    outliers hidden first when `hides_low_outliers` (the method's `Method.hides_low_outliers`),
+    ground spikes dropped after. A call with a `config` runs it as given: nothing follows the data.
     """
     def wrap(filter_fn: Callable[..., Any]) -> Callable[..., Any]:
         @functools.wraps(filter_fn)
@@ -302,10 +309,58 @@ def follows(rule: Callable[[Terrain], dict[str, Any]], config_type: type, params
                     settled = None
                 else:
                     config, params = settled.config, settled.params
-            result = filter_fn(cloud, config=config, params=params, returns=returns, **kwargs)
-            return finish(result, cloud, settled)
+            return run(filter_fn, cloud, settled, config=config, params=params, returns=returns,
+                       hides_low_outliers=hides_low_outliers, **kwargs)
         return filter
     return wrap
+
+
+def run(filter_fn: Callable[..., Any], cloud: Any, settled: Settled | None, *, config: Any, params: Any,
+        returns: str = "all", hides_low_outliers: bool = False, **kwargs) -> Any:
+    """`filter_fn(cloud, config=config, params=params, returns=returns, **kwargs)` (a method's
+    filter, a `gfjax.result.Result`), as a run whose values followed the data when `settled` has
+    a terrain: the low outliers of the points it uses hidden from it first where
+    `hides_low_outliers` (`hide`; they come out non-ground), its ground spikes dropped after
+    (`finish`). With no terrain (fixed values: `--preset fixed`, a given `config`), the filter's
+    result as it is."""
+    if settled is None or settled.terrain is None:
+        return filter_fn(cloud, config=config, params=params, returns=returns, **kwargs)
+    low = hide(cloud, settled.terrain, returns=returns) if hides_low_outliers else None
+    view = cloud if low is None else Hidden(cloud, low)
+    result = filter_fn(view, config=config, params=params, returns=returns, **kwargs)
+    if low is not None:
+        result = result._replace(ground=np.asarray(result.ground, dtype=bool) & ~low)
+    return finish(result, view, settled)         # a hidden point is no lower return under a ground point
+
+
+def hide(cloud: Any, terrain: Terrain, *, returns: str = "all") -> np.ndarray | None:
+    """The low outliers bool `(n,)` among `cloud`'s used points (`gfjax.low_outliers.detect`,
+    cells of the terrain's last-return spacing laid from the cloud's frame, so a survey's window
+    shares the whole survey's cells), or None when there is none."""
+    frame: Frame | None = getattr(cloud, "frame", None)
+    low = low_outliers.detect(cloud.xyz_m, cloud.filter_mask(returns), last_spacing_m=terrain.last_spacing_m,
+                              origin_m=None if frame is None else frame.origin_m)
+    return low if low.any() else None
+
+
+class Hidden:
+    """A `CloudView` of `cloud` with the points `hidden` (bool `(n,)`) left out of every
+    `filter_mask`, as ignored points are: a method neither uses nor labels them."""
+
+    def __init__(self, cloud: Any, hidden: np.ndarray):
+        self.cloud, self.hidden = cloud, np.asarray(hidden, dtype=bool)
+        self.name, self.frame = cloud.name, cloud.frame
+
+    @property
+    def xyz_m(self) -> np.ndarray:
+        return self.cloud.xyz_m
+
+    @property
+    def n_points(self) -> int:
+        return self.cloud.n_points
+
+    def filter_mask(self, returns: str = "all") -> np.ndarray:
+        return self.cloud.filter_mask(returns) & ~self.hidden
 
 
 def finish(result: Any, cloud: Any, settled: Settled | None) -> Any:

@@ -39,6 +39,9 @@ class Method:
       ranges: `--set` key -> its valid `gfjax.limits.Range` (the fields of Config and Params).
       adapt: `adapt(terrain) -> {key: value}`, the values that follow the cloud
         (`gfjax.adaptive`), or None.
+      hides_low_outliers: a run whose values follow the cloud hides its low outliers from the
+        method first (`gfjax.low_outliers`, `gfjax.adaptive.run`); each package says why in its
+        `config.HIDES_LOW_OUTLIERS`.
       warm: `warm(config=None, params=None, *, progress=False) -> int`: load or compile the
         programs `filter` runs for every canonical input shape (`gfjax warmup`), or None.
       tiles: `filter` cuts its work into buffered tiles and takes `tiling=gfjax.Tiling(...)`.
@@ -63,6 +66,7 @@ class Method:
     presets: Mapping[str, Mapping[str, Any]]
     ranges: Mapping[str, Range]
     adapt: Callable[[Any], dict] | None = None
+    hides_low_outliers: bool = False
     warm: Callable[..., int] | None = None
     tiles: bool = False
     tile_labels: bool = False

@@ -349,13 +349,14 @@ class MethodSetup(NamedTuple):
 
     def filter(self, cloud, **kwargs):
         """The method on `cloud`; the values the options left open follow the cloud first
-        (`settle`), ground spikes are dropped after (`gfjax.adaptive.finish`), and the result
-        carries what was chosen (`Result.settled`). With `--preset fixed`, neither."""
+        (`settle`), and the run is the one of `gfjax.adaptive.run` (low outliers hidden for a
+        method that hides them, ground spikes dropped after, `Result.settled` what was chosen),
+        as a Python call without a `config` makes it. With `--preset fixed`, the method alone."""
         from gfjax import adaptive
 
         setup = self.settle(cloud, returns=kwargs.get("returns", "all"))
-        result = self.method.filter(cloud, config=setup.config, params=setup.params, **(self.options or {}), **kwargs)
-        return adaptive.finish(result, cloud, setup.settled)
+        return adaptive.run(self.method.filter, cloud, setup.settled, config=setup.config, params=setup.params,
+                            hides_low_outliers=self.method.hides_low_outliers, **(self.options or {}), **kwargs)
 
     def settle(self, cloud, *, returns: str = "all") -> MethodSetup:
         """This setup with the values the options left open set from `cloud` (the method's

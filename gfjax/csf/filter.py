@@ -25,7 +25,7 @@ import jax
 import numpy as np
 
 from gfjax import adaptive, aot, cache
-from gfjax.csf.config import ADAPTED, BUFFER_PX, Config, Params, adapt
+from gfjax.csf.config import ADAPTED, BUFFER_PX, HIDES_LOW_OUTLIERS, Config, Params, adapt
 from gfjax.csf.programs import (
     WARM_SIDES,
     Anchor,
@@ -105,7 +105,7 @@ def detrended(local: np.ndarray, use: np.ndarray, config: Config):
 
 
 @cache.persistent
-@adaptive.follows(adapt, Config, Params)
+@adaptive.follows(adapt, Config, Params, hides_low_outliers=HIDES_LOW_OUTLIERS)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False) -> Result:  # noqa: A001 (the package API name)
     """Classify a cloud's ground points with CSF (Zhang et al. 2016).

@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 
 from gfjax import adaptive, aot, cache
 from gfjax.dmf import extract, neighbours, programs, shapes, stages, voxels
-from gfjax.dmf.config import MAX_BATCH, Config, Params, adapt
+from gfjax.dmf.config import HIDES_LOW_OUTLIERS, MAX_BATCH, Config, Params, adapt
 from gfjax.io.cloud import CloudView
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
@@ -382,7 +382,7 @@ def prepare(cloud: CloudView, use: np.ndarray, config: Config, *, tiling: Tiling
 
 
 @cache.persistent
-@adaptive.follows(adapt, Config, Params)
+@adaptive.follows(adapt, Config, Params, hides_low_outliers=HIDES_LOW_OUTLIERS)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,  # noqa: A001
            returns: str = "all", progress: bool = False, tiling: Tiling | None = None) -> Result:
     """Classify ground points with DMF (Wu et al. 2025; our readings: SPEC section 3).

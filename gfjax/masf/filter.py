@@ -44,7 +44,7 @@ from gfjax.errors import InputError
 from gfjax.io.cloud import CloudView, Frame
 from gfjax.masf import alpha_shape, preprocess, tin
 from gfjax.masf import densify as densify_mod
-from gfjax.masf.config import Config, Params, adapt
+from gfjax.masf.config import HIDES_LOW_OUTLIERS, Config, Params, adapt
 from gfjax.result import Result
 from gfjax.tiling import groups
 from gfjax.tiling.checks import check_memory
@@ -218,7 +218,7 @@ def filter_points(xyz_m: np.ndarray, config: Config, params: Params, frame: Fram
 
 
 @cache.persistent
-@adaptive.follows(adapt, Config, Params)
+@adaptive.follows(adapt, Config, Params, hides_low_outliers=HIDES_LOW_OUTLIERS)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False) -> Result:
     """Classify ground points with MASF (Cao et al. 2024).

@@ -10,12 +10,12 @@ result = gfjax.smrf.filter(cloud, tiling=gfjax.Tiling(tile_size_m=250.0, buffer_
 ```
 """
 from gfjax.method import Method
-from gfjax.smrf.config import PRESETS, RANGES, Config, Params, adapt
+from gfjax.smrf.config import HIDES_LOW_OUTLIERS, PRESETS, RANGES, Config, Params, adapt
 from gfjax.smrf.filter import Diagnostics, filter, warm
 from gfjax.smrf.stages import TileDiagnostics
 
 # A tile's core labels depend on its window only: a survey runs each tile once.
-METHOD = Method("smrf", filter, Config, Params, PRESETS, RANGES, adapt=adapt, warm=warm, tiles=True,
+METHOD = Method("smrf", filter, Config, Params, PRESETS, RANGES, adapt=adapt, hides_low_outliers=HIDES_LOW_OUTLIERS, warm=warm, tiles=True,
                 tile_labels=True, tuning="gradient")
 
 __all__ = ["METHOD", "filter", "warm", "adapt", "Config", "Params", "PRESETS", "Diagnostics", "TileDiagnostics"]

@@ -116,6 +116,11 @@ PRESETS: dict[str, dict[str, object]] = {
     adaptive.FIXED_PRESET: {"cell_m": 1.0},
 }
 
+# Low outliers are not hidden from SMRF (`gfjax.low_outliers`): its own stage removes them (Pingel et al.
+# 2013, Sec. 2.1: `stages.low_outliers`).
+HIDES_LOW_OUTLIERS = False
+
+
 def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
     """SMRF's values that follow the cloud (`gfjax.adaptive`): the cell, coarser for sparse
     last returns (`adaptive.raster_cell_m`); a cell coarser than a third of the window (a

@@ -24,7 +24,7 @@ from gfjax import adaptive, cache
 from gfjax.io.cloud import CloudView
 from gfjax.result import Result
 from gfjax.smrf import programs
-from gfjax.smrf.config import MAX_BATCH, Config, Params, adapt
+from gfjax.smrf.config import HIDES_LOW_OUTLIERS, MAX_BATCH, Config, Params, adapt
 from gfjax.tiling import driver
 from gfjax.tiling.tiles import Tiling
 
@@ -57,7 +57,7 @@ class Diagnostics(NamedTuple):
 
 
 @cache.persistent
-@adaptive.follows(adapt, Config, Params)
+@adaptive.follows(adapt, Config, Params, hides_low_outliers=HIDES_LOW_OUTLIERS)
 def filter(cloud: CloudView, *, config: Config | None = None, params: Params | None = None,
            returns: str = "all", progress: bool = False, tiling: Tiling | None = None) -> Result:  # noqa: A001 (the package API name)
     """Classify a cloud's ground points with SMRF (Pingel et al. 2013).
