@@ -267,19 +267,23 @@ def settle_terrain(rule: Callable[[Terrain], dict[str, Any]] | None, terrain: Te
 
 class Settled(NamedTuple):
     """A method's settings for one cloud: `config`, `params`, and `chosen` (field -> value
-    the rules set; the fields kept fixed are not in it) with the `terrain` they came from."""
+    the rules set; the fields kept fixed are not in it) with the `terrain` they came from;
+    after a run (`run`), `low_outliers`: how many points were hidden from the method as low
+    outliers (None: the method does not hide them)."""
 
     config: Any
     params: Any
     chosen: dict[str, Any]
     terrain: Terrain | None
+    low_outliers: int | None = None
 
     def describe(self) -> str:
         """Lines for `gfjax filter -v`: the terrain, then each value the rules chose."""
         if self.terrain is None:
             return "fixed settings (no rule applied)"
         values = ", ".join(f"{k}={_show(v)}" for k, v in self.chosen.items()) or "none (every value fixed)"
-        return f"terrain: {self.terrain.describe()}\nchosen from it: {values}"
+        hidden = "" if self.low_outliers is None else f"\nlow outliers hidden from it: {self.low_outliers:,}"
+        return f"terrain: {self.terrain.describe()}\nchosen from it: {values}{hidden}"
 
 
 def _show(value: Any) -> str:
@@ -330,6 +334,8 @@ def run(filter_fn: Callable[..., Any], cloud: Any, settled: Settled | None, *, c
     result = filter_fn(view, config=config, params=params, returns=returns, **kwargs)
     if low is not None:
         result = result._replace(ground=np.asarray(result.ground, dtype=bool) & ~low)
+    if hides_low_outliers:
+        settled = settled._replace(low_outliers=0 if low is None else int(low.sum()))
     return finish(result, view, settled)         # a hidden point is no lower return under a ground point
 
 
