@@ -136,6 +136,28 @@ def test_filter_votes_every_point(net):
     np.testing.assert_array_equal(result.ground, d.prob_ground > 0.5)
 
 
+def test_a_tiny_cloud_runs_in_a_tiny_pack_with_the_votes_of_a_small_one(net, monkeypatch):
+    import importlib
+
+    xyz, cls = scene()
+    xyz = xyz[(xyz[:, 0] < 5e5 + 20) & (xyz[:, 1] < 5e6 + 20)]            # 400 points, one patch
+    config = Config(features=FEATURES, decision="network")
+    module = importlib.import_module("gfjax.sparsegf.filter")
+    capacities = []
+
+    def pack(*args, min_capacity, **kw):
+        capacities.append(min_capacity)
+        return pipeline.pack(*args, min_capacity=min_capacity, **kw)
+
+    monkeypatch.setattr(module, "pack", pack)
+    tiny = sparsegf.filter(Cloud.from_xyz(xyz), model=net, config=config).diagnostics
+    monkeypatch.setattr(module, "min_capacity", lambda *a, **kw: pipeline.SMALL_PACK_VOXELS)
+    small = sparsegf.filter(Cloud.from_xyz(xyz), model=net, config=config).diagnostics
+    assert capacities == [pipeline.TINY_PACK_VOXELS, pipeline.SMALL_PACK_VOXELS] and tiny.n_patches == 1
+    np.testing.assert_array_equal(tiny.votes, small.votes)
+    np.testing.assert_allclose(tiny.prob_ground, small.prob_ground, rtol=1e-5, atol=1e-6)
+
+
 @pytest.mark.parametrize("in_flight", [1, 2, 3])
 def test_packs_run_side_by_side_give_the_votes_of_one_pack(net, in_flight, monkeypatch):
     filter_module = sys.modules["gfjax.sparsegf.filter"]
