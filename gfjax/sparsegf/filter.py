@@ -31,9 +31,9 @@ from gfjax.sparsegf.pipeline import (
     run_with_room,
     unpack,
 )
-from gfjax.sparsegf.programs import predict, prepare_point_inputs
+from gfjax.sparsegf.programs import predict, prepare_point_inputs, vote
 from gfjax.sparsegf.smrf_prior import smrf_heights
-from gfjax.sparsegf.vote import decide, soft_vote
+from gfjax.sparsegf.vote import decide
 from gfjax.tiling.buckets import power_bucket
 
 
@@ -125,9 +125,9 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
     # not once per cloud
     votes = np.concatenate(index)
     size = power_bucket(len(votes), minimum=1024)
-    vote = soft_vote(np.concatenate([votes, np.full(size - len(votes), -1)]),
-                     np.concatenate([*prob, np.zeros(size - len(votes), np.float32)]), power_bucket(n, minimum=1024))
-    return np.asarray(vote.prob_ground)[:n], np.asarray(vote.count)[:n], len(index)
+    merged = vote(np.concatenate([votes, np.full(size - len(votes), -1)]),
+                  np.concatenate([*prob, np.zeros(size - len(votes), np.float32)]), power_bucket(n, minimum=1024))
+    return np.asarray(merged.prob_ground)[:n], np.asarray(merged.count)[:n], len(index)
 
 
 # The generated scenes `warm` filters, flat squares (side [m], points): one a full pack, one
@@ -141,13 +141,12 @@ def warm(config: Config | None = None, params=None, *, progress: bool = False) -
     line keeps them): the shipped network on packs of `pipeline.PACK_VOXELS` and
     `pipeline.SMALL_PACK_VOXELS` and `pipeline.TINY_PACK_VOXELS` voxels with their standard
     plans, the costly ones, by filtering three small generated scenes; then the per-patch feature program at every padded patch size of
-    `pipeline.WARM_MEMBERS` x `pipeline.WARM_KEPT`, into JAX's persistent cache (none when
-    that cache is off). The vote program of another cloud size still compiles on first use
+    `pipeline.WARM_MEMBERS` x `pipeline.WARM_KEPT`, into the program store (none when it is
+    off). The vote program of another cloud size still compiles on first use
     (0.1 s), and so do SMRF's programs for a model that reads SMRF's surface, unless
     `gfjax.smrf.warm` prepared them (`gfjax warmup` does both). Returns the number of
     programs prepared: 3 networks and the feature programs."""
-    import jax
-
+    from gfjax import aot
     from gfjax.io.cloud import Cloud
 
     rng = np.random.default_rng(0)
@@ -158,7 +157,7 @@ def warm(config: Config | None = None, params=None, *, progress: bool = False) -
         z = 100.0 + 0.02 * xy[:, 0] + rng.normal(0.0, 0.05, n)
         filter(Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], z])), config=config, params=params,
                progress=progress, model=model)
-    if not jax.config.jax_compilation_cache_dir:       # JAX's cache is off: nothing would be kept
+    if aot.enabled_folder() is None:                   # the store is off: nothing would be kept
         return len(WARM_SCENES)
     sizes = [(m, k) for m in WARM_MEMBERS for k in WARM_KEPT if k <= m]
     if progress:
