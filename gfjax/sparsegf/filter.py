@@ -24,14 +24,16 @@ from gfjax.sparsegf.pipeline import (
     PACK_SLOTS,
     WARM_KEPT,
     WARM_MEMBERS,
+    fits_tiny_pack,
     group,
     min_capacity,
     pack,
     prepare,
     run_with_room,
+    tiny_pack,
     unpack,
 )
-from gfjax.sparsegf.programs import predict, prepare_point_inputs, vote
+from gfjax.sparsegf.programs import predict, prepare_point_inputs, prepare_predict, vote
 from gfjax.sparsegf.smrf_prior import smrf_heights
 from gfjax.sparsegf.vote import decide
 from gfjax.tiling.buckets import power_bucket
@@ -290,6 +292,10 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
             note = (f"sparsegf: {density:.3g} points/m², beyond the {low:.3g}-{high:.3g} its model was trained on "
                     f"(a factor {DENSITY_SLACK:g} either side): SMRF's labels kept")
             return smrf_method.filter(cloud, returns=returns)._replace(notes=(note,))
+    if fits_tiny_pack(xyz_m, config):
+        # the network's program loaded first, in this thread: SMRF's programs then reuse the
+        # scratch memory of its load (a 30-point file's process: 390 MB at most, not 415)
+        prepare_predict(model, tiny_pack(model.net.config.in_features))
     smrf = smrf_heights(xyz_m) if config.reads_smrf else None
     smrf_ground = None if smrf is None else smrf[:, 1] >= 0
     prob, votes, n_patches = ground_probability(model, xyz_m, config, progress=progress,

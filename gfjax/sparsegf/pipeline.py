@@ -32,6 +32,7 @@ import numpy as np
 
 from gfjax.nn import sparse
 from gfjax.nn.sparse import keys as K
+from gfjax.sparsegf.partition import PartitionConfig, partition
 from gfjax.sparsegf.programs import point_inputs
 from gfjax.tiling.buckets import power_bucket
 
@@ -226,6 +227,25 @@ def min_capacity(patches: list[Patch], *, cloud_voxels_at_most: int) -> int:
     if cloud_voxels_at_most <= TINY_PACK_VOXELS:
         return TINY_PACK_VOXELS
     return SMALL_PACK_VOXELS if sum(len(p.coords) for p in patches) <= SMALL_PACK_VOXELS else PACK_VOXELS
+
+
+def fits_tiny_pack(xyz_m: np.ndarray, config) -> bool:
+    """Whether the patches of the cloud `xyz_m` `(n, 3)` [m] cannot hold more than
+    `TINY_PACK_VOXELS` voxels in all (its points times its patches), so that they run in
+    one pack of that capacity (`min_capacity`); partitioned only when the points alone fit."""
+    n = len(xyz_m)
+    if not 0 < n <= TINY_PACK_VOXELS:
+        return False
+    part = partition(xyz_m, PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m))
+    return sum(len(batch.patch_id) for batch in part.batches) * n <= TINY_PACK_VOXELS
+
+
+def tiny_pack(n_features: int) -> Pack:
+    """A pack of `TINY_PACK_VOXELS` rows holding one voxel: the shapes of a tiny cloud's pack
+    (`programs.prepare_predict`)."""
+    one = Patch(np.zeros((1, 3), np.int32), np.zeros((1, n_features), np.float32), np.zeros(1, np.int64),
+                np.zeros(1, np.int32), np.zeros((1, n_features), np.float32), 0)
+    return pack([one], PACK_SLOTS, min_capacity=TINY_PACK_VOXELS)
 
 
 def group(patches, slots: int, max_voxels: int = PACK_VOXELS):

@@ -27,7 +27,8 @@ from gfjax.sparsegf.compress import compress
 from gfjax.sparsegf.model import Model, SparseGFNet
 from gfjax.sparsegf.vote import Vote, _soft_vote
 
-__all__ = ["point_inputs", "prepare_point_inputs", "Inputs", "inputs", "forward", "predict_points", "predict", "vote"]
+__all__ = ["point_inputs", "prepare_point_inputs", "Inputs", "inputs", "forward", "predict_points", "predict",
+           "prepare_predict", "vote"]
 
 
 @functools.partial(jax.jit, static_argnames=("features", "r_in", "r_oc", "r_oo", "use_compression"))
@@ -123,6 +124,14 @@ def predict(model: Model, packed):
     arrays, skeleton = _inference_split(model)
     return aot.call(predict_points, arrays, model.state, inputs(packed), skeleton=skeleton, plan=packed.plan,
                     slots=packed.slots)
+
+
+def prepare_predict(model: Model, packed) -> None:
+    """Load (or compile and store) the program `predict(model, packed)` runs, without running
+    it: only the shapes of `packed` count (nothing when the program store is off)."""
+    arrays, skeleton = _inference_split(model)
+    aot.prefetch(predict_points, arrays, model.state, inputs(packed), skeleton=skeleton, plan=packed.plan,
+                 slots=packed.slots)
 
 
 _SPLIT: dict[int, tuple] = {}

@@ -158,6 +158,34 @@ def test_a_tiny_cloud_runs_in_a_tiny_pack_with_the_votes_of_a_small_one(net, mon
     np.testing.assert_allclose(tiny.prob_ground, small.prob_ground, rtol=1e-5, atol=1e-6)
 
 
+def test_a_tiny_cloud_loads_its_network_program_once_and_first(net, tmp_path, monkeypatch):
+    from gfjax import aot, cache
+    from gfjax.aot import calls
+
+    monkeypatch.setitem(cache._state, "set_up", True)      # the store on, in a folder of this test
+    aot.enable(tmp_path / "export")
+    built = []
+    load_or_compile = calls._load_or_compile
+
+    def spy(fn, *args):
+        built.append(getattr(fn, "__name__", fn))
+        return load_or_compile(fn, *args)
+
+    monkeypatch.setattr(calls, "_load_or_compile", spy)
+    xyz, _ = scene()
+    xyz = xyz[(xyz[:, 0] < 5e5 + 20) & (xyz[:, 1] < 5e6 + 20)]            # 400 points, one patch
+    config = Config(features=FEATURES, decision="network")
+    assert pipeline.fits_tiny_pack(xyz, config) and not pipeline.fits_tiny_pack(scene()[0], config)
+    try:
+        first = sparsegf.filter(Cloud.from_xyz(xyz), model=net, config=config)
+        again = sparsegf.filter(Cloud.from_xyz(xyz), model=net, config=config)
+    finally:
+        aot.disable()
+    # the network's program is loaded before any other, once, and the pack runs it
+    assert built == ["predict_points", "_point_inputs", "_soft_vote"]
+    np.testing.assert_array_equal(first.diagnostics.prob_ground, again.diagnostics.prob_ground)
+
+
 @pytest.mark.parametrize("in_flight", [1, 2, 3])
 def test_packs_run_side_by_side_give_the_votes_of_one_pack(net, in_flight, monkeypatch):
     filter_module = sys.modules["gfjax.sparsegf.filter"]
