@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import sys
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
@@ -48,6 +49,15 @@ def test_parameter_counts():
     assert abs(paper - 37.9e6) <= 0.01 * 37.9e6                     # MinkUNet34C + refinement
     tiny = count_parameters(NET_PRESETS["tiny"])
     assert tiny * 4 <= 5 * 2 ** 20
+
+
+def test_a_network_made_for_its_shapes_has_the_shapes_of_a_drawn_one():
+    drawn, shapes = init(MICRO, key=jax.random.key(0)), init(MICRO, key=None)
+    assert jax.tree.structure(drawn) == jax.tree.structure(shapes)
+    for a, b in zip(jax.tree.leaves(drawn), jax.tree.leaves(shapes)):
+        assert (np.shape(a), getattr(a, "dtype", type(a))) == (np.shape(b), getattr(b, "dtype", type(b)))
+    assert not any(np.any(np.asarray(w)) for w in jax.tree.leaves(eqx.filter(shapes.net, eqx.is_inexact_array))
+                   if np.ndim(w) > 1)                                       # no weight drawn
 
 
 def test_checkpoint_round_trip_and_bad_files(tmp_path):
