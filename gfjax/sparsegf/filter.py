@@ -134,7 +134,7 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
 
 # The generated scenes `warm` filters, flat squares (side [m], points): one a full pack, one
 # a small pack, one a tiny pack (`pipeline.min_capacity`).
-WARM_SCENES = ((120.0, 30_000), (30.0, 2_000), (20.0, 400))
+WARM_SCENES = ((120.0, 30_000), (20.0, 1_500), (20.0, 400))
 
 
 @cache.persistent
@@ -145,7 +145,7 @@ def warm(config: Config | None = None, params=None, *, progress: bool = False) -
     plans, the costly ones, by filtering three small generated scenes; then the per-patch feature program at every padded patch size of
     `pipeline.WARM_MEMBERS` x `pipeline.WARM_KEPT`, into the program store (none when it is
     off). The vote program of another cloud size still compiles on first use
-    (0.1 s), and so do SMRF's programs for a model that reads SMRF's surface, unless
+    (0.1 s; then kept), and so do SMRF's programs for a model that reads SMRF's surface, unless
     `gfjax.smrf.warm` prepared them (`gfjax warmup` does both). Returns the number of
     programs prepared: 3 networks and the feature programs."""
     from gfjax import aot
