@@ -22,19 +22,20 @@ from gfjax.sparsegf.model import Model
 from gfjax.sparsegf.partition import PartitionConfig, partition
 from gfjax.sparsegf.pipeline import (
     PACK_SLOTS,
-    PACK_VOXELS,
-    SMALL_PACK_VOXELS,
     WARM_KEPT,
     WARM_MEMBERS,
+    fits_tiny_pack,
     group,
+    min_capacity,
     pack,
     prepare,
     run_with_room,
+    tiny_pack,
     unpack,
 )
-from gfjax.sparsegf.programs import predict, prepare_point_inputs
+from gfjax.sparsegf.programs import predict, prepare_point_inputs, prepare_predict, vote
 from gfjax.sparsegf.smrf_prior import smrf_heights
-from gfjax.sparsegf.vote import decide, soft_vote
+from gfjax.sparsegf.vote import decide
 from gfjax.tiling.buckets import power_bucket
 
 
@@ -103,14 +104,16 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
             bar.update(len(packed.patches))
 
     running: collections.deque = collections.deque()
+    n_patches = [0]
     with concurrent.futures.ThreadPoolExecutor(IN_FLIGHT, thread_name_prefix="sparsegf-pack") as pool:
-        def total(n: int) -> None:
+        def total(count: int) -> None:
+            n_patches[0] = count
             if bar is not None:
-                bar.reset(total=n)
+                bar.reset(total=count)
 
         for todo in group(patches(xyz_m, config, cloud_feats=cloud_feats, count=total), PACK_SLOTS):
-            small = sum(len(p.coords) for p in todo) <= SMALL_PACK_VOXELS
-            packed = pack(todo, PACK_SLOTS, plans, min_capacity=SMALL_PACK_VOXELS if small else PACK_VOXELS)
+            packed = pack(todo, PACK_SLOTS, plans,
+                          min_capacity=min_capacity(todo, cloud_voxels_at_most=n_patches[0] * n))
             running.append((packed, pool.submit(run, packed)))
             if len(running) > IN_FLIGHT:
                 finish(*running.popleft())
@@ -124,49 +127,47 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
     # not once per cloud
     votes = np.concatenate(index)
     size = power_bucket(len(votes), minimum=1024)
-    vote = soft_vote(np.concatenate([votes, np.full(size - len(votes), -1)]),
-                     np.concatenate([*prob, np.zeros(size - len(votes), np.float32)]), power_bucket(n, minimum=1024))
-    return np.asarray(vote.prob_ground)[:n], np.asarray(vote.count)[:n], len(index)
+    merged = vote(np.concatenate([votes, np.full(size - len(votes), -1)]),
+                  np.concatenate([*prob, np.zeros(size - len(votes), np.float32)]), power_bucket(n, minimum=1024))
+    return np.asarray(merged.prob_ground)[:n], np.asarray(merged.count)[:n], len(index)
 
 
-WARM_SIDE_M = 120.0          # the generated scenes `warm` filters: flat squares of this side [m],
-WARM_POINTS = 30_000         # one a full pack,
-WARM_SMALL_SIDE_M = 20.0     # one a small pack
-WARM_SMALL_POINTS = 400
+# The generated scenes `warm` filters, flat squares (side [m], points): one a full pack, one
+# a small pack, one a tiny pack (`pipeline.min_capacity`).
+WARM_SCENES = ((120.0, 30_000), (20.0, 1_500), (20.0, 400))
 
 
 @cache.persistent
 def warm(config: Config | None = None, params=None, *, progress: bool = False) -> int:
     """Load or compile ahead the programs a cloud's patches run (`gfjax warmup`; the command
     line keeps them): the shipped network on packs of `pipeline.PACK_VOXELS` and
-    `pipeline.SMALL_PACK_VOXELS` voxels with their standard plans, the costly ones, by
-    filtering two small generated scenes; then the per-patch feature program at every padded patch size of
-    `pipeline.WARM_MEMBERS` x `pipeline.WARM_KEPT`, into JAX's persistent cache (none when
-    that cache is off). The vote program of another cloud size still compiles on first use
-    (0.1 s), and so do SMRF's programs for a model that reads SMRF's surface, unless
+    `pipeline.SMALL_PACK_VOXELS` and `pipeline.TINY_PACK_VOXELS` voxels with their standard
+    plans, the costly ones, by filtering three small generated scenes; then the per-patch feature program at every padded patch size of
+    `pipeline.WARM_MEMBERS` x `pipeline.WARM_KEPT`, into the program store (none when it is
+    off). The vote program of another cloud size still compiles on first use
+    (0.1 s; then kept), and so do SMRF's programs for a model that reads SMRF's surface, unless
     `gfjax.smrf.warm` prepared them (`gfjax warmup` does both). Returns the number of
-    programs prepared: 2 networks and the feature programs."""
-    import jax
-
+    programs prepared: 3 networks and the feature programs."""
+    from gfjax import aot
     from gfjax.io.cloud import Cloud
 
     rng = np.random.default_rng(0)
     model, trained_with = load_model()
     config = trained_with if config is None else config
-    for side_m, n in ((WARM_SIDE_M, WARM_POINTS), (WARM_SMALL_SIDE_M, WARM_SMALL_POINTS)):
+    for side_m, n in WARM_SCENES:
         xy = rng.uniform(0.0, side_m, (n, 2))
         z = 100.0 + 0.02 * xy[:, 0] + rng.normal(0.0, 0.05, n)
         filter(Cloud.from_xyz(np.column_stack([xy + [5e5, 5e6], z])), config=config, params=params,
                progress=progress, model=model)
-    if not jax.config.jax_compilation_cache_dir:       # JAX's cache is off: nothing would be kept
-        return 2
+    if aot.enabled_folder() is None:                   # the store is off: nothing would be kept
+        return len(WARM_SCENES)
     sizes = [(m, k) for m in WARM_MEMBERS for k in WARM_KEPT if k <= m]
     if progress:
         from tqdm.auto import tqdm
         sizes = tqdm(sizes, desc="sparsegf patch sizes", unit="program")
     for members, kept in sizes:
         prepare_point_inputs(config, members, kept)
-    return 2 + len(sizes)
+    return len(WARM_SCENES) + len(sizes)
 
 
 def load_model(path=None) -> tuple[Model, Config]:
@@ -291,6 +292,10 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
             note = (f"sparsegf: {density:.3g} points/m², beyond the {low:.3g}-{high:.3g} its model was trained on "
                     f"(a factor {DENSITY_SLACK:g} either side): SMRF's labels kept")
             return smrf_method.filter(cloud, returns=returns)._replace(notes=(note,))
+    if fits_tiny_pack(xyz_m, config):
+        # the network's program loaded first, in this thread: SMRF's programs then reuse the
+        # scratch memory of its load (a 30-point file's process: 390 MB at most, not 415)
+        prepare_predict(model, tiny_pack(model.net.config.in_features))
     smrf = smrf_heights(xyz_m) if config.reads_smrf else None
     smrf_ground = None if smrf is None else smrf[:, 1] >= 0
     prob, votes, n_patches = ground_probability(model, xyz_m, config, progress=progress,

@@ -38,6 +38,7 @@ different batch indices (`gfjax.sparsegf.pipeline.pack`).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from typing import NamedTuple
 
@@ -97,7 +98,7 @@ class _LBR(eqx.Module):
     linear: sparse.SparseLinear
     norm: sparse.SparseBatchNorm
 
-    def __init__(self, c_in: int, c_out: int, *, key: PRNGKeyArray):
+    def __init__(self, c_in: int, c_out: int, *, key: PRNGKeyArray | None):
         self.linear = sparse.SparseLinear(c_in, c_out, use_bias=False, key=key)
         self.norm = sparse.SparseBatchNorm(c_out)
 
@@ -131,9 +132,9 @@ class SparseGFNet(eqx.Module):
     head_hag: sparse.SparseLinear
     config: NetConfig = eqx.field(static=True)
 
-    def __init__(self, config: NetConfig, *, key: PRNGKeyArray):
+    def __init__(self, config: NetConfig, *, key: PRNGKeyArray | None):
         c = config
-        keys = iter(jax.random.split(key, 64 + 4 * sum(c.layers)))
+        keys = itertools.repeat(None) if key is None else iter(jax.random.split(key, 64 + 4 * sum(c.layers)))
         self.config = c
         self.stem = sparse.SparseConv3d(c.in_features, c.stem, 5, key=next(keys))
         self.stem_norm = sparse.SparseBatchNorm(c.stem)
@@ -232,8 +233,9 @@ class Model(NamedTuple):
     state: eqx.nn.State
 
 
-def init(config: NetConfig, *, key: PRNGKeyArray) -> Model:
-    """A new network of shape `config` with He-initialised weights and fresh statistics."""
+def init(config: NetConfig, *, key: PRNGKeyArray | None) -> Model:
+    """A new network of shape `config` with He-initialised weights and fresh statistics
+    (`key=None`: zero weights, a network made for its shapes only)."""
     return Model(*eqx.nn.make_with_state(SparseGFNet)(config, key=key))
 
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from gfjax.nn import sparse
 from gfjax.nn.sparse import keys as K
+from gfjax.sparsegf.partition import PartitionConfig, partition
 from gfjax.sparsegf.programs import point_inputs
 from gfjax.tiling.buckets import power_bucket
 
@@ -48,6 +49,12 @@ WARM_KEPT = tuple(2 ** i for i in range(14, 18))
 # what its pack's capacity costs, so a few hundred points do not pay for `PACK_VOXELS` rows
 # (a 30-point file: 2.9 s and 785 MB whole process with a full pack).
 SMALL_PACK_VOXELS = 8_192
+# The pack of a cloud whose patches cannot hold more voxels than this in all (its points
+# times its patches: a voxel holds one point at least): a file of a few hundred points runs
+# a program of 1,024 rows (about 10 MB of working memory instead of 80 MB at 8,192). Decided
+# for the whole cloud, not per pack, so a larger cloud's last pack runs the program, and gets
+# the votes, it always had.
+TINY_PACK_VOXELS = 1_024
 POINTS_PER_VOXEL = 4       # central point rows of a pack per voxel row
 # Patches per network call at most when classifying. A pack costs about the same whatever it
 # holds, so small patches (a sparse cloud's, a cloud's edges) share one; the batch index only
@@ -211,6 +218,34 @@ def pack(patches: list[Patch], slots: int, plans: dict[int, sparse.PyramidPlan] 
     plan = (plans or {}).get(size) or sparse.standard_plan(size, depth=DEPTH)
     return Pack(coords, feats, np.arange(size) < total, weight, point_row, point_feats, np.arange(points) < n_points,
                 starts, point_starts, tuple(patches), plan)
+
+
+def min_capacity(patches: list[Patch], *, cloud_voxels_at_most: int) -> int:
+    """The smallest capacity `pack` pads these patches to: `TINY_PACK_VOXELS` when the whole
+    cloud has at most that many voxels (`cloud_voxels_at_most`: an upper bound), else
+    `SMALL_PACK_VOXELS` when these patches hold that many or fewer, else `PACK_VOXELS`."""
+    if cloud_voxels_at_most <= TINY_PACK_VOXELS:
+        return TINY_PACK_VOXELS
+    return SMALL_PACK_VOXELS if sum(len(p.coords) for p in patches) <= SMALL_PACK_VOXELS else PACK_VOXELS
+
+
+def fits_tiny_pack(xyz_m: np.ndarray, config) -> bool:
+    """Whether the patches of the cloud `xyz_m` `(n, 3)` [m] cannot hold more than
+    `TINY_PACK_VOXELS` voxels in all (its points times its patches), so that they run in
+    one pack of that capacity (`min_capacity`); partitioned only when the points alone fit."""
+    n = len(xyz_m)
+    if not 0 < n <= TINY_PACK_VOXELS:
+        return False
+    part = partition(xyz_m, PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m))
+    return sum(len(batch.patch_id) for batch in part.batches) * n <= TINY_PACK_VOXELS
+
+
+def tiny_pack(n_features: int) -> Pack:
+    """A pack of `TINY_PACK_VOXELS` rows holding one voxel: the shapes of a tiny cloud's pack
+    (`programs.prepare_predict`)."""
+    one = Patch(np.zeros((1, 3), np.int32), np.zeros((1, n_features), np.float32), np.zeros(1, np.int64),
+                np.zeros(1, np.int32), np.zeros((1, n_features), np.float32), 0)
+    return pack([one], PACK_SLOTS, min_capacity=TINY_PACK_VOXELS)
 
 
 def group(patches, slots: int, max_voxels: int = PACK_VOXELS):

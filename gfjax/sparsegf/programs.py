@@ -1,12 +1,14 @@
 """SparseGF's compiled programs: a patch's input features, and the network over a pack.
 
 - `point_inputs` (one patch, padded to a power of two of points: `pipeline.MIN_POINTS` and up)
-  rotates, compresses and centres the kept points and computes their features; `gfjax warmup`
-  compiles it ahead for the common sizes into JAX's persistent cache (`prepare_point_inputs`).
+  rotates, compresses and centres the kept points and computes their features; kept across
+  processes by the program store (`gfjax.aot`: no tracing in a later process), and
+  `gfjax warmup` prepares it ahead for the common sizes (`prepare_point_inputs`).
 - `predict` runs the network on a pack's arrays (`Inputs`, `forward`) in inference mode; the
   program is kept across processes by the program store (`gfjax.aot`): its arguments are
   arrays, and the rest of the network (layer settings, the inference flags) is static.
   Training runs `forward` in programs of its own (`gfjax.sparsegf.train`).
+- `vote` merges a cloud's votes (`vote.soft_vote`'s program, kept by the program store too).
 """
 from __future__ import annotations
 
@@ -23,8 +25,10 @@ from gfjax.nn import sparse
 from gfjax.sparsegf import features as F
 from gfjax.sparsegf.compress import compress
 from gfjax.sparsegf.model import Model, SparseGFNet
+from gfjax.sparsegf.vote import Vote, _soft_vote
 
-__all__ = ["point_inputs", "prepare_point_inputs", "Inputs", "inputs", "forward", "predict_points", "predict"]
+__all__ = ["point_inputs", "prepare_point_inputs", "Inputs", "inputs", "forward", "predict_points", "predict",
+           "prepare_predict", "vote"]
 
 
 @functools.partial(jax.jit, static_argnames=("features", "r_in", "r_oc", "r_oo", "use_compression"))
@@ -65,16 +69,16 @@ def point_inputs(local_xyz: np.ndarray, valid: np.ndarray, keep: np.ndarray, kee
       angle: float32 rotation about z [rad].
       config: the patch settings (feature set, radii, compression; static).
     """
-    return _point_inputs(local_xyz, valid, keep, keep_valid, angle, **_statics(config))
+    return aot.call(_point_inputs, local_xyz, valid, keep, keep_valid, angle, **_statics(config))
 
 
 def prepare_point_inputs(config, members: int, kept: int) -> None:
-    """Compile, without running it, the feature program `point_inputs` runs for a patch padded
-    to `members` points of which `kept` are kept (powers of two, at least `pipeline.MIN_POINTS`):
-    JAX's persistent cache keeps it (`gfjax warmup`)."""
+    """Load, or compile and store, without running it, the feature program `point_inputs` runs
+    for a patch padded to `members` points of which `kept` are kept (powers of two, at least
+    `pipeline.MIN_POINTS`): the program store keeps it (`gfjax warmup`; nothing when it is off)."""
     spec = jax.ShapeDtypeStruct
-    _point_inputs.lower(spec((members, 3), np.float32), spec((members,), np.bool_), spec((kept,), np.int32),
-                        spec((kept,), np.bool_), spec((), np.float32), **_statics(config)).compile()
+    aot.prefetch(_point_inputs, spec((members, 3), np.float32), spec((members,), np.bool_), spec((kept,), np.int32),
+                 spec((kept,), np.bool_), spec((), np.float32), **_statics(config))
 
 
 class Inputs(NamedTuple):
@@ -122,6 +126,14 @@ def predict(model: Model, packed):
                     slots=packed.slots)
 
 
+def prepare_predict(model: Model, packed) -> None:
+    """Load (or compile and store) the program `predict(model, packed)` runs, without running
+    it: only the shapes of `packed` count (nothing when the program store is off)."""
+    arrays, skeleton = _inference_split(model)
+    aot.prefetch(predict_points, arrays, model.state, inputs(packed), skeleton=skeleton, plan=packed.plan,
+                 slots=packed.slots)
+
+
 _SPLIT: dict[int, tuple] = {}
 
 
@@ -133,3 +145,13 @@ def _inference_split(model: Model):
         _SPLIT.clear()
         known = _SPLIT[id(model)] = (model, *eqx.partition(eqx.nn.inference_mode(model.net), eqx.is_array))
     return known[1], known[2]
+
+
+def vote(point_index: np.ndarray, prob_ground: np.ndarray, n_points: int) -> Vote:
+    """`vote.soft_vote(point_index, prob_ground, n_points)` of host votes, every one counted
+    (`(v,)` int cloud indices, -1 for padding, and float32 probabilities), through the program
+    store: a later process loads the program without tracing it."""
+    index = np.asarray(point_index, np.int32)
+    return aot.call(_soft_vote, index, np.asarray(prob_ground, np.float32), np.ones(index.shape, bool),
+                    n_points=int(n_points))
+

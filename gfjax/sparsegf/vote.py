@@ -92,7 +92,7 @@ def _soft_vote(point_index, prob_ground, mask, *, n_points):
 
 
 def decide(prob_ground: Float[ArrayLike, " n"], smrf_ground: Bool[ArrayLike, " n"] | None = None, *,
-           config: Config) -> Bool[Array, " n"]:
+           config: Config) -> Bool[ArrayLike, " n"]:
     """Ground labels `(n,)` from mean votes `(n,)` (`Vote.prob_ground`), by `config.decision`.
 
     `"network"` (Algorithm 1): `prob_ground > ground_probability`. `"network+smrf"`: the
@@ -100,14 +100,21 @@ def decide(prob_ground: Float[ArrayLike, " n"], smrf_ground: Bool[ArrayLike, " n
     `smrf_prior.smrf_heights`' margin >= 0) and `smrf_object_probability` elsewhere: with
     0.3 and 0.9, SMRF's verdict stands unless the network is confident against it. A point
     with no vote (`prob_ground` 0) is never ground.
+
+    float32 numpy votes (the filter's) are decided in numpy, with the same float32 thresholds:
+    a JAX op on a new cloud size would trace and compile each time; anything else in JAX.
     """
-    prob_ground = jnp.asarray(prob_ground)
+    host = isinstance(prob_ground, np.ndarray) and prob_ground.dtype == np.float32 and (
+        smrf_ground is None or isinstance(smrf_ground, np.ndarray))
+    xp = np if host else jnp
+    prob_ground = xp.asarray(prob_ground)
     if config.decision == "network":
-        return prob_ground > config.ground_probability
+        return prob_ground > xp.float32(config.ground_probability)
     if smrf_ground is None:
         raise ValueError(f"decide: the decision {config.decision!r} needs SMRF's verdict (smrf_ground)")
-    smrf_ground = jnp.asarray(smrf_ground)
+    smrf_ground = xp.asarray(smrf_ground)
     if smrf_ground.shape != prob_ground.shape:
         raise ValueError(f"decide: smrf_ground {smrf_ground.shape} and prob_ground {prob_ground.shape} differ")
-    threshold = jnp.where(smrf_ground, config.smrf_ground_probability, config.smrf_object_probability)
+    threshold = xp.where(smrf_ground, xp.float32(config.smrf_ground_probability),
+                         xp.float32(config.smrf_object_probability))
     return prob_ground > threshold

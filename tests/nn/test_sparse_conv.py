@@ -246,6 +246,16 @@ def test_unpackable_coordinates_raise_naming_the_range(bad):
     sparse.submanifold_map(coords, np.asarray([True, False]))
 
 
+@pytest.mark.parametrize("as_array", [np.asarray, jnp.asarray], ids=["numpy", "jax"])
+def test_the_range_check_gives_one_verdict_on_numpy_and_jax_arrays(as_array):
+    good = np.asarray([[0, 0, 0, 0], [K.BATCH_MAX, K.COORD_MAX, K.COORD_MIN, 0]], np.int32)
+    assert K.check_range(as_array(good), as_array(np.ones(2, bool)), "pack") is not None
+    bad = np.asarray([[0, 0, 0, 0], [0, 0, K.COORD_MAX + 1, 0]], np.int32)
+    K.check_range(as_array(bad), as_array(np.asarray([True, False])), "pack")     # padding may hold anything
+    with pytest.raises(ValueError, match=r"pack: voxel coordinates must lie in \[-32768, 32767\]"):
+        K.check_range(as_array(bad), as_array(np.ones(2, bool)), "pack")
+
+
 def test_unpackable_coordinates_under_jit_raise():
     coords = jnp.asarray([[0, 0, 0, 0], [0, 40000, 0, 0]], jnp.int32)
     with pytest.raises(Exception, match="32767"):

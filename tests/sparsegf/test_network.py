@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import sys
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
@@ -48,6 +49,15 @@ def test_parameter_counts():
     assert abs(paper - 37.9e6) <= 0.01 * 37.9e6                     # MinkUNet34C + refinement
     tiny = count_parameters(NET_PRESETS["tiny"])
     assert tiny * 4 <= 5 * 2 ** 20
+
+
+def test_a_network_made_for_its_shapes_has_the_shapes_of_a_drawn_one():
+    drawn, shapes = init(MICRO, key=jax.random.key(0)), init(MICRO, key=None)
+    assert jax.tree.structure(drawn) == jax.tree.structure(shapes)
+    for a, b in zip(jax.tree.leaves(drawn), jax.tree.leaves(shapes)):
+        assert (np.shape(a), getattr(a, "dtype", type(a))) == (np.shape(b), getattr(b, "dtype", type(b)))
+    assert not any(np.any(np.asarray(w)) for w in jax.tree.leaves(eqx.filter(shapes.net, eqx.is_inexact_array))
+                   if np.ndim(w) > 1)                                       # no weight drawn
 
 
 def test_checkpoint_round_trip_and_bad_files(tmp_path):
@@ -134,6 +144,56 @@ def test_filter_votes_every_point(net):
     assert np.all(d.votes >= 1) and d.n_patches == 2 and d.smrf_ground is None    # SMRF not run
     assert np.all((d.prob_ground >= 0) & (d.prob_ground <= 1))
     np.testing.assert_array_equal(result.ground, d.prob_ground > 0.5)
+
+
+def test_a_tiny_cloud_runs_in_a_tiny_pack_with_the_votes_of_a_small_one(net, monkeypatch):
+    import importlib
+
+    xyz, cls = scene()
+    xyz = xyz[(xyz[:, 0] < 5e5 + 20) & (xyz[:, 1] < 5e6 + 20)]            # 400 points, one patch
+    config = Config(features=FEATURES, decision="network")
+    module = importlib.import_module("gfjax.sparsegf.filter")
+    capacities = []
+
+    def pack(*args, min_capacity, **kw):
+        capacities.append(min_capacity)
+        return pipeline.pack(*args, min_capacity=min_capacity, **kw)
+
+    monkeypatch.setattr(module, "pack", pack)
+    tiny = sparsegf.filter(Cloud.from_xyz(xyz), model=net, config=config).diagnostics
+    monkeypatch.setattr(module, "min_capacity", lambda *a, **kw: pipeline.SMALL_PACK_VOXELS)
+    small = sparsegf.filter(Cloud.from_xyz(xyz), model=net, config=config).diagnostics
+    assert capacities == [pipeline.TINY_PACK_VOXELS, pipeline.SMALL_PACK_VOXELS] and tiny.n_patches == 1
+    np.testing.assert_array_equal(tiny.votes, small.votes)
+    np.testing.assert_allclose(tiny.prob_ground, small.prob_ground, rtol=1e-5, atol=1e-6)
+
+
+def test_a_tiny_cloud_loads_its_network_program_once_and_first(net, tmp_path, monkeypatch):
+    from gfjax import aot, cache
+    from gfjax.aot import calls
+
+    monkeypatch.setitem(cache._state, "set_up", True)      # the store on, in a folder of this test
+    aot.enable(tmp_path / "export")
+    built = []
+    load_or_compile = calls._load_or_compile
+
+    def spy(fn, *args):
+        built.append(getattr(fn, "__name__", fn))
+        return load_or_compile(fn, *args)
+
+    monkeypatch.setattr(calls, "_load_or_compile", spy)
+    xyz, _ = scene()
+    xyz = xyz[(xyz[:, 0] < 5e5 + 20) & (xyz[:, 1] < 5e6 + 20)]            # 400 points, one patch
+    config = Config(features=FEATURES, decision="network")
+    assert pipeline.fits_tiny_pack(xyz, config) and not pipeline.fits_tiny_pack(scene()[0], config)
+    try:
+        first = sparsegf.filter(Cloud.from_xyz(xyz), model=net, config=config)
+        again = sparsegf.filter(Cloud.from_xyz(xyz), model=net, config=config)
+    finally:
+        aot.disable()
+    # the network's program is loaded before any other, once, and the pack runs it
+    assert built == ["predict_points", "_point_inputs", "_soft_vote"]
+    np.testing.assert_array_equal(first.diagnostics.prob_ground, again.diagnostics.prob_ground)
 
 
 @pytest.mark.parametrize("in_flight", [1, 2, 3])

@@ -85,3 +85,16 @@ def test_a_shifted_grid_still_covers_every_point(shift):
         offsets = np.mod(part.centers_m[:, None] - base[None], config.step_m)
         np.testing.assert_allclose(offsets[:, 0], np.broadcast_to(np.mod(shift, config.step_m), offsets[:, 0].shape),
                                    atol=1e-6)
+
+
+def test_a_cloud_with_few_voxels_packs_into_the_tiny_capacity_and_only_such_a_cloud():
+    few, some, many = [fake_patch(30, 3, 0)], [fake_patch(5_000, 3, 0)], [fake_patch(9_000, 3, 0)]
+    tiny, small, full = pipeline.TINY_PACK_VOXELS, pipeline.SMALL_PACK_VOXELS, pipeline.PACK_VOXELS
+    assert pipeline.min_capacity(few, cloud_voxels_at_most=30) == tiny
+    assert pipeline.min_capacity(few, cloud_voxels_at_most=tiny) == tiny
+    # the last few voxels of a larger cloud keep the capacity they had
+    assert pipeline.min_capacity(few, cloud_voxels_at_most=tiny + 1) == small
+    assert pipeline.min_capacity(some, cloud_voxels_at_most=50_000) == small
+    assert pipeline.min_capacity(many, cloud_voxels_at_most=50_000) == full
+    assert pipeline.pack(few, 4, min_capacity=tiny).coords.shape == (tiny, 4)
+

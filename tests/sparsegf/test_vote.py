@@ -138,6 +138,18 @@ def test_decide_matches_a_loop_under_jit_and_vmap(name):
     np.testing.assert_array_equal(np.asarray(batched), want)
 
 
+@pytest.mark.parametrize("name", DECISIONS)
+def test_decide_on_numpy_votes_gives_the_labels_of_jax(name):
+    config = DECISIONS[name]
+    edges = np.array([0.3, 0.5, 0.9, 0.6, 0.2], np.float32)
+    prob = np.concatenate([edges, np.nextafter(edges, np.float32(0)), np.nextafter(edges, np.float32(1)),
+                           np.random.default_rng(5).uniform(0, 1, 85).astype(np.float32)])
+    verdict = np.arange(len(prob)) % 2 == 0
+    on_host = decide(prob, verdict, config=config)
+    assert isinstance(on_host, np.ndarray)
+    np.testing.assert_array_equal(on_host, np.asarray(decide(jnp.asarray(prob), jnp.asarray(verdict), config=config)))
+
+
 def test_decide_with_smrf_changes_labels_only_against_the_network_when_confident():
     prob = np.array([0.35, 0.35, 0.75, 0.75, 0.95, 0.1, 0.04], np.float32)
     verdict = np.array([True, False, True, False, False, True, True])

@@ -43,11 +43,13 @@ def check_range(coords: Int[ArrayLike, "n 4"], valid: Bool[ArrayLike, " n"], wha
 
     Concrete arrays raise `ValueError` naming the range; traced arrays (inside `jit`) carry
     the same check as `eqx.error_if`, because an unpackable coordinate would otherwise alias
-    another voxel silently.
+    another voxel silently. Numpy arrays are checked in numpy (a pack made on the host: JAX
+    ops would trace and load six small programs per pack shape).
     """
-    lo = jnp.asarray([0, COORD_MIN, COORD_MIN, COORD_MIN], dtype=jnp.int32)
-    hi = jnp.asarray([BATCH_MAX, COORD_MAX, COORD_MAX, COORD_MAX], dtype=jnp.int32)
-    bad = jnp.any(valid[:, None] & ((coords < lo[None, :]) | (coords > hi[None, :])))
+    xp = np if isinstance(coords, np.ndarray) and isinstance(valid, np.ndarray) else jnp
+    lo = xp.asarray([0, COORD_MIN, COORD_MIN, COORD_MIN], dtype=xp.int32)
+    hi = xp.asarray([BATCH_MAX, COORD_MAX, COORD_MAX, COORD_MAX], dtype=xp.int32)
+    bad = xp.any(valid[:, None] & ((coords < lo[None, :]) | (coords > hi[None, :])))
     if isinstance(bad, jax.core.Tracer):
         return eqx.error_if(coords, bad, range_message(what))
     if bool(bad):

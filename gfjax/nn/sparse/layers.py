@@ -25,6 +25,15 @@ from gfjax.nn.sparse.maps import KernelMap, NeighbourTable
 from gfjax.nn.sparse.tensor import SparseTensor
 
 
+def _he_normal(key: PRNGKeyArray | None, shape: tuple[int, ...], std: float) -> Array:
+    """Weights drawn from N(0, std²) (He et al. 2015); zeros for `key=None`: a layer made only
+    for its shapes, whose weights are read next (`gfjax.sparsegf.checkpoint.load`: drawing
+    them under `eval_shape` costs 0.13 s of tracing)."""
+    if key is None:
+        return jnp.zeros(shape, jnp.float32)
+    return std * jax.random.normal(key, shape, jnp.float32)
+
+
 class SparseConv3d(eqx.Module):
     """Sparse 3D convolution `(k**3, c_in, c_out)`.
 
@@ -45,10 +54,10 @@ class SparseConv3d(eqx.Module):
 
     def __init__(self, in_channels: int, out_channels: int, kernel_size: int, *, stride: int = 1,
                  transposed: bool = False, use_bias: bool = False, chunk_blocks: int | None = None,
-                 key: PRNGKeyArray):
+                 key: PRNGKeyArray | None):
         volume = kernel_size ** 3
         std = math.sqrt(2.0 / (volume * out_channels))
-        self.weight = std * jax.random.normal(key, (volume, in_channels, out_channels), jnp.float32)
+        self.weight = _he_normal(key, (volume, in_channels, out_channels), std)
         self.bias = jnp.zeros((out_channels,), jnp.float32) if use_bias else None
         self.kernel_size, self.stride, self.transposed = kernel_size, stride, transposed
         self.chunk_blocks = chunk_blocks
@@ -168,9 +177,9 @@ class SparseLinear(eqx.Module):
     weight: Float[Array, "c_in c_out"]
     bias: Float[Array, " c_out"] | None
 
-    def __init__(self, in_channels: int, out_channels: int, *, use_bias: bool = True, key: PRNGKeyArray):
+    def __init__(self, in_channels: int, out_channels: int, *, use_bias: bool = True, key: PRNGKeyArray | None):
         std = math.sqrt(2.0 / out_channels)
-        self.weight = std * jax.random.normal(key, (in_channels, out_channels), jnp.float32)
+        self.weight = _he_normal(key, (in_channels, out_channels), std)
         self.bias = jnp.zeros((out_channels,), jnp.float32) if use_bias else None
 
     def __call__(self, feats: Float[Array, "n c_in"]) -> Float[Array, "n c_out"]:
@@ -191,8 +200,8 @@ class SparseResBlock(eqx.Module):
     shortcut: SparseLinear | None
 
     def __init__(self, in_channels: int, out_channels: int, *, kernel_size: int = 3,
-                 chunk_blocks: int | None = None, key: PRNGKeyArray):
-        k1, k2, k3 = jax.random.split(key, 3)
+                 chunk_blocks: int | None = None, key: PRNGKeyArray | None):
+        k1, k2, k3 = (None, None, None) if key is None else jax.random.split(key, 3)
         self.conv1 = SparseConv3d(in_channels, out_channels, kernel_size, chunk_blocks=chunk_blocks, key=k1)
         self.norm1 = SparseBatchNorm(out_channels)
         self.conv2 = SparseConv3d(out_channels, out_channels, kernel_size, chunk_blocks=chunk_blocks, key=k2)
