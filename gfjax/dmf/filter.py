@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 from gfjax import adaptive, aot, cache
 from gfjax.dmf import extract, neighbours, programs, shapes, stages, voxels
 from gfjax.dmf.config import MAX_BATCH, Config, Params, adapt
+from gfjax.io import columns
 from gfjax.io.cloud import CloudView
 from gfjax.raster import label_components, relabel_consecutive
 from gfjax.result import Result
@@ -193,7 +194,7 @@ def _voxels(local: np.ndarray, config: Config, tiling: Tiling, worker) -> tuple[
         cell_m, mean_nn = voxels.voxel_size_m(local, v0=config.v0, fraction=config.sample_fraction,
                                               minimum=config.sample_min, tree=tree, sample=sample)
     # The raster's shape is known from W: its stored program loads while the voxels are binned.
-    shape = tuple(int(v) for v in np.floor(local[:, 1::-1].max(axis=0) / cell_m) + 1)
+    shape = tuple(int(v) for v in np.floor(columns.highs(local[:, 1::-1]) / cell_m) + 1)
     padded = _one_tile_shape(shape, cell_m, tiling)
     if padded is not None:                          # a tiled raster's programs are not prefetched
         worker.submit(programs.prefetch_raster, padded, config)
@@ -360,7 +361,7 @@ def prepare(cloud: CloudView, use: np.ndarray, config: Config, *, tiling: Tiling
         seconds[name] = seconds.get(name, 0.0) + now - clock[0]
         clock[0] = now
 
-    origin = xyz.min(axis=0)
+    origin = columns.lows(xyz)              # = xyz.min(axis=0), 30x faster
     window_nn = float("nan")
     if cloud.frame is not None:
         # A survey's window: its voxels (and so its NGNEM cells and layers) lie on the lattice

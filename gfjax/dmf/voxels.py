@@ -11,6 +11,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
+from gfjax.io import columns
+
 __all__ = ["voxel_size_m", "nn_sample", "Voxels", "bin_voxels"]
 
 
@@ -30,7 +32,7 @@ def _fmix64(x: np.ndarray) -> np.ndarray:
 
 def _hash_xyz(xyz: np.ndarray) -> np.ndarray:
     """A hash of each point's coordinates quantised to 0.1 mm, uint64 `(n,)`."""
-    q = np.floor((xyz - xyz.min(axis=0)) / _KEY_QUANTUM_M).astype(np.uint64)
+    q = np.floor((xyz - columns.lows(xyz)) / _KEY_QUANTUM_M).astype(np.uint64)
     with np.errstate(over="ignore"):
         return _fmix64(q[:, 0] + _fmix64(q[:, 1] + _fmix64(q[:, 2])))
 
