@@ -80,9 +80,10 @@ class CloudView(Protocol):
     def filter_mask(self, returns: str = "all") -> np.ndarray: ...
 
 
-def use_mask(ignored: np.ndarray, return_number: np.ndarray, number_of_returns: np.ndarray,
+def use_mask(ignored: np.ndarray, return_number: np.ndarray | None, number_of_returns: np.ndarray | None,
              returns: str = "all") -> np.ndarray:
-    """Points a filter uses, bool `(n,)`: not ignored, and last returns only when `returns == "last"`."""
+    """Points a filter uses, bool `(n,)`: not ignored, and last returns only when `returns == "last"`
+    (the return numbers are read only then)."""
     use = ~np.asarray(ignored, bool)
     if returns == "last":
         use &= np.asarray(return_number) >= np.asarray(number_of_returns)
@@ -241,6 +242,8 @@ class Cloud:
 
     def filter_mask(self, returns: str = "all") -> np.ndarray:
         """Points a filter uses: not ignored, and last returns only when `returns == "last"`."""
+        if returns == "all":        # no return numbers read: bit fields laspy unpacks at 2 ms a million
+            return use_mask(self.ignored, None, None, returns)
         return use_mask(self.ignored, self.return_number, self.number_of_returns, returns)
 
     def with_ground(self, ground: np.ndarray, *, reset_nonground: bool = False,
