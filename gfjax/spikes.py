@@ -48,6 +48,12 @@ def _median_rows(a: np.ndarray) -> np.ndarray:
     return 0.5 * (part[:, middle[0]] + part[:, middle[1]])
 
 
+def _median_sorted_rows(a: np.ndarray) -> np.ndarray:
+    """`_median_rows` of rows already in ascending order (a KD-tree's distances): no partition."""
+    k = a.shape[1]
+    return 0.5 * (a[:, (k - 1) // 2] + a[:, k // 2])
+
+
 def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRESHOLD_M, slope: float = SLOPE,
             k: int = NEIGHBOURS) -> np.ndarray:
     """Ground labels without the spikes (see the module docstring).
@@ -82,7 +88,7 @@ def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRES
     distance, neighbour = tree.query(xy, k=k + 1, workers=-1)
     distance, neighbour = distance[:, 1:], neighbour[:, 1:]              # the point itself first
     off = z - _median_rows(z[neighbour])
-    allowed = threshold_m + slope * _median_rows(distance)
+    allowed = threshold_m + slope * _median_sorted_rows(distance)      # distances come sorted
     out = ground.copy()
     out[index[np.abs(off) > allowed]] = False
     return out
@@ -111,7 +117,7 @@ def _despike_stacked(z, xy, index, ground, *, threshold_m: float, slope: float, 
         distance, neighbour = cKDTree(tree_xy).query(xy[query], k=k + 1, workers=-1)
         distance, neighbour = distance[:, 1:], neighbour[:, 1:]          # the point itself first
         off[query] = z[query] - _median_rows(tree_z[neighbour])
-        allowed[query] += slope * _median_rows(distance)
+        allowed[query] += slope * _median_sorted_rows(distance)
     stacked = np.flatnonzero(crowded)
     if stacked.size:
         z_sorted = z[order]
