@@ -73,7 +73,7 @@ def filter_groups(cloud: CloudView, use: np.ndarray, filter_one: Callable[[Cloud
         return None
     xyz_m = cloud.xyz_m
     used = np.flatnonzero(use)
-    members = groups.members(xyz_m[used, :2], gap_m, index=used)
+    members = groups.members(xyz_m[:, :2] if len(used) == len(use) else xyz_m[used, :2], gap_m, index=used)
     if members is None:
         return None
     widest = max(members, key=lambda m: float(np.prod(np.ptp(xyz_m[m, :2], axis=0) + 1.0)))
