@@ -157,8 +157,9 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
         return ground.copy()
     xyz = np.asarray(xyz_m, dtype=np.float64)
     points = np.flatnonzero(used | ground)
-    # column by column (numpy runs (n, 2) arithmetic through an inner loop of two elements)
-    x, y, z = (xyz[:, j][points] for j in range(3))
+    # column by column (numpy runs (n, 2) arithmetic through an inner loop of two elements),
+    # gathered only when some point is neither used nor ground
+    x, y, z = (xyz[:, j] if points.size == len(xyz) else xyz[:, j][points] for j in range(3))
     # cells from the points' corner, as the rule was chosen: a survey's window lays them from its
     # own corner, so near a window's edge its labels may differ from one file's (as the spikes')
     i = np.floor((x - x.min()) / cell_m).astype(np.int64) + 1            # a ring of empty cells
@@ -173,11 +174,17 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
     stacked = np.zeros(cell.size, dtype=bool)
     steps = (-width - 1, -width, -width + 1, -1, 0, 1, width - 1, width, width + 1)
     if n_keys <= 4 * len(points):
-        # a box the points fill: the lowest return of every cell of it, O(n)
+        # a box the points fill: the lowest return of every cell of it, O(n), then of the 3 x 3
+        # cells around each (the ring's cells keep +inf), read once per ground point
         lowest = np.full(n_keys, np.inf)
         np.minimum.at(lowest, key[on_used], z[on_used])
-        for step in steps:
-            stacked |= lowest[cell + step] < top
+        grid = lowest.reshape(-1, width)
+        around = np.full_like(grid, np.inf)
+        inner = around[1:-1, 1:-1]
+        for dj in (0, 1, 2):
+            for di in (0, 1, 2):
+                np.minimum(inner, grid[dj:dj + grid.shape[0] - 2, di:di + width - 2], out=inner)
+        stacked = around.reshape(-1)[cell] < top
     else:
         # the occupied cells only (sorted keys): a stray point kilometres away adds one cell, not a raster
         cells, slot = np.unique(key[on_used], return_inverse=True)
