@@ -48,6 +48,12 @@ def _median_rows(a: np.ndarray) -> np.ndarray:
     return 0.5 * (part[:, middle[0]] + part[:, middle[1]])
 
 
+def _median_sorted_rows(a: np.ndarray) -> np.ndarray:
+    """`_median_rows` of rows already in ascending order (a KD-tree's distances): no partition."""
+    k = a.shape[1]
+    return 0.5 * (a[:, (k - 1) // 2] + a[:, k // 2])
+
+
 def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRESHOLD_M, slope: float = SLOPE,
             k: int = NEIGHBOURS) -> np.ndarray:
     """Ground labels without the spikes (see the module docstring).
@@ -68,24 +74,27 @@ def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRES
     index = np.flatnonzero(ground)
     if index.size <= k:
         return ground.copy()
-    xyz = np.asarray(xyz_m, dtype=np.float64)[index]
-    xy = xyz[:, :2] - xyz[:, :2].min(axis=0)
+    # column by column: numpy runs (n, 2) and (n, 3) arithmetic through an inner loop of 2 or 3
+    x, y, z = (np.asarray(xyz_m, dtype=np.float64)[:, j][index] for j in range(3))
+    xy = np.empty((index.size, 2))
+    np.subtract(x, x.min(), out=xy[:, 0])
+    np.subtract(y, y.min(), out=xy[:, 1])
     tree = cKDTree(xy)
     # A place held by more than k points (a stack of coincident returns) would make every query
     # near it scan the whole stack. A probe tells whether the cloud has one worth the care.
     probe = np.linspace(0, len(xy) - 1, min(PROBE, len(xy))).astype(np.int64)
     if np.any(tree.query(xy[probe], k=k + 1, workers=-1)[0][:, k] == 0.0):
-        return _despike_stacked(xyz, xy, index, ground, threshold_m=threshold_m, slope=slope, k=k)
+        return _despike_stacked(z, xy, index, ground, threshold_m=threshold_m, slope=slope, k=k)
     distance, neighbour = tree.query(xy, k=k + 1, workers=-1)
     distance, neighbour = distance[:, 1:], neighbour[:, 1:]              # the point itself first
-    off = xyz[:, 2] - _median_rows(xyz[neighbour, 2])
-    allowed = threshold_m + slope * _median_rows(distance)
+    off = z - _median_rows(z[neighbour])
+    allowed = threshold_m + slope * _median_sorted_rows(distance)      # distances come sorted
     out = ground.copy()
     out[index[np.abs(off) > allowed]] = False
     return out
 
 
-def _despike_stacked(xyz, xy, index, ground, *, threshold_m: float, slope: float, k: int) -> np.ndarray:
+def _despike_stacked(z, xy, index, ground, *, threshold_m: float, slope: float, k: int) -> np.ndarray:
     """`despike` on ground points some places of which hold more than k of them: each point of
     such a stack is compared with the median of its stack (its k nearest are at distance 0
     among them, which of them a tie); the tree keeps k + 1 of each stack, enough for any other
@@ -100,22 +109,22 @@ def _despike_stacked(xyz, xy, index, ground, *, threshold_m: float, slope: float
     rank[order] = np.arange(len(xy)) - np.repeat(starts, count)
     crowded = count[place] > k
     in_tree = ~crowded | (rank <= k)
-    tree_xy, tree_z = xy[in_tree], xyz[in_tree, 2]
+    tree_xy, tree_z = xy[in_tree], z[in_tree]
     off = np.empty(len(xy))
     allowed = np.full(len(xy), threshold_m)
     query = np.flatnonzero(~crowded)
     if query.size:
         distance, neighbour = cKDTree(tree_xy).query(xy[query], k=k + 1, workers=-1)
         distance, neighbour = distance[:, 1:], neighbour[:, 1:]          # the point itself first
-        off[query] = xyz[query, 2] - _median_rows(tree_z[neighbour])
-        allowed[query] += slope * _median_rows(distance)
+        off[query] = z[query] - _median_rows(tree_z[neighbour])
+        allowed[query] += slope * _median_sorted_rows(distance)
     stacked = np.flatnonzero(crowded)
     if stacked.size:
-        z = xyz[order, 2]
+        z_sorted = z[order]
         medians = np.zeros(len(count))
         for p in np.flatnonzero(count > k):                # few: each holds more than k points
-            medians[p] = np.median(z[starts[p]:starts[p] + count[p]])
-        off[stacked] = xyz[stacked, 2] - medians[place[stacked]]
+            medians[p] = np.median(z_sorted[starts[p]:starts[p] + count[p]])
+        off[stacked] = z[stacked] - medians[place[stacked]]
     out = ground.copy()
     out[index[np.abs(off) > allowed]] = False
     return out
@@ -148,30 +157,39 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
         return ground.copy()
     xyz = np.asarray(xyz_m, dtype=np.float64)
     points = np.flatnonzero(used | ground)
-    xy = xyz[points, :2]
+    # column by column (numpy runs (n, 2) arithmetic through an inner loop of two elements),
+    # gathered only when some point is neither used nor ground
+    x, y, z = (xyz[:, j] if points.size == len(xyz) else xyz[:, j][points] for j in range(3))
     # cells from the points' corner, as the rule was chosen: a survey's window lays them from its
     # own corner, so near a window's edge its labels may differ from one file's (as the spikes')
-    ij = np.floor((xy - xy.min(axis=0)) / cell_m).astype(np.int64) + 1    # a ring of empty cells
-    width = int(ij[:, 0].max()) + 2
-    n_keys = (int(ij[:, 1].max()) + 2) * width
-    key = ij[:, 1] * width + ij[:, 0]
+    i = np.floor((x - x.min()) / cell_m).astype(np.int64) + 1            # a ring of empty cells
+    j = np.floor((y - y.min()) / cell_m).astype(np.int64) + 1
+    width = int(i.max()) + 2
+    n_keys = (int(j.max()) + 2) * width
+    key = j * width + i
     on_used = used[points]
     on_ground = ground[points]
     cell = key[on_ground]
-    top = xyz[points[on_ground], 2] - drop_m
+    top = z[on_ground] - drop_m
     stacked = np.zeros(cell.size, dtype=bool)
     steps = (-width - 1, -width, -width + 1, -1, 0, 1, width - 1, width, width + 1)
     if n_keys <= 4 * len(points):
-        # a box the points fill: the lowest return of every cell of it, O(n)
+        # a box the points fill: the lowest return of every cell of it, O(n), then of the 3 x 3
+        # cells around each (the ring's cells keep +inf), read once per ground point
         lowest = np.full(n_keys, np.inf)
-        np.minimum.at(lowest, key[on_used], xyz[points[on_used], 2])
-        for step in steps:
-            stacked |= lowest[cell + step] < top
+        np.minimum.at(lowest, key[on_used], z[on_used])
+        grid = lowest.reshape(-1, width)
+        around = np.full_like(grid, np.inf)
+        inner = around[1:-1, 1:-1]
+        for dj in (0, 1, 2):
+            for di in (0, 1, 2):
+                np.minimum(inner, grid[dj:dj + grid.shape[0] - 2, di:di + width - 2], out=inner)
+        stacked = around.reshape(-1)[cell] < top
     else:
         # the occupied cells only (sorted keys): a stray point kilometres away adds one cell, not a raster
         cells, slot = np.unique(key[on_used], return_inverse=True)
         lowest = np.full(cells.size, np.inf)
-        np.minimum.at(lowest, slot, xyz[points[on_used], 2])
+        np.minimum.at(lowest, slot, z[on_used])
         for step in steps:
             near = cell + step
             at = np.minimum(np.searchsorted(cells, near), cells.size - 1)

@@ -253,3 +253,20 @@ def test_a_users_value_against_one_chosen_from_the_cloud_is_one_line(tmp_path, c
     assert code == 2 and "Traceback" not in err
     assert "window_m given, cell_m=5.5 chosen from the cloud" in err
     assert not (tmp_path / "out.las").exists()
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 9), (9, 1), (2, 3), (12, 17), (60, 39)], ids=str)
+@pytest.mark.parametrize("size", [3, 5, 7, 13])
+@pytest.mark.parametrize("empty", [0.0, 0.4, 1.0])
+def test_the_minimum_surface_erosion_is_scipys_percentile_filter(shape, size, empty, monkeypatch):
+    """`measure` erodes with scipy.ndimage's 10th percentile filter, without importing it: the
+    same values, ties and empty (+inf) cells included, whole and in blocks of rows."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(size)
+    z = np.round(rng.normal(0.0, 5.0, shape), 1)           # rounded: ties
+    z[rng.random(shape) < empty] = np.inf
+    expected = ndimage.percentile_filter(z, 10, size=size, mode="nearest")
+    np.testing.assert_array_equal(adaptive._percentile_filter(z, 10, size), expected)
+    monkeypatch.setattr(adaptive, "_FILTER_BLOCK", 1)
+    np.testing.assert_array_equal(adaptive._percentile_filter(z, 10, size), expected)

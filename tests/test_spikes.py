@@ -155,3 +155,10 @@ def test_unstack_leaves_labels_without_returns_alone():
     ground = np.ones(30, bool)
     assert spikes.unstack(xyz, np.zeros(30, bool), ground, cell_m=1.0, drop_m=1.0).all()
     assert not spikes.unstack(xyz, ground, np.zeros(30, bool), cell_m=1.0, drop_m=1.0).any()
+
+
+@pytest.mark.parametrize("k", [1, 2, 7, 8])
+def test_the_median_of_sorted_rows_is_the_partitioned_median(k):
+    """despike reads the median distance off the KD-tree's sorted rows: the same values."""
+    rows = np.sort(np.round(np.random.default_rng(k).exponential(2.0, (500, k)), 1), axis=1)   # ties
+    np.testing.assert_array_equal(spikes._median_sorted_rows(rows), spikes._median_rows(rows))

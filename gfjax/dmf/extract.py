@@ -94,7 +94,7 @@ def support_nodes(vox: Voxels, object_cell: np.ndarray, in_ndng: np.ndarray, *, 
     if known.any() and not known.all():
         xy = np.stack([x, y], axis=1)
         k = min(fill_neighbours, int(known.sum()))
-        _, idx = cKDTree(xy[known]).query(xy[~known], k=k)
+        _, idx = cKDTree(xy[known]).query(xy[~known], k=k, workers=-1)     # every core: the same rows
         idx = np.asarray(idx).reshape(int((~known).sum()), k)
         z[~known] = z[known][idx].mean(axis=1)
     lowered = z - v1 * cell_m
@@ -115,14 +115,14 @@ def m_nearest_ground(points: np.ndarray, nodes: SupportNodes, *, points_tree: cK
     n = len(points)
     if n == 0 or len(nodes.xyz) == 0:
         return np.zeros(n, bool), 0
-    _, nearest = cKDTree(nodes.xyz).query(points, k=1)                     # TKDT
+    _, nearest = cKDTree(nodes.xyz).query(points, k=1, workers=-1)         # TKDT
     counts = np.bincount(nearest, minlength=len(nodes.xyz))
     m = max(1, math.ceil(counts[counts > 0].mean() - 1e-9))
     tree = cKDTree(points) if points_tree is None else points_tree
     g_nodes = nodes.xyz[nodes.ground]
     if len(g_nodes) == 0:
         return np.zeros(n, bool), m
-    _, taken = tree.query(g_nodes, k=min(m, n))
+    _, taken = tree.query(g_nodes, k=min(m, n), workers=-1)
     taken = np.asarray(taken).reshape(len(g_nodes), -1).astype(np.int32)
     ground = programs.mark_ground(nearest.astype(np.int32), nodes.ground, taken, n_points=n)
     return np.asarray(ground), m

@@ -11,6 +11,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
+from gfjax.io import columns
+
 __all__ = ["voxel_size_m", "nn_sample", "Voxels", "bin_voxels"]
 
 
@@ -20,19 +22,30 @@ STACKED_SHARE = 0.5      # ... and the share of them with a twin that marks a st
 
 
 def _fmix64(x: np.ndarray) -> np.ndarray:
-    """MurmurHash3's 64-bit finaliser (uint64, wrapping arithmetic)."""
-    x = x ^ (x >> np.uint64(33))
-    x = x * np.uint64(0xFF51AFD7ED558CCD)
-    x = x ^ (x >> np.uint64(33))
-    x = x * np.uint64(0xC4CEB9FE1A85EC53)
-    return x ^ (x >> np.uint64(33))
+    """MurmurHash3's 64-bit finaliser of uint64 `x`, in place (wrapping arithmetic); returns `x`."""
+    x ^= x >> np.uint64(33)
+    x *= np.uint64(0xFF51AFD7ED558CCD)
+    x ^= x >> np.uint64(33)
+    x *= np.uint64(0xC4CEB9FE1A85EC53)
+    x ^= x >> np.uint64(33)
+    return x
 
 
 def _hash_xyz(xyz: np.ndarray) -> np.ndarray:
-    """A hash of each point's coordinates quantised to 0.1 mm, uint64 `(n,)`."""
-    q = np.floor((xyz - xyz.min(axis=0)) / _KEY_QUANTUM_M).astype(np.uint64)
+    """A hash of each point's coordinates quantised to 0.1 mm, uint64 `(n,)`:
+    `fmix(qx + fmix(qy + fmix(qz)))`, column by column and in place (bcts_2: 15 ms, against
+    26 ms through `(n, 3)` temporaries)."""
+    lo = columns.lows(xyz)
+
+    def quantised(j: int) -> np.ndarray:
+        return np.floor((xyz[:, j] - lo[j]) / _KEY_QUANTUM_M).astype(np.uint64)
+
     with np.errstate(over="ignore"):
-        return _fmix64(q[:, 0] + _fmix64(q[:, 1] + _fmix64(q[:, 2])))
+        key = _fmix64(quantised(2))
+        key += quantised(1)
+        _fmix64(key)
+        key += quantised(0)
+        return _fmix64(key)
 
 
 def nn_sample(n_points: int, xyz: np.ndarray, *, fraction: float, minimum: int) -> np.ndarray:

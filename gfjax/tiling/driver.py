@@ -73,7 +73,7 @@ def filter_groups(cloud: CloudView, use: np.ndarray, filter_one: Callable[[Cloud
         return None
     xyz_m = cloud.xyz_m
     used = np.flatnonzero(use)
-    members = groups.members(xyz_m[used, :2], gap_m, index=used)
+    members = groups.members(xyz_m[:, :2] if len(used) == len(use) else xyz_m[used, :2], gap_m, index=used)
     if members is None:
         return None
     widest = max(members, key=lambda m: float(np.prod(np.ptp(xyz_m[m, :2], axis=0) + 1.0)))
@@ -266,7 +266,7 @@ def filter_cloud(cloud: Any, config: Any, params: Any, returns: str, *, tiling: 
     lattice = lattice_of(tiling, config.cell_m, name=cloud.name)
     estimates = functools.partial(config.memory_estimates, tiling=tiling)
     desc = f"{package.rsplit('.', 1)[-1]} tiles"
-    xy_m = cloud.xyz_m[use, :2]
+    xy_m = cloud.xyz_m[:, :2] if use.all() else cloud.xyz_m[use, :2]     # no copy when every point is used
     apart = None
     if cloud.frame is None:                 # a survey's window keeps the survey's lattice
         apart = groups.members(xy_m, max(GROUP_GAP_M, lattice.buffer_m), index=np.flatnonzero(use))

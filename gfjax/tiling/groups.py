@@ -46,13 +46,15 @@ class _Cells(NamedTuple):
 
 
 def _cells(xy_m: np.ndarray, gap_m: float) -> _Cells:
-    cells = np.floor((xy_m - columns.lows(xy_m)) * (1.0 / gap_m)).astype(np.int64)
-    span = columns.highs(cells) + 1
+    # column by column: numpy runs (n, 2) arithmetic through an inner loop of two elements
+    low, scale = columns.lows(xy_m), 1.0 / gap_m
+    i, j = (np.floor((xy_m[:, a] - low[a]) * scale).astype(np.int64) for a in range(2))
+    span = np.array([i.max(), j.max()]) + 1
     rows = int(span[1]) + 2
-    key = cells[:, 0]
+    key = i
     key += 1
     key *= rows
-    key += cells[:, 1] + 1
+    key += j + 1
     n_keys = (int(span[0]) + 2) * rows
     if n_keys <= max(_DENSE_CELLS, 4 * len(key)):            # O(n): a count per cell of the box
         hit = np.bincount(key, minlength=n_keys) > 0

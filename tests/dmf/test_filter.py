@@ -170,6 +170,21 @@ def test_warm_prepares_every_program_filter_runs(monkeypatch):
     assert ran and ran <= prepared, f"{len(ran - prepared)} of {len(ran)} programs not warmed"
 
 
+def test_every_program_filter_prefetches_is_one_it_runs(monkeypatch):
+    """The loads `filter` starts ahead on its worker (the raster stages, the basal loop, the
+    height rule) name the programs its calls then run: none is loaded for nothing."""
+    from gfjax import aot
+
+    ran, prefetched = set(), set()
+    monkeypatch.setattr(aot, "call", lambda fn, *args, tag=None, **static: (
+        ran.add(aot.program_key(fn, args, static, tag)), fn(*args, **static))[1])
+    monkeypatch.setattr(aot, "prefetch", lambda fn, *specs, tag=None, **static: prefetched.add(
+        aot.program_key(fn, specs, static, tag)))
+    cloud, _, _ = scenes.box_scene()
+    dmf.filter(cloud)
+    assert len(prefetched) == 4 and prefetched <= ran, f"{len(prefetched - ran)} of {len(prefetched)} not run"
+
+
 def test_groups_far_apart_number_their_instances_on(box):
     """Two copies of the box scene 10 km apart are filtered group by group: each copy gets the
     labels it gets alone, and the second copy's object ids follow the first's."""
