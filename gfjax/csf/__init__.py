@@ -8,15 +8,15 @@ result = gfjax.csf.filter(cloud, config=gfjax.csf.Config(rigidness=1),
 ```
 """
 from gfjax.csf.config import (
-                              HIDES_LOW_OUTLIERS,
-                              MAX_THRESHOLD_M,
-                              PRESETS,
-                              RANGES,
-                              RELIEF_TIME_STEP,
-                              TREND_M,
-                              Config,
-                              Params,
-                              adapt,
+    HIDES_LOW_OUTLIERS,
+    MAX_THRESHOLD_M,
+    PRESETS,
+    RANGES,
+    RELIEF_TIME_STEP,
+    TREND_M,
+    Config,
+    Params,
+    adapt,
 )
 from gfjax.csf.filter import Diagnostics, filter, warm
 from gfjax.csf.programs import TileDiagnostics, filter_points, grid_shape
