@@ -123,7 +123,9 @@ def test_cli_tune_csf_writes_params_that_filter_reads(tmp_path, capsys):
     setup = method_setup(argparse.Namespace(params=str(out), method=None, preset=None, set_values=[]))
     # the grid's cloth, or the start's: the soft cloth that follows the data (`csf.adapt`)
     assert setup.name == "csf" and setup.config.rigidness == data["values"]["rigidness"] in (3, 1)
-    assert data["start"]["chosen_from_terrain"] == {"trend_m": 30.0, "rigidness": 1}
+    from gfjax import adaptive, csf
+
+    assert data["start"]["chosen_from_terrain"] == csf.adapt(adaptive.measure(gfjax.read(laz).xyz_m))
     assert np.float32(setup.params.time_step) == np.float32(data["values"]["time_step"])
     assert np.float32(setup.params.class_threshold_m) == np.float32(data["values"]["class_threshold_m"])
     assert cli_main.main(["tune", str(laz), "-o", str(tmp_path / "p.json"), "--method", "smrf",
