@@ -261,7 +261,8 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
 
     Returns:
       `Result(ground, Diagnostics)`; ground by `config.decision` (`vote.decide`): by default
-      SMRF's verdict (run once over the cloud) unless the network's mean vote is confident
+      the cloud's low outliers hidden first (`gfjax.adaptive.hide`: non-ground, in no patch and
+      not in SMRF's prior), then SMRF's verdict (run once over the cloud) unless the network's mean vote is confident
       against it and it stands off the ground kept around it (`level_ground_kept`), then
       ground over lower returns and ground spikes dropped (`gfjax.spikes.guard`); `decision="network"` is the
       paper's mean vote > `ground_probability`, as it is.
