@@ -104,10 +104,16 @@ def detect(xyz_m: np.ndarray, used: np.ndarray, *, last_spacing_m: float,
     shape = (int(ij[:, 1].max()) + 1, width)
     key = ij[:, 1] * width + ij[:, 0]
     z = xyz[:, 2]
+    dense = shape[0] * shape[1] <= _DENSE_CELLS_PER_POINT * index.size + 4096
+    if dense:
+        # the first pass without sorting the points: most clouds have no low outlier at all
+        z_min = np.full(shape[0] * shape[1], np.inf)
+        np.minimum.at(z_min, key, z)
+        if not _alone(z_min.reshape(shape), cell).any():
+            return low
     # points sorted by cell, then height: a cell's lowest remaining point is its first not flagged
     order = np.lexsort((z, key))
     flagged = np.zeros(index.size, dtype=bool)
-    dense = shape[0] * shape[1] <= _DENSE_CELLS_PER_POINT * index.size + 4096
     for _ in range(MAX_PASSES):
         alive = order[~flagged[order]]
         keys = key[alive]
