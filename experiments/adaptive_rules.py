@@ -102,6 +102,12 @@ CANDIDATES: dict[str, dict[str, Rule]] = {
         "trend 30+rigid 1+dt 1 on relief 0.2+thr slope<=1": lambda t: {
             "trend_m": 30.0, "rigidness": 1, "class_threshold_m": round(min(1.0, 0.5 + 2 * t.slope_p90), 3),
             **({"time_step": 1.0} if t.slope_p90 >= 0.2 else {})},
+        "trend 30+rigid 1+dt 1 on relief 0.2+thr slope<=1.25": lambda t: {
+            "trend_m": 30.0, "rigidness": 1, "class_threshold_m": round(min(1.25, 0.5 + 2 * t.slope_p90), 3),
+            **({"time_step": 1.0} if t.slope_p90 >= 0.2 else {})},
+        "trend 30+rigid 1+dt 1.2 on relief 0.2+thr slope<=1": lambda t: {
+            "trend_m": 30.0, "rigidness": 1, "class_threshold_m": round(min(1.0, 0.5 + 2 * t.slope_p90), 3),
+            **({"time_step": 1.2} if t.slope_p90 >= 0.2 else {})},
     },
     "masf": {
         "fixed": lambda t: {},

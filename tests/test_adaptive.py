@@ -183,8 +183,8 @@ def test_dmf_masf_rules_set_nothing_yet_csf_takes_the_trend_off_any_terrain():
 @pytest.mark.parametrize("slope, threshold_m, time_step", [
     (0.0, 0.5, None),            # flat: the package's threshold and time step
     (0.1, 0.7, None),            # a gentle slope: its rise over two 1 m cells on top, the same time step
-    (0.3, 1.0, 1.0),             # relief: the threshold at its cap, the cloth falls harder
-    (0.6, 1.0, 1.0),
+    (0.3, 1.1, 1.0),             # relief: the cloth falls harder
+    (0.6, 1.25, 1.0),            # the threshold at its cap
 ])
 def test_csf_threshold_and_time_step_follow_the_slope(slope, threshold_m, time_step):
     from gfjax import csf

@@ -59,9 +59,11 @@ RELIEF_SLOPE = 0.2
 RELIEF_TIME_STEP = 1.0
 # The class threshold grows with that slope: the terrain's rise over this many cloth cells on
 # top of the package's 0.5 m, at most `MAX_THRESHOLD_M`, since a cloth that follows a slope
-# within a cell still misses its bends by about that much.
+# within a cell still misses its bends by about that much. The cap: 1.25 m passes one training
+# file more than 1 m at a lower mean total error; uncapped (9 m on samp41) it calls understory
+# ground (type II 31 % on samp51 and samp52).
 THRESHOLD_RISE_CELLS = 2.0
-MAX_THRESHOLD_M = 1.0
+MAX_THRESHOLD_M = 1.25
 
 
 # Particle.h, `singleMove1` / `doubleMove1`: `rigidness` relaxations of 0.3 each folded into
@@ -161,8 +163,8 @@ HIDES_LOW_OUTLIERS = True
 
 def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
     """CSF's values that follow the cloud (`gfjax.adaptive`), chosen on the training files by
-    leave-one-survey-out (`experiments/results/adaptive_rules_csf.md`: 15 -> 17 of 21 files
-    pass, 16 held out):
+    leave-one-survey-out (`experiments/results/adaptive_rules_csf.md`: 15 -> 18 of 21 files
+    pass, 18 held out):
 
     - the terrain's 30 m trend is taken off before a soft cloth (rigidness 1) falls (`ADAPTED`;
       a flat terrain has no trend to take);
