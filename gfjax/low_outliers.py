@@ -27,6 +27,8 @@ import math
 
 import numpy as np
 
+from gfjax.io import columns
+
 __all__ = ["detect", "cell_m", "MIN_CELL_M", "RADIUS_CELLS", "THRESHOLD_M", "SLOPE", "MIN_COMPANY", "MIN_ABOVE",
            "MAX_PASSES"]
 
@@ -97,9 +99,9 @@ def detect(xyz_m: np.ndarray, used: np.ndarray, *, last_spacing_m: float,
         return low
     xyz = np.asarray(xyz_m, dtype=np.float64)[index]
     cell = cell_m(last_spacing_m)
-    lo = xyz[:, :2].min(axis=0) if origin_m is None else np.asarray(origin_m, np.float64)[:2]
+    lo = columns.lows(xyz[:, :2]) if origin_m is None else np.asarray(origin_m, np.float64)[:2]
     ij = np.floor((xyz[:, :2] - lo) / cell).astype(np.int64)
-    ij -= ij.min(axis=0)                                  # a frame's corner may lie below the points'
+    ij -= columns.lows(ij)                                # a frame's corner may lie below the points'
     width = int(ij[:, 0].max()) + 1
     shape = (int(ij[:, 1].max()) + 1, width)
     key = ij[:, 1] * width + ij[:, 0]

@@ -282,18 +282,17 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
         used = cloud.filter_mask(returns)
     except ValueError as err:
         raise InputError(f"{cloud.name}: --returns: {err}") from None
-    terrain = (adaptive.measure(cloud.xyz_m[used], cloud.xyz_m[cloud.filter_mask("last")])
-               if used.any() else None)
-    low = None
+    used_index = np.flatnonzero(used)
+    xyz_m = cloud.xyz_m[used_index]
+    terrain = adaptive.measure(xyz_m, cloud.xyz_m[cloud.filter_mask("last")]) if len(xyz_m) else None
     if config.decision == "network+smrf" and terrain is not None:
         # low outliers hidden, as from SMRF (`gfjax.smrf.config.HIDES_LOW_OUTLIERS`): its prior and the
         # patches are made without them, and they come out non-ground
-        low = adaptive.hide(cloud, terrain, returns=returns)
-        if low is not None:
-            cloud = adaptive.Hidden(cloud, low)
-            used = cloud.filter_mask(returns)
-    used_index = np.flatnonzero(used)
-    xyz_m = cloud.xyz_m[used_index]
+        hidden = adaptive.hide(cloud, terrain, returns=returns)
+        if hidden is not None:
+            cloud = adaptive.Hidden(cloud, hidden)
+            used_index = np.flatnonzero(cloud.filter_mask(returns))
+            xyz_m = cloud.xyz_m[used_index]
     if seen is not None and terrain is not None and config.decision == "network+smrf":
         density, (low, high) = 1.0 / terrain.spacing_m ** 2, seen
         if not low / DENSITY_SLACK <= density <= high * DENSITY_SLACK:
