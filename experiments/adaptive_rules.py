@@ -48,6 +48,12 @@ def _coarse_cell(t) -> dict:
     return {} if cell == 1.0 else {"cell_m": cell}
 
 
+def _csf_adapt(t) -> dict:
+    from gfjax import csf
+
+    return csf.adapt(t)
+
+
 # Candidates per method: name -> terrain -> field values. "fixed" is the method's fixed defaults.
 CANDIDATES: dict[str, dict[str, Rule]] = {
     "pmf": {
@@ -105,6 +111,7 @@ CANDIDATES: dict[str, dict[str, Rule]] = {
         "trend 30+rigid 1+dt 1 on relief 0.2+thr slope<=1.25": lambda t: {
             "trend_m": 30.0, "rigidness": 1, "class_threshold_m": round(min(1.25, 0.5 + 2 * t.slope_p90), 3),
             **({"time_step": 1.0} if t.slope_p90 >= 0.2 else {})},
+        "shipped: ... +thr slope<=1.25+trend of four last returns a cell": lambda t: _csf_adapt(t),
         "trend 30+rigid 1+dt 1.2 on relief 0.2+thr slope<=1": lambda t: {
             "trend_m": 30.0, "rigidness": 1, "class_threshold_m": round(min(1.0, 0.5 + 2 * t.slope_p90), 3),
             **({"time_step": 1.2} if t.slope_p90 >= 0.2 else {})},

@@ -180,6 +180,14 @@ def test_dmf_masf_rules_set_nothing_yet_csf_takes_the_trend_off_any_terrain():
         assert csf.adapt(terrain) == {"trend_m": csf.TREND_M, "rigidness": 1, "class_threshold_m": 0.5}
 
 
+@pytest.mark.parametrize("spacing_m, trend_m", [(1.0, 30.0), (2.5, 30.0), (3.0, 36.0), (5.0, 60.0)])
+def test_csf_trend_widens_where_its_cells_would_hold_fewer_than_four_last_returns(spacing_m, trend_m):
+    from gfjax import csf
+
+    terrain = adaptive.measure(grid_plane(spacing_m, 600.0))
+    assert csf.adapt(terrain)["trend_m"] == pytest.approx(trend_m, rel=0.1)
+
+
 @pytest.mark.parametrize("slope, threshold_m, time_step", [
     (0.0, 0.5, None),            # flat: the package's threshold and time step
     (0.1, 0.7, None),            # a gentle slope: its rise over two 1 m cells on top, the same time step

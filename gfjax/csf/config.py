@@ -8,6 +8,7 @@ here, with the source line they come from.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from jaxtyping import Array, Float
 
@@ -16,7 +17,8 @@ from gfjax.errors import SettingError
 from gfjax.limits import Range
 from gfjax.params import param
 
-__all__ = ["Config", "Params", "PRESETS", "adapt", "ADAPTED", "TREND_M", "RELIEF_SLOPE", "RELIEF_TIME_STEP",
+__all__ = ["Config", "Params", "PRESETS", "adapt", "ADAPTED", "TREND_M", "TREND_CELLS", "TREND_CELL_LAST_RETURNS",
+           "trend_window_m", "RELIEF_SLOPE", "RELIEF_TIME_STEP",
            "THRESHOLD_RISE_CELLS", "MAX_THRESHOLD_M", "GRAVITY", "DAMPING", "CLOTH_START_M", "BUFFER_PX",
            "STOP_DISPLACEMENT_M", "SMOOTH_THRESHOLD_M", "MIN_SMOOTH_COMPONENT", "single_move",
            "double_move", "RANGES"]
@@ -48,6 +50,12 @@ STOP_DISPLACEMENT_M = 0.005   # CSF.cpp: stop when 0 < max particle displacement
 SMOOTH_THRESHOLD_M = 0.3      # CSF.cpp: `Cloth(..., 0.3, 9999, ...)`, smoothThreshold
 MIN_SMOOTH_COMPONENT = 50     # Cloth.h: MAX_PARTICLE_FOR_POSTPROCESSIN (components > 50)
 TREND_M = 30.0                # the trend `adapt` takes off: objects up to this wide stay on it [m]
+TREND_CELLS = 6               # cells of the trend's surface across its window (`gfjax.csf.trend.trend_at`)
+# A trend cell must hold a few last returns, or its lowest point is a treetop's: on the 0.06 points/m²
+# IGN forest (one last return per 5 m cell of a 30 m trend, 7.5 % of them ground) the trend rides on
+# the canopy and the cloth misses 16 % of the ground; a 61 m trend (four a cell) misses 1.8 %. On
+# every other labelled file a 30 m trend's cells already hold four or more.
+TREND_CELL_LAST_RETURNS = 4
 ADAPTED = {"trend_m": TREND_M, "rigidness": 1}   # the static values `adapt` sets, on every terrain
 # Where the terrain has relief (90th-percentile slope of the minimum surface at least this), the
 # soft cloth also falls with a longer time step: gravity moves a free particle by
@@ -161,13 +169,24 @@ PRESETS: dict[str, dict[str, float | int | bool]] = {
 HIDES_LOW_OUTLIERS = True
 
 
+def trend_window_m(terrain: adaptive.Terrain) -> float:
+    """The trend's window [m]: `TREND_M`, or as wide as `TREND_CELLS` cells that hold
+    `TREND_CELL_LAST_RETURNS` last returns each, rounded up to a metre."""
+    sparse = TREND_CELLS * math.sqrt(TREND_CELL_LAST_RETURNS) * terrain.last_spacing_m
+    return max(TREND_M, float(math.ceil(sparse)))
+
+
 def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
     """CSF's values that follow the cloud (`gfjax.adaptive`), chosen on the training files by
     leave-one-survey-out (`experiments/results/adaptive_rules_csf.md`: 15 -> 18 of 21 files
     pass, 18 held out):
 
-    - the terrain's 30 m trend is taken off before a soft cloth (rigidness 1) falls (`ADAPTED`;
-      a flat terrain has no trend to take);
+    - the terrain's trend is taken off before a soft cloth (rigidness 1) falls (`ADAPTED`; a
+      flat terrain has no trend to take): objects up to 30 m wide stay on it, wider where the
+      last returns are too sparse for its cells to hold `TREND_CELL_LAST_RETURNS` each, unless
+      the cloud is too thin for a 1 m cloth (then no window holds them: on 1,000 points over
+      15 km² the 30 m trend leaves each point on itself, 94 % ground, and a 120-1,600 m one
+      rides the ground's slope, 47-78 %);
     - the class threshold is 0.5 m plus the terrain's rise over `THRESHOLD_RISE_CELLS` cloth
       cells at its 90th-percentile slope, at most `MAX_THRESHOLD_M`;
     - on terrain with relief (`RELIEF_SLOPE`), the time step is `RELIEF_TIME_STEP`.
@@ -177,7 +196,7 @@ def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
     base = Config()
     cell = max(base.cell_m, adaptive.cost_cell_m(terrain))
     rise = THRESHOLD_RISE_CELLS * cell * terrain.slope_p90
-    values: dict[str, float] = {**ADAPTED,
+    values: dict[str, float] = {**ADAPTED, "trend_m": TREND_M if cell > base.cell_m else trend_window_m(terrain),
                                 "class_threshold_m": round(min(MAX_THRESHOLD_M, float(Params().class_threshold_m) + rise), 3)}
     if cell > base.cell_m:
         values["cell_m"] = cell

@@ -25,7 +25,7 @@ import jax
 import numpy as np
 
 from gfjax import adaptive, aot, cache
-from gfjax.csf.config import ADAPTED, BUFFER_PX, HIDES_LOW_OUTLIERS, Config, Params, adapt
+from gfjax.csf.config import ADAPTED, BUFFER_PX, HIDES_LOW_OUTLIERS, TREND_CELLS, Config, Params, adapt
 from gfjax.csf.programs import (
     WARM_SIDES,
     Anchor,
@@ -46,8 +46,6 @@ from gfjax.tiling.checks import check_memory, checked_options
 from gfjax.tiling.driver import filter_groups
 
 __all__ = ["filter", "warm", "detrended", "Diagnostics"]
-
-TREND_CELLS = 6               # cells of the trend's surface across its window (`trend.trend_at`)
 
 
 class Diagnostics(NamedTuple):

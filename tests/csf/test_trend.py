@@ -123,3 +123,28 @@ def test_on_relief_the_cloth_reaches_knolls_narrower_than_the_trend():
     followed = csf.filter(cloud)
     assert followed.settled.chosen["time_step"] == csf.RELIEF_TIME_STEP
     assert np.mean(trend_only.ground) < 0.95 < 0.995 < np.mean(followed.ground)
+
+
+def test_under_a_sparse_canopy_the_trend_widens_to_stay_on_the_ground():
+    """0.06 points/m², 7.5 % of them ground under 5-25 m of canopy (the density of IGN's thinned
+    forest tiles): a 30 m trend's 5 m cells hold one or two points, mostly treetops, and the trend
+    rides the canopy; the window `adapt` sets for so sparse a cloud holds four a cell."""
+    from gfjax import adaptive, csf
+    from gfjax.csf.trend import trend_at
+
+    rng = np.random.default_rng(0)
+    side = 600.0
+    xy = rng.uniform(0, side, (int(0.06 * side**2), 2))
+    ground_z = 100 + 0.05 * xy[:, 0]
+    is_ground = rng.random(len(xy)) < 0.075
+    xyz = np.column_stack([xy, ground_z + np.where(is_ground, 0.0, rng.uniform(5, 25, len(xy)))])
+    window = csf.adapt(adaptive.measure(xyz))["trend_m"]
+    assert window > 45
+    inner = np.all((xy > 60) & (xy < side - 60), axis=1)
+
+    def above_ground(window_m: float) -> float:
+        trend = trend_at(xyz, np.ones(len(xyz), bool), window_m=window_m, cell_m=window_m / csf.config.TREND_CELLS)
+        return float(np.median(trend(xy[inner]) - ground_z[inner]))
+
+    assert above_ground(csf.TREND_M) > 4.0
+    assert above_ground(window) < 1.5
