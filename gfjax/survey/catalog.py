@@ -3,7 +3,9 @@
 One pass reads every file a chunk at a time (`gfjax.io.stream`, with the checks and unit
 conversion of `gfjax.io.las.read`; memory is one chunk, not one file), refuses a survey whose files disagree on CRS or units (one line naming both files),
 and stores the few per-point values a neighbour's halo needs (metres, class, returns,
-whether it is ignored: 28 bytes a point) as a memory-mapped `.npy` in a private temporary folder. The
+whether it is ignored: 28 bytes a point) as a memory-mapped `.npy` in a private temporary folder;
+on request (`keep_points`) also each file's point records as read (`gfjax.io.point_store`), from
+which its classified copy is written without decompressing the file again. The
 survey's `Frame` is the bounding box of every file's points filtered, exactly the frame one
 file holding the whole survey would get.
 """
@@ -19,7 +21,7 @@ import laspy
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import asprs, columns, copc, stream
+from gfjax.io import asprs, columns, copc, point_store, stream
 from gfjax.io import las as las_io
 from gfjax.io.cloud import Frame, use_mask
 
@@ -39,6 +41,8 @@ class Entry(NamedTuple):
         from the file, a box's from the octree nodes that meet it: `gfjax.io.copc`).
       scale_m: metres per unit of x, y and z.
       classes: the classes its filter ignores (`asprs.ClassRules`; for a COPC file's records).
+      points: the `gfjax.io.point_store` of its point records as the file holds them (every
+        dimension), or None when the catalog keeps none.
     """
 
     path: Path
@@ -47,6 +51,7 @@ class Entry(NamedTuple):
     store: Path | None
     scale_m: tuple[float, float, float] = (1.0, 1.0, 1.0)
     classes: asprs.ClassRules = asprs.DEFAULT_RULES
+    points: Path | None = None
 
     def records(self) -> np.ndarray:
         """The file's `STORE` records `(n_points,)`, memory-mapped (index it with the few rows
@@ -134,7 +139,7 @@ class _Indexed(NamedTuple):
 
 def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, returns: str = "all",
           units: str | None = None, trust_data: bool = False, client=None,
-          classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> Catalog:
+          classes: asprs.ClassRules = asprs.DEFAULT_RULES, keep_points: bool = False) -> Catalog:
     """Read every file once into a catalog whose stores live in `folder`.
 
     Args:
@@ -147,6 +152,8 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
       client: a `dask.distributed.Client` whose workers index the files, each file a task
         (`folder` must be one they reach), or None: here, one file after another.
       classes: the classes the filter ignores (`asprs.ClassRules`).
+      keep_points: also keep each file's point records as read (`Entry.points`: 1 byte on disk
+        per byte of the point format), so its copy is written without reading the file again.
 
     Raises:
       InputError: an unreadable file, files whose CRS or units differ, a file whose points lie
@@ -155,7 +162,8 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
     """
     # on a cluster, absolute paths: workers resolve a relative one in their own working folder
     paths = [Path(p) if client is None else Path(p).absolute() for p in paths]
-    jobs = [(i, path, Path(folder) / f"{i}.npy") for i, path in enumerate(paths)]
+    jobs = [(i, path, Path(folder) / f"{i}.npy", Path(folder) / f"{i}.points.npy" if keep_points else None)
+            for i, path in enumerate(paths)]
     options = dict(returns=returns, units=units, trust_data=trust_data, classes=classes)
     if client is None:
         done = (index_file(*job, **options) for job in jobs)
@@ -190,18 +198,20 @@ def _gathered(client, jobs: list, options: dict) -> Iterator[_Indexed]:
 
     futures = [client.submit(index_file, *job, pure=False, **options) for job in jobs]
     try:
-        for (_, path, _), future in zip(jobs, futures):
+        for (_, path, *_), future in zip(jobs, futures):
             yield cluster.result(future, f"{path}: index")
     finally:
         client.cancel(futures)
 
 
-def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: str | None = None,
-               trust_data: bool = False, classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> _Indexed:
+def index_file(i: int, path: Path, store: Path, points_store: Path | None = None, *, returns: str = "all",
+               units: str | None = None, trust_data: bool = False,
+               classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> _Indexed:
     """File `path` read once, a chunk at a time: its `STORE` records written to `store` (none
     for a COPC file: its hierarchy is checked, and each point against its octree node, so that
-    its windows are read from the octree as a full read finds them), the box of its points
-    filtered, its bounds checked."""
+    its windows are read from the octree as a full read finds them), its point records as read
+    to `points_store` when given (`gfjax.io.point_store`), the box of its points filtered, its
+    bounds checked."""
     with stream.open_points(path, units=units, trust_data=trust_data) as points:
         scale = (points.horizontal_unit_m, points.horizontal_unit_m, points.vertical_unit_m)
         with contextlib.ExitStack() as stack:
@@ -211,6 +221,11 @@ def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: 
             if store is not None:       # a chunk at a time: mapped pages would stay resident
                 offset = np.lib.format.open_memmap(store, mode="w+", dtype=STORE, shape=(points.n_points,)).offset
                 out = stack.enter_context(open(store, "r+b"))
+                out.seek(offset)
+            kept = None
+            if points_store is not None:
+                kept = stack.enter_context(point_store.Writer(points_store, points.header.point_format.dtype(),
+                                                              points.n_points))
             low = np.full(3, np.inf)
             high = np.full(3, -np.inf)
             box_lo, box_hi = np.full(3, np.inf), np.full(2, -np.inf)
@@ -226,11 +241,13 @@ def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: 
                     box_lo = np.minimum(box_lo, columns.lows(xyz[used]))
                     box_hi = np.maximum(box_hi, columns.highs(xyz[used, :2]))
                 if store is not None:
-                    out.seek(offset + start * STORE.itemsize)
-                    out.write(part.tobytes())
+                    part.tofile(out)
+                if kept is not None:
+                    kept.append(chunk.array)
         _check_bounds(points, low, high)
         frame = Frame(box_lo, box_hi) if np.all(np.isfinite(box_lo)) else None
-        return _Indexed(Entry(path, points.n_points, frame, store, scale, classes), points.crs, _units(points),
+        return _Indexed(Entry(path, points.n_points, frame, store, scale, classes, points_store), points.crs,
+                        _units(points),
                         _describe(points))
 
 

@@ -210,13 +210,13 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
         if not method.tiles:
             raise InputError(f"tiling: method {method.name} does not tile")
         options = {**options, "tiling": tiling}
-    catalog = index(paths, folder, returns=returns, units=units, client=client, classes=classes)
+    catalog = index(paths, folder, returns=returns, units=units, client=client, classes=classes, keep_points=True)
     config = survey_config(method, config, catalog, returns=returns)
     filter_fn = functools.partial(_method_filter, method, config, params, options)
     run = Runner(catalog, filter_fn, methods.lattice(method, config, tiling), folder, returns=returns, context=False,
                  client=client, whole=fits_whole(method, config, catalog))
     for i, entry in enumerate(catalog.entries):
-        cloud = las_io.read(entry.path, units=units, classes=classes)
+        cloud = las_io.read(entry.path, units=units, classes=classes, stored=entry.points)
         yield cloud, run(i, cloud)[0]
 
 
