@@ -85,18 +85,29 @@ class Entry(NamedTuple):
         decompresses only the octree nodes that meet the box.
         """
         frame = self.frame
-        if frame is not None and np.all(frame.origin_m[:2] >= lo) and np.all(frame.upper_m <= hi):
-            return np.arange(self.n_points), np.asarray(self.records())
-        if self.store is None:
+        inside = frame is not None and np.all(frame.origin_m[:2] >= lo) and np.all(frame.upper_m <= hi)
+        if self.store is None and not inside:
             with copc.Reader(self.path) as reader:
                 index, points = reader.within(lo, hi, self.scale_m[0])
             return index, to_records(points, self.scale_m, self.classes)
-        found = []
-        for start, block in self.blocks():
+        found, chosen = [], []
+        for start, block in self.blocks():          # read, not mapped: mapped pages would stay resident
+            if inside:
+                found.append(np.arange(start, start + len(block)))
+                chosen.append(block)
+                continue
             xy = block["xyz_m"][:, :2]
-            found.append(start + np.flatnonzero(columns.every((xy >= lo[None, :]) & (xy <= hi[None, :]))))
-        index = np.concatenate(found) if found else np.empty(0, np.int64)
-        return index, self.records()[index]
+            hit = np.flatnonzero(columns.every((xy >= lo[None, :]) & (xy <= hi[None, :])))
+            found.append(start + hit)
+            chosen.append(block[hit])
+        return _joined(found, np.dtype(np.int64)), _joined(chosen, STORE)
+
+
+def _joined(parts: list[np.ndarray], dtype: np.dtype) -> np.ndarray:
+    """`parts` one after another (the part itself when there is one: no copy)."""
+    if len(parts) == 1:
+        return parts[0]
+    return np.concatenate(parts) if parts else np.empty(0, dtype)
 
 
 def to_records(points, scale_m, classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> np.ndarray:

@@ -22,6 +22,7 @@ from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog
 from gfjax.survey.halo import Points, ground_near, tiles_region, within_box
+from gfjax.tiling import tiles
 from gfjax.tiling.tiles import Lattice
 
 
@@ -129,18 +130,24 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tu
       `(j, index, ground)` per file `j` with points in the tile's core: `index` uint32 or
       int64 `(k,)` of those points in file `j`, `ground` bool `(k,)` their labels.
     """
-    lo, hi = tiles_region(np.asarray(key), np.asarray(key), catalog.frame, lattice)
+    frame = catalog.frame
+    window_lo, window_hi, _, _ = tiles.window_px(np.asarray(key), tiles.extent_cells(frame, lattice.cell_m), *lattice)
+    lo, hi = tiles_region(np.asarray(key), np.asarray(key), frame, lattice)       # a cell wider than the window
     parts, owners = [], []
     for j, take, records in within_box(catalog, lo, hi):
-        parts.append(records)
-        owners.append((j, take))
+        # exactly the window's points (`split`'s cells): `split` then cuts the tile without copying them
+        cells = tiles.point_cells(records["xyz_m"][:, :2], frame, lattice.cell_m)
+        mine = np.flatnonzero(columns.every((cells >= window_lo[None]) & (cells < window_hi[None])))
+        if mine.size:
+            parts.append(records if mine.size == len(records) else records[mine])
+            owners.append((j, take if mine.size == len(records) else take[mine]))
     if not parts:
         return []
-    chosen = np.concatenate(parts)
-    points = Points.from_records(chosen, f"survey tile {key}", catalog.frame.only([key]))
+    points = Points.from_records(parts, f"survey tile {key}", frame.only([key]))
+    del parts
     result: Result = filter_fn(points, returns=returns)
     ground = np.asarray(result.ground, bool)
-    in_core = columns.every(tile_key(chosen["xyz_m"][:, :2], catalog, lattice) == np.asarray(key)[None])
+    in_core = columns.every(tile_key(points.xyz_m[:, :2], catalog, lattice) == np.asarray(key)[None])
     out, start = [], 0
     for j, take in owners:
         stop = start + take.size

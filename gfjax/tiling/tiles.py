@@ -154,6 +154,35 @@ def _cropped(core_cells: np.ndarray, reach_px: int, lo: np.ndarray, hi: np.ndarr
     return box_lo, box_hi
 
 
+def window_px(key: np.ndarray, extent_px: np.ndarray, tile_size_m: float, buffer_m: float,
+              cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The cells of tile `key` `(col, row)` on a lattice of `extent_px` `(2,)` cells (from the
+    frame's corner): `(lo, hi, core_lo, core_hi)`, int64 `(2,)` each, the window `[lo, hi)`
+    (its core grown by the buffer, before `_cropped`) and the core `[core_lo, core_hi)`, both
+    clipped to the lattice. A point of cell `c` (`point_cells`) is in the window when
+    `lo <= c < hi`."""
+    key = np.asarray(key, np.int64)
+    core_px = tile_size_m / cell_m
+    buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
+    core_lo = np.floor(key * core_px).astype(np.int64)
+    core_hi = np.minimum(np.ceil((key + 1) * core_px).astype(np.int64), extent_px)
+    return np.maximum(core_lo - buffer_px, 0), np.minimum(core_hi + buffer_px, extent_px), core_lo, core_hi
+
+
+def extent_cells(frame: Frame, cell_m: float) -> np.ndarray:
+    """Cells `(cols, rows)` int64 `(2,)` of `frame`'s lattice of `cell_m` [m] that its points fill."""
+    origin = np.asarray(frame.origin_m[:2], np.float64)
+    return np.floor((np.asarray(frame.upper_m) - origin) / cell_m).astype(np.int64) + 1
+
+
+def point_cells(xy_m: np.ndarray, frame: Frame, cell_m: float) -> np.ndarray:
+    """Cell `(col, row)` int64 `(n, 2)` of points `xy_m` `(n, 2)` [m] on `frame`'s lattice of
+    `cell_m`, computed as `split` computes it (the same float64 steps, so the same cells)."""
+    origin = np.asarray(frame.origin_m[:2], np.float64)
+    scaled = (np.asarray(xy_m, np.float64) - origin) / cell_m
+    return np.floor(scaled, out=scaled).astype(np.int64)
+
+
 def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50.0,
           cell_m: float = 1.0, use: np.ndarray | None = None, frame: Frame | None = None) -> list[Tile]:
     """Cut a cloud into buffered square tiles.
@@ -198,8 +227,7 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     np.divide(rel[:, :2], tile_size_m, out=scaled)
     core = np.floor(scaled, out=scaled).astype(np.int64)
     del scaled
-    extent_px = np.floor((np.asarray(frame.upper_m) - origin[:2]) / cell_m).astype(np.int64) + 1
-    core_px = tile_size_m / cell_m
+    extent_px = extent_cells(frame, cell_m)
     buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
 
     reach = max(1, math.ceil((buffer_px + 1) * cell_m / tile_size_m))   # neighbour cores a window reaches
@@ -236,12 +264,8 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
 
     tiles = []
     for (ti, tj) in wanted:
-        k = np.array([ti, tj])
         candidates = candidates_of(ti, tj)
-        core_lo = np.floor(k * core_px).astype(np.int64)
-        core_hi = np.minimum(np.ceil((k + 1) * core_px).astype(np.int64), extent_px)
-        lo = np.maximum(core_lo - buffer_px, 0)
-        hi = np.minimum(core_hi + buffer_px, extent_px)
+        lo, hi, core_lo, core_hi = window_px(np.array([ti, tj]), extent_px, tile_size_m, buffer_m, cell_m)
         # A window of every point (a small file, a survey's window) gathers no copies: the
         # copies of millions of rows cost more than the arithmetic on them.
         every = len(candidates) == len(rel)              # candidates are sorted and distinct
