@@ -183,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
             setup = _survey_setup(setup, catalog, args)
             runner = survey.Runner(catalog, functools.partial(_filter, setup, client is None), setup.lattice, folder,
                                    returns=args.returns, context=args.dtm is not None, client=client,
-                                   whole=_whole(setup, catalog))
+                                   whole=_whole(setup, catalog), halo_m=survey.halo_width(setup.method, setup.config))
         return _run(args, setup, inputs, planned, runner)
 
 
@@ -202,7 +202,8 @@ def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
                            client=client, classes=args.classes)
     setup = _survey_setup(setup, catalog, args)
     runner = survey.Runner(catalog, functools.partial(_filter, setup, False), setup.lattice, folder,
-                           returns=args.returns, context=False, client=client, whole=_whole(setup, catalog))
+                           returns=args.returns, context=False, client=client, whole=_whole(setup, catalog),
+                           halo_m=survey.halo_width(setup.method, setup.config))
     position = {source: i for i, source in enumerate(inputs)}
     # temporaries named here: this process's id in their names keeps other sweeps off them
     # (absolute paths: workers resolve a relative one in their own working folder)
