@@ -114,8 +114,9 @@ def to_records(points, scale_m, classes: asprs.ClassRules = asprs.DEFAULT_RULES)
     """`STORE` records `(n,)` of a chunk of a file's points (a laspy point record), its
     coordinates times `scale_m` (metres per unit of x, y, z), ignored as `classes` says."""
     part = np.empty(len(points), STORE)
-    part["xyz_m"] = np.stack([np.asarray(points.x, np.float64), np.asarray(points.y, np.float64),
-                              np.asarray(points.z, np.float64)], axis=1) * np.asarray(scale_m, np.float64)
+    xyz = part["xyz_m"]
+    for j, (axis, scale) in enumerate(zip((points.x, points.y, points.z), scale_m)):
+        np.multiply(np.asarray(axis, np.float64), np.float64(scale), out=xyz[:, j])    # no (n, 3) temporary
     part["classification"] = np.asarray(points.classification, np.uint8)
     part["return_number"] = np.asarray(points.return_number, np.uint8)
     part["number_of_returns"] = np.asarray(points.number_of_returns, np.uint8)

@@ -133,8 +133,16 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tu
     frame = catalog.frame
     window_lo, window_hi, _, _ = tiles.window_px(np.asarray(key), tiles.extent_cells(frame, lattice.cell_m), *lattice)
     lo, hi = tiles_region(np.asarray(key), np.asarray(key), frame, lattice)       # a cell wider than the window
+    # a file whose points filtered lie a cell within the window's edges lies in it whole
+    origin = np.asarray(frame.origin_m[:2], np.float64)
+    sure_lo, sure_hi = origin + (window_lo + 1) * lattice.cell_m, origin + (window_hi - 1) * lattice.cell_m
     parts, owners = [], []
     for j, take, records in within_box(catalog, lo, hi):
+        box = catalog.entries[j].frame
+        if np.all(box.origin_m[:2] >= sure_lo) and np.all(box.upper_m <= sure_hi):
+            parts.append(records)
+            owners.append((j, take))
+            continue
         # exactly the window's points (`split`'s cells): `split` then cuts the tile without copying them
         cells = tiles.point_cells(records["xyz_m"][:, :2], frame, lattice.cell_m)
         mine = np.flatnonzero(columns.every((cells >= window_lo[None]) & (cells < window_hi[None])))
