@@ -1,11 +1,12 @@
 """The halo a survey gives each file of a method that does not tile: labels against its width.
 
-    nice .venv/bin/python experiments/survey_halo.py [--methods dmf] [--halos 50,20,10,5] [--files bcts_1,...]
+    nice .venv/bin/python experiments/survey_halo.py [--methods dmf] [--halos 50,20,10,5,own] [--files bcts_1,...]
 
 Each training file (`experiments.common.LABELLED`, split "train": no test file picks the
 halo) is cut into 3 x 3 files at its x and y terciles (`survey_seams.py`'s cut), filtered as
 one file and as a survey of its 9 parts (`gfjax.survey.filtered`) with each halo width
-(`gfjax.survey.halo.HALO_M` set for the run), both with the method's fixed `Config()` so the
+(`gfjax.survey.run.halo_width` set for the run; "own": the method's own,
+`gfjax.survey.halo_width`, the width a survey takes), both with the method's fixed `Config()` so the
 seams alone differ. The table gives the share of points whose survey label equals the one
 file's, and the survey's process CPU time. Writes `experiments/results/survey_halo.md` (and
 `.json`).
@@ -26,6 +27,7 @@ from common import LABELLED, RESULTS
 from gfjax import methods, survey
 from gfjax.io import las as las_io
 from gfjax.survey import halo
+from gfjax.survey import run as survey_run
 
 
 def cut(source: Path, folder: Path) -> tuple[list[Path], list[np.ndarray]]:
@@ -46,10 +48,15 @@ def cut(source: Path, folder: Path) -> tuple[list[Path], list[np.ndarray]]:
     return files, members
 
 
+def _fresh(folder: Path) -> Path:
+    folder.mkdir()
+    return folder
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--methods", default="dmf")
-    parser.add_argument("--halos", default="50,20,10,5")
+    parser.add_argument("--halos", default="50,20,10,5,own")
     parser.add_argument("--files", default="bcts_1,Topography,autzen,samp51")
     args = parser.parse_args()
     chosen = {f.name: f for f in LABELLED}
@@ -66,15 +73,21 @@ def main():
                 module = methods.get(method_name)
                 config = module.Config()
                 want = np.asarray(module.filter(whole, config=config).ground)
-                for width in (float(h) for h in args.halos.split(",")):
-                    halo.HALO_M = width
+                for given in args.halos.split(","):
+                    if given == "own":
+                        catalog = survey.index(files, _fresh(folder / f"own_{method_name}"))
+                        width = halo.halo_width(module, survey.survey_config(module, config, catalog))
+                    else:
+                        width = float(given)
+                    survey_run.halo_width = lambda method, config, width=width: width    # what `filtered` takes
                     got = np.zeros(whole.n_points, bool)
-                    store = folder / f"store_{method_name}_{width:g}"
+                    store = folder / f"store_{method_name}_{given}"
                     store.mkdir()
                     cpu = time.process_time()
                     for (_, result), keep in zip(survey.filtered(files, module, store, config=config), members):
                         got[keep] = result.ground
                     row = {"file": name, "method": method_name, "points": whole.n_points, "halo_m": width,
+                           "own": given == "own",
                            "equal_pct": 100 * float(np.mean(got == want)), "cpu_s": time.process_time() - cpu}
                     rows.append(row)
                     print(row, flush=True)
@@ -87,7 +100,8 @@ def main():
              "| file | method | points | halo m | survey = one file [%] | survey CPU s |",
              "| --- | --- | ---: | ---: | ---: | ---: |"]
     for r in rows:
-        lines.append(f"| {r['file']} | {r['method']} | {r['points']:,} | {r['halo_m']:g} | {r['equal_pct']:.4f} | "
+        width = f"{r['halo_m']:g}" + (" (own)" if r.get("own") else "")
+        lines.append(f"| {r['file']} | {r['method']} | {r['points']:,} | {width} | {r['equal_pct']:.4f} | "
                      f"{r['cpu_s']:.1f} |")
     (RESULTS / "survey_halo.md").write_text("\n".join(lines) + "\n")
     (RESULTS / "survey_halo.json").write_text(json.dumps(rows, indent=1) + "\n")

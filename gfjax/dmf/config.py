@@ -49,10 +49,10 @@ RANGES: dict[str, Range] = {
 # The smallest voxel size W of Eq. 1 (`ceil` of a length in metres) when `voxel_m` is None [m].
 _MIN_DATA_VOXEL_M = 1.0
 # The context a survey gives each file, in voxels W: on the training files cut into 3 x 3 files
-# (`experiments/results/survey_halo.md`), 10 W keeps the labels of a 50 m halo within 0.1 % of
-# the points on each (samp51, W = 4 m: 99.85 % at 5 W, 96.96 % at 2.5 W; bcts_1, W = 1 m:
-# 99.99 % at 5 W), and a file of a dense survey (W = 1 m) carries 10 m of its neighbours, not
-# 50 m: 1.2 times its own points, not 2.
+# (`experiments/results/survey_halo.md`), 10 W labels as a 50 m halo does within 0.03 % of the
+# points on each (samp51, W = 4 m: 99.93 % of the one file's labels, 99.96 % with 50 m, 96.96 %
+# at 2.5 W), and a file of a dense survey (W = 1 m) carries 10 m of its neighbours, not 50 m:
+# 1.2 times its own points, not 2.
 SURVEY_HALO_W = 10.0
 MAX_BATCH = 8                 # NGNEM tiles per vmap call of `gfjax.dmf.filter`
 # Memory of one padded tile of a batch, per cell: about 32 float32 / int32 rasters (stage inputs,
