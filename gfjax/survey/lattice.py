@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-from gfjax.io import columns
 from gfjax.io.cloud import use_mask
 from gfjax.result import Result
 from gfjax.survey import cluster
@@ -119,6 +118,16 @@ def tile_key(xy_m: np.ndarray, catalog: Catalog, lattice: Lattice) -> np.ndarray
     return np.floor((np.asarray(xy_m, np.float64) - origin) / lattice.tile_size_m).astype(np.int64)
 
 
+def in_tile(xyz_m: np.ndarray, catalog: Catalog, lattice: Lattice, key: tuple[int, int]) -> np.ndarray:
+    """Points `(n, 3)` [m] in the core of tile `key`: bool `(n,)`, `tile_key(...) == key` a
+    column at a time."""
+    origin = np.asarray(catalog.frame.origin_m[:2], np.float64)
+    inside = np.ones(len(xyz_m), bool)
+    for j in range(2):
+        inside &= np.floor((xyz_m[:, j] - origin[j]) / lattice.tile_size_m) == key[j]
+    return inside
+
+
 def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tuple[int, int], *,
                 returns: str = "all") -> list[tuple[int, np.ndarray, np.ndarray]]:
     """Tile `key` filtered from its window's points, gathered from every file it meets.
@@ -145,7 +154,10 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tu
             continue
         # exactly the window's points (`split`'s cells): `split` then cuts the tile without copying them
         cells = tiles.point_cells(records["xyz_m"][:, :2], frame, lattice.cell_m)
-        mine = np.flatnonzero(columns.every((cells >= window_lo[None]) & (cells < window_hi[None])))
+        inside = (cells[:, 0] >= window_lo[0]) & (cells[:, 0] < window_hi[0])
+        inside &= (cells[:, 1] >= window_lo[1]) & (cells[:, 1] < window_hi[1])
+        mine = np.flatnonzero(inside)
+        del cells, inside
         if mine.size:
             parts.append(records if mine.size == len(records) else records[mine])
             owners.append((j, take if mine.size == len(records) else take[mine]))
@@ -155,7 +167,7 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tu
     del parts
     result: Result = filter_fn(points, returns=returns)
     ground = np.asarray(result.ground, bool)
-    in_core = columns.every(tile_key(points.xyz_m[:, :2], catalog, lattice) == np.asarray(key)[None])
+    in_core = in_tile(points.xyz_m, catalog, lattice, key)
     out, start = [], 0
     for j, take in owners:
         stop = start + take.size

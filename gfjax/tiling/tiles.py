@@ -183,8 +183,12 @@ def point_cells(xy_m: np.ndarray, frame: Frame, cell_m: float) -> np.ndarray:
     """Cell `(col, row)` int64 `(n, 2)` of points `xy_m` `(n, 2)` [m] on `frame`'s lattice of
     `cell_m`, computed as `split` computes it (the same float64 steps, so the same cells)."""
     origin = np.asarray(frame.origin_m[:2], np.float64)
-    scaled = (np.asarray(xy_m, np.float64) - origin) / cell_m
-    return np.floor(scaled, out=scaled).astype(np.int64)
+    xy_m = np.asarray(xy_m, np.float64)
+    cells = np.empty((len(xy_m), 2), np.int64)
+    for j in range(2):                      # a column at a time: `xy_m` may be a view of wider rows
+        scaled = (xy_m[:, j] - origin[j]) / cell_m
+        cells[:, j] = np.floor(scaled, out=scaled)
+    return cells
 
 
 def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50.0,
