@@ -257,12 +257,15 @@ def index_file(i: int, path: Path, store: Path, points_store: Path | None = None
                     octree.check_points(start, np.asarray(chunk.x), np.asarray(chunk.y))
                 part = to_records(chunk, scale, classes)
                 xyz = part["xyz_m"]
-                low = np.minimum(low, columns.lows(xyz) / scale)
-                high = np.maximum(high, columns.highs(xyz) / scale)
+                lows, highs = columns.lows(xyz), columns.highs(xyz)
+                low = np.minimum(low, lows / scale)
+                high = np.maximum(high, highs / scale)
                 used = use_mask(part["ignored"], part["return_number"], part["number_of_returns"], returns)
+                if not used.all() and used.any():         # (a copy of the rows used only when some are not)
+                    lows, highs = columns.lows(xyz[used]), columns.highs(xyz[used])
                 if used.any():
-                    box_lo = np.minimum(box_lo, columns.lows(xyz[used]))
-                    box_hi = np.maximum(box_hi, columns.highs(xyz[used, :2]))
+                    box_lo = np.minimum(box_lo, lows)
+                    box_hi = np.maximum(box_hi, highs[:2])
                 if store is not None:
                     part.tofile(out)
                 if kept is not None:
