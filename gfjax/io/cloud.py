@@ -121,14 +121,19 @@ class Points:
 
     @classmethod
     def from_records(cls, records: np.ndarray | Sequence[np.ndarray], name: str, frame: Frame | None = None) -> Points:
-        """The points of a catalog's `STORE` records `(n,)` (`gfjax.survey.catalog`), or of a
-        non-empty sequence of such arrays one after another: each field one contiguous array (a
-        record's fields are 28 bytes apart, and every pass of a filter over a strided column
-        costs more)."""
-        parts = [records] if isinstance(records, np.ndarray) else list(records)
+        """The points of a catalog's `STORE` records `(n,)` (`gfjax.survey.catalog`): views of
+        its fields; or of a non-empty sequence of such arrays one after another: each field one
+        contiguous array (a record's fields are 28 bytes apart, and every pass of a filter over a
+        strided column costs more: a survey's tile window, `gfjax.survey.lattice`)."""
+        if isinstance(records, np.ndarray):
 
-        def field(name: str) -> np.ndarray:
-            return np.concatenate([part[name] for part in parts])
+            def field(name: str) -> np.ndarray:
+                return np.asarray(records[name])
+        else:
+            parts = list(records)
+
+            def field(name: str) -> np.ndarray:
+                return np.concatenate([part[name] for part in parts])
 
         return cls(xyz_m=field("xyz_m"), classification=field("classification"), return_number=field("return_number"),
                    number_of_returns=field("number_of_returns"), ignored=field("ignored"), name=name, frame=frame)
