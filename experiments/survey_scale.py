@@ -8,9 +8,10 @@ A synthetic survey of `n` files is written as copies of the forest tile `bcts_2`
 filters the files as a survey (`gfjax.survey.Runner`: a tiled method runs each tile of the
 survey's lattice once, any other method each file with its neighbours' halo) and,
 for comparison, one process with `--independent` (today's in-memory path, each file alone).
-The table gives each process's peak resident memory (`ru_maxrss` of the child) and its
-throughput (points of the survey / wall time of the whole process), after untimed runs that
-compile every window shape met. The seam test lives in
+The table gives each process's peak resident memory (`ru_maxrss` of the child), its
+throughput (points of the survey / wall time of the whole process) and its CPU time (user +
+system of the child, every thread: on a machine shared with other jobs the wall time follows
+their load, the CPU time much less), after untimed runs that compile every window shape met. The seam test lives in
 `experiments/survey_seams.py`. Writes `experiments/results/survey_scale.md` (and `.json`, and
 `survey_scale.png`: peak memory against survey size).
 """
@@ -75,7 +76,7 @@ def write_one_file(folder: Path, n_copies: int) -> Path:
 
 
 def run(paths: list[Path], out: Path, method: str, independent: bool, *, extra: tuple[str, ...] = ()) -> dict:
-    """One whole `gfjax filter` process: wall time [s] and peak RSS [bytes]."""
+    """One whole `gfjax filter` process: wall time [s], CPU time [s] and peak RSS [bytes]."""
     out.mkdir()
     argv = [*GFJAX, "-q", "filter", *map(str, paths), "-o", str(out), "--method", method, *extra]
     if independent:
@@ -86,7 +87,7 @@ def run(paths: list[Path], out: Path, method: str, independent: bool, *, extra: 
     wall = watch.wall_s
     if os.waitstatus_to_exitcode(status) != 0:
         raise SystemExit(f"{' '.join(argv)} failed ({os.waitstatus_to_exitcode(status)})")
-    return {"wall_s": wall, "peak_rss_b": usage.ru_maxrss * 1024}
+    return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime, "peak_rss_b": usage.ru_maxrss * 1024}
 
 
 def plot(rows: list[dict], path: Path) -> None:
@@ -146,7 +147,7 @@ def main():
                             "points_per_s": points / row["wall_s"]}
                     rows.append(row)
                     print(f"{method} {mode} {n} files {points:,} points: {row['wall_s']:.1f} s, "
-                          f"{row['peak_rss_b'] / 2**30:.2f} GiB", flush=True)
+                          f"CPU {row['cpu_s']:.1f} s, {row['peak_rss_b'] / 2**30:.2f} GiB", flush=True)
                     for f in (tmp / f"out_{method}_{n}_{mode}").iterdir():
                         f.unlink()
 
@@ -171,11 +172,11 @@ def main():
              f"Command: `nice .venv/bin/python experiments/survey_scale.py --methods {args.methods} "
              f"--tiles {args.tiles} --independent-tiles {args.independent_tiles} --one-file {args.one_file}`  ",
              f"Load average at the end: {' '.join(f'{x:.1f}' for x in os.getloadavg())}; 2-core CPU.", "",
-             "| method | files | points | run | wall s | points/s | peak RSS GiB |",
-             "| --- | ---: | ---: | --- | ---: | ---: | ---: |"]
+             "| method | files | points | run | wall s | points/s | CPU s | peak RSS GiB |",
+             "| --- | ---: | ---: | --- | ---: | ---: | ---: | ---: |"]
     for r in rows:
         lines.append(f"| {r['method']} | {r['files']} | {r['points']:,} | {r['mode']} | {r['wall_s']:.1f} | "
-                     f"{r['points_per_s']:,.0f} | {r['peak_rss_b'] / 2**30:.2f} |")
+                     f"{r['points_per_s']:,.0f} | {r['cpu_s']:.1f} | {r['peak_rss_b'] / 2**30:.2f} |")
     lines.append("")
     for method in args.methods.split(","):
         mine = {(r["files"], r["mode"]): r for r in rows if r["method"] == method}
@@ -186,8 +187,9 @@ def main():
         for n in sorted(alone):
             if (n, "survey") in mine and (n, "independent") in mine:
                 share = mine[n, "survey"]["points_per_s"] / mine[n, "independent"]["points_per_s"]
+                cpu = mine[n, "independent"]["cpu_s"] / mine[n, "survey"]["cpu_s"]
                 lines.append(f"- {method}: survey throughput on {n} files is {100 * share:.0f} % of the "
-                             "files filtered one at a time.")
+                             f"files filtered one at a time ({100 * cpu:.0f} % by CPU time).")
     args.out.write_text("\n".join(lines) + "\n")
     args.out.with_suffix(".json").write_text(json.dumps(rows, indent=1))
     plot([r for r in rows if r["files"] > 1 or r["mode"] == "survey"], args.out.with_suffix(".png"))

@@ -51,6 +51,9 @@ class Method:
         of it): a survey that fits the memory budget is filtered as one cloud.
       survey_config: `survey_config(config, clouds) -> Config`, the estimates made per cloud
         fixed once for a whole survey (DMF's voxel size), or None.
+      survey_halo: `survey_halo(config) -> float`, the context [m] a survey gives each file of
+        a method that labels neither tile by tile nor as one cloud (from the survey's config:
+        DMF's is a multiple of its voxel size), or None for `gfjax.survey.HALO_M`.
       load_model: `load_model(path or None) -> (model, Config it was trained with)` for a
         method whose `filter` takes `model=` (a model file; None: the one shipped; SparseGF),
         else None. A bad file raises `InputError` here, before any output is written.
@@ -72,6 +75,7 @@ class Method:
     tile_labels: bool = False
     whole_cloud: bool = False
     survey_config: Callable[..., Any] | None = None
+    survey_halo: Callable[[Any], float] | None = None
     load_model: Callable[[Any], tuple[Any, Any]] | None = None
     tuning: str | None = None
 

@@ -178,11 +178,12 @@ def run(args: argparse.Namespace) -> int:
             from gfjax import survey
 
             catalog = survey.index(inputs, folder, returns=args.returns, units=args.units,
-                                   trust_data=args.trust_data, client=client, classes=args.classes)
+                                   trust_data=args.trust_data, client=client, classes=args.classes,
+                                   keep_points=True)
             setup = _survey_setup(setup, catalog, args)
             runner = survey.Runner(catalog, functools.partial(_filter, setup, client is None), setup.lattice, folder,
                                    returns=args.returns, context=args.dtm is not None, client=client,
-                                   whole=_whole(setup, catalog))
+                                   whole=_whole(setup, catalog), halo_m=survey.halo_width(setup.method, setup.config))
         return _run(args, setup, inputs, planned, runner)
 
 
@@ -201,7 +202,8 @@ def _run_on_cluster(args, setup, inputs, planned, folder, client) -> int:
                            client=client, classes=args.classes)
     setup = _survey_setup(setup, catalog, args)
     runner = survey.Runner(catalog, functools.partial(_filter, setup, False), setup.lattice, folder,
-                           returns=args.returns, context=False, client=client, whole=_whole(setup, catalog))
+                           returns=args.returns, context=False, client=client, whole=_whole(setup, catalog),
+                           halo_m=survey.halo_width(setup.method, setup.config))
     position = {source: i for i, source in enumerate(inputs)}
     # temporaries named here: this process's id in their names keeps other sweeps off them
     # (absolute paths: workers resolve a relative one in their own working folder)
@@ -318,7 +320,10 @@ def _run(args, setup, inputs, planned, runner) -> int:
 
     def one(job: _job.Planned) -> None:
         start = time.perf_counter()
-        cloud = las_io.read(job.source, units=args.units, trust_data=args.trust_data, classes=args.classes)
+        # a survey's file as its catalog kept it: not decompressed a second time
+        stored = None if runner is None else runner.catalog.entries[position[job.source]].points
+        cloud = las_io.read(job.source, units=args.units, trust_data=args.trust_data, classes=args.classes,
+                            stored=stored)
         if cloud.n_points != job.header.point_count:
             print(f"gfjax: warning: {job.source}: header says {job.header.point_count:,} points, the file holds "
                   f"{cloud.n_points:,}; filtering the {cloud.n_points:,} points present (--trust-data)",

@@ -48,6 +48,12 @@ RANGES: dict[str, Range] = {
 }
 # The smallest voxel size W of Eq. 1 (`ceil` of a length in metres) when `voxel_m` is None [m].
 _MIN_DATA_VOXEL_M = 1.0
+# The context a survey gives each file, in voxels W: on the training files cut into 3 x 3 files
+# (`experiments/results/survey_halo.md`), 10 W labels as a 50 m halo does within 0.03 % of the
+# points on each (samp51, W = 4 m: 99.93 % of the one file's labels, 99.96 % with 50 m, 96.96 %
+# at 2.5 W), and a file of a dense survey (W = 1 m) carries 10 m of its neighbours, not 50 m:
+# 1.2 times its own points, not 2.
+SURVEY_HALO_W = 10.0
 MAX_BATCH = 8                 # NGNEM tiles per vmap call of `gfjax.dmf.filter`
 # Memory of one padded tile of a batch, per cell: about 32 float32 / int32 rasters (stage inputs,
 # work arrays, diagnostics) [bytes]: an estimate, not a measurement.
@@ -218,6 +224,13 @@ PRESETS: dict[str, dict] = {
 # (`experiments/results/low_outliers_methods.md`) hiding them lowers samp41's DTM RMSE (1.69 to 0.39 m) but
 # raises samp31's total error (9.5 % to 11.9 %), so the mean total error grows.
 HIDES_LOW_OUTLIERS = False
+
+
+def survey_halo(config: Config) -> float:
+    """The context [m] a survey gives each file (`gfjax.method.Method.survey_halo`):
+    `SURVEY_HALO_W` voxels of the survey's W (`survey_config` fixes it; the smallest W Eq. 1
+    gives while it is None)."""
+    return SURVEY_HALO_W * (config.voxel_m if config.voxel_m is not None else _MIN_DATA_VOXEL_M)
 
 
 def adapt(terrain: adaptive.Terrain) -> dict[str, float]:

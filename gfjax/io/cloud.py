@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import functools
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple, Protocol, runtime_checkable
 
@@ -119,12 +120,23 @@ class Points:
         return int(self.xyz_m.shape[0])
 
     @classmethod
-    def from_records(cls, records: np.ndarray, name: str, frame: Frame | None = None) -> Points:
-        """The points of a catalog's `STORE` records `(n,)` (`gfjax.survey.catalog`)."""
-        return cls(xyz_m=np.asarray(records["xyz_m"]), classification=np.asarray(records["classification"]),
-                   return_number=np.asarray(records["return_number"]),
-                   number_of_returns=np.asarray(records["number_of_returns"]),
-                   ignored=np.asarray(records["ignored"]), name=name, frame=frame)
+    def from_records(cls, records: np.ndarray | Sequence[np.ndarray], name: str, frame: Frame | None = None) -> Points:
+        """The points of a catalog's `STORE` records `(n,)` (`gfjax.survey.catalog`): views of
+        its fields; or of a non-empty sequence of such arrays one after another: each field one
+        contiguous array (a record's fields are 28 bytes apart, and every pass of a filter over a
+        strided column costs more: a survey's tile window, `gfjax.survey.lattice`)."""
+        if isinstance(records, np.ndarray):
+
+            def field(name: str) -> np.ndarray:
+                return np.asarray(records[name])
+        else:
+            parts = list(records)
+
+            def field(name: str) -> np.ndarray:
+                return np.concatenate([part[name] for part in parts])
+
+        return cls(xyz_m=field("xyz_m"), classification=field("classification"), return_number=field("return_number"),
+                   number_of_returns=field("number_of_returns"), ignored=field("ignored"), name=name, frame=frame)
 
     @classmethod
     def of_xyz(cls, xyz_m: np.ndarray, name: str = "<memory>") -> Points:

@@ -19,7 +19,7 @@ import laspy
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import asprs, copc, copc_writer
+from gfjax.io import asprs, copc, copc_writer, point_store
 from gfjax.io import crs as crs_lib
 from gfjax.io import units as units_lib
 from gfjax.io.atomic import atomic_output, is_temporary
@@ -174,9 +174,12 @@ def header_crs_units(header: laspy.LasHeader, *, name: str,
     return CRSUnits(crs, found, problem)
 
 
-def read_points(path: str | os.PathLike, *, trust_data: bool = False, allow_empty: bool = False) -> laspy.LasData:
+def read_points(path: str | os.PathLike, *, trust_data: bool = False, allow_empty: bool = False,
+                stored: str | os.PathLike | None = None) -> laspy.LasData:
     """Read a LAS 1.0-1.4 or LAZ file whole, checked as `read` checks it, without its units:
     what `gfjax info` describes (a file with no points when `allow_empty`, or in degrees).
+    With `stored`, its points are that `gfjax.io.point_store` of them (the file's checked
+    records, kept when a survey read it: only the header and EVLRs are read from the file).
 
     Raises:
       InputError: as `read`, except for the CRS and the units.
@@ -187,7 +190,12 @@ def read_points(path: str | os.PathLike, *, trust_data: bool = False, allow_empt
     try:
         with laspy.open(path, laz_backend=LAZ_BACKENDS) as reader:
             reader.header.point_count = layout.data_count
-            las = reader.read()
+            if stored is None:
+                las = reader.read()
+            else:
+                header = reader.header
+                las = laspy.LasData(header=header, points=laspy.ScaleAwarePointRecord(
+                    point_store.load(stored), header.point_format, header.scales, header.offsets))
     except MemoryError:
         raise  # a file too large for this machine is not a corrupt one
     except Exception as err:  # noqa: BLE001 (laspy/lazrs decoding the user's bytes: a bad file, not a bug)
@@ -201,7 +209,8 @@ def read_points(path: str | os.PathLike, *, trust_data: bool = False, allow_empt
 
 
 def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
-         trust_data: bool = False, classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> Cloud:
+         trust_data: bool = False, classes: asprs.ClassRules = asprs.DEFAULT_RULES,
+         stored: str | os.PathLike | None = None) -> Cloud:
     """Read a LAS 1.0-1.4 or LAZ file whole, with its CRS and unit factors.
 
     Args:
@@ -212,6 +221,7 @@ def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
       trust_data: when the header's point count disagrees with the points the file holds, read
         the points present (the cloud's header then counts them) instead of raising.
       classes: which classes filters ignore and which keep their class (`Cloud.classes`).
+      stored: the file's points kept by a survey's catalog (`read_points`), or None.
 
     Returns:
       A `Cloud` whose `las` holds every header field, VLR/EVLR and point dimension.
@@ -222,7 +232,7 @@ def read(path: str | os.PathLike, *, units: str | units_lib.Units | None = None,
         `trust_data`), truncated or corrupt data, zero points, coordinates at the int32 limits,
         a geographic CRS in degrees (without `units`).
     """
-    las = read_points(path, trust_data=trust_data)
+    las = read_points(path, trust_data=trust_data, stored=stored)
     found = header_crs_units(las.header, name=str(path), units=units)
     return Cloud(las=las, path=Path(path), horizontal_unit_m=found.units.horizontal_m,
                  vertical_unit_m=found.units.vertical_m, crs=found.crs, units_source=found.units.source,

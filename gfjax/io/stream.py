@@ -19,7 +19,7 @@ import laspy
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import asprs, copc_writer
+from gfjax.io import asprs, copc_writer, point_store
 from gfjax.io import las as las_io
 from gfjax.io.atomic import atomic_output
 from gfjax.io.cloud import use_mask
@@ -38,8 +38,9 @@ class Stream:
         (`gfjax.io.las.header_crs_units`).
     """
 
-    def __init__(self, path: Path, reader: laspy.LasReader, n_points: int, found: las_io.CRSUnits):
-        self.path, self._reader, self.n_points = path, reader, n_points
+    def __init__(self, path: Path, reader: laspy.LasReader, n_points: int, found: las_io.CRSUnits,
+                 stored: Path | None = None):
+        self.path, self._reader, self.n_points, self._stored = path, reader, n_points, stored
         self.header = reader.header
         self.crs = found.crs
         self.horizontal_unit_m, self.vertical_unit_m = found.units.horizontal_m, found.units.vertical_m
@@ -51,6 +52,11 @@ class Stream:
         Raises:
           InputError: truncated or corrupt data, or stored coordinates at the int32 limits.
         """
+        if self._stored is not None:            # checked when the store was written
+            header = self.header
+            for start, records in point_store.blocks(self._stored, size or CHUNK_POINTS):
+                yield start, laspy.ScaleAwarePointRecord(records, header.point_format, header.scales, header.offsets)
+            return
         kind = "LAZ" if self.header.are_points_compressed else "LAS"
         start = 0
         try:
@@ -71,8 +77,11 @@ class Stream:
 
 
 @contextlib.contextmanager
-def open_points(path: str | os.PathLike, *, units: str | None = None, trust_data: bool = False) -> Iterator[Stream]:
-    """A `Stream` over a LAS 1.0-1.4 or LAZ file's points.
+def open_points(path: str | os.PathLike, *, units: str | None = None, trust_data: bool = False,
+                stored: str | os.PathLike | None = None) -> Iterator[Stream]:
+    """A `Stream` over a LAS 1.0-1.4 or LAZ file's points; with `stored`, their chunks come from
+    that `gfjax.io.point_store` of them (a survey's, written from this stream's chunks), not
+    from the file.
 
     Raises:
       InputError: as `gfjax.io.las.read`.
@@ -86,13 +95,13 @@ def open_points(path: str | os.PathLike, *, units: str | None = None, trust_data
         raise InputError(f"{path}: not a valid LAS/LAZ header ({type(err).__name__}: {err})") from None
     with reader:
         reader.header.point_count = layout.data_count
-        yield Stream(path, reader, layout.data_count, found)
+        yield Stream(path, reader, layout.data_count, found, None if stored is None else Path(stored))
 
 
 def rewrite(source: str | os.PathLike, target: str | os.PathLike,
             classify: Callable[[int, laspy.ScaleAwarePointRecord], np.ndarray], *, force: bool = False,
             input_paths: Iterable[str | os.PathLike] = (), trust_data: bool = False,
-            staged: Path | None = None, exclusive: bool = False) -> Path:
+            staged: Path | None = None, exclusive: bool = False, stored: str | os.PathLike | None = None) -> Path:
     """Copy `source` to `target` atomically with each chunk's classification replaced.
 
     Args:
@@ -104,6 +113,7 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
       staged: a temporary name beside `target` (`gfjax.io.atomic.temporary_name`): the copy is
         written there and left for the process that named it to commit (`gfjax.io.atomic.commit`).
       trust_data: as `gfjax.io.las.read`.
+      stored: `source`'s points as a survey's catalog kept them (`open_points`), or None.
 
     Returns:
       The path written.
@@ -112,7 +122,7 @@ def rewrite(source: str | os.PathLike, target: str | os.PathLike,
     as_copc = copc_writer.is_copc_name(target)
     compress = target.suffix.lower() == ".laz" and not as_copc
     # units only scale what a filter reads; a copy needs none (and a file in degrees is fine)
-    with open_points(source, trust_data=trust_data, units="m") as stream:
+    with open_points(source, trust_data=trust_data, units="m", stored=stored) as stream:
         if as_copc:
             with atomic_output(target, force=force, input_paths=[*input_paths, source],
                                suffixes=las_io.LAS_SUFFIXES, staged=staged, exclusive=exclusive) as tmp:
@@ -163,12 +173,14 @@ def _relabelled(stream: Stream, classify: Callable[[int, laspy.ScaleAwarePointRe
 def relabel(source: str | os.PathLike, target: str | os.PathLike, ground: np.ndarray, *, returns: str = "all",
             reset_nonground: bool = False, force: bool = False, input_paths: Iterable[str | os.PathLike] = (),
             trust_data: bool = False, staged: Path | None = None,
-            classes: asprs.ClassRules = asprs.DEFAULT_RULES, exclusive: bool = False) -> tuple[int, int]:
+            classes: asprs.ClassRules = asprs.DEFAULT_RULES, exclusive: bool = False,
+            stored: str | os.PathLike | None = None) -> tuple[int, int]:
     """Copy `source` to `target` (`rewrite`) with the classes that `ground` says, bool
     `(n_points,)` (array-like; read a chunk at a time, so a memory map stays unread), as
     `Cloud.with_ground` sets them: ground 2; former ground 1 (every non-ground point 1 with
     `reset_nonground`); the points the filter does not use (`returns`, the classes `classes`
-    ignores: noise, withheld) and those of the classes it keeps keep their class.
+    ignores: noise, withheld) and those of the classes it keeps keep their class. `stored`: as
+    `rewrite`.
 
     Returns:
       `(n_ground, n_points)` written.
@@ -186,5 +198,5 @@ def relabel(source: str | os.PathLike, target: str | os.PathLike, ground: np.nda
         return asprs.relabel(classification, mine, used, reset_nonground=reset_nonground, rules=classes)
 
     rewrite(source, target, classify, force=force, input_paths=input_paths, trust_data=trust_data, staged=staged,
-            exclusive=exclusive)
+            exclusive=exclusive, stored=stored)
     return counts[0], counts[1]

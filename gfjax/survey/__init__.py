@@ -12,8 +12,17 @@ neighbours' points (`halo`); a method's per-cloud estimates are made once for th
 """
 from gfjax.io.cloud import Points
 from gfjax.survey.catalog import Catalog, Entry, index
-from gfjax.survey.halo import HALO_M, filter_file, fits_whole, halo_region, survey_config, survey_terrain, window
+from gfjax.survey.halo import (
+    HALO_M,
+    filter_file,
+    fits_whole,
+    halo_region,
+    halo_width,
+    survey_config,
+    survey_terrain,
+    window,
+)
 from gfjax.survey.run import Runner, filter, filtered
 
 __all__ = ["HALO_M", "Catalog", "Entry", "Points", "Runner", "filter", "filter_file", "filtered", "fits_whole",
-           "halo_region", "index", "survey_config", "survey_terrain", "window"]
+           "halo_region", "halo_width", "index", "survey_config", "survey_terrain", "window"]

@@ -3,7 +3,9 @@
 One pass reads every file a chunk at a time (`gfjax.io.stream`, with the checks and unit
 conversion of `gfjax.io.las.read`; memory is one chunk, not one file), refuses a survey whose files disagree on CRS or units (one line naming both files),
 and stores the few per-point values a neighbour's halo needs (metres, class, returns,
-whether it is ignored: 28 bytes a point) as a memory-mapped `.npy` in a private temporary folder. The
+whether it is ignored: 28 bytes a point) as a memory-mapped `.npy` in a private temporary folder;
+on request (`keep_points`) also each file's point records as read (`gfjax.io.point_store`), from
+which its classified copy is written without decompressing the file again. The
 survey's `Frame` is the bounding box of every file's points filtered, exactly the frame one
 file holding the whole survey would get.
 """
@@ -19,7 +21,7 @@ import laspy
 import numpy as np
 
 from gfjax.errors import InputError
-from gfjax.io import asprs, columns, copc, stream
+from gfjax.io import asprs, columns, copc, point_store, stream
 from gfjax.io import las as las_io
 from gfjax.io.cloud import Frame, use_mask
 
@@ -39,6 +41,8 @@ class Entry(NamedTuple):
         from the file, a box's from the octree nodes that meet it: `gfjax.io.copc`).
       scale_m: metres per unit of x, y and z.
       classes: the classes its filter ignores (`asprs.ClassRules`; for a COPC file's records).
+      points: the `gfjax.io.point_store` of its point records as the file holds them (every
+        dimension), or None when the catalog keeps none.
     """
 
     path: Path
@@ -47,6 +51,7 @@ class Entry(NamedTuple):
     store: Path | None
     scale_m: tuple[float, float, float] = (1.0, 1.0, 1.0)
     classes: asprs.ClassRules = asprs.DEFAULT_RULES
+    points: Path | None = None
 
     def records(self) -> np.ndarray:
         """The file's `STORE` records `(n_points,)`, memory-mapped (index it with the few rows
@@ -80,26 +85,49 @@ class Entry(NamedTuple):
         decompresses only the octree nodes that meet the box.
         """
         frame = self.frame
-        if frame is not None and np.all(frame.origin_m[:2] >= lo) and np.all(frame.upper_m <= hi):
-            return np.arange(self.n_points), np.asarray(self.records())
-        if self.store is None:
+        inside = frame is not None and np.all(frame.origin_m[:2] >= lo) and np.all(frame.upper_m <= hi)
+        if self.store is None and not inside:
             with copc.Reader(self.path) as reader:
                 index, points = reader.within(lo, hi, self.scale_m[0])
             return index, to_records(points, self.scale_m, self.classes)
-        found = []
-        for start, block in self.blocks():
-            xy = block["xyz_m"][:, :2]
-            found.append(start + np.flatnonzero(columns.every((xy >= lo[None, :]) & (xy <= hi[None, :]))))
-        index = np.concatenate(found) if found else np.empty(0, np.int64)
-        return index, self.records()[index]
+        found, chosen = [], []
+        for start, block in self.blocks():          # read, not mapped: mapped pages would stay resident
+            if inside:
+                found.append(np.arange(start, start + len(block)))
+                chosen.append(block)
+                continue
+            hit = np.flatnonzero(in_box(block["xyz_m"], lo, hi))
+            found.append(start + hit)
+            chosen.append(block[hit])
+        return _joined(found, np.dtype(np.int64)), _joined(chosen, STORE)
+
+
+def in_box(xyz_m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Points `(n, 3)` [m] (a view of records is fine) whose x, y lie in `lo`..`hi` `(2,)`
+    [m], bounds included: bool `(n,)`, tested a column at a time (strided views of 28-byte
+    records, not 2-wide rows)."""
+    x, y = xyz_m[:, 0], xyz_m[:, 1]
+    inside = x >= lo[0]
+    inside &= x <= hi[0]
+    inside &= y >= lo[1]
+    inside &= y <= hi[1]
+    return inside
+
+
+def _joined(parts: list[np.ndarray], dtype: np.dtype) -> np.ndarray:
+    """`parts` one after another (the part itself when there is one: no copy)."""
+    if len(parts) == 1:
+        return parts[0]
+    return np.concatenate(parts) if parts else np.empty(0, dtype)
 
 
 def to_records(points, scale_m, classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> np.ndarray:
     """`STORE` records `(n,)` of a chunk of a file's points (a laspy point record), its
     coordinates times `scale_m` (metres per unit of x, y, z), ignored as `classes` says."""
     part = np.empty(len(points), STORE)
-    part["xyz_m"] = np.stack([np.asarray(points.x, np.float64), np.asarray(points.y, np.float64),
-                              np.asarray(points.z, np.float64)], axis=1) * np.asarray(scale_m, np.float64)
+    xyz = part["xyz_m"]
+    for j, (axis, scale) in enumerate(zip((points.x, points.y, points.z), scale_m)):
+        np.multiply(np.asarray(axis, np.float64), np.float64(scale), out=xyz[:, j])    # no (n, 3) temporary
     part["classification"] = np.asarray(points.classification, np.uint8)
     part["return_number"] = np.asarray(points.return_number, np.uint8)
     part["number_of_returns"] = np.asarray(points.number_of_returns, np.uint8)
@@ -134,7 +162,7 @@ class _Indexed(NamedTuple):
 
 def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, returns: str = "all",
           units: str | None = None, trust_data: bool = False, client=None,
-          classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> Catalog:
+          classes: asprs.ClassRules = asprs.DEFAULT_RULES, keep_points: bool = False) -> Catalog:
     """Read every file once into a catalog whose stores live in `folder`.
 
     Args:
@@ -147,6 +175,8 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
       client: a `dask.distributed.Client` whose workers index the files, each file a task
         (`folder` must be one they reach), or None: here, one file after another.
       classes: the classes the filter ignores (`asprs.ClassRules`).
+      keep_points: also keep each file's point records as read (`Entry.points`: 1 byte on disk
+        per byte of the point format), so its copy is written without reading the file again.
 
     Raises:
       InputError: an unreadable file, files whose CRS or units differ, a file whose points lie
@@ -155,7 +185,8 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
     """
     # on a cluster, absolute paths: workers resolve a relative one in their own working folder
     paths = [Path(p) if client is None else Path(p).absolute() for p in paths]
-    jobs = [(i, path, Path(folder) / f"{i}.npy") for i, path in enumerate(paths)]
+    jobs = [(i, path, Path(folder) / f"{i}.npy", Path(folder) / f"{i}.points.npy" if keep_points else None)
+            for i, path in enumerate(paths)]
     options = dict(returns=returns, units=units, trust_data=trust_data, classes=classes)
     if client is None:
         done = (index_file(*job, **options) for job in jobs)
@@ -190,18 +221,20 @@ def _gathered(client, jobs: list, options: dict) -> Iterator[_Indexed]:
 
     futures = [client.submit(index_file, *job, pure=False, **options) for job in jobs]
     try:
-        for (_, path, _), future in zip(jobs, futures):
+        for (_, path, *_), future in zip(jobs, futures):
             yield cluster.result(future, f"{path}: index")
     finally:
         client.cancel(futures)
 
 
-def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: str | None = None,
-               trust_data: bool = False, classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> _Indexed:
+def index_file(i: int, path: Path, store: Path, points_store: Path | None = None, *, returns: str = "all",
+               units: str | None = None, trust_data: bool = False,
+               classes: asprs.ClassRules = asprs.DEFAULT_RULES) -> _Indexed:
     """File `path` read once, a chunk at a time: its `STORE` records written to `store` (none
     for a COPC file: its hierarchy is checked, and each point against its octree node, so that
-    its windows are read from the octree as a full read finds them), the box of its points
-    filtered, its bounds checked."""
+    its windows are read from the octree as a full read finds them), its point records as read
+    to `points_store` when given (`gfjax.io.point_store`), the box of its points filtered, its
+    bounds checked."""
     with stream.open_points(path, units=units, trust_data=trust_data) as points:
         scale = (points.horizontal_unit_m, points.horizontal_unit_m, points.vertical_unit_m)
         with contextlib.ExitStack() as stack:
@@ -211,6 +244,11 @@ def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: 
             if store is not None:       # a chunk at a time: mapped pages would stay resident
                 offset = np.lib.format.open_memmap(store, mode="w+", dtype=STORE, shape=(points.n_points,)).offset
                 out = stack.enter_context(open(store, "r+b"))
+                out.seek(offset)
+            kept = None
+            if points_store is not None:
+                kept = stack.enter_context(point_store.Writer(points_store, points.header.point_format.dtype(),
+                                                              points.n_points))
             low = np.full(3, np.inf)
             high = np.full(3, -np.inf)
             box_lo, box_hi = np.full(3, np.inf), np.full(2, -np.inf)
@@ -219,18 +257,23 @@ def index_file(i: int, path: Path, store: Path, *, returns: str = "all", units: 
                     octree.check_points(start, np.asarray(chunk.x), np.asarray(chunk.y))
                 part = to_records(chunk, scale, classes)
                 xyz = part["xyz_m"]
-                low = np.minimum(low, columns.lows(xyz) / scale)
-                high = np.maximum(high, columns.highs(xyz) / scale)
+                lows, highs = columns.lows(xyz), columns.highs(xyz)
+                low = np.minimum(low, lows / scale)
+                high = np.maximum(high, highs / scale)
                 used = use_mask(part["ignored"], part["return_number"], part["number_of_returns"], returns)
+                if not used.all() and used.any():         # (a copy of the rows used only when some are not)
+                    lows, highs = columns.lows(xyz[used]), columns.highs(xyz[used])
                 if used.any():
-                    box_lo = np.minimum(box_lo, columns.lows(xyz[used]))
-                    box_hi = np.maximum(box_hi, columns.highs(xyz[used, :2]))
+                    box_lo = np.minimum(box_lo, lows)
+                    box_hi = np.maximum(box_hi, highs[:2])
                 if store is not None:
-                    out.seek(offset + start * STORE.itemsize)
-                    out.write(part.tobytes())
+                    part.tofile(out)
+                if kept is not None:
+                    kept.append(chunk.array)
         _check_bounds(points, low, high)
         frame = Frame(box_lo, box_hi) if np.all(np.isfinite(box_lo)) else None
-        return _Indexed(Entry(path, points.n_points, frame, store, scale, classes), points.crs, _units(points),
+        return _Indexed(Entry(path, points.n_points, frame, store, scale, classes, points_store), points.crs,
+                        _units(points),
                         _describe(points))
 
 

@@ -6,7 +6,8 @@ the survey's frame, so the windows of the tiles holding a file's points are know
 filtering: the file's halo is every point of the other files inside them (plus a cell), and
 those windows then hold exactly the points they would hold in one file of the whole survey:
 the file's labels are the same. A method that does not tile gets the points within
-`HALO_M` of the file's bounding box as context, which removes most, not all, of the seam. A
+`HALO_M` of the file's bounding box as context (or its own width: `Method.survey_halo`,
+`halo_width`), which removes most, not all, of the seam. A
 method whose labels depend on the whole cloud (`Method.whole_cloud`: CSF) filters the whole survey as
 one cloud when it fits the memory budget (`fits_whole`, `survey_labels`), so its labels are
 exactly one file's.
@@ -28,16 +29,24 @@ from gfjax.tiling.tiles import Lattice
 HALO_M = 50.0           # context around a file for methods that do not tile [m]
 
 
-def halo_region(box: Frame, frame: Frame, lattice: Lattice | None) -> tuple[np.ndarray, np.ndarray]:
+def halo_width(method: Method, config) -> float:
+    """The context [m] a survey gives each file of `method` run with `config` (the survey's,
+    `survey_config`) when it labels neither tile by tile nor as one cloud: its own
+    (`Method.survey_halo`) or `HALO_M`."""
+    return HALO_M if method.survey_halo is None else float(method.survey_halo(config))
+
+
+def halo_region(box: Frame, frame: Frame, lattice: Lattice | None,
+                halo_m: float = HALO_M) -> tuple[np.ndarray, np.ndarray]:
     """The x-y box `(lo (2,), hi (2,))` [m] whose points can share a window with a point of `box`.
 
     A tiled method (`lattice`, its tiling at its cell): the windows of the tiles whose cores
     meet `box`, laid on `frame` as `gfjax.tiling.tiles.split` lays them, grown by one cell; other
-    methods (None): `box` grown by `HALO_M`.
+    methods (None): `box` grown by `halo_m` (`halo_width`).
     """
     lo, hi = np.asarray(box.origin_m[:2], np.float64), np.asarray(box.upper_m, np.float64)
     if lattice is None:
-        return lo - HALO_M, hi + HALO_M
+        return lo - halo_m, hi + halo_m
     origin = np.asarray(frame.origin_m[:2], np.float64)
     return tiles_region(np.floor((lo - origin) / lattice.tile_size_m), np.floor((hi - origin) / lattice.tile_size_m),
                         frame, lattice)
@@ -94,13 +103,14 @@ def classified_ground_near(catalog: Catalog, i: int, xyz_m: np.ndarray, buffer_m
     return np.concatenate(parts)
 
 
-def window(catalog: Catalog, i: int, cloud: Cloud, lattice: Lattice | None) -> Points:
-    """File `i` of the catalog (read as `cloud`) followed by its halo, on the survey's frame."""
+def window(catalog: Catalog, i: int, cloud: Cloud, lattice: Lattice | None, halo_m: float = HALO_M) -> Points:
+    """File `i` of the catalog (read as `cloud`) followed by its halo (`halo_region`), on the
+    survey's frame."""
     entry = catalog.entries[i]
     parts = [dict(xyz_m=cloud.xyz_m, classification=cloud.classification, return_number=cloud.return_number,
                   number_of_returns=cloud.number_of_returns, ignored=cloud.ignored)]
     if entry.frame is not None:
-        lo, hi = halo_region(entry.frame, catalog.frame, lattice)
+        lo, hi = halo_region(entry.frame, catalog.frame, lattice, halo_m)
         for _, _, chosen in within_box(catalog, lo, hi, skip=i):
             parts.append({name: np.asarray(chosen[name]) for name in parts[0]})
     fields = {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
@@ -139,8 +149,9 @@ def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrai
 
 
 def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, lattice: Lattice | None, *,
-                returns: str = "all") -> tuple[Result, np.ndarray]:
-    """File `i` of the catalog (read as `cloud`) filtered with its halo (`filtered`'s step).
+                returns: str = "all", halo_m: float = HALO_M) -> tuple[Result, np.ndarray]:
+    """File `i` of the catalog (read as `cloud`) filtered with its halo (`filtered`'s step;
+    `halo_m`: `halo_width`, for a method without `lattice`).
 
     Returns:
       `(result, halo_ground_m)`: the `Result` for the file's own points (`ground`,
@@ -148,7 +159,7 @@ def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, lat
       points labelled ground, float64 `(k, 3)` [m] (they give the file's DTM its border
       cells: `gfjax.dtm.build(context_xyz=...)`).
     """
-    points = window(catalog, i, cloud, lattice)
+    points = window(catalog, i, cloud, lattice, halo_m)
     result = filter_fn(points, returns=returns)
     n = cloud.n_points
     ground = np.asarray(result.ground)

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from gfjax.io import columns
 from gfjax.io.cloud import use_mask
 from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog
 from gfjax.survey.halo import Points, ground_near, tiles_region, within_box
+from gfjax.tiling import tiles
 from gfjax.tiling.tiles import Lattice
 
 
@@ -118,6 +118,16 @@ def tile_key(xy_m: np.ndarray, catalog: Catalog, lattice: Lattice) -> np.ndarray
     return np.floor((np.asarray(xy_m, np.float64) - origin) / lattice.tile_size_m).astype(np.int64)
 
 
+def in_tile(xyz_m: np.ndarray, catalog: Catalog, lattice: Lattice, key: tuple[int, int]) -> np.ndarray:
+    """Points `(n, 3)` [m] in the core of tile `key`: bool `(n,)`, `tile_key(...) == key` a
+    column at a time."""
+    origin = np.asarray(catalog.frame.origin_m[:2], np.float64)
+    inside = np.ones(len(xyz_m), bool)
+    for j in range(2):
+        inside &= np.floor((xyz_m[:, j] - origin[j]) / lattice.tile_size_m) == key[j]
+    return inside
+
+
 def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tuple[int, int], *,
                 returns: str = "all") -> list[tuple[int, np.ndarray, np.ndarray]]:
     """Tile `key` filtered from its window's points, gathered from every file it meets.
@@ -129,18 +139,35 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tu
       `(j, index, ground)` per file `j` with points in the tile's core: `index` uint32 or
       int64 `(k,)` of those points in file `j`, `ground` bool `(k,)` their labels.
     """
-    lo, hi = tiles_region(np.asarray(key), np.asarray(key), catalog.frame, lattice)
+    frame = catalog.frame
+    window_lo, window_hi, _, _ = tiles.window_px(np.asarray(key), tiles.extent_cells(frame, lattice.cell_m), *lattice)
+    lo, hi = tiles_region(np.asarray(key), np.asarray(key), frame, lattice)       # a cell wider than the window
+    # a file whose points filtered lie a cell within the window's edges lies in it whole
+    origin = np.asarray(frame.origin_m[:2], np.float64)
+    sure_lo, sure_hi = origin + (window_lo + 1) * lattice.cell_m, origin + (window_hi - 1) * lattice.cell_m
     parts, owners = [], []
     for j, take, records in within_box(catalog, lo, hi):
-        parts.append(records)
-        owners.append((j, take))
+        box = catalog.entries[j].frame
+        if np.all(box.origin_m[:2] >= sure_lo) and np.all(box.upper_m <= sure_hi):
+            parts.append(records)
+            owners.append((j, take))
+            continue
+        # exactly the window's points (`split`'s cells): `split` then cuts the tile without copying them
+        cells = tiles.point_cells(records["xyz_m"][:, :2], frame, lattice.cell_m)
+        inside = (cells[:, 0] >= window_lo[0]) & (cells[:, 0] < window_hi[0])
+        inside &= (cells[:, 1] >= window_lo[1]) & (cells[:, 1] < window_hi[1])
+        mine = np.flatnonzero(inside)
+        del cells, inside
+        if mine.size:
+            parts.append(records if mine.size == len(records) else records[mine])
+            owners.append((j, take if mine.size == len(records) else take[mine]))
     if not parts:
         return []
-    chosen = np.concatenate(parts)
-    points = Points.from_records(chosen, f"survey tile {key}", catalog.frame.only([key]))
+    points = Points.from_records(parts, f"survey tile {key}", frame.only([key]))
+    del parts
     result: Result = filter_fn(points, returns=returns)
     ground = np.asarray(result.ground, bool)
-    in_core = columns.every(tile_key(chosen["xyz_m"][:, :2], catalog, lattice) == np.asarray(key)[None])
+    in_core = in_tile(points.xyz_m, catalog, lattice, key)
     out, start = [], 0
     for j, take in owners:
         stop = start + take.size

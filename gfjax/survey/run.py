@@ -23,7 +23,16 @@ from gfjax.method import Method
 from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import Catalog, index
-from gfjax.survey.halo import HALO_M, Points, file_of_survey, filter_file, fits_whole, survey_config, survey_labels
+from gfjax.survey.halo import (
+    HALO_M,
+    Points,
+    file_of_survey,
+    filter_file,
+    fits_whole,
+    halo_width,
+    survey_config,
+    survey_labels,
+)
 from gfjax.survey.lattice import TileLabels
 from gfjax.tiling.tiles import Lattice, Tiling
 
@@ -46,12 +55,15 @@ class Runner:
         workers (pickled), and the catalog's folder must be one they reach.
       whole: filter the whole survey as one cloud, once, and give each file its part
         (`fits_whole`; a method without `lattice`): exactly one file's labels.
+      halo_m: the context each file of a method without `lattice` is filtered with [m]
+        (`gfjax.survey.halo.halo_width`).
     """
 
     def __init__(self, catalog: Catalog, filter_fn: Callable, lattice: Lattice | None, folder: str | Path, *,
                  returns: str = "all",
-                 context: bool = True, client=None, whole: bool = False):
+                 context: bool = True, client=None, whole: bool = False, halo_m: float = HALO_M):
         self.catalog, self.filter_fn, self.lattice, self.returns = catalog, filter_fn, lattice, returns
+        self.halo_m = halo_m
         self.context = context
         self.whole = whole and lattice is None
         self.tiles, self.pending, self.submit, self.survey = None, {}, None, None
@@ -67,7 +79,7 @@ class Runner:
             self.pending = {i: self.submit(file_of_survey, survey, i, context=context)
                             for i in range(len(catalog.entries))}
         elif client is not None:
-            self.pending = {i: self.submit(file_labels, lattice, i, returns=returns)
+            self.pending = {i: self.submit(file_labels, lattice, i, returns=returns, halo_m=halo_m)
                             for i in range(len(catalog.entries))}
 
     def write(self, i: int, target: str | Path, staged: str | Path, **options):
@@ -129,19 +141,20 @@ class Runner:
                         self.survey_error = err
                         raise
                 return file_of_survey(self.catalog, self.filter_fn, self.survey, i, context=self.context)
-            return filter_file(self.catalog, i, cloud, self.filter_fn, self.lattice, returns=self.returns)
+            return filter_file(self.catalog, i, cloud, self.filter_fn, self.lattice, returns=self.returns,
+                               halo_m=self.halo_m)
         margin_m = HALO_M if self.context else 0.0
         ground = np.array(self.tiles.labels(i, margin_m))
         return Result(ground=ground), self.tiles.near_ground(i, margin_m)
 
 
 def file_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | None, i: int, *,
-                returns: str = "all") -> tuple[Result, np.ndarray]:
+                returns: str = "all", halo_m: float = HALO_M) -> tuple[Result, np.ndarray]:
     """`filter_file` on file `i` read from its catalog store, not from the file (a Dask task:
     the points are those the file's read gives, in metres)."""
     records = catalog.entries[i].records()
     own = Points.from_records(records, str(catalog.entries[i].path))
-    result, halo_ground_m = filter_file(catalog, i, own, filter_fn, lattice, returns=returns)
+    result, halo_ground_m = filter_file(catalog, i, own, filter_fn, lattice, returns=returns, halo_m=halo_m)
     return result._replace(diagnostics=None), halo_ground_m
 
 
@@ -210,13 +223,13 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
         if not method.tiles:
             raise InputError(f"tiling: method {method.name} does not tile")
         options = {**options, "tiling": tiling}
-    catalog = index(paths, folder, returns=returns, units=units, client=client, classes=classes)
+    catalog = index(paths, folder, returns=returns, units=units, client=client, classes=classes, keep_points=True)
     config = survey_config(method, config, catalog, returns=returns)
     filter_fn = functools.partial(_method_filter, method, config, params, options)
     run = Runner(catalog, filter_fn, methods.lattice(method, config, tiling), folder, returns=returns, context=False,
-                 client=client, whole=fits_whole(method, config, catalog))
+                 client=client, whole=fits_whole(method, config, catalog), halo_m=halo_width(method, config))
     for i, entry in enumerate(catalog.entries):
-        cloud = las_io.read(entry.path, units=units, classes=classes)
+        cloud = las_io.read(entry.path, units=units, classes=classes, stored=entry.points)
         yield cloud, run(i, cloud)[0]
 
 

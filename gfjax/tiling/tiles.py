@@ -123,24 +123,28 @@ class Tile:
         return int(self.index.shape[0])
 
 
-def _clamp_into_cells(local: np.ndarray, cell: np.ndarray, cell_m: float) -> np.ndarray:
-    """Float32 coordinates that stay inside the cell `cell` (int) their float64 value is in."""
-    out = local.astype(np.float32)
+def _clamp_into_cells(local: np.ndarray, cell: np.ndarray, cell_m: float, out: np.ndarray) -> None:
+    """Clamp `out`, float32 `(n, k)` `local` (float64 `(n, k)` [m]) rounded, so each value stays
+    inside the cell `cell` (int `(n, k)`) its float64 value is in; in place."""
+    if not len(local):
+        return
     # Only a value within a few float32 steps of its cell's edge can round out of it; the
     # others are left as they are (the clip would keep them), so the clip runs on few rows.
-    largest = max(float(np.abs(columns.lows(local)).max()), float(np.abs(columns.highs(local)).max())) \
-        if len(local) else 0.0
+    # Column by column: `local` is a view of (n, 3) rows, whose 2-wide inner loops cost more.
+    largest = max(max(abs(float(local[:, j].min())), abs(float(local[:, j].max()))) for j in range(local.shape[1]))
     margin = 4.0 * float(np.spacing(np.float32(largest + cell_m)))
-    offset = cell * cell_m
-    np.subtract(local, offset, out=offset)
-    near = np.flatnonzero(columns.some((offset < margin) | (offset > cell_m - margin)))
+    near_any = np.zeros(len(local), bool)
+    for j in range(local.shape[1]):
+        offset = cell[:, j] * cell_m
+        np.subtract(local[:, j], offset, out=offset)
+        near_any |= (offset < margin) | (offset > cell_m - margin)
+    near = np.flatnonzero(near_any)
     if near.size:
         c = cell[near]
         lo = (c * cell_m).astype(np.float32)
         hi = np.nextafter(((c + 1) * cell_m).astype(np.float32), np.float32(-np.inf))
         lo = np.where(np.floor(lo / np.float32(cell_m)) < c, np.nextafter(lo, np.float32(np.inf)), lo)
         out[near] = np.clip(out[near], lo, np.maximum(lo, hi))
-    return out
 
 
 def _cropped(core_cells: np.ndarray, reach_px: int, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -152,6 +156,39 @@ def _cropped(core_cells: np.ndarray, reach_px: int, lo: np.ndarray, hi: np.ndarr
     if np.prod((box_hi - box_lo).astype(np.float64)) * CROP_SAVING > np.prod((hi - lo).astype(np.float64)):
         return lo, hi
     return box_lo, box_hi
+
+
+def window_px(key: np.ndarray, extent_px: np.ndarray, tile_size_m: float, buffer_m: float,
+              cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The cells of tile `key` `(col, row)` on a lattice of `extent_px` `(2,)` cells (from the
+    frame's corner): `(lo, hi, core_lo, core_hi)`, int64 `(2,)` each, the window `[lo, hi)`
+    (its core grown by the buffer, before `_cropped`) and the core `[core_lo, core_hi)`, both
+    clipped to the lattice. A point of cell `c` (`point_cells`) is in the window when
+    `lo <= c < hi`."""
+    key = np.asarray(key, np.int64)
+    core_px = tile_size_m / cell_m
+    buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
+    core_lo = np.floor(key * core_px).astype(np.int64)
+    core_hi = np.minimum(np.ceil((key + 1) * core_px).astype(np.int64), extent_px)
+    return np.maximum(core_lo - buffer_px, 0), np.minimum(core_hi + buffer_px, extent_px), core_lo, core_hi
+
+
+def extent_cells(frame: Frame, cell_m: float) -> np.ndarray:
+    """Cells `(cols, rows)` int64 `(2,)` of `frame`'s lattice of `cell_m` [m] that its points fill."""
+    origin = np.asarray(frame.origin_m[:2], np.float64)
+    return np.floor((np.asarray(frame.upper_m) - origin) / cell_m).astype(np.int64) + 1
+
+
+def point_cells(xy_m: np.ndarray, frame: Frame, cell_m: float) -> np.ndarray:
+    """Cell `(col, row)` int64 `(n, 2)` of points `xy_m` `(n, 2)` [m] on `frame`'s lattice of
+    `cell_m`, computed as `split` computes it (the same float64 steps, so the same cells)."""
+    origin = np.asarray(frame.origin_m[:2], np.float64)
+    xy_m = np.asarray(xy_m, np.float64)
+    cells = np.empty((len(xy_m), 2), np.int64)
+    for j in range(2):                      # a column at a time: `xy_m` may be a view of wider rows
+        scaled = (xy_m[:, j] - origin[j]) / cell_m
+        cells[:, j] = np.floor(scaled, out=scaled)
+    return cells
 
 
 def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50.0,
@@ -198,8 +235,7 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     np.divide(rel[:, :2], tile_size_m, out=scaled)
     core = np.floor(scaled, out=scaled).astype(np.int64)
     del scaled
-    extent_px = np.floor((np.asarray(frame.upper_m) - origin[:2]) / cell_m).astype(np.int64) + 1
-    core_px = tile_size_m / cell_m
+    extent_px = extent_cells(frame, cell_m)
     buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
 
     reach = max(1, math.ceil((buffer_px + 1) * cell_m / tile_size_m))   # neighbour cores a window reaches
@@ -236,12 +272,8 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
 
     tiles = []
     for (ti, tj) in wanted:
-        k = np.array([ti, tj])
         candidates = candidates_of(ti, tj)
-        core_lo = np.floor(k * core_px).astype(np.int64)
-        core_hi = np.minimum(np.ceil((k + 1) * core_px).astype(np.int64), extent_px)
-        lo = np.maximum(core_lo - buffer_px, 0)
-        hi = np.minimum(core_hi + buffer_px, extent_px)
+        lo, hi, core_lo, core_hi = window_px(np.array([ti, tj]), extent_px, tile_size_m, buffer_m, cell_m)
         # A window of every point (a small file, a survey's window) gathers no copies: the
         # copies of millions of rows cost more than the arithmetic on them.
         every = len(candidates) == len(rel)              # candidates are sorted and distinct
@@ -261,7 +293,7 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
             local_cell = (cell if every else cell[members]) - lo[None, :]
             local = (rel if every else rel[members]) - shift[None, :]
         local32 = local.astype(np.float32)
-        local32[:, :2] = _clamp_into_cells(local[:, :2], local_cell, cell_m)
+        _clamp_into_cells(local[:, :2], local_cell, cell_m, out=local32[:, :2])
         shape = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))
         core_lo, core_hi = np.maximum(core_lo, lo), np.minimum(core_hi, hi)
         tiles.append(Tile(key=(ti, tj), origin_m=origin + shift, shape=shape, index=used[members],

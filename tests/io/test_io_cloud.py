@@ -77,3 +77,20 @@ def test_class_names_and_counts():
     las.x = las.y = las.z = np.zeros(5)
     las.classification = np.array([2, 2, 7, 1, 2], np.uint8)
     assert asprs.class_counts(las) == {1: 1, 2: 3, 7: 1}
+
+
+def test_points_from_records_views_one_array_and_joins_a_sequence_contiguously():
+    from gfjax.io.cloud import Points
+    from gfjax.survey.catalog import STORE
+
+    records = np.zeros(5, STORE)
+    records["xyz_m"] = np.arange(15.0).reshape(5, 3)
+    records["classification"] = [1, 2, 2, 6, 7]
+    records["ignored"] = [False, False, False, False, True]
+    one = Points.from_records(records, "one")
+    assert np.shares_memory(one.xyz_m, records)                 # a view: no copy of a whole survey
+    joined = Points.from_records([records[:2], records[2:]], "two")
+    assert joined.xyz_m.flags.c_contiguous and not np.shares_memory(joined.xyz_m, records)
+    for name in ("xyz_m", "classification", "return_number", "number_of_returns", "ignored"):
+        np.testing.assert_array_equal(getattr(joined, name), getattr(one, name))
+    assert joined.filter_mask().tolist() == [True, True, True, True, False]

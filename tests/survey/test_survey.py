@@ -162,6 +162,26 @@ def test_halo_of_a_method_that_does_not_tile_is_a_margin():
     np.testing.assert_array_equal(hi, [30.0 + HALO_M, 40.0 + HALO_M])
 
 
+def test_dmf_takes_a_halo_of_its_voxels_the_other_methods_halo_m(grid, tmp_path):
+    """DMF's halo follows its survey's voxel size W (`SURVEY_HALO_W`); a file's window holds the
+    other files' points within it, and no more."""
+    from gfjax import dmf, masf
+    from gfjax.dmf.config import SURVEY_HALO_W
+
+    assert survey.halo_width(dmf.METHOD, dmf.Config(voxel_m=2.0)) == 2.0 * SURVEY_HALO_W
+    assert survey.halo_width(masf.METHOD, masf.Config()) == HALO_M
+    paths, members, _ = grid
+    catalog = survey.index(paths, tmp_path)
+    cloud = las_io.read(paths[0])
+    own = catalog.entries[0].frame
+    for width in (3.0, 10.0):
+        halo = survey.window(catalog, 0, cloud, None, width).xyz_m[cloud.n_points:]
+        lo, hi = own.origin_m[:2] - width, own.upper_m + width
+        assert len(halo) and np.all((halo[:, :2] >= lo) & (halo[:, :2] <= hi))
+        others = np.concatenate([las_io.read(p).xyz_m for p in paths[1:]])
+        assert len(halo) == np.sum(np.all((others[:, :2] >= lo) & (others[:, :2] <= hi), axis=1))
+
+
 def test_split_refuses_points_outside_its_frame():
     xyz = np.asarray([[0.0, 0.0, 0.0], [5.0, 5.0, 1.0]])
     with pytest.raises(ValueError, match="outside the tiling frame"):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from gfjax.errors import InputError, SettingError
-from gfjax.io.cloud import Cloud
+from gfjax.io.cloud import Cloud, Frame
 from gfjax.smrf import Config, Params, programs
 from gfjax.smrf import filter as smrf_filter
 from gfjax.tiling import batches, buckets, driver
@@ -218,3 +218,23 @@ def test_small_batches_are_full_and_hold_every_small_tile_once():
             batch.xyz[len(batch.tiles) - 1], batch.xyz[len(batch.tiles):].shape))
         seen += [id(t) for t in batch.tiles]
     assert sorted(seen) == sorted(map(id, tiles))
+
+
+def test_a_tiles_window_holds_the_points_whose_cells_window_px_names():
+    """`point_cells` and `window_px` say which points `split` puts in a tile's window (a survey
+    gathers exactly those: `gfjax.survey.lattice.tile_labels`), at coordinates far from 0."""
+    rng = np.random.default_rng(3)
+    xyz = ORIGIN + np.column_stack([rng.uniform(0, 130, 40_000), rng.uniform(0, 90, 40_000), rng.normal(0, 1, 40_000)])
+    xyz[:50, :2] = np.round(xyz[:50, :2] * 4) / 4                  # points on cell edges too
+    frame = Frame.of(xyz)
+    tile_size_m, buffer_m, cell_m = 40.0, 7.5, 1.0
+    cells = tiling.point_cells(xyz[:, :2], frame, cell_m)
+    extent = tiling.extent_cells(frame, cell_m)
+    made = tiling.split(xyz, tile_size_m=tile_size_m, buffer_m=buffer_m, cell_m=cell_m, frame=frame)
+    assert len(made) == 12
+    for tile in made:
+        lo, hi, core_lo, core_hi = tiling.window_px(np.array(tile.key), extent, tile_size_m, buffer_m, cell_m)
+        assert tile.window_px == tuple(lo) and tile.shape == (hi[1] - lo[1], hi[0] - lo[0])
+        assert tile.core_px == (*core_lo, *core_hi)
+        inside = np.flatnonzero(np.all((cells >= lo) & (cells < hi), axis=1))
+        np.testing.assert_array_equal(tile.index, inside)
