@@ -24,7 +24,7 @@ from typing import Any, NamedTuple
 from gfjax.errors import SettingError
 
 __all__ = ["Range", "check_fields", "check_value", "Estimate", "memory_budget_bytes", "check_memory",
-           "raster_side", "tiles_per_batch", "BUDGET_ENV"]
+           "raster_side", "tiles_per_batch", "byte_size", "BUDGET_ENV"]
 
 BUDGET_ENV = "GFJAX_MEMORY_BUDGET_GB"
 # Memory a point takes when a file is filtered in memory, besides its point record: the
@@ -189,3 +189,11 @@ def tiles_per_batch(extent_m: tuple[float, float] | None, tile_m: float, *, max_
     for length in extent_m:
         count *= max(1, math.ceil(length / tile_m - 1e-9))
     return min(max_batch, count)
+
+
+def byte_size(n_bytes: float) -> str:
+    """`n_bytes` in the largest binary unit that leaves at least 1 of it: "512 bytes", "3.2 MiB"."""
+    for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n_bytes >= scale:
+            return f"{n_bytes / scale:,.2f} {unit}"
+    return f"{n_bytes:,.0f} bytes"

@@ -25,6 +25,7 @@ from gfjax import limits
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 from gfjax.io.atomic import check_output, existing_output_message
+from gfjax.limits import byte_size
 
 _LAZ_OF_LAS = 0.25          # a LAZ written from LAS points: at most about a quarter of the LAS size
 _LAZ_SLACK = 1.05           # a LAZ rewritten from a LAZ: about its input size (new classes compress alike)
@@ -159,14 +160,6 @@ def _check_free_space(planned: Sequence[Planned], *, dtm_cell_m: float | None, e
         if size > free:
             raise InputError(f"{folder}: the outputs need about {byte_size(size)}, only {byte_size(free)} free "
                              "(estimated from the input sizes)")
-
-
-def byte_size(n_bytes: float) -> str:
-    """`n_bytes` in the largest binary unit that leaves at least 1 of it: "512 bytes", "3.2 MiB"."""
-    for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
-        if n_bytes >= scale:
-            return f"{n_bytes / scale:,.2f} {unit}"
-    return f"{n_bytes:,.0f} bytes"
 
 
 def _one_line(message: object) -> str:

@@ -24,6 +24,7 @@ from gfjax.errors import InputError
 from gfjax.io import asprs, columns, copc, point_store, stream
 from gfjax.io import las as las_io
 from gfjax.io.cloud import Frame, use_mask
+from gfjax.limits import byte_size
 
 BLOCK_POINTS = 1 << 20          # rows of a store read at a time
 STORE = np.dtype([("xyz_m", "<f8", (3,)), ("classification", "u1"), ("return_number", "u1"),
@@ -185,6 +186,7 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
     """
     # on a cluster, absolute paths: workers resolve a relative one in their own working folder
     paths = [Path(p) if client is None else Path(p).absolute() for p in paths]
+    check_scratch_space(paths, folder, keep_points=keep_points)
     jobs = [(i, path, Path(folder) / f"{i}.npy", Path(folder) / f"{i}.points.npy" if keep_points else None)
             for i, path in enumerate(paths)]
     options = dict(returns=returns, units=units, trust_data=trust_data, classes=classes)
@@ -212,6 +214,27 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
         if entry.frame is not None:
             frame = entry.frame if frame is None else frame.union(entry.frame)
     return Catalog(tuple(entries), frame)
+
+
+def check_scratch_space(paths: Sequence[Path], folder: str | os.PathLike, *, keep_points: bool) -> None:
+    """The stores of `paths` (their headers' point counts: `STORE` records, and the point records
+    themselves with `keep_points`) must fit in `folder`'s free space, or `InputError` before any
+    file is read. A file whose header does not read is left to the index to name."""
+    import shutil
+
+    need = 0
+    for path in paths:
+        try:
+            with laspy.open(path) as reader:
+                header = reader.header
+                need += header.point_count * (STORE.itemsize + (header.point_format.size if keep_points else 0))
+        except Exception:                                    # noqa: BLE001 (index_file says what is wrong)
+            continue
+    free = shutil.disk_usage(folder).free
+    if need > free:
+        raise InputError(f"{folder}: a survey of these files keeps about {byte_size(need)} of working copies "
+                         f"there, only {byte_size(free)} free; set TMPDIR to a folder with more room, or filter "
+                         "the files independently (gfjax filter --independent)")
 
 
 def _gathered(client, jobs: list, options: dict) -> Iterator[_Indexed]:

@@ -86,7 +86,7 @@ def test_outputs_larger_than_the_free_space_are_refused_before_filtering(folders
 
 
 def test_byte_sizes_take_the_unit_that_shows_them():
-    from gfjax.cli._job import byte_size
+    from gfjax.limits import byte_size
 
     assert [byte_size(n) for n in (100, 3 * 2**10, 2.5 * 2**20, 3 * 2**30)] == \
         ["100 bytes", "3.00 KiB", "2.50 MiB", "3.00 GiB"]

@@ -155,6 +155,25 @@ def test_files_with_different_crs_are_refused_naming_both(tmp_path):
         survey.index([a, b], tmp_path)
 
 
+def test_a_survey_whose_working_copies_do_not_fit_is_refused_before_a_file_is_read(grid, tmp_path, monkeypatch):
+    import shutil
+
+    from gfjax.survey import catalog
+
+    paths, _, _ = grid
+    need = 0
+    for path in paths:
+        with las_io.laspy.open(path) as reader:
+            need += reader.header.point_count * (catalog.STORE.itemsize + reader.header.point_format.size)
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(10**12, 10**12 - need + 1, need - 1))
+    read = []
+    monkeypatch.setattr(catalog, "index_file", lambda *a, **k: read.append(a))
+    with pytest.raises(InputError, match=f"{tmp_path}: a survey of these files keeps about .* only .* free; set TMPDIR"):
+        survey.index(paths, tmp_path, keep_points=True)
+    assert read == []
+    catalog.check_scratch_space(paths, tmp_path, keep_points=False)     # the records alone fit
+
+
 def test_halo_of_a_method_that_does_not_tile_is_a_margin():
     box = Frame(np.asarray([10.0, 20.0, 0.0]), np.asarray([30.0, 40.0]))
     lo, hi = survey.halo_region(box, box, None)
