@@ -37,8 +37,6 @@ from gfjax.tiling.tiles import Tiling
 __all__ = ["extract_ground", "SupportNodes", "support_nodes", "column_lowest", "carry_to_centres", "m_nearest_ground",
            "height_ground"]
 
-# The 3x3 cells around a node (itself included), as (row, column) offsets.
-_AROUND = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1))
 # A plane fit whose normal matrix has a determinant below this share of the product of its
 # diagonal is degenerate (neighbours on a line): its node keeps its elevation.
 _DEGENERATE = 1e-6
@@ -102,27 +100,50 @@ def carry_to_centres(z: np.ndarray, xy: np.ndarray, vox: Voxels, known: np.ndarr
     Returns: float64 `(m,)` [m].
     """
     h, w = vox.shape
+    cell_m = vox.cell_m
     cell = vox.cell[known]
-    row, col = cell // w + 1, cell % w + 1                     # in a frame one cell wider
-    grid = np.full((3, h + 2, w + 2), np.nan)
-    grid[:, row, col] = np.stack([xy[known, 0], xy[known, 1], z[known]])
-    around = np.stack([grid[:, row + dr, col + dc] for dr, dc in _AROUND], axis=1)       # (3, 9, k)
-    has = ~np.isnan(around[2])
-    count = has.sum(axis=0)
-    mean = np.where(has, around, 0.0).sum(axis=1) / count
-    d = np.where(has, around - mean[:, None, :], 0.0)
-    sxx, syy, sxy = (d[0] * d[0]).sum(0), (d[1] * d[1]).sum(0), (d[0] * d[1]).sum(0)
-    sxz, syz = (d[0] * d[2]).sum(0), (d[1] * d[2]).sum(0)
-    det = sxx * syy - sxy * sxy
-    fit = (count >= 3) & (det > _DEGENERATE * sxx * syy)
+    row, col = cell // w, cell % w
+    # Each known node on a raster one cell wider: its offset from its cell centre, its elevation.
+    offset_x, offset_y, height, has = (np.zeros((h + 2, w + 2)) for _ in range(4))
+    offset_x[row + 1, col + 1] = xy[known, 0] - (col + 0.5) * cell_m
+    offset_y[row + 1, col + 1] = xy[known, 1] - (h - 1 - row + 0.5) * cell_m
+    height[row + 1, col + 1] = z[known]
+    has[row + 1, col + 1] = 1.0
+    # Sums over the 3x3 cells of each cell, x and y from the centre of the middle one.
+    n, sx, sy, sz, sxx, syy, sxy, sxz, syz = (np.zeros((h, w)) for _ in range(9))
+    low, high = np.full((h, w), np.inf), np.full((h, w), -np.inf)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            window = (slice(1 + dr, h + 1 + dr), slice(1 + dc, w + 1 + dc))
+            m = has[window]
+            u = (offset_x[window] + dc * cell_m) * m
+            v = (offset_y[window] - dr * cell_m) * m
+            zz = height[window] * m
+            n += m
+            sx += u
+            sy += v
+            sz += zz
+            sxx += u * u
+            syy += v * v
+            sxy += u * v
+            sxz += u * zz
+            syz += v * zz
+            low = np.minimum(low, np.where(m > 0, height[window], np.inf))
+            high = np.maximum(high, np.where(m > 0, height[window], -np.inf))
+    n, sx, sy, sz = n[row, col], sx[row, col], sy[row, col], sz[row, col]
+    cxx = sxx[row, col] - sx * sx / n
+    cyy = syy[row, col] - sy * sy / n
+    cxy = sxy[row, col] - sx * sy / n
+    cxz = sxz[row, col] - sx * sz / n
+    cyz = syz[row, col] - sy * sz / n
+    det = cxx * cyy - cxy * cxy
+    fit = (n >= 3) & (det > _DEGENERATE * cxx * cyy)
     det = np.where(fit, det, 1.0)
-    gx = np.where(fit, (syy * sxz - sxy * syz) / det, 0.0)
-    gy = np.where(fit, (sxx * syz - sxy * sxz) / det, 0.0)
-    centre_x = (cell % w + 0.5) * vox.cell_m
-    centre_y = (h - 1 - cell // w + 0.5) * vox.cell_m
-    carried = z[known] + gx * (centre_x - xy[known, 0]) + gy * (centre_y - xy[known, 1])
+    gx = np.where(fit, (cyy * cxz - cxy * cyz) / det, 0.0)
+    gy = np.where(fit, (cxx * cyz - cxy * cxz) / det, 0.0)
+    carried = z[known] - gx * offset_x[row + 1, col + 1] - gy * offset_y[row + 1, col + 1]
     out = np.array(z, dtype=np.float64)
-    out[known] = np.clip(carried, np.nanmin(around[2], axis=0), np.nanmax(around[2], axis=0))
+    out[known] = np.clip(carried, low[row, col], high[row, col])
     return out
 
 
