@@ -40,6 +40,7 @@ __all__ = ["extract_ground", "SupportNodes", "support_nodes", "column_lowest", "
 # A plane fit whose normal matrix has a determinant below this share of the product of its
 # diagonal is degenerate (neighbours on a line): its node keeps its elevation.
 _DEGENERATE = 1e-6
+_BAND_ROWS = 256          # raster rows whose window sums are held at once (a large raster's memory)
 
 
 class SupportNodes(NamedTuple):
@@ -101,35 +102,54 @@ def carry_to_centres(z: np.ndarray, xy: np.ndarray, vox: Voxels, known: np.ndarr
     """
     h, w = vox.shape
     cell_m = vox.cell_m
-    cell = vox.cell[known]
+    nodes = np.flatnonzero(known)
+    cell = vox.cell[nodes]                                       # increasing, so rows are too
     row, col = cell // w, cell % w
     # Each known node on a raster one cell wider: its offset from its cell centre, its elevation.
-    offset_x, offset_y, height, has = (np.zeros((h + 2, w + 2)) for _ in range(4))
-    offset_x[row + 1, col + 1] = xy[known, 0] - (col + 0.5) * cell_m
-    offset_y[row + 1, col + 1] = xy[known, 1] - (h - 1 - row + 0.5) * cell_m
-    height[row + 1, col + 1] = z[known]
-    has[row + 1, col + 1] = 1.0
-    # Sums over the 3x3 cells of each cell, x and y from the centre of the middle one.
-    n, sx, sy, sz, sxx, syy, sxy, sxz, syz = (np.zeros((h, w)) for _ in range(9))
-    low, high = np.full((h, w), np.inf), np.full((h, w), -np.inf)
+    offset_x, offset_y = np.zeros((h + 2, w + 2), np.float32), np.zeros((h + 2, w + 2), np.float32)
+    height, has = np.zeros((h + 2, w + 2)), np.zeros((h + 2, w + 2), bool)
+    offset_x[row + 1, col + 1] = xy[nodes, 0] - (col + 0.5) * cell_m
+    offset_y[row + 1, col + 1] = xy[nodes, 1] - (h - 1 - row + 0.5) * cell_m
+    height[row + 1, col + 1] = z[nodes]
+    has[row + 1, col + 1] = True
+    out = np.array(z, dtype=np.float64)
+    for top in range(0, h, _BAND_ROWS):
+        bottom = min(h, top + _BAND_ROWS)
+        first, last = np.searchsorted(row, [top, bottom])
+        if first < last:
+            band = slice(first, last)
+            out[nodes[band]] = _carried_band(offset_x, offset_y, height, has, top, bottom, row[band] - top, col[band],
+                                             z[nodes[band]], cell_m)
+    return out
+
+
+def _carried_band(offset_x, offset_y, height, has, top: int, bottom: int, row, col, z, cell_m: float) -> np.ndarray:
+    """`carry_to_centres` for the nodes of raster rows `top:bottom` (at `row` within the band,
+    `col`, elevations `z`), from the padded rasters of offsets, elevations and presence."""
+    w = has.shape[1] - 2
+    rows = bottom - top
+    middle = height[1 + top:1 + bottom, 1:w + 1]
+    # Sums over the 3x3 cells of each cell: x and y from the centre of the middle cell, z from its elevation.
+    n, sx, sy, sz, sxx, syy, sxy, sxz, syz = (np.zeros((rows, w)) for _ in range(9))
+    low, high = np.full((rows, w), np.inf), np.full((rows, w), -np.inf)
     for dr in (-1, 0, 1):
         for dc in (-1, 0, 1):
-            window = (slice(1 + dr, h + 1 + dr), slice(1 + dc, w + 1 + dc))
+            window = (slice(1 + top + dr, 1 + bottom + dr), slice(1 + dc, w + 1 + dc))
             m = has[window]
-            u = (offset_x[window] + dc * cell_m) * m
-            v = (offset_y[window] - dr * cell_m) * m
-            zz = height[window] * m
+            u = np.where(m, offset_x[window] + dc * cell_m, 0.0)
+            v = np.where(m, offset_y[window] - dr * cell_m, 0.0)
+            dz = np.where(m, height[window] - middle, 0.0)
             n += m
             sx += u
             sy += v
-            sz += zz
+            sz += dz
             sxx += u * u
             syy += v * v
             sxy += u * v
-            sxz += u * zz
-            syz += v * zz
-            low = np.minimum(low, np.where(m > 0, height[window], np.inf))
-            high = np.maximum(high, np.where(m > 0, height[window], -np.inf))
+            sxz += u * dz
+            syz += v * dz
+            low = np.minimum(low, np.where(m, height[window], np.inf))
+            high = np.maximum(high, np.where(m, height[window], -np.inf))
     n, sx, sy, sz = n[row, col], sx[row, col], sy[row, col], sz[row, col]
     cxx = sxx[row, col] - sx * sx / n
     cyy = syy[row, col] - sy * sy / n
@@ -141,10 +161,8 @@ def carry_to_centres(z: np.ndarray, xy: np.ndarray, vox: Voxels, known: np.ndarr
     det = np.where(fit, det, 1.0)
     gx = np.where(fit, (cyy * cxz - cxy * cyz) / det, 0.0)
     gy = np.where(fit, (cxx * cyz - cxy * cxz) / det, 0.0)
-    carried = z[known] - gx * offset_x[row + 1, col + 1] - gy * offset_y[row + 1, col + 1]
-    out = np.array(z, dtype=np.float64)
-    out[known] = np.clip(carried, low[row, col], high[row, col])
-    return out
+    carried = z - gx * offset_x[1 + top + row, 1 + col] - gy * offset_y[1 + top + row, 1 + col]
+    return np.clip(carried, low[row, col], high[row, col])
 
 
 def support_nodes(vox: Voxels, object_cell: np.ndarray, in_ndng: np.ndarray, *, v1: float,
