@@ -116,10 +116,10 @@ def run_file(name: str) -> dict[str, dict]:
         for rule, support_z, elevation, t_m, t_w in FINAL:
             surface = (support_z, elevation)
             if surface not in nodes:
-                own_z = extract.column_lowest_z(local, d.voxels) if elevation == "lowest" else None
+                own = extract.column_lowest(local, d.voxels) if elevation == "lowest" else None
                 nodes[surface] = extract.support_nodes(d.voxels, object_cell, d.in_ndng, v1=config.v1,
                                                        fill_neighbours=config.fill_neighbours, support_z=support_z,
-                                                       own_z=own_z)
+                                                       support_position=config.support_position, own=own)
             ground = np.ones(len(local), bool)
             if rule in ("m_nearest", "both"):
                 if surface not in nearest:

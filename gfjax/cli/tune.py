@@ -19,7 +19,7 @@ height_threshold_m + height_threshold_w * W act in host code or bounded loops. E
 combination of a grid is tried (`--grid KEY=V,V,...` replaces one key's values; defaults:
 MASF alpha_max_m 10,15,20,25, alpha_step_m 1,2,4,9, alpha_top_m 0 (none),90,
 st 0.01,0.03,0.05,0.1,0.15, ft_m 0.3,0.5,0.7, 480 runs per file; DMF v0 1,1.5,2,2.5,3, max_filter_px 1,2,3, rc_min_share
-0.5,0.75,1, height_threshold_m 0,0.25,0.5, height_threshold_w 0,0.1,0.15,0.25,0.4, 675 final
+0.5,0.75,1, height_threshold_m 0,0.25,0.5, height_threshold_w 0,0.1,0.15,0.2,0.25,0.4, 810 final
 rules on 45 preparations per file). The candidate chosen is the nearest the defaults (in grid
 steps) among those within one standard error of the lowest total error plus a margin of ties
 (the one-standard-error rule; the standard error over the validation units below; the margin,

@@ -321,8 +321,8 @@ def survey_config(config: Config, clouds: Iterable[np.ndarray]) -> Config:
 
 class Prepared(NamedTuple):
     """Steps 1-6 of DMF on one cloud: everything before the support nodes and the final rule
-    (Sec. 2.6). Only step 7 reads `v1`, `fill_neighbours`, `support_z`, `support_elevation` and
-    `Params` (and `final_rule`, whose M-nearest search also needs `tree`), so one preparation
+    (Sec. 2.6). Only step 7 reads `v1`, `fill_neighbours`, `support_z`, `support_elevation`,
+    `support_position` and `Params` (and `final_rule`, whose M-nearest search also needs `tree`), so one preparation
     serves every value of those (`gfjax.dmf.tuning` tries them on it).
 
     Attributes:

@@ -31,7 +31,7 @@ def test_every_methods_params_share_one_base_and_check(name):
 
 def test_defaults_are_float32_scalars():
     params = dmf.Params()
-    for value, expected in ((params.height_threshold_m, 0.0), (params.height_threshold_w, 0.2)):
+    for value, expected in ((params.height_threshold_m, 0.0), (params.height_threshold_w, 0.15)):
         assert value.dtype == np.float32 and value.shape == ()
         assert float(value) == pytest.approx(expected)
     assert float(dmf.Params(height_threshold_m=1, height_threshold_w=np.float64(0.5)).threshold_m(2.0)) == 2.0
@@ -64,7 +64,7 @@ def test_grad_jit_vmap_through_params():
     assert isinstance(grads, dmf.Params)
     assert float(grads.height_threshold_m) == pytest.approx(1.0)
     assert float(grads.height_threshold_w) == pytest.approx(cell_m)
-    assert float(jax.jit(threshold)(dmf.Params())) == pytest.approx(0.6)
+    assert float(jax.jit(threshold)(dmf.Params())) == pytest.approx(0.45)
     batch = dmf.Params(height_threshold_m=jnp.asarray([0.0, 1.0], jnp.float32),
                        height_threshold_w=jnp.asarray([0.1, 0.2], jnp.float32))
     np.testing.assert_allclose(np.asarray(jax.vmap(threshold)(batch)), [0.3, 1.6], rtol=1e-6)

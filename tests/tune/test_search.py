@@ -190,7 +190,7 @@ def test_every_row_of_the_table_is_the_plain_filters_errors(far_group):
 
 
 DMF_GRID = {"v0": (1.5, 2.0), "max_filter_px": (2,), "rc_min_share": (0.5, 1.0), "height_threshold_m": (0.0, 0.5),
-            "height_threshold_w": (0.2,)}
+            "height_threshold_w": (0.15,)}
 
 
 def test_params_values_leave_out_an_absent_top_layer():
@@ -205,7 +205,7 @@ def test_every_row_of_dmfs_table_is_the_plain_filters_errors():
     sample = Sample.from_cloud(cloud)
     combos, default = tdmf.candidates(dmf.Config(), DMF_GRID)
     assert combos[default] == {"v0": 2.0, "max_filter_px": 2.0, "rc_min_share": 0.5, "height_threshold_m": 0.0,
-                               "height_threshold_w": 0.2}
+                               "height_threshold_w": 0.15}
     wrong = tdmf.TUNER.wrong_table(sample, dmf.Config(), combos)
     for row in sorted({default, 0, 5}):
         c = combos[row]
