@@ -21,6 +21,7 @@ from gfjax.params import param
 __all__ = ["Config", "Params", "PRESETS", "adapt", "PAPER_TABLE3", "DISTANCES", "RANGES"]
 
 DISTANCES = ("under", "nearest_facet")
+BUFFER_HEIGHTS = ("top", "nearest", "extrapolated")     # `gfjax.masf.densify.buffer_z`
 
 # The valid range of every numeric Config / Params field (`gfjax.limits`).
 RANGES: dict[str, Range] = {
@@ -85,6 +86,11 @@ class Config:
         Qhull after every pass instead of inserting the accepted points (slow; the same labels
         in general position, `experiments/masf_isprs.py` counts the differences on ties).
       empty_tol_m: tolerance of the empty-sphere test along the dual Voronoi edge [m].
+      buffer_heights: heights of the simulated ground points around the grid (Sec. 2.4):
+        "top" (the paper: z of the nearest top-layer point), "nearest" or "extrapolated" (R:
+        taken again before each lower layer from the nearest ground point of the TIN, plus
+        its slope times the offset for "extrapolated"; `densify.buffer_z`), so the TIN can
+        climb a slope that rises to the edge of the cloud.
     """
 
     grid_m: float = 1.0
@@ -102,11 +108,15 @@ class Config:
     retest_earlier: bool = False
     retriangulate: bool = False
     empty_tol_m: float = 1e-3
+    buffer_heights: str = "extrapolated"
 
     def __post_init__(self) -> None:
         limits.check_fields(self, RANGES)
         if self.distance not in DISTANCES:
             raise SettingError(f"distance must be one of {DISTANCES}, got {self.distance!r}", "distance")
+        if self.buffer_heights not in BUFFER_HEIGHTS:
+            raise SettingError(f"buffer_heights must be one of {BUFFER_HEIGHTS}, got {self.buffer_heights!r}",
+                               "buffer_heights")
         if self.alpha_max_m < self.min_alpha_m:
             raise SettingError(f"alpha_max_m must be >= alpha_min_m ({self.min_alpha_m}), got {self.alpha_max_m!r}",
                                "alpha_max_m")

@@ -174,7 +174,8 @@ def densify(prep: Prepared, layers: np.ndarray, config: Config, params: Params, 
                                  pit_drop_m=config.neighbour_drop_m, pit_slope=config.pit_slope,
                                  pit_cap_m=config.pit_cap_m, nearest_facet=config.distance == "nearest_facet",
                                  layer_passes=config.layer_passes, retest_earlier=config.retest_earlier,
-                                 retriangulate=config.retriangulate, step=step)
+                                 retriangulate=config.retriangulate, buffer_heights=config.buffer_heights,
+                                 step=step)
 
 
 # Stages `prepare` reports to its `step`; `filter_points` adds the pyramid and, through

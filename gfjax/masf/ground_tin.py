@@ -83,6 +83,17 @@ class GroundTin:
         out._set(xyz_all, spliced.simplices, spliced.neighbours, rebuilds=self.rebuilds)
         return out, spliced.destroyed
 
+    def with_heights(self, ids: np.ndarray, z_m: np.ndarray) -> GroundTin:
+        """The same triangulation with the vertices `ids` (int64 `(r,)`) at heights `z_m`
+        (float64 `(r,)` [m]); x, y and so the triangles are unchanged."""
+        xyz_m = self.xyz_m.copy()
+        xyz_m[ids, 2] = z_m
+        out = GroundTin.__new__(GroundTin)
+        out._set(xyz_m, self.simplices, self.neighbours, rebuilds=self.rebuilds)
+        if "_tree" in self.__dict__:
+            out.__dict__["_tree"] = self.__dict__["_tree"]       # x, y unchanged: the same tree
+        return out
+
     def locate(self, xy_m: np.ndarray, *, start: np.ndarray | None = None) -> np.ndarray:
         """Index of the triangle holding each point `(q, 2)`, `-1` outside the hull; int64 `(q,)`.
 

@@ -5,16 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scene import hilly_town
+from scipy.spatial import cKDTree
 
 from gfjax import masf
 from gfjax.io.cloud import Cloud
-from gfjax.masf.densify import buffer_cells, densify, low_seed_pits
+from gfjax.masf.densify import BUFFER_MAX_SLOPE, buffer_cells, buffer_z, densify, low_seed_pits
 from gfjax.masf.ground_tin import GroundTin
 from gfjax.masf.tin import nearest_z
 
 
 def reference_densify(points_m, seeds, layers, alphas_m, *, shape, cell_m, st, ft_m, layer_passes,
-                      nearest_facet, retest_earlier):
+                      nearest_facet, retest_earlier, buffer_heights="top"):
     """Every pass tests every waiting point against a TIN triangulated from scratch."""
     seed_xyz = points_m[seeds]
     in_tin = layers[0].copy()
@@ -22,9 +23,16 @@ def reference_densify(points_m, seeds, layers, alphas_m, *, shape, cell_m, st, f
     in_tin[top[low_seed_pits(seed_xyz[top], drop_m=1.0, slope=1.0, cap_m=4.0)]] = False
     ring_xy = buffer_cells(shape, cell_m=cell_m)
     ring = np.column_stack([ring_xy, nearest_z(ring_xy, seed_xyz[in_tin])])
+
+    def lift():
+        if buffer_heights != "top":
+            tin = GroundTin(np.concatenate([seed_xyz[in_tin], ring]))
+            ring[:, 2] = buffer_z(tin, in_tin.sum() + np.arange(len(ring)), extrapolate=buffer_heights == "extrapolated")
+
     threshold_m = np.full(len(seeds), -np.inf)
     threshold_m[layers[0] & in_tin] = st * alphas_m[0] + ft_m
     for level in range(1, len(alphas_m)):
+        lift()
         dt_m = st * alphas_m[level] + ft_m
         threshold_m[layers[level] & ~np.isfinite(threshold_m)] = dt_m
         for _ in range(layer_passes):
@@ -36,6 +44,7 @@ def reference_densify(points_m, seeds, layers, alphas_m, *, shape, cell_m, st, f
             in_tin[accepted] = True
             if len(accepted) == 0:
                 break
+    lift()
     ground = np.zeros(len(points_m), dtype=bool)
     ground[seeds[in_tin]] = True
     tin = GroundTin(np.concatenate([seed_xyz[in_tin], ring]))
@@ -52,12 +61,14 @@ def inputs(request):
     return xyz - diag.origin_m, diag
 
 
-@pytest.mark.parametrize("layer_passes, nearest_facet, retest_earlier",
-                         [(1, False, False), (3, False, False), (8, False, False), (3, True, False), (3, False, True)])
-def test_densify_matches_full_retriangulation(inputs, layer_passes, nearest_facet, retest_earlier):
+@pytest.mark.parametrize("layer_passes, nearest_facet, retest_earlier, buffer_heights",
+                         [(1, False, False, "top"), (3, False, False, "top"), (8, False, False, "top"),
+                          (3, True, False, "top"), (3, False, True, "top"), (3, False, False, "nearest"),
+                          (3, False, False, "extrapolated")])
+def test_densify_matches_full_retriangulation(inputs, layer_passes, nearest_facet, retest_earlier, buffer_heights):
     local, diag = inputs
     kw = dict(shape=diag.bottom_z_m.shape, cell_m=1.0, st=0.05, ft_m=0.5, layer_passes=layer_passes,
-              nearest_facet=nearest_facet, retest_earlier=retest_earlier)
+              nearest_facet=nearest_facet, retest_earlier=retest_earlier, buffer_heights=buffer_heights)
     got = densify(local, diag.potential_ground, diag.layers, diag.alphas_m, **kw)
     ground, in_tin = reference_densify(local, diag.potential_ground, diag.layers, diag.alphas_m, **kw)
     assert got.tin_rebuilds == 0
@@ -85,3 +96,55 @@ def test_filter_reference_path_gives_the_same_labels():
     reference = masf.filter(cloud, config=masf.Config(retriangulate=True))
     np.testing.assert_array_equal(fast.ground, reference.ground)
     assert fast.diagnostics.tin_rebuilds == 0 and fast.ground[truth].mean() > 0.9
+
+
+def _plane_tin(slope_x, slope_y, *, ring_z=-5.0):
+    """A TIN of ground points on `z = slope_x x + slope_y y` inside a 20 m square, with its ring of
+    buffer cells at `ring_z` (vertex ids after the ground points)."""
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(1.0, 19.0, (200, 2))
+    ground = np.column_stack([xy, slope_x * xy[:, 0] + slope_y * xy[:, 1]])
+    ring_xy = buffer_cells((20, 20), cell_m=1.0)
+    tin = GroundTin(np.concatenate([ground, np.column_stack([ring_xy, np.full(len(ring_xy), ring_z)])]))
+    return tin, ground, len(ground) + np.arange(len(ring_xy)), ring_xy
+
+
+def test_buffer_heights_continue_a_plane():
+    tin, ground, ring, ring_xy = _plane_tin(0.3, -0.5)
+    np.testing.assert_allclose(buffer_z(tin, ring, extrapolate=True), 0.3 * ring_xy[:, 0] - 0.5 * ring_xy[:, 1],
+                               atol=1e-9)
+    np.testing.assert_array_equal(buffer_z(tin, ring, extrapolate=False), nearest_z(ring_xy, ground))
+
+
+def test_buffer_heights_carry_at_most_the_slope_cap():
+    tin, ground, ring, ring_xy = _plane_tin(0.0, 3.0)
+    _, near = cKDTree(ground[:, :2]).query(ring_xy)
+    offset = ring_xy - ground[near, :2]
+    rise = buffer_z(tin, ring, extrapolate=True) - ground[near, 2]
+    np.testing.assert_allclose(rise, np.clip(3.0 * offset[:, 1], -BUFFER_MAX_SLOPE * np.hypot(*offset.T),
+                                             BUFFER_MAX_SLOPE * np.hypot(*offset.T)), atol=1e-9)
+
+
+def test_with_heights_moves_only_the_named_vertices():
+    tin, ground, ring, _ = _plane_tin(0.1, 0.2)
+    lifted = tin.with_heights(ring, np.full(len(ring), 7.0))
+    np.testing.assert_array_equal(lifted.simplices, tin.simplices)
+    np.testing.assert_array_equal(lifted.xyz_m[ring, 2], 7.0)
+    np.testing.assert_array_equal(lifted.xyz_m[:len(ground)], tin.xyz_m[:len(ground)])
+    assert (tin.xyz_m[ring, 2] == -5.0).all()
+
+
+@pytest.mark.parametrize("slope", [0.6, 1.0])
+def test_ground_rising_to_the_edge_is_kept_with_extrapolated_buffer_heights(slope):
+    """A plane rising to the north edge: large balls cannot touch its upper band (their centres
+    fall outside the hull), so the top layer ends metres below the edge. Buffer points at the
+    height of the nearest top-layer point pin a flat TIN there and reject the band; carried up
+    the slope, they keep every point."""
+    rng = np.random.default_rng(0)
+    g = np.arange(0.0, 60.0) + 0.25
+    x, y = (a.ravel() + rng.uniform(-0.2, 0.2, a.size) for a in np.meshgrid(g, g))
+    xyz = np.column_stack([x, y, slope * y + 0.02 * np.sin(x)])
+    fixed, _ = masf.filter_points(xyz, masf.Config(buffer_heights="top"), masf.Params())
+    carried, _ = masf.filter_points(xyz, masf.Config(buffer_heights="extrapolated"), masf.Params())
+    assert (~fixed).sum() > 100 and y[~fixed].min() > 50.0
+    assert carried.all()
