@@ -85,8 +85,8 @@ class Diagnostics(NamedTuple):
 
 class Prepared(NamedTuple):
     """What MASF computes before any alpha, ST or FT enters (Sec. 2.1 and the triangulation of
-    Sec. 2.2): `prepare` reads only `grid_m`, `outlier_gap_m`, `neighbour_drop_m` and
-    `low_cluster_max_m2` of the config, so one preparation serves every pyramid and threshold
+    Sec. 2.2): `prepare` reads only `grid_m`, `outlier_gap_m`, `neighbour_drop_m`,
+    `low_cluster_max_m2` and `neighbour_test` of the config, so one preparation serves every pyramid and threshold
     (`gfjax.masf.tuning` searches them on it).
 
     Attributes:
@@ -136,7 +136,8 @@ def prepare(xyz_m: np.ndarray, config: Config, frame: Frame | None = None, *,
     local = xyz_m - origin
     pre = preprocess.potential_ground(local, grid_m=config.grid_m, outlier_gap_m=config.outlier_gap_m,
                                       neighbour_drop_m=config.neighbour_drop_m,
-                                      max_cluster_cells=config.low_cluster_max_cells)
+                                      max_cluster_cells=config.low_cluster_max_cells,
+                                      neighbour_test=config.neighbour_test)
     seconds["preprocess"] = time.perf_counter() - clock
     step("preprocess")
     faces = geometry = None
