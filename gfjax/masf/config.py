@@ -37,6 +37,7 @@ RANGES: dict[str, Range] = {
     "pit_cap_m": Range(0, 10_000, unit="m"),
     "layer_passes": Range(1, 100, integer=True),
     "empty_tol_m": Range(0, 10, unit="m"),
+    "mirror_max_m": Range(0, 1000, low_open=True, unit="m", none_ok=True),
     "st": Range(0, 100),
     "ft_m": Range(0, 1000, unit="m"),
 }
@@ -96,6 +97,11 @@ class Config:
         taken again before each lower layer from the nearest ground point of the TIN, plus
         its slope times the offset for "extrapolated"; `densify.buffer_z`), so the TIN can
         climb a slope that rises to the edge of the cloud.
+      mirror_max_m: a point of a layer closer than this to the TIN also joins it when its
+        mirror image through the nearest ground corner of the facet under it is within DT_k
+        (Axelsson's mirror points, R: ground on ridges and terrace edges, which only the
+        small balls of the last layers reach, stands above the TIN of the coarser layers by
+        more than their DT) [m]; None: no mirror test (the paper).
     """
 
     grid_m: float = 1.0
@@ -115,6 +121,7 @@ class Config:
     retriangulate: bool = False
     empty_tol_m: float = 1e-3
     buffer_heights: str = "extrapolated"
+    mirror_max_m: float | None = None
 
     def __post_init__(self) -> None:
         limits.check_fields(self, RANGES)

@@ -19,6 +19,11 @@
    and a retest measures again only the points over a changed triangle (the others' distance
    is the same), so extra passes cost a small fraction of a re-triangulation. In general
    position the labels equal those of re-triangulating everything before each pass (test).
+   With `mirror_max_m` (R), a point within that distance of the TIN is also accepted when its
+   mirror image through the nearest corner of the facet under it is within DT_k
+   (`GroundTin.mirrored`, Axelsson 2000): the TIN of a coarse layer cuts across ridges and the
+   upper edges of terraces, and the ground there, revealed only by the small balls of the last
+   layers, stands above it by more than their small DT.
 3. Finally every remaining point of the whole cloud closer than `ft_m` to the TIN is ground.
 """
 from __future__ import annotations
@@ -163,7 +168,7 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
             shape: tuple[int, int], cell_m: float, st: float, ft_m: float,
             pit_drop_m: float = 1.0, pit_slope: float | None = 1.0, pit_cap_m: float = 4.0,
             nearest_facet: bool = False, layer_passes: int = 3, retest_earlier: bool = False,
-            retriangulate: bool = False, buffer_heights: str = "top", step: Callable[[str], None] = lambda name: None) -> Densified:
+            retriangulate: bool = False, buffer_heights: str = "top", mirror_max_m: float | None = None, step: Callable[[str], None] = lambda name: None) -> Densified:
     """Label ground points by top-down densification of the layer TINs.
 
     Args:
@@ -185,6 +190,10 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
       buffer_heights: one of `BUFFER_HEIGHTS`: the buffer points' heights, fixed from the top
         layer ("top") or taken again from the TIN's ground points before each lower layer and
         before the last test (`buffer_z`).
+      mirror_max_m: a layer's point closer than this to the TIN [m] is accepted too when its
+        mirror image through the nearest corner (a ground point, not a buffer point) of the
+        facet under it is closer than DT_k (`GroundTin.mirrored`); None: no mirror test. The
+        last test of the whole cloud takes the distance alone.
       step: told when each layer below the top one, and then the labelling, is done
         (`n_layers` calls; a progress bar).
     """
@@ -214,6 +223,27 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
             return tin
         return tin.with_heights(ring_ids, buffer_z(tin, ring_ids, extrapolate=buffer_heights == "extrapolated"))
 
+    def measure(tin: GroundTin, xyz_m: np.ndarray, start: np.ndarray | None = None):
+        """Distance to `tin` (the smaller of the point's and its mirror image's, see
+        `mirror_max_m`), the facet under the point and the one under its image (-1: none)."""
+        distance_m, facet = tin.measure(xyz_m, nearest_facet=nearest_facet, start=start)
+        image_facet = np.full(len(xyz_m), -1, dtype=np.int64)
+        if mirror_max_m is not None:
+            near = np.flatnonzero(distance_m < mirror_max_m)
+            centre_ok = np.ones(len(tin.xyz_m), dtype=bool)
+            centre_ok[ring_ids] = False
+            image_m, image_facet[near] = tin.mirrored(xyz_m[near], facet[near], centre_ok, nearest_facet=nearest_facet)
+            distance_m[near] = np.minimum(distance_m[near], image_m)
+        return distance_m, facet, image_facet
+
+    def touched(old: GroundTin, changed: np.ndarray, facet: np.ndarray) -> np.ndarray:
+        """Where `facet` (or, for `nearest_facet`, an edge neighbour) was replaced."""
+        hit = (facet >= 0) & changed[np.maximum(facet, 0)]
+        if nearest_facet:
+            around = old.neighbours[np.maximum(facet, 0)]
+            hit |= (facet >= 0) & (changed[np.maximum(around, 0)] & (around >= 0)).any(axis=1)
+        return hit
+
     for level in range(1, n_layers):
         tin = lift(tin)
         dt_m = st * alphas_m[level] + ft_m
@@ -222,7 +252,7 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
         waiting = (np.isfinite(threshold_m) if retest_earlier else layers[level]) & ~in_tin
         candidates = np.flatnonzero(waiting)
         limit_m = threshold_m[candidates] if retest_earlier else np.full(len(candidates), dt_m)
-        distance_m, facet = tin.measure(seed_xyz[candidates], nearest_facet=nearest_facet)
+        distance_m, facet, image_facet = measure(tin, seed_xyz[candidates])
         for pass_ in range(layer_passes):
             accept = distance_m < limit_m
             if not accept.any():
@@ -231,17 +261,15 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
             tin, changed = old.insert(seed_xyz[candidates[accept]], facet[accept], retriangulate=retriangulate)
             in_tin[candidates[accept]] = True
             added[level] += np.count_nonzero(accept)
-            candidates, limit_m, distance_m, facet = candidates[keep], limit_m[keep], distance_m[keep], facet[keep]
+            candidates, limit_m, distance_m = candidates[keep], limit_m[keep], distance_m[keep]
+            facet, image_facet = facet[keep], image_facet[keep]
             if pass_ + 1 == layer_passes:
                 break
-            # Only points over a replaced triangle (or next to one, for nearest_facet) can change.
-            stale = (facet >= 0) & changed[np.maximum(facet, 0)]
-            if nearest_facet:
-                around = old.neighbours[np.maximum(facet, 0)]
-                stale |= (facet >= 0) & (changed[np.maximum(around, 0)] & (around >= 0)).any(axis=1)
+            # Only points over a replaced triangle (or next to one, for nearest_facet), or whose
+            # mirror image is, can change.
+            stale = touched(old, changed, facet) | touched(old, changed, image_facet)
             start = tin.vertex_to_simplex[old.simplices[facet[stale], 0]]
-            distance_m[stale], facet[stale] = tin.measure(seed_xyz[candidates[stale]], nearest_facet=nearest_facet,
-                                                          start=start)
+            distance_m[stale], facet[stale], image_facet[stale] = measure(tin, seed_xyz[candidates[stale]], start)
         step(f"layer {level + 1} of {n_layers}")
     tin = lift(tin)
     ground = np.zeros(len(points_m), dtype=bool)

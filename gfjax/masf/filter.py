@@ -176,7 +176,7 @@ def densify(prep: Prepared, layers: np.ndarray, config: Config, params: Params, 
                                  pit_cap_m=config.pit_cap_m, nearest_facet=config.distance == "nearest_facet",
                                  layer_passes=config.layer_passes, retest_earlier=config.retest_earlier,
                                  retriangulate=config.retriangulate, buffer_heights=config.buffer_heights,
-                                 step=step)
+                                 mirror_max_m=config.mirror_max_m, step=step)
 
 
 # Stages `prepare` reports to its `step`; `filter_points` adds the pyramid and, through

@@ -175,6 +175,38 @@ class GroundTin:
         distance[inside] = best
         return distance, facet
 
+    def mirrored(self, xyz_m: np.ndarray, facet: np.ndarray, centre_ok: np.ndarray, *,
+                 nearest_facet: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """`measure` of each point's mirror image in the nearest corner of the facet under it.
+
+        Axelsson's (2000) mirror points: where the TIN cuts across a convex break line (a ridge,
+        the upper edge of a terrace), the ground beyond its last vertex lies above the facet
+        under it, while its image through that vertex, `2 v - p`, lies on the ground already in
+        the TIN; an object's image lies as far below the ground as the object stands above it.
+
+        Args:
+          xyz_m: float64 `(q, 3)` points [m]. facet: int64 `(q,)` the facet under each (`measure`).
+          centre_ok: bool `(k,)` over the vertices: those that may be the mirror's centre (the
+            nearest such corner of the facet is taken; none: no image).
+
+        Returns:
+          `(distance, facet)` of the images as `measure` gives them: float64 `(q,)` [m], `inf`
+          for an image outside the TIN or a point without one, and int64 `(q,)` (`-1`).
+        """
+        xyz_m = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
+        distance = np.full(len(xyz_m), np.inf)
+        image_facet = np.full(len(xyz_m), -1, dtype=np.int64)
+        corners = self.simplices[np.maximum(facet, 0)]                          # (q, 3)
+        gap = ((self.xyz_m[corners, :2] - xyz_m[:, None, :2]) ** 2).sum(axis=2)
+        gap = np.where(centre_ok[corners], gap, np.inf)
+        pick = np.argmin(gap, axis=1)
+        has = (facet >= 0) & np.isfinite(gap[np.arange(len(xyz_m)), pick])
+        centre = corners[has, pick[has]]
+        image = 2.0 * self.xyz_m[centre] - xyz_m[has]
+        distance[has], image_facet[has] = self.measure(image, nearest_facet=nearest_facet,
+                                                       start=self.vertex_to_simplex[centre])
+        return distance, image_facet
+
     def distance_m(self, xyz_m: np.ndarray, *, nearest_facet: bool = False) -> np.ndarray:
         """`measure`'s distance alone: float64 `(q,)` [m]."""
         return self.measure(xyz_m, nearest_facet=nearest_facet)[0]

@@ -40,7 +40,7 @@ def test_spec_presets_are_exact():
 
 @pytest.mark.parametrize("change", [dict(grid_m=0.0), dict(alpha_step_m=-1.0), dict(alpha_max_m=1.0),
                                     dict(alpha_top_m=10.0), dict(outlier_gap_m=float("nan")),
-                                    dict(buffer_heights="lowest")])
+                                    dict(buffer_heights="lowest"), dict(mirror_max_m=0.0)])
 def test_bad_config_raises_naming_the_key(change):
     key = next(iter(change))
     with pytest.raises(ValueError, match=key.replace("alpha_max_m", "alpha_max_m")):

@@ -15,7 +15,7 @@ from gfjax.masf.tin import nearest_z
 
 
 def reference_densify(points_m, seeds, layers, alphas_m, *, shape, cell_m, st, ft_m, layer_passes,
-                      nearest_facet, retest_earlier, buffer_heights="top"):
+                      nearest_facet, retest_earlier, buffer_heights="top", mirror_max_m=None):
     """Every pass tests every waiting point against a TIN triangulated from scratch."""
     seed_xyz = points_m[seeds]
     in_tin = layers[0].copy()
@@ -40,7 +40,12 @@ def reference_densify(points_m, seeds, layers, alphas_m, *, shape, cell_m, st, f
             candidates = np.flatnonzero(waiting)
             limit_m = threshold_m[candidates] if retest_earlier else dt_m
             tin = GroundTin(np.concatenate([seed_xyz[in_tin], ring]))
-            accepted = candidates[tin.distance_m(seed_xyz[candidates], nearest_facet=nearest_facet) < limit_m]
+            distance, facet = tin.measure(seed_xyz[candidates], nearest_facet=nearest_facet)
+            if mirror_max_m is not None:
+                centre_ok = np.arange(len(tin.xyz_m)) < in_tin.sum()
+                image, _ = tin.mirrored(seed_xyz[candidates], facet, centre_ok, nearest_facet=nearest_facet)
+                distance = np.where(distance < mirror_max_m, np.minimum(distance, image), distance)
+            accepted = candidates[distance < limit_m]
             in_tin[accepted] = True
             if len(accepted) == 0:
                 break
@@ -61,14 +66,18 @@ def inputs(request):
     return xyz - diag.origin_m, diag
 
 
-@pytest.mark.parametrize("layer_passes, nearest_facet, retest_earlier, buffer_heights",
-                         [(1, False, False, "top"), (3, False, False, "top"), (8, False, False, "top"),
-                          (3, True, False, "top"), (3, False, True, "top"), (3, False, False, "nearest"),
-                          (3, False, False, "extrapolated")])
-def test_densify_matches_full_retriangulation(inputs, layer_passes, nearest_facet, retest_earlier, buffer_heights):
+@pytest.mark.parametrize("layer_passes, nearest_facet, retest_earlier, buffer_heights, mirror_max_m",
+                         [(1, False, False, "top", None), (3, False, False, "top", None),
+                          (8, False, False, "top", None), (3, True, False, "top", None),
+                          (3, False, True, "top", None), (3, False, False, "nearest", None),
+                          (3, False, False, "extrapolated", None), (3, False, False, "extrapolated", 1.5),
+                          (8, True, True, "extrapolated", 3.0)])
+def test_densify_matches_full_retriangulation(inputs, layer_passes, nearest_facet, retest_earlier, buffer_heights,
+                                              mirror_max_m):
     local, diag = inputs
     kw = dict(shape=diag.bottom_z_m.shape, cell_m=1.0, st=0.05, ft_m=0.5, layer_passes=layer_passes,
-              nearest_facet=nearest_facet, retest_earlier=retest_earlier, buffer_heights=buffer_heights)
+              nearest_facet=nearest_facet, retest_earlier=retest_earlier, buffer_heights=buffer_heights,
+              mirror_max_m=mirror_max_m)
     got = densify(local, diag.potential_ground, diag.layers, diag.alphas_m, **kw)
     ground, in_tin = reference_densify(local, diag.potential_ground, diag.layers, diag.alphas_m, **kw)
     assert got.tin_rebuilds == 0
@@ -148,3 +157,24 @@ def test_ground_rising_to_the_edge_is_kept_with_extrapolated_buffer_heights(slop
     carried, _ = masf.filter_points(xyz, masf.Config(buffer_heights="extrapolated"), masf.Params())
     assert (~fixed).sum() > 100 and y[~fixed].min() > 50.0
     assert carried.all()
+
+
+def test_mirror_image_continues_the_slope_and_drops_an_object_below_the_ground():
+    """A slope z = 0.5 x up to x = 10 m in the TIN: a point beyond its upper edge on the same
+    slope has its image through the nearest corner on the slope (distance 0); a point 2 m above
+    flat ground has its image 2 m below it."""
+    g = np.arange(0.0, 11.0)
+    x, y = (a.ravel() for a in np.meshgrid(g, np.arange(0.0, 21.0)))
+    slope = np.column_stack([x, y, 0.5 * x])
+    far = np.column_stack([np.full(21, 20.0), np.arange(0.0, 21.0), np.full(21, 5.0)])   # a flat top, 10 m on
+    tin = GroundTin(np.concatenate([slope, far]))
+    beyond = np.array([[10.4, 10.3, 5.2], [10.6, 4.7, 5.3]])
+    direct, facet = tin.measure(beyond)
+    image, image_facet = tin.mirrored(beyond, facet, np.ones(len(tin.xyz_m), dtype=bool))
+    assert (direct > 0.15).all() and (image_facet >= 0).all()
+    np.testing.assert_allclose(image, 0.0, atol=1e-9)
+    flat = GroundTin(np.column_stack([x, y, np.zeros_like(x)]))
+    car = np.array([[4.3, 7.6, 2.0]])
+    _, facet = flat.measure(car)
+    np.testing.assert_allclose(flat.mirrored(car, facet, np.ones(len(flat.xyz_m), dtype=bool))[0], 2.0)
+    assert flat.mirrored(car, facet, np.zeros(len(flat.xyz_m), dtype=bool))[0][0] == np.inf   # no centre allowed
