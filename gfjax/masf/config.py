@@ -52,7 +52,10 @@ class Config:
 
     Attributes:
       grid_m: preprocessing grid cell [m] (Sec. 2.1; 1 m "in most cases").
-      alpha_max_m: alpha of the first layer of the linear pyramid, Eq. 1 [m].
+      alpha_max_m: alpha of the first layer of the linear pyramid, Eq. 1 [m]. 25 m, the largest
+        of the paper's Table 3 (half the largest object: buildings up to 50 m wide), with the
+        mirror test and the buffer heights below, won leave-one-survey-out over 20 and 30 m on
+        the training files (`experiments/results/adaptive_rules_masf.md`).
       alpha_step_m: decrement between layers, Eq. 1 [m].
       alpha_min_m: smallest alpha; None means `2 * grid_m` (Sec. 2.3) [m].
       alpha_top_m: optional alpha of an extra top layer above `alpha_max_m` (the paper's samp42
@@ -101,11 +104,13 @@ class Config:
         mirror image through the nearest ground corner of the facet under it is within DT_k
         (Axelsson's mirror points, R: ground on ridges and terrace edges, which only the
         small balls of the last layers reach, stands above the TIN of the coarser layers by
-        more than their DT) [m]; None: no mirror test (the paper).
+        more than their DT) [m]; None: no mirror test (the paper). 1.5 m won over none and 1 m
+        (`experiments/results/adaptive_rules_masf.md`); beyond it, flat objects joined to the
+        ground (bridge decks, platforms) follow their first accepted points.
     """
 
     grid_m: float = 1.0
-    alpha_max_m: float = 20.0
+    alpha_max_m: float = 25.0
     alpha_step_m: float = 2.0
     alpha_min_m: float | None = None
     alpha_top_m: float | None = None
@@ -121,7 +126,7 @@ class Config:
     retriangulate: bool = False
     empty_tol_m: float = 1e-3
     buffer_heights: str = "extrapolated"
-    mirror_max_m: float | None = None
+    mirror_max_m: float | None = 1.5
 
     def __post_init__(self) -> None:
         limits.check_fields(self, RANGES)
@@ -206,18 +211,19 @@ PAPER_TABLE3: dict[str, tuple[float, float, float]] = {
 }
 
 
-def _paper_preset(sample: str) -> dict[str, float | str]:
-    """The paper's values for one sample, with its buffer heights (those of the top layer)."""
+def _paper_preset(sample: str) -> dict[str, float | str | None]:
+    """The paper's values for one sample, with its readings: buffer heights from the top layer,
+    no mirror test."""
     alpha_max, step, st = PAPER_TABLE3[sample]
-    preset: dict[str, float | str] = {"alpha_max_m": alpha_max, "alpha_step_m": step, "st": st, "ft_m": 0.5,
-                                      "buffer_heights": "top"}
+    preset: dict[str, float | str | None] = {"alpha_max_m": alpha_max, "alpha_step_m": step, "st": st, "ft_m": 0.5,
+                                             "buffer_heights": "top", "mirror_max_m": None}
     if sample == "samp42":
         preset["alpha_top_m"] = 90.0
     return preset
 
 
 # SPEC section 4, fixed before measuring. Values in metres (st is rise over run).
-PRESETS: dict[str, dict[str, float | str]] = {
+PRESETS: dict[str, dict[str, float | str | None]] = {
     "flat": {"alpha_max_m": 25.0, "alpha_step_m": 2.0, "st": 0.02},
     "urban": {"alpha_max_m": 25.0, "alpha_step_m": 1.0, "st": 0.05},
     "steep": {"alpha_max_m": 10.0, "alpha_step_m": 1.0, "st": 0.15},

@@ -21,6 +21,11 @@ Our readings where the paper is silent (R), beside SPEC section 4's:
 - a layer's rejected points are retested against the TIN holding the points just accepted, up
   to `layer_passes = 3` tests per layer (chosen by leave-one-out over 1 pass; the TIN grows
   by batch insertion, so a retest costs a fraction of a triangulation);
+- the buffer points around the grid take their heights again before each layer from the
+  ground found so far, carried along its slope (`Config.buffer_heights`), and a point near the
+  TIN also joins it when its mirror image through the nearest ground vertex does
+  (`Config.mirror_max_m`, Axelsson's mirror points): ground rising to the edge of the cloud,
+  ridges and terrace edges otherwise stay above the TIN of the coarse layers;
 - alternatives kept as `Config` values, measured in `experiments/masf_isprs.py`:
   `layer_passes=1`, `retest_earlier`, `distance="nearest_facet"` (the paper's "nearest TIN facet").
 
@@ -227,7 +232,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
 
     Args:
       cloud: the point cloud; `cloud.xyz_m` (metres) is used, only `cloud.filter_mask(returns)`.
-      config: static settings (`Config()`: alpha_max 20 m, step 2 m, grid 1 m).
+      config: static settings (`Config()`: alpha_max 25 m, step 2 m, grid 1 m).
       params: thresholds (`Params()`: ST 0.05, FT 0.5 m).
       returns: "all" or "last".
       progress: a progress bar over its stages and layers (stderr).

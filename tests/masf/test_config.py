@@ -10,7 +10,7 @@ from gfjax import masf, methods
 
 
 def test_default_pyramid_runs_from_alpha_max_to_twice_the_grid():
-    np.testing.assert_array_equal(masf.Config().alphas_m(), np.arange(20.0, 1.0, -2.0))
+    np.testing.assert_array_equal(masf.Config().alphas_m(), np.arange(25.0, 2.0, -2.0))    # 25, 23, ..., 3
 
 
 def test_samp42_top_layer_then_nine_metre_steps():

@@ -153,9 +153,9 @@ def test_ground_rising_to_the_edge_is_kept_with_extrapolated_buffer_heights(slop
     g = np.arange(0.0, 60.0) + 0.25
     x, y = (a.ravel() + rng.uniform(-0.2, 0.2, a.size) for a in np.meshgrid(g, g))
     xyz = np.column_stack([x, y, slope * y + 0.02 * np.sin(x)])
-    fixed, _ = masf.filter_points(xyz, masf.Config(buffer_heights="top"), masf.Params())
-    carried, _ = masf.filter_points(xyz, masf.Config(buffer_heights="extrapolated"), masf.Params())
-    assert (~fixed).sum() > 100 and y[~fixed].min() > 50.0
+    fixed, _ = masf.filter_points(xyz, masf.Config(buffer_heights="top", mirror_max_m=None), masf.Params())
+    carried, _ = masf.filter_points(xyz, masf.Config(buffer_heights="extrapolated", mirror_max_m=None), masf.Params())
+    assert (~fixed).sum() > 100 and y[~fixed].min() > 40.0          # the upper band only
     assert carried.all()
 
 
