@@ -23,7 +23,8 @@
    mirror image through the nearest corner of the facet under it is within DT_k
    (`GroundTin.mirrored`, Axelsson 2000): the TIN of a coarse layer cuts across ridges and the
    upper edges of terraces, and the ground there, revealed only by the small balls of the last
-   layers, stands above it by more than their small DT.
+   layers, stands above it by more than their small DT. Only points that joined by their own
+   distance are centres, so the test never follows a flat object from point to point.
 3. Finally every remaining point of the whole cloud closer than `ft_m` to the TIN is ground.
 """
 from __future__ import annotations
@@ -191,9 +192,10 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
         layer ("top") or taken again from the TIN's ground points before each lower layer and
         before the last test (`buffer_z`).
       mirror_max_m: a layer's point closer than this to the TIN [m] is accepted too when its
-        mirror image through the nearest corner (a ground point, not a buffer point) of the
-        facet under it is closer than DT_k (`GroundTin.mirrored`); None: no mirror test. The
-        last test of the whole cloud takes the distance alone.
+        mirror image through the nearest corner of the facet under it is closer than DT_k
+        (`GroundTin.mirrored`); the centre is a seed or a point that joined by its own
+        distance, never a buffer point or one that joined through its image. None: no mirror
+        test. The last test of the whole cloud takes the distance alone.
       step: told when each layer below the top one, and then the labelling, is done
         (`n_layers` calls; a progress bar).
     """
@@ -223,18 +225,24 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
             return tin
         return tin.with_heights(ring_ids, buffer_z(tin, ring_ids, extrapolate=buffer_heights == "extrapolated"))
 
+    # centres[v]: TIN vertex v may be a mirror's centre: a seed, or a point that joined by its
+    # own distance; not a buffer point, nor one that joined through its image (else a flat
+    # object whose edge got in would be followed point by point: a roof, a bridge deck)
+    centres = np.ones(len(tin.xyz_m), dtype=bool)
+    centres[ring_ids] = False
+
     def measure(tin: GroundTin, xyz_m: np.ndarray, start: np.ndarray | None = None):
         """Distance to `tin` (the smaller of the point's and its mirror image's, see
-        `mirror_max_m`), the facet under the point and the one under its image (-1: none)."""
-        distance_m, facet = tin.measure(xyz_m, nearest_facet=nearest_facet, start=start)
+        `mirror_max_m`), the facet under the point, the one under its image (-1: none) and
+        the point's own distance."""
+        own_m, facet = tin.measure(xyz_m, nearest_facet=nearest_facet, start=start)
+        distance_m = own_m.copy()
         image_facet = np.full(len(xyz_m), -1, dtype=np.int64)
         if mirror_max_m is not None:
-            near = np.flatnonzero(distance_m < mirror_max_m)
-            centre_ok = np.ones(len(tin.xyz_m), dtype=bool)
-            centre_ok[ring_ids] = False
-            image_m, image_facet[near] = tin.mirrored(xyz_m[near], facet[near], centre_ok, nearest_facet=nearest_facet)
-            distance_m[near] = np.minimum(distance_m[near], image_m)
-        return distance_m, facet, image_facet
+            near = np.flatnonzero(own_m < mirror_max_m)
+            image_m, image_facet[near] = tin.mirrored(xyz_m[near], facet[near], centres, nearest_facet=nearest_facet)
+            distance_m[near] = np.minimum(own_m[near], image_m)
+        return distance_m, facet, image_facet, own_m
 
     def touched(old: GroundTin, changed: np.ndarray, facet: np.ndarray) -> np.ndarray:
         """Where `facet` (or, for `nearest_facet`, an edge neighbour) was replaced."""
@@ -252,16 +260,17 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
         waiting = (np.isfinite(threshold_m) if retest_earlier else layers[level]) & ~in_tin
         candidates = np.flatnonzero(waiting)
         limit_m = threshold_m[candidates] if retest_earlier else np.full(len(candidates), dt_m)
-        distance_m, facet, image_facet = measure(tin, seed_xyz[candidates])
+        distance_m, facet, image_facet, own_m = measure(tin, seed_xyz[candidates])
         for pass_ in range(layer_passes):
             accept = distance_m < limit_m
             if not accept.any():
                 break
             old, keep = tin, ~accept
             tin, changed = old.insert(seed_xyz[candidates[accept]], facet[accept], retriangulate=retriangulate)
+            centres = np.concatenate([centres, own_m[accept] < limit_m[accept]])
             in_tin[candidates[accept]] = True
             added[level] += np.count_nonzero(accept)
-            candidates, limit_m, distance_m = candidates[keep], limit_m[keep], distance_m[keep]
+            candidates, limit_m, distance_m, own_m = candidates[keep], limit_m[keep], distance_m[keep], own_m[keep]
             facet, image_facet = facet[keep], image_facet[keep]
             if pass_ + 1 == layer_passes:
                 break
@@ -269,7 +278,7 @@ def densify(points_m: np.ndarray, seeds: np.ndarray, layers: np.ndarray, alphas_
             # mirror image is, can change.
             stale = touched(old, changed, facet) | touched(old, changed, image_facet)
             start = tin.vertex_to_simplex[old.simplices[facet[stale], 0]]
-            distance_m[stale], facet[stale], image_facet[stale] = measure(tin, seed_xyz[candidates[stale]], start)
+            distance_m[stale], facet[stale], image_facet[stale], own_m[stale] = measure(tin, seed_xyz[candidates[stale]], start)
         step(f"layer {level + 1} of {n_layers}")
     tin = lift(tin)
     ground = np.zeros(len(points_m), dtype=bool)

@@ -23,9 +23,9 @@ Our readings where the paper is silent (R), beside SPEC section 4's:
   by batch insertion, so a retest costs a fraction of a triangulation);
 - the buffer points around the grid take their heights again before each layer from the
   ground found so far, carried along its slope (`Config.buffer_heights`): ground rising to the
-  edge of the cloud otherwise stays above a TIN pinned at the top layer's height; optionally a
-  point near the TIN also joins it when its mirror image through the nearest ground vertex does
-  (`Config.mirror_max_m`, Axelsson's mirror points; off by default), for ridges and terrace edges;
+  edge of the cloud otherwise stays above a TIN pinned at the top layer's height; a point near
+  the TIN also joins it when its mirror image through the nearest vertex that joined by its own
+  distance does (`Config.mirror_max_m`, Axelsson's mirror points), for ridges and terrace edges;
 - alternatives kept as `Config` values, measured in `experiments/masf_isprs.py`:
   `layer_passes=1`, `retest_earlier`, `distance="nearest_facet"` (the paper's "nearest TIN facet").
 

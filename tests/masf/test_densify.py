@@ -31,6 +31,7 @@ def reference_densify(points_m, seeds, layers, alphas_m, *, shape, cell_m, st, f
 
     threshold_m = np.full(len(seeds), -np.inf)
     threshold_m[layers[0] & in_tin] = st * alphas_m[0] + ft_m
+    direct = in_tin.copy()          # joined by their own distance: the mirror's centres
     for level in range(1, len(alphas_m)):
         lift()
         dt_m = st * alphas_m[level] + ft_m
@@ -40,12 +41,14 @@ def reference_densify(points_m, seeds, layers, alphas_m, *, shape, cell_m, st, f
             candidates = np.flatnonzero(waiting)
             limit_m = threshold_m[candidates] if retest_earlier else dt_m
             tin = GroundTin(np.concatenate([seed_xyz[in_tin], ring]))
-            distance, facet = tin.measure(seed_xyz[candidates], nearest_facet=nearest_facet)
+            own, facet = tin.measure(seed_xyz[candidates], nearest_facet=nearest_facet)
+            distance = own
             if mirror_max_m is not None:
-                centre_ok = np.arange(len(tin.xyz_m)) < in_tin.sum()
+                centre_ok = np.concatenate([direct[in_tin], np.zeros(len(ring), dtype=bool)])
                 image, _ = tin.mirrored(seed_xyz[candidates], facet, centre_ok, nearest_facet=nearest_facet)
-                distance = np.where(distance < mirror_max_m, np.minimum(distance, image), distance)
+                distance = np.where(own < mirror_max_m, np.minimum(own, image), own)
             accepted = candidates[distance < limit_m]
+            direct[accepted] = (own < limit_m)[distance < limit_m]
             in_tin[accepted] = True
             if len(accepted) == 0:
                 break
