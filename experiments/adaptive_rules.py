@@ -117,16 +117,15 @@ CANDIDATES: dict[str, dict[str, Rule]] = {
             **({"time_step": 1.2} if t.slope_p90 >= 0.2 else {})},
     },
     "masf": {
-        "fixed": lambda t: {},
-        "grid": lambda t: {"grid_m": _smrf_cell(t)},
-        "grid spacing": lambda t: {"grid_m": max(1.0, _half_floor(t.last_spacing_m))},
-        "alpha by spacing": lambda t: {"grid_m": max(1.0, _half_floor(t.last_spacing_m)),
-                                       "alpha_max_m": max(20.0, 5 * _half_floor(t.last_spacing_m)),
-                                       "alpha_step_m": max(2.0, _half_floor(t.last_spacing_m))},
-        "alpha by spacing, x10": lambda t: {"grid_m": max(1.0, _half_floor(t.last_spacing_m)),
-                                            "alpha_max_m": max(20.0, 10 * _half_floor(t.last_spacing_m)),
-                                            "alpha_step_m": max(2.0, 2 * _half_floor(t.last_spacing_m))},
-        "st by slope": lambda t: {"st": round(max(0.05, t.slope_p90 / 2), 3)},
+        # Every value spelled out: the candidates replace `masf.adapt`, and "before" is the
+        # defaults before the buffer heights, the mirror test and alpha_max 25 m.
+        "before": lambda t: {"alpha_max_m": 20.0, "buffer_heights": "top", "mirror_max_m": None},
+        "no neighbour test": lambda t: {"neighbour_test": False, "alpha_max_m": 20.0, "mirror_max_m": None},
+        "alpha 25": lambda t: {"neighbour_test": False, "alpha_max_m": 25.0, "mirror_max_m": None},
+        "alpha 30": lambda t: {"neighbour_test": False, "alpha_max_m": 30.0, "mirror_max_m": None},
+        "alpha 30 + mirror 1": lambda t: {"neighbour_test": False, "alpha_max_m": 30.0, "mirror_max_m": 1.0},
+        "alpha 30 + mirror 1.5": lambda t: {"neighbour_test": False, "alpha_max_m": 30.0, "mirror_max_m": 1.5},
+        "alpha 25 + mirror 1.5": lambda t: {"neighbour_test": False, "alpha_max_m": 25.0, "mirror_max_m": 1.5},
     },
     "dmf": {
         "fixed": lambda t: {},

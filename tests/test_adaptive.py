@@ -171,12 +171,13 @@ def test_pmf_rule_follows_spacing_and_slope():
     assert sparse["cell_m"] == 4.0
 
 
-def test_dmf_masf_rules_set_nothing_yet_csf_takes_the_trend_off_any_terrain():
+def test_dmf_rule_sets_nothing_masf_leaves_its_neighbour_test_to_the_hidden_low_outliers_csf_takes_the_trend_off():
     from gfjax import csf, dmf, masf
 
     for xyz in (grid_plane(1.0, 100.0), grid_plane(0.2, 60.0)):
         terrain = adaptive.measure(xyz)
-        assert dmf.adapt(terrain) == masf.adapt(terrain) == {}
+        assert dmf.adapt(terrain) == {}
+        assert masf.adapt(terrain) == {"neighbour_test": False} and masf.HIDES_LOW_OUTLIERS
         assert csf.adapt(terrain) == {"trend_m": csf.TREND_M, "rigidness": 1, "class_threshold_m": 0.5}
 
 

@@ -2,7 +2,7 @@
 
 ```python
 import gfjax
-result = gfjax.masf.filter(gfjax.read("tile.laz"))            # alpha_max 20 m, step 2 m, ST 0.05
+result = gfjax.masf.filter(gfjax.read("tile.laz"))            # alpha_max 25 m, step 2 m, ST 0.05
 config, params = gfjax.methods.make_config_and_params(gfjax.masf, preset="paper-samp42")
 result = gfjax.masf.filter(cloud, config=config, params=params)
 ```

@@ -21,6 +21,11 @@ Our readings where the paper is silent (R), beside SPEC section 4's:
 - a layer's rejected points are retested against the TIN holding the points just accepted, up
   to `layer_passes = 3` tests per layer (chosen by leave-one-out over 1 pass; the TIN grows
   by batch insertion, so a retest costs a fraction of a triangulation);
+- the buffer points around the grid take their heights again before each layer from the
+  ground found so far, carried along its slope (`Config.buffer_heights`): ground rising to the
+  edge of the cloud otherwise stays above a TIN pinned at the top layer's height; a point near
+  the TIN also joins it when its mirror image through the nearest vertex that joined by its own
+  distance does (`Config.mirror_max_m`, Axelsson's mirror points), for ridges and terrace edges;
 - alternatives kept as `Config` values, measured in `experiments/masf_isprs.py`:
   `layer_passes=1`, `retest_earlier`, `distance="nearest_facet"` (the paper's "nearest TIN facet").
 
@@ -85,8 +90,8 @@ class Diagnostics(NamedTuple):
 
 class Prepared(NamedTuple):
     """What MASF computes before any alpha, ST or FT enters (Sec. 2.1 and the triangulation of
-    Sec. 2.2): `prepare` reads only `grid_m`, `outlier_gap_m`, `neighbour_drop_m` and
-    `low_cluster_max_m2` of the config, so one preparation serves every pyramid and threshold
+    Sec. 2.2): `prepare` reads only `grid_m`, `outlier_gap_m`, `neighbour_drop_m`,
+    `low_cluster_max_m2` and `neighbour_test` of the config, so one preparation serves every pyramid and threshold
     (`gfjax.masf.tuning` searches them on it).
 
     Attributes:
@@ -136,7 +141,8 @@ def prepare(xyz_m: np.ndarray, config: Config, frame: Frame | None = None, *,
     local = xyz_m - origin
     pre = preprocess.potential_ground(local, grid_m=config.grid_m, outlier_gap_m=config.outlier_gap_m,
                                       neighbour_drop_m=config.neighbour_drop_m,
-                                      max_cluster_cells=config.low_cluster_max_cells)
+                                      max_cluster_cells=config.low_cluster_max_cells,
+                                      neighbour_test=config.neighbour_test)
     seconds["preprocess"] = time.perf_counter() - clock
     step("preprocess")
     faces = geometry = None
@@ -174,7 +180,8 @@ def densify(prep: Prepared, layers: np.ndarray, config: Config, params: Params, 
                                  pit_drop_m=config.neighbour_drop_m, pit_slope=config.pit_slope,
                                  pit_cap_m=config.pit_cap_m, nearest_facet=config.distance == "nearest_facet",
                                  layer_passes=config.layer_passes, retest_earlier=config.retest_earlier,
-                                 retriangulate=config.retriangulate, step=step)
+                                 retriangulate=config.retriangulate, buffer_heights=config.buffer_heights,
+                                 mirror_max_m=config.mirror_max_m, step=step)
 
 
 # Stages `prepare` reports to its `step`; `filter_points` adds the pyramid and, through
@@ -225,7 +232,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
 
     Args:
       cloud: the point cloud; `cloud.xyz_m` (metres) is used, only `cloud.filter_mask(returns)`.
-      config: static settings (`Config()`: alpha_max 20 m, step 2 m, grid 1 m).
+      config: static settings (`Config()`: alpha_max 25 m, step 2 m, grid 1 m).
       params: thresholds (`Params()`: ST 0.05, FT 0.5 m).
       returns: "all" or "last".
       progress: a progress bar over its stages and layers (stderr).

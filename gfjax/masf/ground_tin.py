@@ -83,6 +83,17 @@ class GroundTin:
         out._set(xyz_all, spliced.simplices, spliced.neighbours, rebuilds=self.rebuilds)
         return out, spliced.destroyed
 
+    def with_heights(self, ids: np.ndarray, z_m: np.ndarray) -> GroundTin:
+        """The same triangulation with the vertices `ids` (int64 `(r,)`) at heights `z_m`
+        (float64 `(r,)` [m]); x, y and so the triangles are unchanged."""
+        xyz_m = self.xyz_m.copy()
+        xyz_m[ids, 2] = z_m
+        out = GroundTin.__new__(GroundTin)
+        out._set(xyz_m, self.simplices, self.neighbours, rebuilds=self.rebuilds)
+        if "_tree" in self.__dict__:
+            out.__dict__["_tree"] = self.__dict__["_tree"]       # x, y unchanged: the same tree
+        return out
+
     def locate(self, xy_m: np.ndarray, *, start: np.ndarray | None = None) -> np.ndarray:
         """Index of the triangle holding each point `(q, 2)`, `-1` outside the hull; int64 `(q,)`.
 
@@ -163,6 +174,38 @@ class GroundTin:
             best[has] = np.minimum(best[has], d)
         distance[inside] = best
         return distance, facet
+
+    def mirrored(self, xyz_m: np.ndarray, facet: np.ndarray, centre_ok: np.ndarray, *,
+                 nearest_facet: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """`measure` of each point's mirror image in the nearest corner of the facet under it.
+
+        Axelsson's (2000) mirror points: where the TIN cuts across a convex break line (a ridge,
+        the upper edge of a terrace), the ground beyond its last vertex lies above the facet
+        under it, while its image through that vertex, `2 v - p`, lies on the ground already in
+        the TIN; an object's image lies as far below the ground as the object stands above it.
+
+        Args:
+          xyz_m: float64 `(q, 3)` points [m]. facet: int64 `(q,)` the facet under each (`measure`).
+          centre_ok: bool `(k,)` over the vertices: those that may be the mirror's centre (the
+            nearest such corner of the facet is taken; none: no image).
+
+        Returns:
+          `(distance, facet)` of the images as `measure` gives them: float64 `(q,)` [m], `inf`
+          for an image outside the TIN or a point without one, and int64 `(q,)` (`-1`).
+        """
+        xyz_m = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
+        distance = np.full(len(xyz_m), np.inf)
+        image_facet = np.full(len(xyz_m), -1, dtype=np.int64)
+        corners = self.simplices[np.maximum(facet, 0)]                          # (q, 3)
+        gap = ((self.xyz_m[corners, :2] - xyz_m[:, None, :2]) ** 2).sum(axis=2)
+        gap = np.where(centre_ok[corners], gap, np.inf)
+        pick = np.argmin(gap, axis=1)
+        has = (facet >= 0) & np.isfinite(gap[np.arange(len(xyz_m)), pick])
+        centre = corners[has, pick[has]]
+        image = 2.0 * self.xyz_m[centre] - xyz_m[has]
+        distance[has], image_facet[has] = self.measure(image, nearest_facet=nearest_facet,
+                                                       start=self.vertex_to_simplex[centre])
+        return distance, image_facet
 
     def distance_m(self, xyz_m: np.ndarray, *, nearest_facet: bool = False) -> np.ndarray:
         """`measure`'s distance alone: float64 `(q,)` [m]."""

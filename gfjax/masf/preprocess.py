@@ -46,7 +46,7 @@ def grid_shape(xy_m: np.ndarray, *, grid_m: float) -> tuple[int, int]:
 
 
 def potential_ground(xyz_m: np.ndarray, *, grid_m: float, outlier_gap_m: float,
-                     neighbour_drop_m: float, max_cluster_cells: int = 1) -> Preprocessed:
+                     neighbour_drop_m: float, max_cluster_cells: int = 1, neighbour_test: bool = True) -> Preprocessed:
     """Select one potential ground point per occupied cell and drop low outliers.
 
     Extended local minimum (Sec. 2.1): the points of a cell, sorted by z, are walked upwards;
@@ -63,6 +63,7 @@ def potential_ground(xyz_m: np.ndarray, *, grid_m: float, outlier_gap_m: float,
       xyz_m: float64 `(n, 3)` local metres, `x, y >= 0` (subtract the minimum corner first).
       grid_m: cell side [m]. outlier_gap_m, neighbour_drop_m: thresholds [m].
       max_cluster_cells: largest group of cells the neighbourhood test removes together.
+      neighbour_test: False leaves the neighbourhood test out (the per-cell gap rule alone).
 
     Returns:
       A `Preprocessed`. The choice depends only on the coordinates, never on point order:
@@ -98,7 +99,10 @@ def potential_ground(xyz_m: np.ndarray, *, grid_m: float, outlier_gap_m: float,
     occupied[p_row, p_col] = True
     z_grid = np.full(shape, np.inf)
     z_grid[p_row, p_col] = xyz_m[chosen, 2]
-    low = _low_clusters(z_grid, occupied, drop_m=neighbour_drop_m, max_cells=max_cluster_cells)
+    if neighbour_test:
+        low = _low_clusters(z_grid, occupied, drop_m=neighbour_drop_m, max_cells=max_cluster_cells)
+    else:
+        low = np.zeros(shape, dtype=bool)
     keep = ~low[p_row, p_col]
     return Preprocessed(chosen[keep], p_row[keep], p_col[keep], shape, occupied, gap_outliers, low)
 

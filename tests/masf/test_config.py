@@ -10,7 +10,7 @@ from gfjax import masf, methods
 
 
 def test_default_pyramid_runs_from_alpha_max_to_twice_the_grid():
-    np.testing.assert_array_equal(masf.Config().alphas_m(), np.arange(20.0, 1.0, -2.0))
+    np.testing.assert_array_equal(masf.Config().alphas_m(), np.arange(25.0, 2.0, -2.0))    # 25, 23, ..., 3
 
 
 def test_samp42_top_layer_then_nine_metre_steps():
@@ -39,7 +39,8 @@ def test_spec_presets_are_exact():
 
 
 @pytest.mark.parametrize("change", [dict(grid_m=0.0), dict(alpha_step_m=-1.0), dict(alpha_max_m=1.0),
-                                    dict(alpha_top_m=10.0), dict(outlier_gap_m=float("nan"))])
+                                    dict(alpha_top_m=10.0), dict(outlier_gap_m=float("nan")),
+                                    dict(buffer_heights="lowest"), dict(mirror_max_m=0.0)])
 def test_bad_config_raises_naming_the_key(change):
     key = next(iter(change))
     with pytest.raises(ValueError, match=key.replace("alpha_max_m", "alpha_max_m")):

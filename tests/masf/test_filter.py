@@ -129,7 +129,7 @@ def test_a_patch_of_low_outliers_is_not_ground_and_does_not_drag_the_ground_down
     assert not result.ground[patch].any()
     assert result.ground[~patch].mean() > 0.98
     without_test = masf.filter(Cloud.from_xyz(xyz), config=masf.Config(pit_slope=None))
-    assert without_test.ground[patch].all()                 # the cell rules alone keep the patch
+    assert without_test.ground[patch].mean() > 0.8          # the cell rules alone keep the patch
 
 
 def test_a_courtyard_enclosed_by_a_building_stays_ground():

@@ -67,6 +67,17 @@ def test_isolated_low_point_is_removed_but_a_slope_is_kept():
     assert len(potential_ground(slope, **KW).index) == len(slope)
 
 
+def test_ground_under_canopy_is_kept_without_the_neighbour_test():
+    """A sparse forest: one ground return among cells that hold canopy returns alone. The
+    neighbourhood test takes it for a low outlier; without the test it stays."""
+    canopy = flat_grid(z=15.0)
+    ground = 40
+    canopy[ground, 2] = 0.0
+    assert ground not in set(potential_ground(canopy, **KW).index)
+    pre = potential_ground(canopy, **KW, neighbour_test=False)
+    assert ground in set(pre.index) and len(pre.index) == len(canopy) and not pre.neighbour_outliers.any()
+
+
 def test_single_cell_outlier_below_a_cell_partner_is_skipped():
     xyz = np.array([[0.5, 0.5, -3.0], [0.6, 0.4, 5.0], [0.7, 0.2, 5.2]])
     pre = potential_ground(xyz, grid_m=1.0, outlier_gap_m=1.0, neighbour_drop_m=1.0)

@@ -154,18 +154,19 @@ def test_the_guard_equals_a_brute_force_of_its_rule():
 
 
 def test_candidates_hold_the_defaults_and_every_combination():
-    combos, default = tmasf.candidates(masf.Config(), SMALL_GRID)
+    base = masf.Config(alpha_max_m=20.0)                     # the given config's values are the defaults
+    combos, default = tmasf.candidates(base, SMALL_GRID)
     assert combos[default] == {"alpha_max_m": 20.0, "alpha_step_m": 2.0, "alpha_top_m": tmasf.NO_TOP, "st": 0.05,
                                "ft_m": 0.5}
     assert len(combos) == 2 * 2 * 2 * 2 * 1
-    combos, default = tmasf.candidates(masf.Config(), {**SMALL_GRID, "ft_m": (0.7,)})    # the default is added
+    combos, default = tmasf.candidates(base, {**SMALL_GRID, "ft_m": (0.7,)})    # the default is added
     assert len(combos) == 32 and combos[default]["ft_m"] == 0.5
-    combos = tmasf.candidates(masf.Config(), {**SMALL_GRID, "alpha_top_m": (tmasf.NO_TOP, 15.0)})[0]
+    combos = tmasf.candidates(base, {**SMALL_GRID, "alpha_top_m": (tmasf.NO_TOP, 15.0)})[0]
     assert {(c["alpha_max_m"], c["alpha_top_m"]) for c in combos} == {(10.0, 0.0), (10.0, 15.0), (20.0, 0.0)}
-    low = tmasf.candidates(masf.Config(), {**SMALL_GRID, "alpha_max_m": (1.0, 20.0)})[0]
-    assert all(c["alpha_max_m"] >= masf.Config().min_alpha_m for c in low)          # below alpha_min: left out
+    low = tmasf.candidates(base, {**SMALL_GRID, "alpha_max_m": (1.0, 20.0)})[0]
+    assert all(c["alpha_max_m"] >= base.min_alpha_m for c in low)          # below alpha_min: left out
     with pytest.raises(ValueError, match="the grid must set"):
-        tmasf.candidates(masf.Config(), {"st": (0.1,)})
+        tmasf.candidates(base, {"st": (0.1,)})
 
 
 @pytest.mark.parametrize("far_group", [False, True], ids=["one-group", "far-group"])
@@ -197,7 +198,7 @@ def test_params_values_leave_out_an_absent_top_layer():
     combo = {"alpha_max_m": 20.0, "alpha_step_m": 2.0, "alpha_top_m": tmasf.NO_TOP, "st": 0.05, "ft_m": 0.5}
     assert "alpha_top_m" not in tmasf.values(combo)
     assert tmasf.values({**combo, "alpha_top_m": 90.0})["alpha_top_m"] == 90.0
-    assert masf.Config(alpha_top_m=90.0).reach_m == 180.0 and masf.Config().reach_m == 40.0
+    assert masf.Config(alpha_top_m=90.0).reach_m == 180.0 and masf.Config().reach_m == 50.0
 
 
 def test_every_row_of_dmfs_table_is_the_plain_filters_errors():
