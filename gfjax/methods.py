@@ -99,6 +99,8 @@ def memory_estimates(config: Any, tiling: Any = None) -> list[limits.Estimate]:
 
 
 def _parse_value(text: str, current: Any) -> Any:
+    if text.strip().lower() == "none" and not isinstance(current, (bool, str)) and not _is_scalar_array(current):
+        return None                  # an optional value; the field's range refuses it where it is not
     if isinstance(current, bool):
         if text.lower() in ("1", "true", "yes", "on"):
             return True

@@ -42,6 +42,19 @@ def test_types_follow_the_fields():
     assert params.slope.dtype == jnp.float32 and float(params.slope) == np.float32(0.25)
 
 
+def test_none_turns_an_optional_value_off_and_is_refused_where_a_value_is_needed():
+    from gfjax import csf, masf
+
+    config, _ = methods.make_config_and_params(masf, {"mirror_max_m": "none"})
+    assert config.mirror_max_m is None
+    config, _ = methods.make_config_and_params(csf, {"trend_m": "None"})
+    assert config.trend_m is None
+    with pytest.raises(InputError, match="cell_m"):           # its range (under test, also its type hint)
+        methods.make_config_and_params(csf, {"cell_m": "none"})
+    with pytest.raises(InputError, match="--set slope=none: could not convert"):
+        methods.make_config_and_params(MODULE, {"slope": "none"})
+
+
 def test_precedence_defaults_preset_values_set():
     config, params = methods.make_config_and_params(MODULE, preset="steep")
     assert (config.cell_m, float(params.slope)) == (2.0, np.float32(0.3))
