@@ -6,7 +6,10 @@ surface is the canopy. So the values that depend on the data are set from the cl
 
 - `measure(xyz_m, last_xyz_m) -> Terrain`: the point spacing over the area the points cover
   (of all returns and of the last ones), and the slopes of a coarse minimum surface with the
-  objects eroded away (numpy and one scipy filter; no labels). `combine` joins a survey's files.
+  objects eroded away (numpy and one scipy filter; no labels). `measure_chunks`: the same
+  `Terrain` of points read a chunk at a time (a survey's file from disk:
+  `gfjax.survey.survey_terrain`), holding a chunk and the measuring grids, never the cloud;
+  `measure` is it on one chunk. `combine` joins a survey's files.
 - Each method package's `adapt(terrain) -> dict` (`gfjax.smrf.adapt`, `gfjax.pmf.adapt`, ...):
   the values of its `Config` / `Params` fields that follow from the terrain, each a documented
   function of it, chosen on the training files of `experiments/common.LABELLED` only
@@ -42,7 +45,7 @@ from gfjax.io.cloud import CloudView, Frame
 
 RETURNS = ("all", "last")
 
-__all__ = ["Terrain", "measure", "follows", "run", "finish", "hide", "Hidden", "raster_cell_m", "settle_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
+__all__ = ["Terrain", "measure", "measure_chunks", "Chunk", "follows", "run", "finish", "hide", "Hidden", "raster_cell_m", "settle_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
 
 # The preset name that keeps a method's fixed defaults (no rule applied).
 FIXED_PRESET = "fixed"
@@ -127,18 +130,17 @@ class Terrain(NamedTuple):
                 f"90th percentile {self.slope_p90:.2f}; relief {self.relief_m:.1f} m")
 
 
-def _cells(x: np.ndarray, y: np.ndarray, cell_m: float, lo: np.ndarray,
-           hi: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
-    """Flat cell index of every point (coordinates `x`, `y`, float64 `(n,)` each) on a grid of
-    `cell_m` from `lo` (float64 `(2,)`: the points' minimum x, y; `hi` their maximum), and the
-    grid's shape. Column by column: numpy runs `(n, 2)` arithmetic through an inner loop of
-    two elements, several times slower."""
-    shape = (int((hi[1] - lo[1]) / cell_m) + 1, int((hi[0] - lo[0]) / cell_m) + 1)
-    return _flat_cells(x - lo[0], y - lo[1], cell_m, shape), shape
+def _shape(box: tuple[np.ndarray, np.ndarray], cell_m: float) -> tuple[int, int]:
+    """`(rows, columns)` of a grid of `cell_m` from the corner `box[0]` (float64 `(2,)`: the
+    points' minimum x, y) that holds the `box` (`_box`)."""
+    lo, hi = box
+    return int((hi[1] - lo[1]) / cell_m) + 1, int((hi[0] - lo[0]) / cell_m) + 1
 
 
 def _flat_cells(dx: np.ndarray, dy: np.ndarray, cell_m: float, shape: tuple[int, int]) -> np.ndarray:
-    """`_cells` from the offsets `dx`, `dy` (float64 `(n,)`, >= 0) to the grid's corner."""
+    """Flat cell index int64 `(n,)` of points at offsets `dx`, `dy` (float64 `(n,)`, >= 0) from
+    the corner of a grid of `cell_m` and `shape` (`_shape`). Column by column: numpy runs
+    `(n, 2)` arithmetic through an inner loop of two elements, several times slower."""
     col = (dx / cell_m).astype(np.int64)                   # >= 0: truncation is the floor
     np.minimum(col, shape[1] - 1, out=col)                 # rounding at the far edge
     row = (dy / cell_m).astype(np.int64)
@@ -151,26 +153,6 @@ def _flat_cells(dx: np.ndarray, dy: np.ndarray, cell_m: float, shape: tuple[int,
 def _box(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """`(lo, hi)`: minimum and maximum x, y of points, float64 `(2,)` each."""
     return np.array([x.min(), y.min()]), np.array([x.max(), y.max()])
-
-
-def _spacing(x: np.ndarray, y: np.ndarray, box: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[float, float]:
-    """`(area_m2, spacing_m)` of points (coordinates `x`, `y`, float64 `(n,)` each) [m],
-    n >= 1 (`Terrain`); `box`: their `_box`, when known.
-
-    The cover grid's cell is set from the density, which is what is measured: start from the
-    box's, then the covered area's, a few times over, so a stray point kilometres away or an
-    L-shaped survey does not make the cells (and so the area) as large as the box.
-    """
-    n = x.shape[0]
-    lo, hi = _box(x, y) if box is None else box
-    area = float(np.maximum(hi - lo, 1.0).prod())
-    dx, dy = x - lo[0], y - lo[1]                          # one subtraction for every pass
-    for _ in range(_COVER_PASSES):
-        cover_m = max(_MIN_COVER_CELL_M, math.sqrt(_POINTS_PER_COVER_CELL * area / n))
-        shape = (int((hi[1] - lo[1]) / cover_m) + 1, int((hi[0] - lo[0]) / cover_m) + 1)
-        cover = _flat_cells(dx, dy, cover_m, shape)
-        area = np.count_nonzero(np.bincount(cover, minlength=shape[0] * shape[1])) * cover_m * cover_m
-    return area, math.sqrt(area / n)
 
 
 def _ground_only(z_min: np.ndarray, cell_m: float) -> np.ndarray:
@@ -200,41 +182,61 @@ def _percentile_filter(z: np.ndarray, percentile: int, size: int) -> np.ndarray:
     return out
 
 
+# A chunk of the points `measure_chunks` reads: the x, y, z columns of the points a method uses
+# and the x, y columns of their last returns (float64 `(k,)` and `(j,)` each; either may be empty).
+Chunk = tuple[tuple[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
 def measure(xyz_m: np.ndarray, last_xyz_m: np.ndarray | None = None) -> Terrain:
     """The statistics of `Terrain` for points `(n, 3)` [m] (float; the points a method uses)
-    and their last returns `(k, 3)` (None or empty: the same points).
+    and their last returns `(k, 3)` (None or empty: the same points): `measure_chunks` of one chunk.
 
     Raises:
       ValueError: fewer than one point.
     """
     xyz = np.asarray(xyz_m, dtype=np.float64)
-    last_xy = None
+    used = tuple(np.ascontiguousarray(xyz[:, j]) for j in range(3))
+    last_xy = (np.empty(0), np.empty(0))
     if last_xyz_m is not None:
         last = np.asarray(last_xyz_m, dtype=np.float64)
         last_xy = (np.ascontiguousarray(last[:, 0]), np.ascontiguousarray(last[:, 1]))
-    return _measure(*(np.ascontiguousarray(xyz[:, j]) for j in range(3)), last_xy)
-
-
-def _measure(x: np.ndarray, y: np.ndarray, z: np.ndarray,
-             last_xy: tuple[np.ndarray, np.ndarray] | None) -> Terrain:
-    """`measure` of points given as float64 columns `(n,)`, and the x, y columns of their last
-    returns (None or empty: the same points)."""
-    n = x.shape[0]
-    if n == 0:
+    terrain = measure_chunks(lambda: [(used, last_xy)])
+    if terrain is None:
         raise ValueError("measure needs at least one point")
-    box = _box(x, y)
-    area, spacing = _spacing(x, y, box)
-    last_spacing = spacing
-    if last_xy is not None and len(last_xy[0]) and len(last_xy[0]) < n:
-        last_spacing = _spacing(*last_xy)[1]
-    slope_cell = max(_MIN_SLOPE_CELL_M, _SLOPE_CELLS_PER_SPACING * spacing)
-    index, shape = _cells(x, y, slope_cell, *box)
+    return terrain
+
+
+def measure_chunks(chunks: Callable[[], Iterable[Chunk]]) -> Terrain | None:
+    """`measure` of points read a chunk at a time: `chunks()` yields them anew at each call
+    (`Chunk`s), so memory holds one chunk and a few grids of about a sixteenth as many cells as
+    points, never the whole cloud; None when no point is used. The statistics are `measure`'s
+    of the chunks' points joined, exactly: each grid (the box, the occupied cells of each cover
+    pass, the minimum per slope cell) is a union or a minimum over the chunks, and each pass's
+    cell follows from the previous pass's grid, so `chunks` is read `_COVER_PASSES + 2` times
+    (a file on disk is read again, never held). The last returns' spacing is that of every
+    point where none or all of them are last."""
+    n, box, n_last, last_box = _extents(chunks)
+    if n == 0:
+        return None
+    with_last = 0 < n_last < n
+    area, spacing = _spacing(chunks, n, box, n_last, last_box if with_last else None)
+    slope_cell = max(_MIN_SLOPE_CELL_M, _SLOPE_CELLS_PER_SPACING * spacing[0])
+    lo, shape = box[0], _shape(box, slope_cell)
     z_min = np.full(shape[0] * shape[1], np.inf)
-    np.minimum.at(z_min, index, z)
-    z_min = _ground_only(z_min.reshape(shape), slope_cell)
+    for (x, y, z), _ in chunks():
+        np.minimum.at(z_min, _flat_cells(x - lo[0], y - lo[1], slope_cell, shape), z)
+    p50, p90, relief = _surface(z_min.reshape(shape), slope_cell)
+    return Terrain(n_points=n, area_m2=float(area), spacing_m=spacing[0], last_spacing_m=spacing[-1],
+                   slope_cell_m=slope_cell, slope_p50=p50, slope_p90=p90, relief_m=relief)
+
+
+def _surface(z_min: np.ndarray, slope_cell: float) -> tuple[float, float, float]:
+    """`(slope_p50, slope_p90, relief_m)` of `Terrain` from the minimum surface `(h, w)` [m]
+    (+inf where a cell holds no point) on cells of `slope_cell` [m]."""
+    z_min = _ground_only(z_min, slope_cell)
     filled = np.isfinite(z_min)
     slopes = np.empty(0)
-    if shape[0] >= 2 and shape[1] >= 2:
+    if z_min.shape[0] >= 2 and z_min.shape[1] >= 2:
         # central differences where a cell and its four neighbours hold points
         core = filled[1:-1, 1:-1] & filled[:-2, 1:-1] & filled[2:, 1:-1] & filled[1:-1, :-2] & filled[1:-1, 2:]
         with np.errstate(invalid="ignore"):
@@ -249,10 +251,52 @@ def _measure(x: np.ndarray, y: np.ndarray, z: np.ndarray,
             slopes = np.concatenate(steps) / slope_cell
     p50, p90 = (float(v) for v in np.percentile(slopes, [50, 90])) if slopes.size else (0.0, 0.0)
     lows = z_min[filled]
-    relief = float(np.percentile(lows, 98) - np.percentile(lows, 2))
-    return Terrain(n_points=n, area_m2=float(area), spacing_m=spacing, last_spacing_m=last_spacing,
-                   slope_cell_m=slope_cell,
-                   slope_p50=p50, slope_p90=p90, relief_m=relief)
+    return p50, p90, float(np.percentile(lows, 98) - np.percentile(lows, 2))
+
+
+Box = tuple[np.ndarray, np.ndarray]
+
+
+def _extents(chunks: Callable[[], Iterable[Chunk]]) -> tuple[int, Box, int, Box]:
+    """`(n, box, n_last, last_box)`: the count and `_box` of the used points and of their last
+    returns over every chunk (a box of `inf`, `-inf` where there is none)."""
+    counts = [0, 0]
+    boxes = [(np.full(2, np.inf), np.full(2, -np.inf)) for _ in range(2)]
+    for used, last in chunks():
+        for i, (x, y) in enumerate((used[:2], last)):
+            if len(x):
+                counts[i] += len(x)
+                lo, hi = _box(x, y)
+                np.minimum(boxes[i][0], lo, out=boxes[i][0])
+                np.maximum(boxes[i][1], hi, out=boxes[i][1])
+    return counts[0], boxes[0], counts[1], boxes[1]
+
+
+def _spacing(chunks: Callable[[], Iterable[Chunk]], n: int, box: Box, n_last: int,
+             last_box: Box | None) -> tuple[float, list[float]]:
+    """`(area_m2, spacings_m)` of the used points (`n` >= 1 of them, their `box`) [m]
+    (`Terrain`): their area, and the spacing of them and, where `last_box` is given, of their
+    last returns (`n_last` in `last_box`) after it.
+
+    The cover grid's cell is set from the density, which is what is measured: start from the
+    box's, then the covered area's, a few times over, so a stray point kilometres away or an
+    L-shaped survey does not make the cells (and so the area) as large as the box. Each pass
+    reads every chunk once and keeps one occupancy grid per selection.
+    """
+    sets = [(0, n, box)] + ([] if last_box is None else [(1, n_last, last_box)])
+    areas = [float(np.maximum(b[1] - b[0], 1.0).prod()) for _, _, b in sets]
+    for _ in range(_COVER_PASSES):
+        grids = []
+        for (_, count, grid_box), area in zip(sets, areas):
+            cover_m = max(_MIN_COVER_CELL_M, math.sqrt(_POINTS_PER_COVER_CELL * area / count))
+            shape = _shape(grid_box, cover_m)
+            grids.append((cover_m, shape, np.zeros(shape[0] * shape[1], dtype=bool)))
+        for chunk in chunks():
+            for (i, _, (lo, _)), (cover_m, shape, occupied) in zip(sets, grids):
+                x, y = chunk[i][:2]
+                occupied[_flat_cells(x - lo[0], y - lo[1], cover_m, shape)] = True
+        areas = [np.count_nonzero(occupied) * cover_m * cover_m for cover_m, _, occupied in grids]
+    return areas[0], [math.sqrt(area / count) for (_, count, _), area in zip(sets, areas)]
 
 
 def combine(terrains: Iterable[Terrain]) -> Terrain:
@@ -438,6 +482,7 @@ def settle_cloud(rule: Callable[[Terrain], dict[str, Any]] | None, cloud: Any, c
     last = cloud.filter_mask("last")
     # column by column: (n, 3) rows gathered by a mask cost three times as much
     columns = [np.ascontiguousarray(xyz[:, j]) for j in range(3)]
-    used = columns if use.all() else [c[use] for c in columns]
-    terrain = _measure(*used, (columns[0][last], columns[1][last]))
+    used = tuple(columns) if use.all() else tuple(c[use] for c in columns)
+    last_xy = (columns[0][last], columns[1][last])
+    terrain = measure_chunks(lambda: [(used, last_xy)])
     return settle_terrain(rule, terrain, config, params, fixed=fixed)

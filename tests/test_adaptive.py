@@ -64,6 +64,44 @@ def test_measure_of_one_point_and_of_none():
         adaptive.measure(np.empty((0, 3)))
 
 
+def chunked(xyz: np.ndarray, last: np.ndarray, bounds: list[int], last_bounds: list[int]):
+    """`measure_chunks`' reader of `xyz` and `last` cut at `bounds` and `last_bounds` (as many
+    of each: a chunk may hold no point, or no last return)."""
+    def chunks():
+        for (a, b), (c, d) in zip(zip(bounds[:-1], bounds[1:]), zip(last_bounds[:-1], last_bounds[1:])):
+            yield tuple(xyz[a:b, j] for j in range(3)), (last[c:d, 0], last[c:d, 1])
+    return chunks
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_cloud_measured_in_chunks_is_the_cloud_measured_whole(seed):
+    """Every statistic equal, exactly, whatever the chunks: single, empty, without a last return."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2_000, 40_000))
+    xyz = rng.uniform(0.0, rng.uniform(50.0, 2_000.0), (n, 3)) + [500_000.0, 5_000_000.0, 0.0]
+    xyz[:, 2] = 0.1 * xyz[:, 0] % 7.0 + rng.normal(0.0, 0.5, n)
+    xyz[: n // 50, :2] += 5_000.0                           # a patch far away: the cover passes matter
+    last = xyz[rng.random(n) < 0.4]
+    whole = adaptive.measure(xyz, last)
+    k = len(last)
+    cuts = [
+        ([0, n], [0, k]),                                   # one chunk
+        ([0, n, n], [0, k, k]),                             # and an empty one
+        ([0, n // 2, n], [0, 0, k]),                        # a chunk with no last return
+        ([0, 0, n], [0, k, k]),                             # last returns alone, then points alone
+        (list(range(0, n, 997)) + [n], np.linspace(0, k, len(range(0, n, 997)) + 1).astype(int).tolist()),
+    ]
+    for bounds, last_bounds in cuts:
+        assert adaptive.measure_chunks(chunked(xyz, last, bounds, last_bounds)) == whole
+    assert adaptive.measure_chunks(chunked(xyz, xyz[:0], [0, n // 3, n], [0, 0, 0])) == adaptive.measure(xyz)
+
+
+def test_chunks_without_a_point_measure_nothing():
+    empty = np.empty((0, 3))
+    assert adaptive.measure_chunks(chunked(empty, empty, [0, 0, 0], [0, 0, 0])) is None
+    assert adaptive.measure_chunks(lambda: []) is None
+
+
 def test_combine_of_two_halves_matches_the_whole():
     xyz = grid_plane(2.0, 400.0, slope=0.2)
     left = xyz[:, 0] < np.median(xyz[:, 0])

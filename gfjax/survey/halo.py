@@ -23,7 +23,7 @@ from gfjax import adaptive, limits
 from gfjax.io.cloud import Cloud, Frame, Points, use_mask
 from gfjax.method import Method
 from gfjax.result import Result
-from gfjax.survey.catalog import STORE, Catalog
+from gfjax.survey.catalog import STORE, Catalog, Entry
 from gfjax.tiling.tiles import Lattice
 
 HALO_M = 50.0           # context around a file for methods that do not tile [m]
@@ -117,16 +117,13 @@ def window(catalog: Catalog, i: int, cloud: Cloud, lattice: Lattice | None, halo
     return Points(**fields, name=cloud.name, frame=catalog.frame)
 
 
-def _file_points(catalog: Catalog, *selections: str) -> Iterator[tuple[np.ndarray, ...]]:
-    """Per file of the catalog, its points `(k, 3)` [m] of each returns selection ("all",
-    "last": `use_mask`), read block by block from its store."""
+def _file_points(catalog: Catalog, returns: str) -> Iterator[np.ndarray]:
+    """Per file of the catalog, its used points `(k, 3)` [m] (`use_mask` of `returns`), read
+    block by block from its store."""
     for entry in catalog.entries:
-        parts: list[list[np.ndarray]] = [[] for _ in selections]
-        for _, block in entry.blocks():
-            args = (block["ignored"], block["return_number"], block["number_of_returns"])
-            for part, selection in zip(parts, selections):
-                part.append(block["xyz_m"][use_mask(*args, selection)])
-        yield tuple(np.concatenate(part) if part else np.empty((0, 3)) for part in parts)
+        parts = [block["xyz_m"][use_mask(block["ignored"], block["return_number"], block["number_of_returns"], returns)]
+                 for _, block in entry.blocks()]
+        yield np.concatenate(parts) if parts else np.empty((0, 3))
 
 
 def survey_config(method: Method, config, catalog: Catalog, *, returns: str = "all"):
@@ -136,16 +133,30 @@ def survey_config(method: Method, config, catalog: Catalog, *, returns: str = "a
     hook = method.survey_config
     if hook is None:
         return config
-    return hook(config, (used for used, in _file_points(catalog, returns)))
+    return hook(config, _file_points(catalog, returns))
 
 
 def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrain | None:
     """The statistics the method's rules read (`gfjax.adaptive`), of the whole survey: each
     file measured on its used points and their last returns, then combined, so every file and
     tile of the survey gets the same values. None when no point is used. Reads each file's
-    store once."""
-    terrains = [adaptive.measure(used, last) for used, last in _file_points(catalog, returns, "last") if len(used)]
+    store a block at a time, a few times over (`adaptive.measure_chunks`): memory holds a block
+    and the measuring grids, never a file's points."""
+    terrains = [adaptive.measure_chunks(_chunks(entry, returns)) for entry in catalog.entries]
+    terrains = [t for t in terrains if t is not None]
     return adaptive.combine(terrains) if terrains else None
+
+
+def _chunks(entry: Entry, returns: str) -> Callable[[], Iterator[adaptive.Chunk]]:
+    """The `adaptive.Chunk`s of a file's blocks: its used points (`use_mask` of `returns`) and
+    their last returns, read anew at each call."""
+    def chunks() -> Iterator[adaptive.Chunk]:
+        for _, block in entry.blocks():
+            args = (block["ignored"], block["return_number"], block["number_of_returns"])
+            xyz = block["xyz_m"]
+            use, last = use_mask(*args, returns), use_mask(*args, "last")
+            yield tuple(xyz[use, j] for j in range(3)), (xyz[last, 0], xyz[last, 1])
+    return chunks
 
 
 def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, lattice: Lattice | None, *,
