@@ -149,13 +149,18 @@ def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrai
 
 def _chunks(entry: Entry, returns: str) -> Callable[[], Iterator[adaptive.Chunk]]:
     """The `adaptive.Chunk`s of a file's blocks: its used points (`use_mask` of `returns`) and
-    their last returns, read anew at each call."""
+    their last returns, read anew at each call from the file's store. A COPC file has no store
+    (its blocks are decompressed from the file): its chunks are read once and kept, as a file's
+    points were before, rather than decompressed at each of the passes."""
     def chunks() -> Iterator[adaptive.Chunk]:
         for _, block in entry.blocks():
             args = (block["ignored"], block["return_number"], block["number_of_returns"])
             xyz = block["xyz_m"]
             use, last = use_mask(*args, returns), use_mask(*args, "last")
             yield tuple(xyz[use, j] for j in range(3)), (xyz[last, 0], xyz[last, 1])
+    if entry.store is None:
+        kept = list(chunks())
+        return lambda: iter(kept)
     return chunks
 
 
