@@ -162,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
             "files": [Path(p).name for p in inputs], "validate": [Path(p).name for p in validate],
             "config": model_settings(config),
             "inputs": {"density_pts_m2": _densities(data)},
+            "machine": sgf_train.machine(),
             "lambda": lam, "lr": args.lr or sgf_train.LR_START, "seconds": time.perf_counter() - started,
             "logs": [log._asdict() for log in logs]}
     checkpoint.save(out, model, meta)

@@ -277,6 +277,15 @@ def test_a_short_training_run_twice_gives_the_same_weights_to_the_bit(net):
         np.testing.assert_array_equal(a, b)
 
 
+def test_a_model_file_records_the_machine_its_bits_depend_on():
+    import json
+
+    facts = train.machine()
+    assert json.loads(json.dumps(facts)) == facts                  # goes into the file's JSON header
+    assert facts["cpus"] >= 1 and facts["processor"] and facts["jax"] == jax.__version__
+    assert len(facts["cpu_flags_sha256"]) == 16 and isinstance(facts["numpy_simd"], list)
+
+
 def test_a_small_file_is_drawn_again_until_it_gives_min_patches():
     xyz, cls = scene()
     big = np.column_stack([xyz[:, 0] * 4 - 3 * xyz[0, 0], xyz[:, 1] * 4 - 3 * xyz[0, 1], xyz[:, 2]])
