@@ -260,7 +260,7 @@ def machine() -> dict:
 def fit(model: Model, data: list[Labelled], *, config: Config, epochs: int, batch_size: int, seed: int,
         resume_path=None, validate: list[Labelled] | None = None, lam: float = LAMBDA, lr: float = LR_START,
         min_patches: int = 0, max_patches: int = 0, on_step=None, on_epoch=None):
-    """Train `model` for `epochs` epochs; deterministic given `seed`.
+    """Train `model` for `epochs` epochs; deterministic given `seed` on one machine (`machine`).
 
     The learning rate follows a cosine from `lr` to `lr * LR_END_RATIO` over the run (per
     step); `min_patches` and `max_patches` are `training_batches`'. Epoch `e` draws its grid shifts, rotations,
