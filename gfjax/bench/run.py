@@ -144,13 +144,14 @@ def machine() -> dict:
     load = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
     affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
     return {"nproc": os.cpu_count(), "affinity_cpus": affinity,
-            "loadavg_1_5_15": list(load), "platform": platform.platform(), "processor": _cpu_model(),
+            "loadavg_1_5_15": list(load), "platform": platform.platform(), "processor": cpu_model(),
             "python": platform.python_version(), "jax": jax.__version__, "jax_backend": jax.default_backend(),
             "jax_device": str(jax.devices()[0]),
             "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "xla_flags": os.environ.get("XLA_FLAGS")}
 
 
-def _cpu_model() -> str:
+def cpu_model() -> str:
+    """The CPU's model name (`/proc/cpuinfo`), else `platform.processor()`."""
     try:
         with open("/proc/cpuinfo") as f:
             for line in f:

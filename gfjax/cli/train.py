@@ -4,7 +4,8 @@ Labels: ground = `--ground-class` (2), every other class non-ground (noise inclu
 paper relabels outliers). Height-aware loss (lambda 0.5, 6 HAG bins), Adam with a cosine
 schedule from 1e-1 to 1e-3, batches of `--batch` patches, random rotation about z (Qin et al.
 2026, Sec. 3.3). After every epoch the model is written to `-o` and the training state to
-`-o`.state, which `--resume` continues from; the run is deterministic given `--seed`.
+`-o`.state, which `--resume` continues from; the run is deterministic given `--seed` on one
+machine (another CPU, number of cores or XLA_FLAGS rounds otherwise: the model file records them).
 `--validate FILES` scores the model on labelled files it does not train on after each epoch.
 `--dry-run` prints the network's parameter count and the patches per epoch, and stops.
 """
@@ -162,6 +163,7 @@ def run(args: argparse.Namespace) -> int:
             "files": [Path(p).name for p in inputs], "validate": [Path(p).name for p in validate],
             "config": model_settings(config),
             "inputs": {"density_pts_m2": _densities(data)},
+            "machine": sgf_train.machine(),
             "lambda": lam, "lr": args.lr or sgf_train.LR_START, "seconds": time.perf_counter() - started,
             "logs": [log._asdict() for log in logs]}
     checkpoint.save(out, model, meta)

@@ -65,7 +65,10 @@ def cloud_features(xyz_m, features: str, *, smrf=None):
     `smrf`: the cloud's `smrf_prior.smrf_heights` when already computed."""
     if not reads_smrf(features):
         return None
-    h = smrf_heights(xyz_m) if smrf is None else smrf
+    h = np.asarray(smrf_heights(xyz_m) if smrf is None else smrf, np.float64)
+    # logged in float64, then rounded: numpy's float32 log1p takes another routine on a CPU with
+    # AVX-512 (1-2 ulp apart on a tenth of samp12's values), so the inputs, and a model trained
+    # on them, would depend on the machine; its float64 routines round to the same float32
     return (np.sign(h) * np.log1p(np.abs(h))).astype(np.float32)
 
 

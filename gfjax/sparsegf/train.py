@@ -231,10 +231,36 @@ def validation_error(model: Model, data: list[Labelled], config: Config) -> floa
     return float(np.mean(errors))
 
 
+def machine() -> dict:
+    """What a run's bits depend on besides its code, data and seed, for the model file: the
+    CPU (model name and a digest of its flags), the cores this process may use, the instruction
+    sets numpy picked its routines by, and the JAX version and `XLA_FLAGS`. Measured: XLA's CPU
+    programs round otherwise on one core than on two, and numpy's without AVX-512 otherwise
+    than with it, so a run bit-identical to another on one machine need not be on another."""
+    import hashlib
+    import os
+
+    import jax
+
+    from gfjax.bench.run import cpu_model
+
+    flags = ""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as file:
+            flags = next((line.split(":", 1)[1].strip() for line in file if line.startswith(("flags", "Features"))), "")
+    except OSError:
+        pass
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    simd = np.show_config(mode="dicts").get("SIMD Extensions", {})
+    return {"processor": cpu_model(), "cpu_flags_sha256": hashlib.sha256(flags.encode()).hexdigest()[:16],
+            "cpus": cpus, "numpy": np.__version__, "numpy_simd": list(simd.get("found", [])),
+            "jax": jax.__version__, "xla_flags": os.environ.get("XLA_FLAGS", "")}
+
+
 def fit(model: Model, data: list[Labelled], *, config: Config, epochs: int, batch_size: int, seed: int,
         resume_path=None, validate: list[Labelled] | None = None, lam: float = LAMBDA, lr: float = LR_START,
         min_patches: int = 0, max_patches: int = 0, on_step=None, on_epoch=None):
-    """Train `model` for `epochs` epochs; deterministic given `seed`.
+    """Train `model` for `epochs` epochs; deterministic given `seed` on one machine (`machine`).
 
     The learning rate follows a cosine from `lr` to `lr * LR_END_RATIO` over the run (per
     step); `min_patches` and `max_patches` are `training_batches`'. Epoch `e` draws its grid shifts, rotations,

@@ -252,6 +252,40 @@ def test_training_steps_lower_the_loss_and_are_deterministic(net):
     assert train.optimizer() is train.optimizer()     # one static optimizer: the step compiles once
 
 
+def short_training(net):
+    """`train.fit` end to end on the scene and a thinned copy of it (patches topped up and capped,
+    batch norms calibrated each epoch, two epochs): every array of the trained network and its
+    statistics, and the epochs' losses."""
+    xyz, cls = scene()
+    data = [train.labelled(xyz, cls)]
+    data += train.thinned(data, copies=1, seed=0, low_pts_m2=0.2)
+    model, logs = train.fit(net, data, config=Config(features=FEATURES), epochs=2, batch_size=4, seed=0,
+                            min_patches=3, max_patches=3, lam=0.0)
+    arrays = [np.asarray(a) for a in jax.tree.leaves(eqx.filter((model.net, model.state), eqx.is_array))]
+    return arrays, [(log.loss, log.loss_hag) for log in logs]
+
+
+def test_a_short_training_run_twice_gives_the_same_weights_to_the_bit(net):
+    """A recipe run again on one machine is the same model: no draw outside the seed, no order
+    that follows timing. (Another machine may round otherwise: XLA's CPU programs depend on the
+    cores they get, `experiments/results/sparsegf_model.md`.)"""
+    first, losses = short_training(net)
+    again, losses_again = short_training(net)
+    assert losses == losses_again and np.all(np.isfinite(losses))
+    assert len(first) == len(again)
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_model_file_records_the_machine_its_bits_depend_on():
+    import json
+
+    facts = train.machine()
+    assert json.loads(json.dumps(facts)) == facts                  # goes into the file's JSON header
+    assert facts["cpus"] >= 1 and facts["processor"] and facts["jax"] == jax.__version__
+    assert len(facts["cpu_flags_sha256"]) == 16 and isinstance(facts["numpy_simd"], list)
+
+
 def test_a_small_file_is_drawn_again_until_it_gives_min_patches():
     xyz, cls = scene()
     big = np.column_stack([xyz[:, 0] * 4 - 3 * xyz[0, 0], xyz[:, 1] * 4 - 3 * xyz[0, 1], xyz[:, 2]])

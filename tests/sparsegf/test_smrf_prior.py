@@ -1,6 +1,11 @@
 """SMRF's surface as SparseGF inputs: SMRF's own decision, one value per point wherever it lies."""
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -54,3 +59,16 @@ def test_cloud_features_come_with_the_smrf_feature_set_only(scene):
     np.testing.assert_allclose(got, np.sign(h) * np.log1p(np.abs(h)), rtol=1e-6)
     assert F.n_features("xyz+tophat+smrf") == F.n_features("xyz+tophat") + F.N_SMRF_FEATURES
     assert smrf_heights(np.zeros((0, 3))).shape == (0, 2)
+
+
+def test_cloud_features_do_not_depend_on_numpys_cpu_dispatch(tmp_path):
+    """numpy picks its float32 log1p by CPU (another routine with AVX-512, 1-2 ulp apart): the
+    inputs a model trains on are the same on a machine without those routines."""
+    h = np.random.default_rng(0).laplace(0.0, 3.0, (50_000, 2)).astype(np.float32)
+    np.save(tmp_path / "h.npy", h)
+    code = ("import sys, numpy as np; from gfjax.sparsegf import features as F; "
+            "np.save(sys.argv[2], F.cloud_features(None, 'xyz+tophat+smrf', smrf=np.load(sys.argv[1])))")
+    env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
+           "PYTHONPATH": str(Path(F.__file__).parents[2])}
+    subprocess.run([sys.executable, "-c", code, str(tmp_path / "h.npy"), str(tmp_path / "f.npy")], env=env, check=True)
+    np.testing.assert_array_equal(F.cloud_features(None, "xyz+tophat+smrf", smrf=h), np.load(tmp_path / "f.npy"))
