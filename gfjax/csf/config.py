@@ -171,7 +171,13 @@ HIDES_LOW_OUTLIERS = True
 
 def trend_window_m(terrain: adaptive.Terrain) -> float:
     """The trend's window [m]: `TREND_M`, or as wide as `TREND_CELLS` cells that hold
-    `TREND_CELL_LAST_RETURNS` last returns each, rounded up to a metre."""
+    `TREND_CELL_LAST_RETURNS` last returns each, rounded up to a metre. `TREND_M` for a cloud
+    too thin for a 1 m cloth (`adaptive.cost_cell_m`: no window's cells hold four points there;
+    on 1,000 points over 15 km² the 30 m trend leaves each point on itself, 94 % ground, and a
+    120-1,600 m one rides the ground's slope, 47-78 %) or of too few points to measure."""
+    cost = adaptive.cost_cell_m(terrain)
+    if cost == 0.0 or cost > Config().cell_m:
+        return TREND_M
     sparse = TREND_CELLS * math.sqrt(TREND_CELL_LAST_RETURNS) * terrain.last_spacing_m
     return max(TREND_M, float(math.ceil(sparse)))
 
@@ -183,10 +189,8 @@ def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
 
     - the terrain's trend is taken off before a soft cloth (rigidness 1) falls (`ADAPTED`; a
       flat terrain has no trend to take): objects up to 30 m wide stay on it, wider where the
-      last returns are too sparse for its cells to hold `TREND_CELL_LAST_RETURNS` each, unless
-      the cloud is too thin for a 1 m cloth (then no window holds them: on 1,000 points over
-      15 km² the 30 m trend leaves each point on itself, 94 % ground, and a 120-1,600 m one
-      rides the ground's slope, 47-78 %);
+      last returns are too sparse for its cells to hold `TREND_CELL_LAST_RETURNS` each
+      (`trend_window_m`);
     - the class threshold is 0.5 m plus the terrain's rise over `THRESHOLD_RISE_CELLS` cloth
       cells at its 90th-percentile slope, at most `MAX_THRESHOLD_M`;
     - on terrain with relief (`RELIEF_SLOPE`), the time step is `RELIEF_TIME_STEP`.
@@ -196,7 +200,7 @@ def adapt(terrain: adaptive.Terrain) -> dict[str, float]:
     base = Config()
     cell = max(base.cell_m, adaptive.cost_cell_m(terrain))
     rise = THRESHOLD_RISE_CELLS * cell * terrain.slope_p90
-    values: dict[str, float] = {**ADAPTED, "trend_m": TREND_M if cell > base.cell_m else trend_window_m(terrain),
+    values: dict[str, float] = {**ADAPTED, "trend_m": trend_window_m(terrain),
                                 "class_threshold_m": round(min(MAX_THRESHOLD_M, float(Params().class_threshold_m) + rise), 3)}
     if cell > base.cell_m:
         values["cell_m"] = cell
