@@ -370,9 +370,13 @@ class Settled(NamedTuple):
         """Lines for `gfjax filter -v`: the terrain, then each value the rules chose."""
         if self.terrain is None:
             return "fixed settings (no rule applied)"
+        return f"terrain: {self.terrain.describe()}\n" + "\n".join(self.choices())
+
+    def choices(self) -> list[str]:
+        """`describe`'s lines after the terrain's: the values chosen, the low outliers hidden."""
         values = ", ".join(f"{k}={_show(v)}" for k, v in self.chosen.items()) or "none (every value fixed)"
-        hidden = "" if self.low_outliers is None else f"\nlow outliers hidden from it: {self.low_outliers:,}"
-        return f"terrain: {self.terrain.describe()}\nchosen from it: {values}{hidden}"
+        hidden = [] if self.low_outliers is None else [f"low outliers hidden from it: {self.low_outliers:,}"]
+        return [f"chosen from it: {values}", *hidden]
 
 
 def _show(value: Any) -> str:

@@ -30,6 +30,7 @@ PACKAGES: dict[str, str] = {
     "dmf": "gfjax.dmf",
     "masf": "gfjax.masf",
     "sparsegf": "gfjax.sparsegf",
+    "vote": "gfjax.vote",
 }
 
 

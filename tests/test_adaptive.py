@@ -165,7 +165,7 @@ def test_cli_says_what_it_chose_and_the_user_overrides_it(tmp_path, capsys, opti
     from cli_helpers import run_cli
 
     src = _write_plane(tmp_path / "sparse.las", 5.3, 320.0)
-    code, out, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.las", "-v", *options)
+    code, out, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.las", "--method", "smrf", "-v", *options)
     assert code == 0, err
     if said is None:
         assert "terrain:" not in err
@@ -187,7 +187,7 @@ def test_smrf_cell_of_scattered_points_stays_within_the_window():
 
 
 @pytest.mark.parametrize("points_per_m2", [1.0, 20.0])
-@pytest.mark.parametrize("name", ["smrf", "pmf", "csf", "dmf", "masf", "sparsegf"])
+@pytest.mark.parametrize("name", ["smrf", "pmf", "csf", "dmf", "masf", "sparsegf", "vote"])
 def test_a_flat_plane_is_ground_with_every_method(name, points_per_m2):
     """100 x 100 m of evenly spaced points with 2 cm of noise: at least 99.5 % ground."""
     from gfjax import methods
@@ -280,7 +280,7 @@ def test_the_cost_cell_keeps_rasters_within_their_cells_per_point():
     assert adaptive.cost_cell_m(adaptive.measure(thin_cloud(10))) == 0.0                   # too few to measure
 
 
-@pytest.mark.parametrize("name", ["smrf", "pmf", "csf", "dmf", "masf", "sparsegf"])
+@pytest.mark.parametrize("name", ["smrf", "pmf", "csf", "dmf", "masf", "sparsegf", "vote"])
 def test_a_cloud_spread_thin_over_square_kilometres_filters_with_every_method(name):
     """Each method's rasters follow the points: no run over millions of cells for 1,000 points."""
     from gfjax import methods
@@ -296,7 +296,7 @@ def test_a_users_value_against_one_chosen_from_the_cloud_is_one_line(tmp_path, c
     from cli_helpers import run_cli
 
     src = _write_plane(tmp_path / "sparse.las", 5.3, 320.0)
-    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.las", "--set", "window_m=4")
+    code, _, err = run_cli(capsys, "filter", src, "-o", tmp_path / "out.las", "--method", "smrf", "--set", "window_m=4")
     assert code == 2 and "Traceback" not in err
     assert "window_m given, cell_m=5.5 chosen from the cloud" in err
     assert not (tmp_path / "out.las").exists()
