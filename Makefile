@@ -16,7 +16,7 @@ install: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/gfjax demo --force
-	$(BIN)/gfjax warmup --methods smrf
+	$(BIN)/gfjax warmup --methods vote
 
 test: lint
 	$(BIN)/python -m pytest -n 2 -q

@@ -1,9 +1,10 @@
-"""`gfjax demo`: filter the shipped sample with SMRF; no arguments, no network.
+"""`gfjax demo`: filter the shipped sample with the default method; no arguments, no network.
 
-Reads ISPRS reference sample 12 (shipped in `gfjax/data`, CC BY 4.0, see its README), runs
-`gfjax.smrf.filter` with its defaults, and writes into `./gfjax-demo/` (or `--out DIR`):
+Reads ISPRS reference sample 12 (shipped in `gfjax/data`, CC BY 4.0, see its README), runs the
+method `gfjax filter` runs without `--method` (`gfjax.methods.DEFAULT_METHOD`: the vote of
+SMRF, MASF and PMF) with its defaults, and writes into `./gfjax-demo/` (or `--out DIR`):
 
-- `samp12-smrf.laz`: the sample with ground = class 2 (every other dimension unchanged);
+- `samp12-vote.laz`: the sample with ground = class 2 (every other dimension unchanged);
 - `samp12-dtm.tif`: the DTM (1 m cell means of the ground points, TIN-filled), EPSG:32632;
 - `samp12-demo.png`: the classification in plan view beside the hillshaded DTM.
 
@@ -94,19 +95,21 @@ def run(args: argparse.Namespace) -> int:
 
     import gfjax
     from gfjax import dtm as dtm_lib
-    from gfjax import metrics, smrf
+    from gfjax import methods, metrics
     from gfjax.cli import _job
     from gfjax.data import demo_sample
 
     out = _output_folder(args.out)
     sample = demo_sample()
     stem = sample.name.split("-")[0]
-    laz_path, tif_path, png_path = out / f"{stem}-smrf.laz", out / f"{stem}-dtm.tif", out / f"{stem}-demo.png"
+    method = methods.get(methods.DEFAULT_METHOD)
+    laz_path, tif_path, png_path = (out / f"{stem}-{method.name}.laz", out / f"{stem}-dtm.tif",
+                                    out / f"{stem}-demo.png")
     _job.check_outputs([("--out", path, None) for path in (laz_path, tif_path, png_path)],
                        force=args.force)
     start = time.perf_counter()
     cloud = gfjax.read(sample)
-    result = smrf.filter(cloud)
+    result = method.filter(cloud)
     filtered = time.perf_counter()
     reference = cloud.classification == 2
     scores = metrics.point_metrics(result.ground, reference)
@@ -119,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     plot_demo(png_path, cloud, result.ground, dtm, title=title)
     done = time.perf_counter()
 
-    print(f"gfjax demo: SMRF (Pingel et al. 2013, PDAL defaults) on {sample.name}, ISPRS filter-test "
+    print(f"gfjax demo: {method.name}, the default method, on {sample.name}, ISPRS filter-test "
           f"reference sample 12 (CC BY 4.0, Sithole & Vosselman 2004)")
     print(f"  points {cloud.n_points:,}, ground predicted {int(np.sum(result.ground)):,}, "
           f"ground in the reference {int(np.sum(reference)):,}")

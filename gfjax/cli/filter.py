@@ -166,12 +166,14 @@ def run(args: argparse.Namespace) -> int:
     say_crs_warning([(job.source, job.crs_units) for job in planned])
     check_written_forms([(job.source, job.header, job.target) for job in planned])
     out_of_core = _out_of_core(args, setup, planned)
+    if out_of_core is not None:
+        setup = out_of_core
     # cleanup errors ignored: after a failed task a worker may still be writing a store there
     with atomic.scratch_folder() as folder, \
             _cluster(args, sum(job.header.point_count for job in planned)) as client:
         if args.scheduler is not None and args.dtm is None and not args.instances:
             return _run_on_cluster(args, setup, inputs, planned, folder, client)
-        if out_of_core:
+        if out_of_core is not None:
             return _run_out_of_core(args, setup, inputs, planned, folder, client)
         runner = None
         if client is not None or (len(inputs) > 1 and not args.independent):
@@ -370,23 +372,33 @@ def _run(args, setup, inputs, planned, runner) -> int:
     return code
 
 
-def _out_of_core(args, setup, planned) -> bool:
-    """Whether to filter tile by tile from disk: `--out-of-core`, or a file whose points, filtered
-    in memory, would take more than the memory budget (`limits.IN_MEMORY_BYTES_PER_POINT`)."""
-    from gfjax import limits
+def _out_of_core(args, setup, planned):
+    """The setup to filter with tile by tile from disk, or None to filter in memory. Out of core:
+    `--out-of-core`, or a file whose points, filtered in memory, would take more than the memory
+    budget (`limits.IN_MEMORY_BYTES_PER_POINT`). A method that cannot (no tile lattice) is
+    refused, but for the default method left to itself (no `--method`, `--preset`, `--set` or
+    `--params`): then `methods.OUT_OF_CORE_METHOD` filters, and one line says so."""
+    from gfjax import limits, methods
     budget = limits.memory_budget_bytes()
     need = [(job, job.header.point_count * (job.header.point_format.size + limits.IN_MEMORY_BYTES_PER_POINT))
             for job in planned]
     large = [(job, size) for job, size in need if size > budget]
     if not (args.out_of_core or large):
-        return False
+        return None
     why = "--out-of-core" if args.out_of_core else (
         f"{large[0][0].source}: {large[0][0].header.point_count:,} points need about {large[0][1] / 2**30:.1f} "
         f"GiB filtered in memory, more than the budget of {budget / 2**30:.1f} GiB (set {limits.BUDGET_ENV} to "
         "change it)")
+    instead = ""
     if setup.lattice is None:
-        raise InputError(f"{why}: method {setup.name} filters a file in memory only; smrf and pmf filter it "
-                         "out of core, a tile at a time")
+        tiled = [name for name in methods.names() if methods.lattice(methods.get(name), methods.get(name).Config())]
+        left_to_itself = args.method is None and args.preset is None and not args.set_values and args.params is None
+        if not left_to_itself:
+            raise InputError(f"{why}: method {setup.name} filters a file in memory only; {' and '.join(tiled)} "
+                             "filter it out of core, a tile at a time")
+        instead = f" with {methods.OUT_OF_CORE_METHOD} (the default, {setup.name}, filters a file in memory only)"
+        setup = method_setup(argparse.Namespace(**{**vars(args), "method": methods.OUT_OF_CORE_METHOD}),
+                             tiling=(args.tile_size, args.buffer))
     from gfjax.io import copc_writer
 
     copcs = [job.target for job in planned if copc_writer.is_copc_name(job.target)]
@@ -394,9 +406,9 @@ def _out_of_core(args, setup, planned) -> bool:
                           (f"-o {copcs[0] if copcs else ''} (COPC, an octree over every point)", bool(copcs))):
         if given:
             raise InputError(f"{why}: {option} needs the file in memory; filter without it out of core")
-    if not args.out_of_core:
-        print(f"gfjax: {why}: filtering out of core, a tile at a time", file=sys.stderr)
-    return True
+    if instead or not args.out_of_core:
+        print(f"gfjax: {why}: filtering out of core{instead}, a tile at a time", file=sys.stderr)
+    return setup
 
 
 def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:

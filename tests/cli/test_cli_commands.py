@@ -14,6 +14,7 @@ import pytest
 from cli_helpers import SCENE_CLASSES, error_line, fake_methods, no_compilation_cache, run_cli, write_scene  # noqa: F401
 from conftest import shared_file
 
+from gfjax import methods
 from gfjax.cli import eval as eval_cli
 from gfjax.cli import info as info_cli
 from gfjax.cli import main as cli_main
@@ -249,7 +250,7 @@ def test_quiet_turns_off_progress_bars_and_compile_notices(monkeypatch):
     assert "TQDM_DISABLE" not in os.environ
     args = cli_main.build_parser(["filter", "a.laz", "-o", "b.laz", "-q"])[0].parse_args(
         ["filter", "a.laz", "-o", "b.laz", "-q"])
-    assert args.quiet and cli_main._method_of(args) == "smrf"
+    assert args.quiet and cli_main._method_of(args) == methods.DEFAULT_METHOD
 
 
 def test_quiet_run_prints_no_progress_bar(tmp_path):

@@ -28,8 +28,8 @@ def test_demo_writes_laz_dtm_png(tmp_path, capsys):
     out = tmp_path / "demo"
     assert demo.run(argparse.Namespace(out=str(out), force=False)) == 0
     printed = capsys.readouterr().out
-    assert "total error" in printed and str(out / "samp12-smrf.laz") in printed
-    classified = gfjax.read(out / "samp12-smrf.laz")
+    assert "total error" in printed and str(out / "samp12-vote.laz") in printed
+    classified = gfjax.read(out / "samp12-vote.laz")
     original = gfjax.read(demo_sample())
     assert classified.n_points == original.n_points
     np.testing.assert_array_equal(classified.xyz, original.xyz)

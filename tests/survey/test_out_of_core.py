@@ -52,9 +52,10 @@ def test_a_survey_out_of_core_labels_as_the_union(files, tmp_path, monkeypatch):
     monkeypatch.setattr(stream, "CHUNK_POINTS", 3_000)
     # fixed values: the seams alone; with values that follow the data the guard, run on each
     # window, may differ near a window's edge (`test_survey.test_adaptive_survey_labels_...`)
-    assert main(["filter", str(union), "-o", str(tmp_path / "union.laz"), *TILING, "--preset", "fixed"]) == 0
+    smrf = ["--method", "smrf"]
+    assert main(["filter", str(union), "-o", str(tmp_path / "union.laz"), *smrf, *TILING, "--preset", "fixed"]) == 0
     (tmp_path / "out").mkdir()
-    assert main(["filter", *map(str, paths), "-o", str(tmp_path / "out"), *TILING, "--out-of-core",
+    assert main(["filter", *map(str, paths), "-o", str(tmp_path / "out"), *smrf, *TILING, "--out-of-core",
                  "--preset", "fixed"]) == 0
     want = np.asarray(laspy.read(tmp_path / "union.laz").classification)
     got = np.zeros_like(want)
@@ -64,7 +65,7 @@ def test_a_survey_out_of_core_labels_as_the_union(files, tmp_path, monkeypatch):
     np.testing.assert_array_equal(got, want)
     for folder, flags in (("alone_disk", ["--out-of-core"]), ("alone_memory", [])):     # --independent
         (tmp_path / folder).mkdir()
-        assert main(["filter", *map(str, paths[:2]), "-o", str(tmp_path / folder), *TILING, "--independent",
+        assert main(["filter", *map(str, paths[:2]), "-o", str(tmp_path / folder), *smrf, *TILING, "--independent",
                      *flags]) == 0
     for path in paths[:2]:
         np.testing.assert_array_equal(np.asarray(laspy.read(tmp_path / "alone_disk" / path.name).classification),
@@ -76,8 +77,15 @@ def test_a_file_over_the_budget_goes_out_of_core_by_itself(files, tmp_path, monk
     monkeypatch.setattr(limits, "IN_MEMORY_BYTES_PER_POINT", 1 << 40)
     assert main(["filter", str(union), "-o", str(tmp_path / "a.laz"), *TILING]) == 0
     err = capsys.readouterr().err
-    assert "union.laz" in err and "filtering out of core" in err
+    # the default method reads a file whole: left to itself, SMRF filters it instead, and says so
+    assert "union.laz" in err and "filtering out of core with smrf (the default, vote, filters a file in memory only)" in err
+    assert main(["filter", str(union), "-o", str(tmp_path / "smrf.laz"), *TILING, "--method", "smrf"]) == 0
+    np.testing.assert_array_equal(laspy.read(tmp_path / "a.laz").classification,
+                                  laspy.read(tmp_path / "smrf.laz").classification)
+    capsys.readouterr()
     for extra, problem in ((["--method", "dmf"], "method dmf filters a file in memory only"),
+                           (["--method", "vote"], "method vote filters a file in memory only; smrf and pmf filter"),
+                           (["--set", "voters=smrf,pmf"], "method vote filters a file in memory only"),
                            (["--dtm", str(tmp_path / "d.tif")], "--dtm needs the file in memory")):
         assert main(["filter", str(union), "-o", str(tmp_path / "b.laz"), *extra]) == 2
         assert problem in capsys.readouterr().err

@@ -469,9 +469,10 @@ def test_adaptive_survey_labels_nearly_as_the_union(grid, tmp_path):
     (run on each window, whose edge neighbours differ from one file's): at least 99.9 % of the
     points get the union's labels."""
     paths, members, union = grid
-    assert main(["filter", str(union), "-o", str(tmp_path / "union.laz"), "--tile-size", "40", "--buffer", "8"]) == 0
+    smrf = ["--method", "smrf", "--tile-size", "40", "--buffer", "8"]
+    assert main(["filter", str(union), "-o", str(tmp_path / "union.laz"), *smrf]) == 0
     (tmp_path / "out").mkdir()
-    assert main(["filter", *map(str, paths), "-o", str(tmp_path / "out"), "--tile-size", "40", "--buffer", "8"]) == 0
+    assert main(["filter", *map(str, paths), "-o", str(tmp_path / "out"), *smrf]) == 0
     want = las_io.read(tmp_path / "union.laz").classification == 2
     got = np.zeros_like(want)
     for path, keep in zip(paths, members):
