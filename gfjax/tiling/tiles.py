@@ -147,15 +147,34 @@ def _clamp_into_cells(local: np.ndarray, cell: np.ndarray, cell_m: float, out: n
         out[near] = np.clip(out[near], lo, np.maximum(lo, hi))
 
 
-def _cropped(core_cells: np.ndarray, reach_px: int, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The window `[lo, hi)` (cells) cut to the box of its core points' cells `(m, 2)` grown
-    by `reach_px`, when that box is at most `1 / CROP_SAVING` of it: a core of a few points
-    in a mostly empty box rasterises their surroundings, not a whole tile."""
-    box_lo = np.maximum(columns.lows(core_cells) - reach_px, lo)
-    box_hi = np.minimum(columns.highs(core_cells) + 1 + reach_px, hi)
+def _cropped(cells: np.ndarray, of_core: np.ndarray, reach_px: int, lo: np.ndarray,
+             hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The window `[lo, hi)` (cells) cut to the box of its core points' cells (`cells` int
+    `(m, 2)` where `of_core`, bool `(m,)`, at least one) grown by `reach_px`, when that box is at
+    most `1 / CROP_SAVING` of it: a core of a few points in a mostly empty box rasterises their
+    surroundings, not a whole tile."""
+    if of_core.all():
+        lows, highs = columns.lows(cells), columns.highs(cells)
+    else:                                      # a column at a time, without copying the core's rows
+        top = np.iinfo(cells.dtype)
+        lows = np.array([cells[:, j].min(where=of_core, initial=top.max) for j in range(2)], np.int64)
+        highs = np.array([cells[:, j].max(where=of_core, initial=top.min) for j in range(2)], np.int64)
+    box_lo = np.maximum(lows - reach_px, lo)
+    box_hi = np.minimum(highs + 1 + reach_px, hi)
     if np.prod((box_hi - box_lo).astype(np.float64)) * CROP_SAVING > np.prod((hi - lo).astype(np.float64)):
         return lo, hi
     return box_lo, box_hi
+
+
+def _floor_columns(rel: np.ndarray, step_m: float, dtype) -> np.ndarray:
+    """`floor(rel[:, :2] / step_m)` as `dtype` `(n, 2)`, a column at a time through one float64
+    temporary of n rows (the same values as dividing both columns at once)."""
+    out = np.empty((len(rel), 2), dtype)
+    scaled = np.empty(len(rel))
+    for j in range(2):
+        np.divide(rel[:, j], step_m, out=scaled)
+        out[:, j] = np.floor(scaled, out=scaled)
+    return out
 
 
 def window_px(key: np.ndarray, extent_px: np.ndarray, tile_size_m: float, buffer_m: float,
@@ -229,25 +248,24 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         raise ValueError("points lie outside the tiling frame")
     rel -= origin                                                 # float64, >= 0
     # Few temporaries of n rows: a window holds millions of points, and fresh pages cost more
-    # than the arithmetic on them.
-    scaled = rel[:, :2] / cell_m
-    cell = np.floor(scaled, out=scaled).astype(np.int64)         # global (col, row-from-south)
-    np.divide(rel[:, :2], tile_size_m, out=scaled)
-    core = np.floor(scaled, out=scaled).astype(np.int64)
-    del scaled
+    # than the arithmetic on them. Cells in int32 where the lattice fits (the same values).
     extent_px = extent_cells(frame, cell_m)
+    cell = _floor_columns(rel, cell_m, np.int32 if extent_px.max() < np.iinfo(np.int32).max else np.int64)
     buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
 
     reach = max(1, math.ceil((buffer_px + 1) * cell_m / tile_size_m))   # neighbour cores a window reaches
     if frame.cores is not None and len(frame.cores) <= FEW_CORES:
         # a survey's window made for one tile: a mask per tile, no sort of the window's points
+        core = _floor_columns(rel, tile_size_m, np.int64)
         wanted = [k for k in sorted(frame.cores, key=lambda k: (k[1], k[0]))
                   if np.any((core[:, 0] == k[0]) & (core[:, 1] == k[1]))]
 
-        def candidates_of(ti: int, tj: int) -> np.ndarray:
-            return np.flatnonzero((np.abs(core[:, 0] - ti) <= reach) & (np.abs(core[:, 1] - tj) <= reach))
+        def candidates_of(ti: int, tj: int) -> np.ndarray | None:
+            near = (np.abs(core[:, 0] - ti) <= reach) & (np.abs(core[:, 1] - tj) <= reach)
+            return None if near.all() else np.flatnonzero(near)
     else:
         by_core: dict[tuple[int, int], np.ndarray] = {}
+        core = _floor_columns(rel, tile_size_m, np.int64)
         rows = int(core[:, 1].max()) + 1
         packed = core[:, 0] * rows + core[:, 1]              # by col, then row; one int64 sorts fast
         if packed.min() == packed.max():                     # one core (a small file): no sort
@@ -261,7 +279,7 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         if frame.cores is not None:
             wanted = [key for key in wanted if key in frame.cores]
 
-        def candidates_of(ti: int, tj: int) -> np.ndarray:
+        def candidates_of(ti: int, tj: int) -> np.ndarray | None:
             parts = [by_core[key] for dj in range(-reach, reach + 1) for di in range(-reach, reach + 1)
                      if (key := (ti + di, tj + dj)) in by_core]
             if len(parts) == 1:
@@ -272,31 +290,39 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
 
     tiles = []
     for (ti, tj) in wanted:
-        candidates = candidates_of(ti, tj)
+        candidates = candidates_of(ti, tj)                # None: every point
         lo, hi, core_lo, core_hi = window_px(np.array([ti, tj]), extent_px, tile_size_m, buffer_m, cell_m)
         # A window of every point (a small file, a survey's window) gathers no copies: the
         # copies of millions of rows cost more than the arithmetic on them.
-        every = len(candidates) == len(rel)              # candidates are sorted and distinct
+        every = candidates is None or len(candidates) == len(rel)      # candidates are sorted and distinct
         c = cell if every else cell[candidates]
         cc = core if every else core[candidates]
         of_core = (cc[:, 0] == ti) & (cc[:, 1] == tj)
-        lo, hi = _cropped(c if every and of_core.all() else c[of_core], buffer_px, lo, hi)
+        del cc
+        if wanted[-1] == (ti, tj):
+            del core                                     # its last use
+        lo, hi = _cropped(c, of_core, buffer_px, lo, hi)
         inside = (c[:, 0] >= lo[0]) & (c[:, 0] < hi[0]) & (c[:, 1] >= lo[1]) & (c[:, 1] < hi[1])
         every = every and bool(inside.all())
+        if candidates is None and not every:
+            candidates = np.arange(len(rel))
         members, in_core = (candidates, of_core) if every else (candidates[inside], of_core[inside])
+        del inside
         shift = np.concatenate([lo * cell_m, [0.0]])
         if every and len(wanted) == 1:                   # the last use of `cell` and `rel`
             local_cell, local = cell, rel
-            local_cell -= lo[None, :]
+            local_cell -= lo[None, :].astype(cell.dtype)
             local -= shift[None, :]
         else:
             local_cell = (cell if every else cell[members]) - lo[None, :]
             local = (rel if every else rel[members]) - shift[None, :]
         local32 = local.astype(np.float32)
         _clamp_into_cells(local[:, :2], local_cell, cell_m, out=local32[:, :2])
+        del local, local_cell, c
         shape = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))
         core_lo, core_hi = np.maximum(core_lo, lo), np.minimum(core_hi, hi)
-        tiles.append(Tile(key=(ti, tj), origin_m=origin + shift, shape=shape, index=used[members],
+        index = used if members is None else used[members]
+        tiles.append(Tile(key=(ti, tj), origin_m=origin + shift, shape=shape, index=index,
                           core=in_core, local_xyz=local32, window_px=(int(lo[0]), int(lo[1])),
                           core_px=(int(core_lo[0]), int(core_lo[1]), int(core_hi[0]), int(core_hi[1]))))
     return tiles
