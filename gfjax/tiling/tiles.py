@@ -250,13 +250,14 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     # Few temporaries of n rows: a window holds millions of points, and fresh pages cost more
     # than the arithmetic on them. Cells in int32 where the lattice fits (the same values).
     extent_px = extent_cells(frame, cell_m)
-    cell = _floor_columns(rel, cell_m, np.int32 if extent_px.max() < np.iinfo(np.int32).max else np.int64)
+    small = np.int32 if extent_px.max() < np.iinfo(np.int32).max else np.int64      # a core spans >= 1 cell
+    cell = _floor_columns(rel, cell_m, small)
     buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
 
     reach = max(1, math.ceil((buffer_px + 1) * cell_m / tile_size_m))   # neighbour cores a window reaches
     if frame.cores is not None and len(frame.cores) <= FEW_CORES:
         # a survey's window made for one tile: a mask per tile, no sort of the window's points
-        core = _floor_columns(rel, tile_size_m, np.int64)
+        core = _floor_columns(rel, tile_size_m, small)
         wanted = [k for k in sorted(frame.cores, key=lambda k: (k[1], k[0]))
                   if np.any((core[:, 0] == k[0]) & (core[:, 1] == k[1]))]
 
@@ -265,9 +266,9 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
             return None if near.all() else np.flatnonzero(near)
     else:
         by_core: dict[tuple[int, int], np.ndarray] = {}
-        core = _floor_columns(rel, tile_size_m, np.int64)
+        core = _floor_columns(rel, tile_size_m, small)
         rows = int(core[:, 1].max()) + 1
-        packed = core[:, 0] * rows + core[:, 1]              # by col, then row; one int64 sorts fast
+        packed = core[:, 0].astype(np.int64) * rows + core[:, 1]   # by col, then row; one int64 sorts fast
         if packed.min() == packed.max():                     # one core (a small file): no sort
             by_core[(int(core[0, 0]), int(core[0, 1]))] = np.arange(len(packed))
         else:
