@@ -27,8 +27,6 @@ import math
 
 import numpy as np
 
-from gfjax.io import columns
-
 __all__ = ["detect", "cell_m", "MIN_CELL_M", "RADIUS_CELLS", "THRESHOLD_M", "SLOPE", "MIN_COMPANY", "MIN_ABOVE",
            "MAX_PASSES"]
 
@@ -97,15 +95,29 @@ def detect(xyz_m: np.ndarray, used: np.ndarray, *, last_spacing_m: float,
     index = np.flatnonzero(used)
     if index.size == 0:
         return low
-    xyz = np.asarray(xyz_m, dtype=np.float64)[index]
+    # A column at a time: a survey's window holds millions of points, and each (n, 3) temporary
+    # costs more pages than the arithmetic on it.
+    xyz_m = np.asarray(xyz_m, dtype=np.float64)
+    every = index.size == used.size
+    x, y = (xyz_m[:, j] if every else xyz_m[index, j] for j in range(2))
     cell = cell_m(last_spacing_m)
-    lo = columns.lows(xyz[:, :2]) if origin_m is None else np.asarray(origin_m, np.float64)[:2]
-    ij = np.floor((xyz[:, :2] - lo) / cell).astype(np.int64)
-    ij -= columns.lows(ij)                                # a frame's corner may lie below the points'
-    width = int(ij[:, 0].max()) + 1
-    shape = (int(ij[:, 1].max()) + 1, width)
-    key = ij[:, 1] * width + ij[:, 0]
-    z = xyz[:, 2]
+    lo = (float(x.min()), float(y.min())) if origin_m is None else np.asarray(origin_m, np.float64)[:2]
+    ij = []
+    for values, start in zip((x, y), lo):
+        scaled = np.subtract(values, start)
+        scaled /= cell
+        along = np.floor(scaled, out=scaled).astype(np.int64)
+        along -= along.min()                              # a frame's corner may lie below the points'
+        ij.append(along)
+        del scaled
+    del x, y
+    width = int(ij[0].max()) + 1
+    shape = (int(ij[1].max()) + 1, width)
+    key = ij[1]
+    key *= width
+    key += ij[0]
+    del ij
+    z = xyz_m[:, 2] if every else xyz_m[index, 2]
     dense = shape[0] * shape[1] <= _DENSE_CELLS_PER_POINT * index.size + 4096
     if dense:
         # the first pass without sorting the points: most clouds have no low outlier at all

@@ -28,6 +28,7 @@ __all__ = ["guard", "despike", "unstack", "stacked_drop_m", "NEIGHBOURS", "THRES
 # Chosen on the training files with the labels of SMRF, DMF and MASF (the most files passing
 # over the three; ties: the lowest ISPRS total error of SMRF): 8 neighbours, 1 m, slope 0.5.
 PROBE = 256             # ground points looked at first for stacks of coincident points
+QUERY_ROWS = 1 << 18     # ground points whose neighbours are found at a time (memory, not labels)
 NEIGHBOURS = 8           # ground neighbours a point is compared with
 THRESHOLD_M = 1.0        # height off their median tolerated next to them [m]
 SLOPE = 0.5              # ... plus this rise over run, over the median distance to them
@@ -85,12 +86,14 @@ def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRES
     probe = np.linspace(0, len(xy) - 1, min(PROBE, len(xy))).astype(np.int64)
     if np.any(tree.query(xy[probe], k=k + 1, workers=-1)[0][:, k] == 0.0):
         return _despike_stacked(z, xy, index, ground, threshold_m=threshold_m, slope=slope, k=k)
-    distance, neighbour = tree.query(xy, k=k + 1, workers=-1)
-    distance, neighbour = distance[:, 1:], neighbour[:, 1:]              # the point itself first
-    off = z - _median_rows(z[neighbour])
-    allowed = threshold_m + slope * _median_sorted_rows(distance)      # distances come sorted
     out = ground.copy()
-    out[index[np.abs(off) > allowed]] = False
+    for start in range(0, len(xy), QUERY_ROWS):   # a slice at a time: k neighbours a point is 150 bytes
+        rows = slice(start, start + QUERY_ROWS)
+        distance, neighbour = tree.query(xy[rows], k=k + 1, workers=-1)
+        distance, neighbour = distance[:, 1:], neighbour[:, 1:]          # the point itself first
+        off = z[rows] - _median_rows(z[neighbour])
+        allowed = threshold_m + slope * _median_sorted_rows(distance)  # distances come sorted
+        out[index[rows][np.abs(off) > allowed]] = False
     return out
 
 
@@ -136,6 +139,16 @@ def stacked_drop_m(cell_m: float, slope_p90: float) -> float:
     return max(MIN_DROP_M, DROP_SLOPES * cell_m * slope_p90)
 
 
+def _cells_from_corner(values: np.ndarray, cell_m: float) -> np.ndarray:
+    """int64 `(n,)` cells `floor((values - min) / cell_m) + 1` of coordinates `(n,)` [m] (a ring
+    of empty cells before the first), through one float temporary."""
+    scaled = np.subtract(values, values.min())
+    scaled /= cell_m
+    cells = np.floor(scaled, out=scaled).astype(np.int64)
+    cells += 1
+    return cells
+
+
 def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: float,
             drop_m: float) -> np.ndarray:
     """Ground labels without the points that stand over other returns (the module docstring).
@@ -159,14 +172,19 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
     points = np.flatnonzero(used | ground)
     # column by column (numpy runs (n, 2) arithmetic through an inner loop of two elements),
     # gathered only when some point is neither used nor ground
-    x, y, z = (xyz[:, j] if points.size == len(xyz) else xyz[:, j][points] for j in range(3))
+    def column(j: int) -> np.ndarray:
+        return xyz[:, j] if points.size == len(xyz) else xyz[:, j][points]
+
     # cells from the points' corner, as the rule was chosen: a survey's window lays them from its
     # own corner, so near a window's edge its labels may differ from one file's (as the spikes')
-    i = np.floor((x - x.min()) / cell_m).astype(np.int64) + 1            # a ring of empty cells
-    j = np.floor((y - y.min()) / cell_m).astype(np.int64) + 1
+    i, j = (_cells_from_corner(column(axis), cell_m) for axis in range(2))
     width = int(i.max()) + 2
     n_keys = (int(j.max()) + 2) * width
-    key = j * width + i
+    key = j
+    key *= width
+    key += i
+    del i, j
+    z = column(2)
     on_used = used[points]
     on_ground = ground[points]
     cell = key[on_ground]

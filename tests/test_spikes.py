@@ -39,6 +39,17 @@ def test_matches_brute_force_on_random_labels(seed):
                                       brute_force(xyz, ground, threshold_m=threshold_m, slope=slope, k=k))
 
 
+def test_neighbours_found_a_slice_at_a_time_give_the_same_labels(monkeypatch):
+    rng = np.random.default_rng(5)
+    xyz = terrain(seed=5)
+    xyz[rng.choice(400, 30, replace=False), 2] += rng.uniform(-8, 8, 30)
+    ground = rng.random(400) < 0.8
+    monkeypatch.setattr(spikes, "QUERY_ROWS", 37)                 # nine slices, the last a short one
+    np.testing.assert_array_equal(spikes.despike(xyz, ground),
+                                  brute_force(xyz, ground, threshold_m=spikes.THRESHOLD_M, slope=spikes.SLOPE,
+                                              k=spikes.NEIGHBOURS))
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_stacks_of_coincident_points_match_brute_force(seed):
     """Places held by more than k points: each of their points is compared with its stack

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import functools
 
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Bool, Float, Int
 
 from gfjax import aot
-from gfjax._types import Host, PointMask
+from gfjax._types import Host
 from gfjax.pmf.config import Config, Params
 from gfjax.pmf.stages import TileDiagnostics, classify_points, rasterize_min, surfaces
+from gfjax.tiling import chunks
 
 __all__ = ["classify_tile", "classify_batch"]
 
@@ -29,7 +30,7 @@ def _programs(config: Config, shape: tuple[int, int], batched: bool):
 
 
 def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host, " 2"], params: Params, *,
-                  config: Config, shape: tuple[int, int]) -> tuple[PointMask, TileDiagnostics]:
+                  config: Config, shape: tuple[int, int]) -> tuple[Bool[Host, " n"], TileDiagnostics]:
     """PMF on one tile (Zhang et al. 2003).
 
     Args:
@@ -46,13 +47,13 @@ def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host
 
 
 def classify_batch(xyz: Float[Host, "b n 3"], valid: Bool[Host, "b n"], hw: Int[Host, "b 2"],
-                   params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Array, "b n"], TileDiagnostics]:
+                   params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Host, "b n"], TileDiagnostics]:
     """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared)."""
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=True)
 
 
 def _run(xyz, valid, hw, params, config: Config, shape: tuple[int, int], *, batched: bool):
     raster, middle, points = _programs(config, shape, batched)
-    z_min, filled = raster(xyz, valid)
+    z_min, filled = chunks.lowest(raster, xyz, valid)          # a large window a chunk at a time
     opened, diag = middle(z_min, filled, hw)
-    return points(xyz, valid, opened, params), diag
+    return chunks.labels(points, xyz, valid, opened, params), diag

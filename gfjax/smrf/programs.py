@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import functools
 
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Bool, Float, Int
 
 from gfjax import aot
-from gfjax._types import Host, PointMask
+from gfjax._types import Host
 from gfjax.smrf.config import Config, Params
 from gfjax.smrf.stages import TileDiagnostics, classify_points, rasterize_min, surfaces
+from gfjax.tiling import chunks
 
 __all__ = ["classify_tile", "classify_batch"]
 
@@ -30,7 +31,7 @@ def _programs(config: Config, shape: tuple[int, int], batched: bool):
 
 
 def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host, 2], params: Params, *,
-                  config: Config, shape: tuple[int, int]) -> tuple[PointMask, TileDiagnostics]:
+                  config: Config, shape: tuple[int, int]) -> tuple[Bool[Host, " n"], TileDiagnostics]:
     """SMRF on one tile (Pingel et al. 2013, Sec. 2.1-2.4).
 
     Args:
@@ -48,7 +49,7 @@ def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host
 
 
 def classify_batch(xyz: Float[Host, "b n 3"], valid: Bool[Host, "b n"], hw: Int[Host, "b 2"],
-                   params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Array, "b n"], TileDiagnostics]:
+                   params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Host, "b n"], TileDiagnostics]:
     """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared); the
     diagnostics gain a leading batch axis."""
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=True)
@@ -56,6 +57,6 @@ def classify_batch(xyz: Float[Host, "b n 3"], valid: Bool[Host, "b n"], hw: Int[
 
 def _run(xyz, valid, hw, params, config: Config, shape: tuple[int, int], *, batched: bool):
     raster, middle, points = _programs(config, shape, batched)
-    z_min, filled = raster(xyz, valid)
+    z_min, filled = chunks.lowest(raster, xyz, valid)          # a large window a chunk at a time
     diag = middle(z_min, filled, hw, params)
-    return points(xyz, valid, diag.zipro, diag.slope, hw, params), diag
+    return chunks.labels(points, xyz, valid, diag.zipro, diag.slope, hw, params), diag

@@ -23,7 +23,7 @@ from gfjax import adaptive, limits
 from gfjax.io.cloud import Cloud, Frame, Points, use_mask
 from gfjax.method import Method
 from gfjax.result import Result
-from gfjax.survey.catalog import STORE, Catalog, Entry
+from gfjax.survey.catalog import BLOCK_POINTS, STORE, Catalog, Entry
 from gfjax.tiling.tiles import Lattice
 
 HALO_M = 50.0           # context around a file for methods that do not tile [m]
@@ -149,16 +149,18 @@ def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrai
 
 def _chunks(entry: Entry, returns: str) -> Callable[[], Iterator[adaptive.Chunk]]:
     """The `adaptive.Chunk`s of a file's blocks: its used points (`use_mask` of `returns`) and
-    their last returns, read anew at each call from the file's store. A COPC file has no store
-    (its blocks are decompressed from the file): its chunks are read once and kept, as a file's
-    points were before, rather than decompressed at each of the passes."""
+    their last returns, read anew at each call from the file's store. A file of one block is
+    read once and its chunk kept (memory holds a block either way, and each pass would read and
+    sort out the same block again), and so is a COPC file, which has no store (its blocks are
+    decompressed from the file), as a file's points were before, rather than decompressed at
+    each of the passes."""
     def chunks() -> Iterator[adaptive.Chunk]:
         for _, block in entry.blocks():
             args = (block["ignored"], block["return_number"], block["number_of_returns"])
             xyz = block["xyz_m"]
             use, last = use_mask(*args, returns), use_mask(*args, "last")
             yield tuple(xyz[use, j] for j in range(3)), (xyz[last, 0], xyz[last, 1])
-    if entry.store is None:
+    if entry.store is None or entry.n_points <= BLOCK_POINTS:
         kept = list(chunks())
         return lambda: iter(kept)
     return chunks

@@ -19,7 +19,7 @@ import numpy as np
 from gfjax.io.cloud import use_mask
 from gfjax.result import Result
 from gfjax.survey import cluster
-from gfjax.survey.catalog import Catalog
+from gfjax.survey.catalog import STORE, Catalog
 from gfjax.survey.halo import Points, ground_near, tiles_region, within_box
 from gfjax.tiling import tiles
 from gfjax.tiling.tiles import Lattice
@@ -145,12 +145,12 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tu
     # a file whose points filtered lie a cell within the window's edges lies in it whole
     origin = np.asarray(frame.origin_m[:2], np.float64)
     sure_lo, sure_hi = origin + (window_lo + 1) * lattice.cell_m, origin + (window_hi - 1) * lattice.cell_m
-    parts, owners = [], []
+    parts, owners, records, take = [], [], None, None
     for j, take, records in within_box(catalog, lo, hi):
         box = catalog.entries[j].frame
         if np.all(box.origin_m[:2] >= sure_lo) and np.all(box.upper_m <= sure_hi):
             parts.append(records)
-            owners.append((j, take))
+            owners.append((j, _rows(take)))
             continue
         # exactly the window's points (`split`'s cells): `split` then cuts the tile without copying them
         cells = tiles.point_cells(records["xyz_m"][:, :2], frame, lattice.cell_m)
@@ -160,21 +160,46 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tu
         del cells, inside
         if mine.size:
             parts.append(records if mine.size == len(records) else records[mine])
-            owners.append((j, take if mine.size == len(records) else take[mine]))
+            owners.append((j, _rows(take if mine.size == len(records) else take[mine])))
+    del records, take
     if not parts:
         return []
-    points = Points.from_records(parts, f"survey tile {key}", frame.only([key]))
-    del parts
+    points = _joined(parts, f"survey tile {key}", frame.only([key]))
     result: Result = filter_fn(points, returns=returns)
     ground = np.asarray(result.ground, bool)
     in_core = in_tile(points.xyz_m, catalog, lattice, key)
+    del points, result
     out, start = [], 0
     for j, take in owners:
-        stop = start + take.size
+        count = take.stop - take.start if isinstance(take, range) else take.size
+        stop = start + count
         mine = in_core[start:stop]
-        index = take[mine]
+        index = np.flatnonzero(mine) + take.start if isinstance(take, range) else take[mine]
         if index.size:
             small = catalog.entries[j].n_points <= np.iinfo(np.uint32).max
             out.append((j, index.astype(np.uint32) if small else index, ground[start:stop][mine]))
         start = stop
     return out
+
+
+def _rows(take: np.ndarray) -> np.ndarray | range:
+    """A file's rows in a window, int64 `(k,)` ascending: a `range` when they are consecutive (a
+    file wholly inside: no 8 bytes a point held while the window is filtered), else `take`."""
+    if take.size and int(take[-1]) - int(take[0]) + 1 == take.size:
+        return range(int(take[0]), int(take[-1]) + 1)
+    return take
+
+
+def _joined(parts: list[np.ndarray], name: str, frame) -> Points:
+    """`Points.from_records(parts, name, frame)`, each part dropped from the list once copied, so
+    the window's points are never held twice (the list is empty afterwards)."""
+    n = sum(len(part) for part in parts)
+    fields = {field: np.empty((n, *STORE[field].shape), STORE[field].base) for field in STORE.names}
+    start = 0
+    while parts:
+        part = parts.pop(0)
+        for field, out in fields.items():
+            out[start:start + len(part)] = part[field]
+        start += len(part)
+        del part
+    return Points(**fields, name=name, frame=frame)

@@ -75,7 +75,7 @@ def batches(tiles: Sequence[Tile], *, max_batch: int = 8, capacity: int | None =
       shape: force one raster shape (default: each tile's shape bucket).
       quantum_px: shape bucket step in cells.
       sides: canonical square sides (`buckets.canonical_sides`): each tile is padded to the
-        smallest that holds it, capacities are `buckets.canonical_capacity`, and a group runs in
+        smallest that holds it, capacities are `buckets.tile_capacity`, and a group runs in
         batches of exactly `max_batch` tiles, then one tile at a time, so only canonical shapes
         compile. None: shapes rounded to `quantum_px`, capacities `buckets.capacity_bucket`,
         batches of up to
@@ -95,7 +95,7 @@ def batches(tiles: Sequence[Tile], *, max_batch: int = 8, capacity: int | None =
         else:
             key = buckets.shape_bucket(tile.shape, quantum_px=quantum_px)
         groups.setdefault(key, []).append(tile)
-    bucket = buckets.capacity_bucket if sides is None else buckets.canonical_capacity
+    bucket = buckets.capacity_bucket if sides is None else buckets.tile_capacity
     for group_shape, members in sorted(groups.items()):
         members = sorted(members, key=lambda t: t.n_points)
         if sides is None:

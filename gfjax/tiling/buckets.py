@@ -12,6 +12,9 @@ off, so it changes no label.
 - `power_bucket`: the minimum times a power of two (DMF's ND_CE, SparseGF's packs and patches).
 - `canonical_capacity` / `canonical_capacities`: point capacities in powers of 4, the few a
   filter's windows are padded to and `gfjax warmup` compiles ahead.
+- `tile_capacity` / `tile_capacities`: a tiled method's windows, padded as `canonical_capacity`
+  up to `POINT_CHUNK` points, to whole chunks above it (`gfjax.tiling.chunks` runs them a
+  chunk at a time).
 - `canonical_sides`, `shape_bucket`: raster sides of a tiling's windows.
 
 Plain integer arithmetic (no numpy, no JAX): a layer below any array code may use it.
@@ -21,8 +24,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-__all__ = ["capacity_bucket", "power_bucket", "canonical_capacity", "canonical_capacities", "canonical_sides",
-           "canonical_square", "shape_bucket", "max_window_px", "check_lattice"]
+__all__ = ["capacity_bucket", "power_bucket", "canonical_capacity", "canonical_capacities", "tile_capacity",
+           "tile_capacities", "canonical_sides", "canonical_square", "shape_bucket", "max_window_px", "check_lattice"]
 
 MIN_CAPACITY = 256
 SHAPE_QUANTUM_PX = 64
@@ -30,6 +33,9 @@ SMALLEST_SIDE_PX = 128        # the smallest canonical raster side (`canonical_s
 SMALL_SIDES_PX = (8, 16, 32, 64)   # the sides of `batches.small_batches`, below the canonical ones
 CANONICAL_MIN_CAPACITY = 1 << 14
 CANONICAL_MAX_CAPACITY = 1 << 22   # the largest capacity `gfjax warmup` compiles ahead
+# The most points a tiled method's point programs take in one call: a larger window runs a chunk
+# at a time (`gfjax.tiling.chunks`), so their temporaries stay those of a chunk (tens of MB).
+POINT_CHUNK = 1 << 20
 
 
 def check_lattice(tile_size_m: float, buffer_m: float, cell_m: float) -> None:
@@ -111,6 +117,20 @@ def canonical_capacity(n: int) -> int:
     while cap < n:
         cap *= 4 if cap < CANONICAL_MAX_CAPACITY else 2
     return cap
+
+
+def tile_capacity(n: int) -> int:
+    """The point capacity of a tiled method's window of `n` points: `canonical_capacity` up to
+    `POINT_CHUNK`, then whole chunks (a 5.1 M-point window padded to 6 M slots, not 8 M)."""
+    if n <= POINT_CHUNK:
+        return canonical_capacity(n)
+    return -(-n // POINT_CHUNK) * POINT_CHUNK
+
+
+def tile_capacities() -> tuple[int, ...]:
+    """The capacities a tiled method's programs ever run at (`tile_capacity`, chunks included):
+    the canonical ones up to `POINT_CHUNK`."""
+    return tuple(cap for cap in canonical_capacities() if cap <= POINT_CHUNK)
 
 
 def canonical_square(shape: tuple[int, int], sides: Sequence[int]) -> tuple[int, int] | None:

@@ -39,7 +39,7 @@ __all__ = ["GROUP_GAP_M", "ClassifyBatch", "filter_groups", "run_batches", "warm
 # points are another's context, and the empty box between groups costs nothing [m].
 GROUP_GAP_M = 50.0
 
-ClassifyBatch = Callable[..., tuple[Bool[Array, "b n"], tuple]]
+ClassifyBatch = Callable[..., tuple[Bool[Array | np.ndarray, "b n"], tuple]]
 """`classify_batch(xyz (b, n, 3) float32, valid (b, n) bool, hw (b, 2) int32, params, *, config,
 shape=(h, w)) -> (ground (b, n) bool, diagnostics)`, every diagnostics field a `(b, h, w)`
 raster whose tile data sit in the south-west corner (`gfjax.raster.domain_mask`)."""
@@ -152,7 +152,7 @@ def warm(classify_batch: ClassifyBatch, params: Any, config: Any, *, tiling: til
          progress: bool = False, desc: str = "programs") -> int:
     """Load, or compile and store (`gfjax.aot`), every program `run_batches` runs for a
     one-tile batch of `tiling` (None: `Tiling()`) at `config.cell_m`: each canonical raster side
-    (`buckets.canonical_sides`) with each canonical point capacity (`buckets.canonical_capacities`).
+    (`buckets.canonical_sides`) with each point capacity a tile runs at (`buckets.tile_capacities`).
     Nothing runs; batches of
     `max_batch` tiles (surveys of many tiles) still compile on first use. Nothing is kept
     when the program cache is off. Returns the number of shape pairs prepared."""
@@ -167,7 +167,7 @@ def warm(classify_batch: ClassifyBatch, params: Any, config: Any, *, tiling: til
                                       params, config=config, shape=(side, side))
 
     return aot.warm_all([job(side, cap) for side in buckets.canonical_sides(*lattice_of(tiling, config.cell_m))
-                         for cap in buckets.canonical_capacities()], progress=progress, desc=desc)
+                         for cap in buckets.tile_capacities()], progress=progress, desc=desc)
 
 
 class TiledRun(NamedTuple):

@@ -123,20 +123,19 @@ class Tile:
         return int(self.index.shape[0])
 
 
-def _clamp_into_cells(local: np.ndarray, cell: np.ndarray, cell_m: float, out: np.ndarray) -> None:
-    """Clamp `out`, float32 `(n, k)` `local` (float64 `(n, k)` [m]) rounded, so each value stays
-    inside the cell `cell` (int `(n, k)`) its float64 value is in; in place."""
-    if not len(local):
+def _clamp_into_cells(local: Sequence[np.ndarray], cell: np.ndarray, cell_m: float, out: np.ndarray) -> None:
+    """Clamp `out`, float32 `(n, k)`, the columns `local` (k float64 `(n,)` [m]) rounded, so each
+    value stays inside the cell `cell` (int `(n, k)`) its float64 value is in; in place."""
+    if not len(local[0]):
         return
     # Only a value within a few float32 steps of its cell's edge can round out of it; the
     # others are left as they are (the clip would keep them), so the clip runs on few rows.
-    # Column by column: `local` is a view of (n, 3) rows, whose 2-wide inner loops cost more.
-    largest = max(max(abs(float(local[:, j].min())), abs(float(local[:, j].max()))) for j in range(local.shape[1]))
+    largest = max(max(abs(float(values.min())), abs(float(values.max()))) for values in local)
     margin = 4.0 * float(np.spacing(np.float32(largest + cell_m)))
-    near_any = np.zeros(len(local), bool)
-    for j in range(local.shape[1]):
+    near_any = np.zeros(len(local[0]), bool)
+    for j, values in enumerate(local):
         offset = cell[:, j] * cell_m
-        np.subtract(local[:, j], offset, out=offset)
+        np.subtract(values, offset, out=offset)
         near_any |= (offset < margin) | (offset > cell_m - margin)
     near = np.flatnonzero(near_any)
     if near.size:
@@ -147,12 +146,20 @@ def _clamp_into_cells(local: np.ndarray, cell: np.ndarray, cell_m: float, out: n
         out[near] = np.clip(out[near], lo, np.maximum(lo, hi))
 
 
-def _cropped(core_cells: np.ndarray, reach_px: int, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The window `[lo, hi)` (cells) cut to the box of its core points' cells `(m, 2)` grown
-    by `reach_px`, when that box is at most `1 / CROP_SAVING` of it: a core of a few points
-    in a mostly empty box rasterises their surroundings, not a whole tile."""
-    box_lo = np.maximum(columns.lows(core_cells) - reach_px, lo)
-    box_hi = np.minimum(columns.highs(core_cells) + 1 + reach_px, hi)
+def _cropped(cells: np.ndarray, of_core: np.ndarray, reach_px: int, lo: np.ndarray,
+             hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The window `[lo, hi)` (cells) cut to the box of its core points' cells (`cells` int
+    `(m, 2)` where `of_core`, bool `(m,)`, at least one) grown by `reach_px`, when that box is at
+    most `1 / CROP_SAVING` of it: a core of a few points in a mostly empty box rasterises their
+    surroundings, not a whole tile."""
+    if of_core.all():
+        lows, highs = columns.lows(cells), columns.highs(cells)
+    else:                                      # a column at a time, without copying the core's rows
+        top = np.iinfo(cells.dtype)
+        lows = np.array([cells[:, j].min(where=of_core, initial=top.max) for j in range(2)], np.int64)
+        highs = np.array([cells[:, j].max(where=of_core, initial=top.min) for j in range(2)], np.int64)
+    box_lo = np.maximum(lows - reach_px, lo)
+    box_hi = np.minimum(highs + 1 + reach_px, hi)
     if np.prod((box_hi - box_lo).astype(np.float64)) * CROP_SAVING > np.prod((hi - lo).astype(np.float64)):
         return lo, hi
     return box_lo, box_hi
@@ -217,25 +224,46 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     if use.shape != (len(xyz_m),):
         raise ValueError(f"use must have shape ({len(xyz_m)},), got {use.shape}")
     every_used = bool(use.all())
-    if not np.isfinite(xyz_m if every_used else xyz_m[use]).all():
-        raise ValueError("xyz_m holds non-finite coordinates")
     used = np.flatnonzero(use)
+
+    def column(j: int, rows: np.ndarray | None = None) -> np.ndarray:
+        """Coordinate `j` of the used points, or of the points `rows` (indices into `xyz_m`):
+        float64, a view when every point is used. A window holds millions of points: a column
+        at a time, never an (n, 3) copy, and fresh pages cost more than the arithmetic on them."""
+        if rows is not None:
+            return xyz_m[rows, j]
+        return xyz_m[:, j] if every_used else xyz_m[used, j]
+
+    def less(j: int, offset: float, rows: np.ndarray | None = None) -> np.ndarray:
+        """`column(j, rows) - offset`, in place when the column is a copy already."""
+        values = column(j, rows)
+        if np.may_share_memory(values, xyz_m):
+            return np.subtract(values, offset)
+        values -= offset
+        return values
+
+    if not all(np.isfinite(column(j)).all() for j in range(3)):
+        raise ValueError("xyz_m holds non-finite coordinates")
     if used.size == 0:
         return []
-    rel = xyz_m.copy() if every_used else xyz_m[used]            # a copy: made relative in place
-    frame = Frame.of(rel) if frame is None else frame
+    lows = np.array([column(j).min() for j in range(3)])
+    highs = np.array([column(j).max() for j in range(2)])
+    frame = Frame(lows, highs) if frame is None else frame
     origin = np.asarray(frame.origin_m, np.float64)
-    if np.any(columns.lows(rel) < origin) or np.any(columns.highs(rel[:, :2]) > np.asarray(frame.upper_m)):
+    if np.any(lows < origin) or np.any(highs > np.asarray(frame.upper_m)):
         raise ValueError("points lie outside the tiling frame")
-    rel -= origin                                                 # float64, >= 0
-    # Few temporaries of n rows: a window holds millions of points, and fresh pages cost more
-    # than the arithmetic on them.
-    scaled = rel[:, :2] / cell_m
-    cell = np.floor(scaled, out=scaled).astype(np.int64)         # global (col, row-from-south)
-    np.divide(rel[:, :2], tile_size_m, out=scaled)
-    core = np.floor(scaled, out=scaled).astype(np.int64)
-    del scaled
+    # Cells and tile keys from the coordinates less the origin (float64, >= 0); in int32 where
+    # the lattice fits (the same values; a core spans at least one cell).
     extent_px = extent_cells(frame, cell_m)
+    small = np.int32 if extent_px.max() < np.iinfo(np.int32).max else np.int64
+    cell, core = np.empty((used.size, 2), small), np.empty((used.size, 2), small)
+    for j in range(2):
+        rel = less(j, origin[j])
+        scaled = np.divide(rel, cell_m)
+        cell[:, j] = np.floor(scaled, out=scaled)
+        np.divide(rel, tile_size_m, out=scaled)
+        core[:, j] = np.floor(scaled, out=scaled)
+        del rel, scaled
     buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
 
     reach = max(1, math.ceil((buffer_px + 1) * cell_m / tile_size_m))   # neighbour cores a window reaches
@@ -244,12 +272,13 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         wanted = [k for k in sorted(frame.cores, key=lambda k: (k[1], k[0]))
                   if np.any((core[:, 0] == k[0]) & (core[:, 1] == k[1]))]
 
-        def candidates_of(ti: int, tj: int) -> np.ndarray:
-            return np.flatnonzero((np.abs(core[:, 0] - ti) <= reach) & (np.abs(core[:, 1] - tj) <= reach))
+        def candidates_of(ti: int, tj: int) -> np.ndarray | None:
+            near = (np.abs(core[:, 0] - ti) <= reach) & (np.abs(core[:, 1] - tj) <= reach)
+            return None if near.all() else np.flatnonzero(near)
     else:
         by_core: dict[tuple[int, int], np.ndarray] = {}
         rows = int(core[:, 1].max()) + 1
-        packed = core[:, 0] * rows + core[:, 1]              # by col, then row; one int64 sorts fast
+        packed = core[:, 0].astype(np.int64) * rows + core[:, 1]   # by col, then row; one int64 sorts fast
         if packed.min() == packed.max():                     # one core (a small file): no sort
             by_core[(int(core[0, 0]), int(core[0, 1]))] = np.arange(len(packed))
         else:
@@ -261,7 +290,7 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         if frame.cores is not None:
             wanted = [key for key in wanted if key in frame.cores]
 
-        def candidates_of(ti: int, tj: int) -> np.ndarray:
+        def candidates_of(ti: int, tj: int) -> np.ndarray | None:
             parts = [by_core[key] for dj in range(-reach, reach + 1) for di in range(-reach, reach + 1)
                      if (key := (ti + di, tj + dj)) in by_core]
             if len(parts) == 1:
@@ -272,31 +301,46 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
 
     tiles = []
     for (ti, tj) in wanted:
-        candidates = candidates_of(ti, tj)
+        candidates = candidates_of(ti, tj)                # None: every point
         lo, hi, core_lo, core_hi = window_px(np.array([ti, tj]), extent_px, tile_size_m, buffer_m, cell_m)
         # A window of every point (a small file, a survey's window) gathers no copies: the
         # copies of millions of rows cost more than the arithmetic on them.
-        every = len(candidates) == len(rel)              # candidates are sorted and distinct
+        every = candidates is None or len(candidates) == used.size     # candidates are sorted and distinct
         c = cell if every else cell[candidates]
         cc = core if every else core[candidates]
         of_core = (cc[:, 0] == ti) & (cc[:, 1] == tj)
-        lo, hi = _cropped(c if every and of_core.all() else c[of_core], buffer_px, lo, hi)
+        del cc
+        if wanted[-1] == (ti, tj):
+            del core                                     # its last use
+        lo, hi = _cropped(c, of_core, buffer_px, lo, hi)
         inside = (c[:, 0] >= lo[0]) & (c[:, 0] < hi[0]) & (c[:, 1] >= lo[1]) & (c[:, 1] < hi[1])
         every = every and bool(inside.all())
+        if candidates is None and not every:
+            candidates = np.arange(used.size)
         members, in_core = (candidates, of_core) if every else (candidates[inside], of_core[inside])
-        shift = np.concatenate([lo * cell_m, [0.0]])
-        if every and len(wanted) == 1:                   # the last use of `cell` and `rel`
-            local_cell, local = cell, rel
-            local_cell -= lo[None, :]
-            local -= shift[None, :]
+        del inside, c
+        shift = lo * cell_m
+        if every and len(wanted) == 1:                   # the last use of `cell`
+            local_cell = cell
+            local_cell -= lo[None, :].astype(cell.dtype)
         else:
             local_cell = (cell if every else cell[members]) - lo[None, :]
-            local = (rel if every else rel[members]) - shift[None, :]
-        local32 = local.astype(np.float32)
-        _clamp_into_cells(local[:, :2], local_cell, cell_m, out=local32[:, :2])
+        index = used if every else used[members]
+        rows = None if every else index
+        # local coordinates as (point - origin) - shift, each step rounded as before
+        local32 = np.empty((index.size, 3), np.float32)
+        local32[:, 2] = less(2, origin[2], rows)
+        local = []
+        for j in range(2):
+            values = less(j, origin[j], rows)
+            values -= shift[j]
+            local32[:, j] = values
+            local.append(values)
+        _clamp_into_cells(local, local_cell, cell_m, out=local32[:, :2])
+        del local, local_cell
         shape = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))
         core_lo, core_hi = np.maximum(core_lo, lo), np.minimum(core_hi, hi)
-        tiles.append(Tile(key=(ti, tj), origin_m=origin + shift, shape=shape, index=used[members],
+        tiles.append(Tile(key=(ti, tj), origin_m=origin + np.concatenate([shift, [0.0]]), shape=shape, index=index,
                           core=in_core, local_xyz=local32, window_px=(int(lo[0]), int(lo[1])),
                           core_px=(int(core_lo[0]), int(core_lo[1]), int(core_hi[0]), int(core_hi[1]))))
     return tiles
