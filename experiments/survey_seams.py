@@ -77,7 +77,6 @@ def main():
         union = las_io.read(union_path)
         for name in args.methods.split(","):
             module = methods.get(name)
-            config = module.Config()
             with Stopwatch() as watch:
                 want = np.asarray(module.filter(union).ground)
             union_s = watch.wall_s
@@ -86,7 +85,7 @@ def main():
             with Stopwatch() as watch:
                 store = folder / f"store_{name}"
                 store.mkdir()
-                for (_, result), keep in zip(survey.filtered(files, module, store, config=config), members):
+                for (_, result), keep in zip(survey.filtered(files, module, store), members):
                     catalog[keep] = result.ground
             catalog_s = watch.wall_s
             with Stopwatch() as watch:

@@ -6,6 +6,7 @@ one whose labels depend on the whole cloud, the whole survey at once when it fit
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -13,7 +14,7 @@ from types import ModuleType
 
 import numpy as np
 
-from gfjax import methods
+from gfjax import adaptive, methods
 from gfjax.errors import InputError
 from gfjax.io import atomic, stream
 from gfjax.io import las as las_io
@@ -32,6 +33,7 @@ from gfjax.survey.halo import (
     halo_width,
     survey_config,
     survey_labels,
+    survey_terrain,
 )
 from gfjax.survey.lattice import TileLabels
 from gfjax.tiling.tiles import Lattice, Tiling
@@ -202,8 +204,11 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
       paths: the survey's files.
       method: a `gfjax.method.Method`, its package (`gfjax.dmf`) or its name.
       folder: a private temporary folder for the catalog's stores.
-      config, params: the method's settings (default: its defaults); its per-cloud estimates
-        are made once for the survey (`survey_config`).
+      config, params: the method's settings. Without a `config`, the values that follow the data
+        are settled once on the whole survey (`survey_terrain`, the method's `adapt`; a given
+        `params` is kept whole) and the method runs as `gfjax filter` runs it (`adaptive.run`),
+        so the survey labels as its files joined into one would be; with one, as given. Its
+        per-cloud estimates are made once for the survey (`survey_config`).
       tiling: a tiled method's tiles (`gfjax.Tiling`, None: its defaults); they also set the
         windows each file is filtered with.
       returns: "all" or "last".
@@ -218,14 +223,22 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
       own points only.
     """
     method = methods.of(method)
-    config = method.Config() if config is None else config
     if tiling is not None:
         if not method.tiles:
             raise InputError(f"tiling: method {method.name} does not tile")
         options = {**options, "tiling": tiling}
     catalog = index(paths, folder, returns=returns, units=units, client=client, classes=classes, keep_points=True)
-    config = survey_config(method, config, catalog, returns=returns)
-    filter_fn = functools.partial(_method_filter, method, config, params, options)
+    settled = None
+    if config is None and method.adapt is not None:
+        terrain = survey_terrain(catalog, returns=returns)
+        if terrain is not None:
+            fixed = [f.name for f in dataclasses.fields(params)] if params is not None else []
+            if params is None and method.Params is not None:
+                params = method.Params()
+            settled = adaptive.settle_terrain(method.adapt, terrain, method.Config(), params, fixed=fixed)
+            config, params = settled.config, settled.params
+    config = survey_config(method, method.Config() if config is None else config, catalog, returns=returns)
+    filter_fn = functools.partial(_method_filter, method, config, params, settled, options)
     run = Runner(catalog, filter_fn, methods.lattice(method, config, tiling), folder, returns=returns, context=False,
                  client=client, whole=fits_whole(method, config, catalog), halo_m=halo_width(method, config))
     for i, entry in enumerate(catalog.entries):
@@ -233,8 +246,9 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
         yield cloud, run(i, cloud)[0]
 
 
-def _method_filter(method: Method, config, params, options: dict, points: Points, returns: str) -> Result:
-    return method.filter(points, config=config, params=params, returns=returns, **options)
+def _method_filter(method: Method, config, params, settled, options: dict, points: Points, returns: str) -> Result:
+    return adaptive.run(method.filter, points, settled, config=config, params=params, returns=returns,
+                        hides_low_outliers=method.hides_low_outliers, **options)
 
 
 def filter(paths: Sequence[str | Path], out: str | Path, *, method: Method | ModuleType | str = methods.DEFAULT_METHOD,

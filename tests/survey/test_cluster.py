@@ -151,8 +151,9 @@ def _dies_once(marker: str) -> Method:
 
 
 def _method(name: str, filter) -> Method:
-    """A method made here: SMRF's Config with `filter`."""
-    return Method(name, filter, smrf.Config, None, {}, {}, tiles=True, tile_labels=True)
+    """A method made here: SMRF's settings and rules with `filter`."""
+    return Method(name, filter, smrf.Config, smrf.Params, {}, {}, adapt=smrf.adapt,
+                  hides_low_outliers=smrf.HIDES_LOW_OUTLIERS, tiles=True, tile_labels=True)
 
 
 def test_a_killed_worker_has_its_tile_run_again(grid, client, in_process, tmp_path):

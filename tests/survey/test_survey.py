@@ -142,6 +142,25 @@ def test_the_survey_frame_is_the_union_of_the_files_points_filtered(grid, tmp_pa
     assert [e.n_points for e in catalog.entries] == [las_io.read(p).n_points for p in paths]
 
 
+@pytest.mark.parametrize("returns", ["all", "last"])
+@pytest.mark.parametrize("copc", [False, True])
+def test_the_survey_terrain_is_the_union_measured_as_one_cloud(grid, tmp_path, returns, copc):
+    """Every statistic the rules read equals the union file's (a store's blocks, or a COPC
+    file's points spilled to disk): so the values that follow the data are the union's."""
+    from gfjax import adaptive
+
+    paths, _, union = grid
+    catalog = survey.index(paths, tmp_path)
+    if copc:
+        catalog = catalog._replace(entries=tuple(e._replace(store=None) for e in catalog.entries))
+    whole = las_io.read(union)
+    last = whole.filter_mask("last")
+    want = adaptive.measure(whole.xyz_m[whole.filter_mask(returns)], whole.xyz_m[last])
+    got = survey.survey_terrain(catalog, returns=returns)
+    for key in want._fields:
+        assert getattr(got, key) == pytest.approx(getattr(want, key), rel=1e-12, abs=1e-9), key
+
+
 def test_files_with_different_crs_are_refused_naming_both(tmp_path):
     import pyproj
 
