@@ -44,8 +44,8 @@ def _output_folder(text: str) -> Path:
     return out
 
 
-def plot_demo(path: Path, cloud, ground, dtm, *, title: str) -> None:
-    """Plan view of the points coloured ground / non-ground beside the hillshaded DTM (PNG)."""
+def plot_demo(path: Path, cloud, ground, dtm, *, title: str, method: str) -> None:
+    """Plan view of the points coloured ground / non-ground by `method` beside the hillshaded DTM (PNG)."""
     import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -76,7 +76,7 @@ def plot_demo(path: Path, cloud, ground, dtm, *, title: str) -> None:
     left.imshow(image, extent=(0, w_v * view_cell, 0, h_v * view_cell), interpolation="nearest")
     left.legend(handles=[Patch(color=GROUND_RGB, label="ground"), Patch(color=OBJECT_RGB, label="non-ground")],
                 loc="upper right", fontsize=9)
-    left.set_title("SMRF classification")
+    left.set_title(f"{method} classification")
     h, w = dtm.shape
     extent = (dtm.origin[0] - x0, dtm.origin[0] + w * dtm.cell - x0, dtm.origin[1] - h * dtm.cell - y0, dtm.origin[1] - y0)
     right.imshow(dtm.hillshade(), cmap="gray", vmin=0, vmax=1, extent=extent, interpolation="nearest")
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     dtm.to_geotiff(tif_path)
     title = (f"{sample.name}: {cloud.n_points:,} points, {int(np.sum(result.ground)):,} ground; "
              f"total error {100 * scores['total_error']:.2f} % against the ISPRS labels")
-    plot_demo(png_path, cloud, result.ground, dtm, title=title)
+    plot_demo(png_path, cloud, result.ground, dtm, title=title, method=method.name)
     done = time.perf_counter()
 
     print(f"gfjax demo: {method.name}, the default method, on {sample.name}, ISPRS filter-test "
