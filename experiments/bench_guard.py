@@ -55,6 +55,8 @@ def cases(scratch: Path) -> list[guard.Case]:
                    "a whole `gfjax filter --method csf` process / the CSF package's call"),
         guard.Case("sparsegf/smrf", filter_("sparsegf"), filter_("smrf"),
                    "whole `gfjax filter` processes, SparseGF / SMRF"),
+        guard.Case("vote/smrf", filter_("vote"), filter_("smrf"),
+                   "whole `gfjax filter` processes, the vote (the default method) / SMRF"),
         guard.Case("survey/files", survey(), survey("--independent"),
                    f"{SURVEY_FILES} copies of the tile as a survey (out of core) / the same files with "
                    "`--independent`, SMRF, whole processes"),
@@ -119,8 +121,9 @@ def main() -> int:
         shutil.rmtree(scratch, ignore_errors=True)
     command = "nice .venv/bin/python experiments/bench_guard.py " + " ".join(sys.argv[1:])
     if args.record:
+        measured = {r["name"] for r in rows}
         record = {"ratios": {**record["ratios"], **{r["name"]: round(r["ratio"], 4) for r in rows}},
-                  "machine": machine(), "rows": rows}
+                  "machine": machine(), "rows": [r for r in record.get("rows", []) if r["name"] not in measured] + rows}
         RECORD.write_text(json.dumps(record, indent=1) + "\n")
     if not slow and not args.cases:
         rows = [dict(r, recorded=record["ratios"].get(r["name"]),
