@@ -38,9 +38,10 @@ def main(out, steps_wanted):
     from gfjax.sparsegf.features import cloud_features
 
     t0 = time.time()
-    data = _load(FILES, None, 2)
-    data += train.thinned(data, copies=1, seed=0)
     config = Config(features="xyz+tophat+smrf")
+    clouds = _load(FILES, None, 2)
+    data = [train.labelled_cloud(c, config) for c in clouds]
+    data += train.thinned(clouds, config, copies=1, seed=0)
     res = {"clouds": [], "steps": []}
     names = [f.rsplit("/", 1)[1] for f in FILES]
     names += [f"thin:{n}" for n, d in zip(names, data) if 1.0 / adaptive.measure(d.xyz_m).spacing_m ** 2 > 0.2]

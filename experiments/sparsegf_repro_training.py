@@ -20,9 +20,10 @@ from gfjax.sparsegf.model import NET_PRESETS, init
 t0 = time.time()
 files = sys.argv[1].split(",")
 patches = int(sys.argv[2]) if len(sys.argv) > 2 else 6
-data = _load(files, None, 2)
-data += train.thinned(data, copies=1, seed=0)
 config = Config(features="xyz+tophat+smrf")
+clouds = _load(files, None, 2)
+data = [train.labelled_cloud(c, config) for c in clouds]
+data += train.thinned(clouds, config, copies=1, seed=0)
 net_config = dataclasses.replace(NET_PRESETS["tiny"], in_features=n_features(config.features), refine=0)
 model = init(net_config, key=jax.random.key(0))
 losses = []

@@ -1,7 +1,8 @@
 """`gfjax train DATA... -o model.eqx`: train SparseGF's network on labelled LAS/LAZ files.
 
-Labels: ground = `--ground-class` (2), every other class non-ground (noise included, as the
-paper relabels outliers). Height-aware loss (lambda 0.5, 6 HAG bins), Adam with a cosine
+Each file trains on the points the filter's network sees (noise, withheld points and the
+cloud's low outliers left out of its inputs and not scored, `gfjax.sparsegf.filter.seen_points`).
+Labels: ground = `--ground-class` (2), every other class non-ground. Height-aware loss (lambda 0.5, 6 HAG bins), Adam with a cosine
 schedule from 1e-1 to 1e-3, batches of `--batch` patches, random rotation about z (Qin et al.
 2026, Sec. 3.3). After every epoch the model is written to `-o` and the training state to
 `-o`.state, which `--resume` continues from; the run is deterministic given `--seed` on one
@@ -71,18 +72,19 @@ def _densities(data) -> list[float]:
 
 
 def _load(paths, units, ground_class):
+    """The labelled files' points (`gfjax.io.cloud.Points`), each with a ground point."""
     import numpy as np
 
     from gfjax.io import las as las_io
-    from gfjax.sparsegf.train import labelled
+    from gfjax.io.cloud import Points
 
-    data = []
+    clouds = []
     for path in paths:
         cloud = las_io.read(path, units=units)
         if not np.any(cloud.classification == ground_class):
             raise InputError(f"{path}: no point of class {ground_class} (ground) to train on")
-        data.append(labelled(cloud.xyz_m, cloud.classification, ground_class=ground_class))
-    return data
+        clouds.append(Points.of(cloud))
+    return clouds
 
 
 def run(args: argparse.Namespace) -> int:
@@ -123,8 +125,10 @@ def run(args: argparse.Namespace) -> int:
     net_config = dataclasses.replace(NET_PRESETS[args.preset], in_features=n_features(config.features))
     if args.no_refinement:
         net_config = dataclasses.replace(net_config, refine=0)
-    data = _load(inputs, args.units, args.ground_class)
-    data += sgf_train.thinned(data, copies=args.thin_copies, seed=args.seed)
+    clouds = _load(inputs, args.units, args.ground_class)
+    data = [sgf_train.labelled_cloud(c, config, ground_class=args.ground_class) for c in clouds]
+    data += sgf_train.thinned(clouds, config, copies=args.thin_copies, seed=args.seed, ground_class=args.ground_class)
+    del clouds
     n_patches = sgf_train.count_patches(data, config, args.min_patches_per_file, args.max_patches_per_file)
     print(f"{args.preset}: {count_parameters(net_config):,} parameters; about {n_patches} patches per epoch "
           f"from {len(inputs)} files and {len(data) - len(inputs)} thinned copies, up to {args.batch} per step")
@@ -132,7 +136,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not args.resume:
         state_path.unlink(missing_ok=True)
-    val = _load(validate, args.units, args.ground_class) if validate else None
+    val = [sgf_train.labelled_cloud(c, config, ground_class=args.ground_class)
+           for c in _load(validate, args.units, args.ground_class)] or None
     model = init(net_config, key=jax.random.key(args.seed))
     from tqdm import tqdm
 

@@ -146,6 +146,18 @@ class Points:
         return cls(xyz_m=np.asarray(xyz_m, np.float64), classification=np.ones(n, np.uint8), return_number=ones,
                    number_of_returns=ones, ignored=np.zeros(n, bool), name=name)
 
+    @classmethod
+    def of(cls, cloud: Cloud | Points, keep: np.ndarray | None = None) -> Points:
+        """The points `keep` (int rows, or bool `(n,)`; None: every point) of a `Cloud` or
+        `Points` as plain arrays, with its name and frame (a random subset of a file stands for
+        a sparser survey of it: `gfjax.sparsegf.train.thinned`)."""
+        def rows(values: np.ndarray) -> np.ndarray:
+            return np.asarray(values if keep is None else values[keep])
+
+        return cls(xyz_m=rows(cloud.xyz_m), classification=rows(cloud.classification),
+                   return_number=rows(cloud.return_number), number_of_returns=rows(cloud.number_of_returns),
+                   ignored=rows(cloud.ignored), name=cloud.name, frame=cloud.frame)
+
     def filter_mask(self, returns: str = "all") -> np.ndarray:
         return use_mask(self.ignored, self.return_number, self.number_of_returns, returns)
 

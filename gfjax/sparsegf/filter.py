@@ -244,6 +244,33 @@ def level_ground_kept(xyz_m: np.ndarray, ground: np.ndarray, smrf_ground: np.nda
     return out
 
 
+class Seen(NamedTuple):
+    """The points of a cloud SparseGF's network sees: `cloud`, the cloud with its low outliers
+    hidden where they are (`adaptive.Hidden`), `index` int64 `(k,)` the rows of the points the
+    prior, the features and the patches are made of, and `terrain`, the used points'
+    `adaptive.Terrain` (None without a used point)."""
+
+    cloud: CloudView
+    index: np.ndarray
+    terrain: adaptive.Terrain | None
+
+
+def seen_points(cloud: CloudView, config: Config, *, returns: str = "all") -> Seen:
+    """The points the network sees of `cloud` (`Seen`), for the filter and for training alike:
+    the used returns (`cloud.filter_mask(returns)`: noise and withheld points left out), and
+    under the default decision less the cloud's low outliers (`adaptive.hide`), as SMRF hides
+    them (`gfjax.smrf.config.HIDES_LOW_OUTLIERS`): the prior and the patches are made without
+    them, the filter calls them non-ground and training does not score them."""
+    index = np.flatnonzero(cloud.filter_mask(returns))
+    terrain = adaptive.measure(cloud.xyz_m[index], cloud.xyz_m[cloud.filter_mask("last")]) if len(index) else None
+    if config.decision == "network+smrf" and terrain is not None:
+        hidden = adaptive.hide(cloud, terrain, returns=returns)
+        if hidden is not None:
+            cloud = adaptive.Hidden(cloud, hidden)
+            index = np.flatnonzero(cloud.filter_mask(returns))
+    return Seen(cloud, index, terrain)
+
+
 @cache.persistent
 def filter(cloud: CloudView, *, config: Config | None = None, params=None, returns: str = "all",
            progress: bool = False, model: Model | str | None = None) -> Result:
@@ -279,20 +306,11 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
     if params is not None:
         raise InputError("sparsegf: takes no params (its parameters are the model's weights; see --model)")
     try:
-        used = cloud.filter_mask(returns)
+        cloud.filter_mask(returns)
     except ValueError as err:
         raise InputError(f"{cloud.name}: --returns: {err}") from None
-    used_index = np.flatnonzero(used)
+    cloud, used_index, terrain = seen_points(cloud, config, returns=returns)
     xyz_m = cloud.xyz_m[used_index]
-    terrain = adaptive.measure(xyz_m, cloud.xyz_m[cloud.filter_mask("last")]) if len(xyz_m) else None
-    if config.decision == "network+smrf" and terrain is not None:
-        # low outliers hidden, as from SMRF (`gfjax.smrf.config.HIDES_LOW_OUTLIERS`): its prior and the
-        # patches are made without them, and they come out non-ground
-        hidden = adaptive.hide(cloud, terrain, returns=returns)
-        if hidden is not None:
-            cloud = adaptive.Hidden(cloud, hidden)
-            used_index = np.flatnonzero(cloud.filter_mask(returns))
-            xyz_m = cloud.xyz_m[used_index]
     if seen is not None and terrain is not None and config.decision == "network+smrf":
         density, (low, high) = 1.0 / terrain.spacing_m ** 2, seen
         if not low / DENSITY_SLACK <= density <= high * DENSITY_SLACK:

@@ -2,8 +2,10 @@
 
 One step takes up to 4 voxelized patches (randomly rotated about z, the paper's augmentation,
 on a randomly shifted grid of axes) packed into one sparse tensor, runs the network and
-minimises the height-aware loss (Eqs. 4-5) over their central points. Labels: ground = class 2, every other class non-ground
-(noise included, as the paper relabels outliers); HAG bins from the labelled ground's TIN.
+minimises the height-aware loss (Eqs. 4-5) over their central points. A cloud trains on the
+points the filter's network sees (`filter.seen_points`: noise, withheld points and low outliers
+left out of the prior, the features and the patches, and not scored). Labels: ground = class 2,
+every other class non-ground; HAG bins from the labelled ground's TIN.
 """
 from __future__ import annotations
 
@@ -18,11 +20,12 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from gfjax.io.cloud import CloudView, Points
 from gfjax.sparsegf import checkpoint
 from gfjax.sparsegf.checkpoint import EpochLog
 from gfjax.sparsegf.config import Config
 from gfjax.sparsegf.features import cloud_features
-from gfjax.sparsegf.filter import patches
+from gfjax.sparsegf.filter import patches, seen_points
 from gfjax.sparsegf.hag import hag_targets
 from gfjax.sparsegf.loss import LAMBDA, height_aware_loss
 from gfjax.sparsegf.model import Model
@@ -52,32 +55,43 @@ class Labelled(NamedTuple):
 
 
 def labelled(xyz_m: np.ndarray, classification: np.ndarray, *, ground_class: int = 2) -> Labelled:
+    """Every point of `xyz_m` `(n, 3)` [m] labelled by its class `(n,)` (`ground_class`: ground)."""
     cls = np.where(np.asarray(classification) == ground_class, 2, 1)
     t = hag_targets(xyz_m, cls)
     return Labelled(np.asarray(xyz_m, np.float64), t.ground, t.bins)
 
 
-def thinned(data: list[Labelled], *, copies: int, seed: int, low_pts_m2: float = THIN_LOW_PTS_M2) -> list[Labelled]:
-    """`copies` thinned twins of every cloud denser than twice `low_pts_m2`, each a random
-    subset at a density drawn log-uniformly between `low_pts_m2` and the cloud's own.
+def labelled_cloud(cloud: CloudView, config: Config, *, ground_class: int = 2) -> Labelled:
+    """The points of `cloud` (a `Cloud` or `Points`) that the filter's network sees with
+    `config` (`filter.seen_points`), labelled by their class: training's inputs of a cloud
+    are the filter's, and the points the filter leaves out are neither inputs nor scored."""
+    index = seen_points(cloud, config).index
+    return labelled(cloud.xyz_m[index], cloud.classification[index], ground_class=ground_class)
+
+
+def thinned(clouds: list[CloudView], config: Config, *, copies: int, seed: int, ground_class: int = 2,
+            low_pts_m2: float = THIN_LOW_PTS_M2) -> list[Labelled]:
+    """`copies` thinned twins of every cloud whose used points are denser than twice
+    `low_pts_m2`, each a random subset of its points at a density drawn log-uniformly between
+    `low_pts_m2` and the cloud's own, labelled as `labelled_cloud` labels a cloud.
 
     Density augmentation: a survey may be ten times sparser than any training file, and the
     network's context (how many points a voxel holds, how far the ground lies between them)
-    changes with it. Labels and height bins are the full cloud's (a point's height above the
-    labelled ground does not change when its neighbours are dropped). Deterministic given
-    `seed`; the copies' per-cloud inputs are computed from the thinned points, as a thin
-    survey's would be.
+    changes with it. Each copy is prepared as the filter would prepare a survey that thin (its
+    low outliers, its SMRF prior, its features and height bins from its own points).
+    Deterministic given `seed`.
     """
     from gfjax import adaptive
 
     rng = np.random.default_rng([seed, 1 << 20])
     out = []
-    for d in data:
-        density = 1.0 / adaptive.measure(d.xyz_m).spacing_m ** 2
+    for cloud in clouds:
+        density = 1.0 / adaptive.measure(cloud.xyz_m[cloud.filter_mask()]).spacing_m ** 2
         for _ in range(copies if density > 2 * low_pts_m2 else 0):
             target = float(np.exp(rng.uniform(np.log(low_pts_m2), np.log(density))))
-            keep = np.sort(rng.permutation(len(d.xyz_m))[:max(1, round(len(d.xyz_m) * target / density))])
-            out.append(Labelled(d.xyz_m[keep], d.ground[keep], d.hag_bin[keep]))
+            n = cloud.n_points
+            keep = np.sort(rng.permutation(n)[:max(1, round(n * target / density))])
+            out.append(labelled_cloud(Points.of(cloud, keep), config, ground_class=ground_class))
     return out
 
 
@@ -219,7 +233,8 @@ def count_patches(data: list[Labelled], config: Config, min_patches: int = 0, ma
 
 def validation_error(model: Model, data: list[Labelled], config: Config) -> float:
     """Unweighted mean total error (%) of the network alone on labelled clouds (the decision
-    `"network"`: what training improves, whatever decision the filter later applies)."""
+    `"network"`: what training improves, whatever decision the filter later applies), each
+    scored on its points as `labelled_cloud` gives them (those the filter's network sees)."""
     from gfjax.metrics import point_metrics
     from gfjax.sparsegf.filter import ground_probability
 

@@ -257,9 +257,10 @@ def short_training(net):
     batch norms calibrated each epoch, two epochs): every array of the trained network and its
     statistics, and the epochs' losses."""
     xyz, cls = scene()
-    data = [train.labelled(xyz, cls)]
-    data += train.thinned(data, copies=1, seed=0, low_pts_m2=0.2)
-    model, logs = train.fit(net, data, config=Config(features=FEATURES), epochs=2, batch_size=4, seed=0,
+    cloud, config = Cloud.from_xyz(xyz, classification=cls), Config(features=FEATURES)
+    data = [train.labelled_cloud(cloud, config)]
+    data += train.thinned([cloud], config, copies=1, seed=0, low_pts_m2=0.2)
+    model, logs = train.fit(net, data, config=config, epochs=2, batch_size=4, seed=0,
                             min_patches=3, max_patches=3, lam=0.0)
     arrays = [np.asarray(a) for a in jax.tree.leaves(eqx.filter((model.net, model.state), eqx.is_array))]
     return arrays, [(log.loss, log.loss_hag) for log in logs]
@@ -316,19 +317,36 @@ def test_thinned_copies_are_sparser_subsets_with_their_labels_and_repeat_with_th
     from gfjax import adaptive
 
     xyz, cls = scene()
-    data = [train.labelled(xyz, cls)]
-    density = 1.0 / adaptive.measure(xyz).spacing_m ** 2
-    copies = train.thinned(data, copies=3, seed=0, low_pts_m2=density / 20)
+    cloud, config = Cloud.from_xyz(xyz, classification=cls), Config(features=FEATURES)
+    whole = train.labelled_cloud(cloud, config)
+    density = 1.0 / adaptive.measure(cloud.xyz_m).spacing_m ** 2
+    copies = train.thinned([cloud], config, copies=3, seed=0, low_pts_m2=density / 20)
     assert len(copies) == 3
-    rows = {tuple(p): i for i, p in enumerate(map(tuple, xyz))}
+    rows = {tuple(p): i for i, p in enumerate(map(tuple, whole.xyz_m))}
     for c in copies:
         assert 0 < len(c.xyz_m) < len(xyz)
         index = np.asarray([rows[tuple(p)] for p in c.xyz_m])       # a subset of the cloud's points
-        np.testing.assert_array_equal(c.ground, data[0].ground[index])
-        np.testing.assert_array_equal(c.hag_bin, data[0].hag_bin[index])
-    again = train.thinned(data, copies=3, seed=0, low_pts_m2=density / 20)
+        np.testing.assert_array_equal(c.ground, whole.ground[index])
+    again = train.thinned([cloud], config, copies=3, seed=0, low_pts_m2=density / 20)
     assert all(np.array_equal(a.xyz_m, b.xyz_m) for a, b in zip(copies, again))
-    assert train.thinned(data, copies=3, seed=0, low_pts_m2=density) == []    # no sparser density to draw
+    assert train.thinned([cloud], config, copies=3, seed=0, low_pts_m2=density) == []   # no sparser density to draw
+
+
+def test_training_takes_the_points_of_a_cloud_the_filter_feeds_its_network(net):
+    """A low outlier labelled ground (as in some ISPRS samples) and a noise point: training
+    leaves both out of its inputs and its scores, as the filter leaves them out of SMRF's prior,
+    the features and the patches; so do its thinned copies and its validation."""
+    xyz, cls = scene()
+    xyz = np.vstack([xyz, xyz[100] - [0.0, 0.0, 30.0], xyz[200] + [0.0, 0.0, 40.0]])
+    cls = np.append(cls, [2, 7]).astype(np.uint8)
+    cloud, config = Cloud.from_xyz(xyz, classification=cls), Config(features=FEATURES)
+    data = train.labelled_cloud(cloud, config)
+    seen = sparsegf.filter(cloud, model=net, config=config).diagnostics.votes > 0
+    assert not seen[-2:].any() and seen[:-2].all()
+    np.testing.assert_array_equal(data.xyz_m, cloud.xyz_m[seen])
+    np.testing.assert_array_equal(data.ground, cls[seen] == 2)
+    for copy in train.thinned([cloud], config, copies=4, seed=0, low_pts_m2=0.2):
+        assert copy.xyz_m[:, 2].min() > xyz[:-2, 2].min() - 1.0 and copy.xyz_m[:, 2].max() < xyz[:-2, 2].max() + 1.0
 
 
 def test_a_pack_that_overflows_the_standard_plan_runs_again_with_a_grown_plan(net):
