@@ -391,9 +391,9 @@ def _out_of_core(args, setup, planned):
         "change it)")
     instead = ""
     if setup.lattice is None:
-        tiled = [name for name in methods.names() if methods.lattice(methods.get(name), methods.get(name).Config())]
         left_to_itself = args.method is None and args.preset is None and not args.set_values and args.params is None
         if not left_to_itself:
+            tiled = [name for name in methods.names() if methods.get(name).tile_labels]
             raise InputError(f"{why}: method {setup.name} filters a file in memory only; {' and '.join(tiled)} "
                              "filter it out of core, a tile at a time")
         instead = f" with {methods.OUT_OF_CORE_METHOD} (the default, {setup.name}, filters a file in memory only)"
