@@ -8,14 +8,19 @@ class Params(gfjax.params.Params):
 Python numbers, numpy and JAX values given for a field become float32 0-d JAX arrays, so
 `Params` is a pytree optax can update and `jax.jit` traces (never a static value that
 recompiles); `check()` tests concrete values against `ranges` outside `jit`.
+
+A subclass is a frozen dataclass registered as a pytree when it is defined: what an
+`equinox.Module` would give, without importing equinox (0.1 s) into every classical filter's
+process. As an equinox module's, a field's conversion runs when `Params` is built, not when
+JAX rebuilds it from its leaves (tracers, batches, `None` placeholders stay as they are).
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping
 from typing import ClassVar
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -36,8 +41,8 @@ def f32(value) -> Float[Array, "*batch"]:
 
 
 def param(default: float):
-    """An `eqx.Module` field holding a float32 scalar, `default` when not given."""
-    return eqx.field(default=default, converter=f32)
+    """A `Params` field holding a float32 scalar, `default` when not given."""
+    return dataclasses.field(default=default)
 
 
 def declared_defaults(params_type: type) -> dict[str, float]:
@@ -45,11 +50,47 @@ def declared_defaults(params_type: type) -> dict[str, float]:
     return {f.name: f.default for f in dataclasses.fields(params_type)}
 
 
-class Params(eqx.Module):
+def _flatten(params: Params):
+    names = params.__dataclass_fields__
+    return tuple((jax.tree_util.GetAttrKey(name), getattr(params, name)) for name in names), None
+
+
+def _unflatten(cls: type, _, leaves) -> Params:
+    params = object.__new__(cls)
+    for name, leaf in zip(cls.__dataclass_fields__, leaves):
+        object.__setattr__(params, name, leaf)
+    return params
+
+
+class Params:
     """Base of every method's traced thresholds; a subclass sets `ranges` and its fields."""
 
     ranges: ClassVar[Mapping[str, limits.Range]] = {}
+    # The fields are annotated with what they hold once converted; `__init__` takes numbers too,
+    # so a runtime type checker (jaxtyping's, in the tests) leaves its arguments alone.
+    __no_type_check__: ClassVar[bool] = True
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        dataclasses.dataclass(frozen=True, repr=False)(cls)
+        jax.tree_util.register_pytree_with_keys(cls, _flatten, functools.partial(_unflatten, cls))
+
+    def __post_init__(self):
+        for name in self.__dataclass_fields__:
+            object.__setattr__(self, name, f32(getattr(self, name)))
+
+    def __repr__(self) -> str:
+        fields = ", ".join(f"{name}={_short(getattr(self, name))}" for name in self.__dataclass_fields__)
+        return f"{type(self).__name__}({fields})"
 
     def check(self) -> None:
         """Range checks on concrete values (call outside jit): raises `SettingError` naming the key."""
         limits.check_fields(self, self.ranges)
+
+
+def _short(value) -> str:
+    """`0.15` for a concrete scalar, `f32[3]` for a batch, the tracer's shape under `jit`."""
+    if isinstance(value, jax.Array) and not isinstance(value, jax.core.Tracer) and value.ndim == 0:
+        return f"{float(value):g}"
+    shape = getattr(value, "shape", None)
+    return repr(value) if shape is None else f"{getattr(value, 'dtype', '')}{list(shape)}"
