@@ -45,7 +45,7 @@ from gfjax.io.cloud import CloudView, Frame
 
 RETURNS = ("all", "last")
 
-__all__ = ["Terrain", "measure", "measure_chunks", "Chunk", "follows", "run", "finish", "hide", "Hidden", "raster_cell_m", "settle_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
+__all__ = ["Terrain", "measure", "measure_chunks", "Chunk", "follows", "run", "finish", "hide", "Hidden", "raster_cell_m", "settle_cloud", "measure_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
 
 # The preset name that keeps a method's fixed defaults (no rule applied).
 FIXED_PRESET = "fixed"
@@ -392,16 +392,20 @@ def follows(rule: Callable[[Terrain], dict[str, Any]], config_type: type, params
     method's `adapt`; a given `params` is kept whole) and runs the method as `run` does: its low
     outliers hidden first when `hides_low_outliers` (the method's `Method.hides_low_outliers`),
     ground spikes dropped after. A call with a `config` runs it as given: nothing follows the data.
+    The decorated filter also takes `terrain`: the cloud's `measure_cloud(cloud, returns)` when
+    the caller has it already (several methods on one cloud, the vote), so it is not measured again.
     """
     def wrap(filter_fn: Callable[..., Any]) -> Callable[..., Any]:
         @functools.wraps(filter_fn)
-        def filter(cloud, *, config=None, params=None, returns: str = "all", **kwargs):  # noqa: A001
+        def filter(cloud, *, config=None, params=None, returns: str = "all", terrain: Terrain | None = None,  # noqa: A001
+                   **kwargs):
             settled = None
             if config is None and isinstance(cloud, CloudView) and returns in RETURNS:
                 fixed = [f.name for f in dataclasses.fields(params)] if params is not None else []
                 if params is None and params_type is not None:
                     params = params_type()
-                settled = settle_cloud(rule, cloud, config_type(), params, fixed=fixed, returns=returns)
+                settled = settle_cloud(rule, cloud, config_type(), params, fixed=fixed, returns=returns,
+                                       terrain=terrain)
                 if settled.terrain is None:                 # no point used: nothing to follow
                     settled = None
                 else:
@@ -473,20 +477,28 @@ def finish(result: Any, cloud: Any, settled: Settled | None) -> Any:
     return result._replace(ground=ground, settled=settled)
 
 
-def settle_cloud(rule: Callable[[Terrain], dict[str, Any]] | None, cloud: Any, config: Any, params: Any, *,
-                 fixed: Iterable[str] = (), returns: str = "all") -> Settled:
-    """`settle_terrain` on a cloud's used points (`cloud.filter_mask(returns)`) and their last
-    returns; nothing changes (`Settled` without a terrain) without a rule or a used point."""
-    if rule is None:
-        return Settled(config, params, {}, None)
+def measure_cloud(cloud: Any, returns: str = "all") -> Terrain | None:
+    """`measure` of a cloud's used points (`cloud.filter_mask(returns)`) and their last returns;
+    None without a used point."""
     xyz = cloud.xyz_m
     use = cloud.filter_mask(returns)
     if not use.any():
-        return Settled(config, params, {}, None)
+        return None
     last = cloud.filter_mask("last")
     # column by column: (n, 3) rows gathered by a mask cost three times as much
     columns = [np.ascontiguousarray(xyz[:, j]) for j in range(3)]
     used = tuple(columns) if use.all() else tuple(c[use] for c in columns)
     last_xy = (columns[0][last], columns[1][last])
-    terrain = measure_chunks(lambda: [(used, last_xy)])
+    return measure_chunks(lambda: [(used, last_xy)])
+
+
+def settle_cloud(rule: Callable[[Terrain], dict[str, Any]] | None, cloud: Any, config: Any, params: Any, *,
+                 fixed: Iterable[str] = (), returns: str = "all", terrain: Terrain | None = None) -> Settled:
+    """`settle_terrain` on the cloud's `terrain` (`measure_cloud(cloud, returns)` when not
+    given); nothing changes (`Settled` without a terrain) without a rule or a used point."""
+    if rule is None:
+        return Settled(config, params, {}, None)
+    terrain = measure_cloud(cloud, returns) if terrain is None else terrain
+    if terrain is None:
+        return Settled(config, params, {}, None)
     return settle_terrain(rule, terrain, config, params, fixed=fixed)

@@ -142,6 +142,11 @@ class Estimate(NamedTuple):
     keys: tuple[str, ...] = ()
 
 
+def processors() -> int:
+    """The processors this process may run on (its affinity where the system says, else every one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def memory_budget_bytes() -> float:
     """`GFJAX_MEMORY_BUDGET_GB` GiB when set (a number > 0), else half the physical memory
     (8 GiB when that cannot be read)."""

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from gfjax import limits
 from gfjax.io.cloud import CloudView, Points
 from gfjax.sparsegf import checkpoint
 from gfjax.sparsegf.checkpoint import EpochLog
@@ -265,7 +266,7 @@ def machine() -> dict:
             flags = next((line.split(":", 1)[1].strip() for line in file if line.startswith(("flags", "Features"))), "")
     except OSError:
         pass
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    cpus = limits.processors()
     simd = np.show_config(mode="dicts").get("SIMD Extensions", {})
     return {"processor": cpu_model(), "cpu_flags_sha256": hashlib.sha256(flags.encode()).hexdigest()[:16],
             "cpus": cpus, "numpy": np.__version__, "numpy_simd": list(simd.get("found", [])),

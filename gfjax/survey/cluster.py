@@ -24,6 +24,7 @@ import threading
 from collections.abc import Callable, Iterator
 from typing import Any
 
+from gfjax import limits
 from gfjax.errors import InputError
 
 WORKERS_ENV = "GFJAX_WORKERS"        # set in a local cluster's workers: how many share this machine's cores
@@ -33,18 +34,11 @@ WORKER_BYTES = 1 << 30
 WORKERS_PER_CORE = 4
 
 
-def _cores() -> int:
-    """Cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
 def max_local_workers() -> tuple[int, str]:
     """The most workers a local cluster may start here, and why: `WORKERS_PER_CORE` per core this
     process may run on, and no more than the memory budget (`gfjax.limits`) holds at
     `WORKER_BYTES` each; at least 1."""
-    from gfjax import limits
-
-    cores = _cores()
+    cores = limits.processors()
     budget = limits.memory_budget_bytes()
     most = max(1, min(WORKERS_PER_CORE * cores, int(budget // WORKER_BYTES)))
     return most, (f"{cores} cores at most {WORKERS_PER_CORE} workers each, a memory budget of "
@@ -73,7 +67,7 @@ def local_workers(asked: int | str, points: int) -> tuple[int, str | None]:
     """
     most, why = max_local_workers()
     if asked == "auto":
-        wanted = max(1, min(_cores(), most))
+        wanted = max(1, min(limits.processors(), most))
     else:
         if asked > most:
             raise InputError(f"--workers {asked}: at most {most} on this machine ({why})")

@@ -55,13 +55,31 @@ class Config:
         return tuple(name.strip() for name in self.voters.split(",") if name.strip())
 
     def memory_estimates(self, extent_m: tuple[float, float] | None = None, tiling=None) -> list[limits.Estimate]:
-        """Every voter's estimates with its defaults, `tiling` for those that tile: they run one
-        after the other, so the largest of them is what the vote needs."""
+        """Every voter's estimates with its defaults, `tiling` for those that tile: each must fit
+        the memory budget alone (voters run side by side only where theirs fit together, `workers`)."""
+        return [e for estimates in self._estimates(extent_m, tiling) for e in estimates]
+
+    def workers(self, extent_m: tuple[float, float] | None = None, tiling=None) -> int:
+        """How many voters run at once: one a processor, up to one each, fewer while the largest
+        allocations of that many voters (the largest such voters: any may meet) exceed the
+        memory budget together (`limits.memory_budget_bytes`)."""
+        largest = sorted((max((e.n_bytes for e in estimates), default=0.0)
+                          for estimates in self._estimates(extent_m, tiling)), reverse=True)
+        workers = min(len(largest), limits.processors())
+        budget = limits.memory_budget_bytes()
+        while workers > 1 and sum(largest[:workers]) > budget:
+            workers -= 1
+        return max(1, workers)
+
+    def _estimates(self, extent_m, tiling) -> list[list[limits.Estimate]]:
+        """Each voter's estimates with its defaults, in the voters' order."""
         from gfjax import methods
 
-        out: list[limits.Estimate] = []
+        out = []
         for voter in map(methods.get, self.names):
             estimates = getattr(voter.Config(), "memory_estimates", None)
-            if estimates is not None:
-                out += estimates(extent_m, tiling=tiling) if voter.tiles else estimates(extent_m)
+            if estimates is None:
+                out.append([])
+            else:
+                out.append(estimates(extent_m, tiling=tiling) if voter.tiles else estimates(extent_m))
         return out

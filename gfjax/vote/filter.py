@@ -1,14 +1,18 @@
 """`gfjax.vote.filter`: a point is ground when most of several classical filters say so.
 
-Each voter runs with its own defaults, its values following the cloud (`gfjax.adaptive`), its
-low outliers hidden and its ground spikes dropped as it does alone; the vote then takes the
-majority of their labels (`majority`). Filters err in different places (an opening's edge,
+Each voter runs with its own defaults, its values following the cloud (`gfjax.adaptive`, the
+terrain measured once for all of them), its low outliers hidden and its ground spikes dropped
+as it does alone; the vote then takes the majority of their labels (`majority`). The voters
+run side by side on the processors while their memory fits (`Config.workers`): MASF's
+triangulations and the raster programs of SMRF and PMF leave the interpreter free, so on two
+cores the three take about the time of MASF alone. Filters err in different places (an opening's edge,
 a cloth's bridge, an alpha shape's densification), so most of them rarely err at one point:
 on the labelled files the vote passes all 29 and errs less than any of its voters
 (`experiments/results/vote_select.md`, `corpus_eval.md`).
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -85,15 +89,36 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: None = Non
       ignored points; `diagnostics` a `Diagnostics` of every voter's labels; each voter's notes,
       named.
     """
-    from gfjax import methods
+    from gfjax import adaptive, methods
 
     config = Config() if config is None else config
-    results = [voter.filter(cloud, returns=returns, progress=progress, **_tiling(voter, tiling))
-               for voter in map(methods.get, config.names)]
+    voters = [methods.get(name) for name in config.names]
+    # Measured once for every voter whose values follow the cloud, not once by each.
+    terrain = adaptive.measure_cloud(cloud, returns) if any(v.adapt is not None for v in voters) else None
+
+    def run(voter: Method) -> Result:
+        shared = {"terrain": terrain} if voter.adapt is not None else {}
+        return voter.filter(cloud, returns=returns, progress=progress, **shared, **_tiling(voter, tiling))
+
+    workers = config.workers(_extent_m(cloud, returns), tiling)
+    if workers > 1:
+        with ThreadPoolExecutor(workers, thread_name_prefix="gfjax-vote") as pool:
+            results = list(pool.map(run, voters))
+    else:
+        results = [run(voter) for voter in voters]
     votes = np.stack([np.asarray(r.ground, dtype=bool) for r in results])
     notes = tuple(f"{name}: {note}" for name, r in zip(config.names, results) for note in r.notes)
     return Result(ground=majority(votes), diagnostics=Diagnostics(config.names, votes),
                   settled=Ballot(config.names, tuple(r.settled for r in results)), notes=notes)
+
+
+def _extent_m(cloud: CloudView, returns: str) -> tuple[float, float] | None:
+    """The x, y extent of the cloud's used points [m], None without one."""
+    use = cloud.filter_mask(returns)
+    if not use.any():
+        return None
+    xyz = cloud.xyz_m
+    return tuple(float(np.ptp(xyz[:, j] if use.all() else xyz[:, j][use])) for j in range(2))
 
 
 def _tiling(voter: Method, tiling: Tiling | None) -> dict:

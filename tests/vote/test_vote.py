@@ -65,6 +65,39 @@ def test_the_vote_is_the_majority_of_its_voters_run_alone():
     assert not result.ground[roof].any() and result.ground[~roof].mean() > 0.85
 
 
+def test_the_voters_share_one_terrain_and_label_alike_side_by_side_or_one_by_one(monkeypatch):
+    from gfjax import adaptive, limits
+
+    cloud = Cloud.from_xyz(scene(2))
+    measured = []
+    real = adaptive.measure_chunks
+    monkeypatch.setattr(adaptive, "measure_chunks", lambda chunks: measured.append(1) or real(chunks))
+    side_by_side = vote.filter(cloud)
+    assert len(measured) == 1
+    assert vote.Config().workers() > 1 or limits.processors() == 1
+    monkeypatch.setattr(limits, "processors", lambda: 1)
+    assert vote.Config().workers() == 1
+    one_by_one = vote.filter(cloud)
+    np.testing.assert_array_equal(side_by_side.diagnostics.votes, one_by_one.diagnostics.votes)
+    assert side_by_side.settled == one_by_one.settled
+
+
+def test_voters_run_side_by_side_only_while_their_memory_fits_together(monkeypatch):
+    from gfjax import limits
+
+    extent = (3000.0, 3000.0)
+    largest = sorted((max(e.n_bytes for e in methods.get(n).Config().memory_estimates(extent))
+                      for n in ("smrf", "masf", "pmf")), reverse=True)
+    monkeypatch.setattr(limits, "processors", lambda: 8)
+    for budget, workers in ((sum(largest) * 1.01, 3), ((largest[0] + largest[1]) * 1.01, 2),
+                            ((largest[0] + largest[1]) * 0.99, 1)):
+        monkeypatch.setenv(limits.BUDGET_ENV, str(budget / 2 ** 30))
+        assert vote.Config().workers(extent) == workers
+    monkeypatch.setattr(limits, "processors", lambda: 2)
+    monkeypatch.delenv(limits.BUDGET_ENV)
+    assert vote.Config().workers((10.0, 10.0)) == 2
+
+
 def test_four_voters_and_the_preset():
     config, _ = methods.make_config_and_params("vote", preset="with-csf")
     assert config.names == ("smrf", "masf", "pmf", "csf")
