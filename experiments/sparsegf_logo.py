@@ -81,7 +81,9 @@ def report(record: dict) -> list[str]:
              "`nice python experiments/sparsegf_logo.py --hold SURVEY`, one fold per run: the shipped recipe "
              "(`sparsegf_model.md`, 2026-11-28) trained without the survey's files, scored on them with the "
              "default decision. Beside it SMRF's and the shipped model's rows of `corpus_eval.json` (the "
-             "shipped model trained on these files). A file passes with type I ≤ 10 % and DTM RMSE ≤ 0.30 m.",
+             "shipped model trained on these files). A file passes with type I ≤ 10 % and DTM RMSE ≤ 0.30 m. "
+             "A fold's wall time counts the minutes its training was stopped while benchmarks ran beside it "
+             "(isprs1 onwards: 17-19 min when alone).",
              "", "| survey | file | held out: total error % / type I % / RMSE m | SMRF | shipped model (trained on it) "
              "| fold's samp31 validation % | fold's training wall time |", "| --- | --- | --- | --- | --- | ---: | ---: |"]
 
