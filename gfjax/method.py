@@ -49,6 +49,9 @@ class Method:
         of its lattice once (`gfjax.methods.lattice`).
       whole_cloud: a point's label depends on the whole cloud (CSF's cloth settles over all
         of it): a survey that fits the memory budget is filtered as one cloud.
+      takes_terrain: `filter` takes `terrain=` (a `gfjax.adaptive.Terrain`), the terrain its values
+        settle on in place of the cloud's own (the vote's voters): a survey passes its own, so
+        every window is labelled with the values of the whole survey.
       survey_config: `survey_config(config, clouds) -> Config`, the estimates made per cloud
         fixed once for a whole survey (DMF's voxel size), or None.
       survey_halo: `survey_halo(config) -> float`, the context [m] a survey gives each file of
@@ -74,6 +77,7 @@ class Method:
     tiles: bool = False
     tile_labels: bool = False
     whole_cloud: bool = False
+    takes_terrain: bool = False
     survey_config: Callable[..., Any] | None = None
     survey_halo: Callable[[Any], float] | None = None
     load_model: Callable[[Any], tuple[Any, Any]] | None = None

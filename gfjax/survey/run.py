@@ -205,8 +205,9 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
       method: a `gfjax.method.Method`, its package (`gfjax.dmf`) or its name.
       folder: a private temporary folder for the catalog's stores.
       config, params: the method's settings. Without a `config`, the values that follow the data
-        are settled once on the whole survey (`survey_terrain`, the method's `adapt`; a given
-        `params` is kept whole) and the method runs as `gfjax filter` runs it (`adaptive.run`),
+        are settled once on the whole survey (`survey_terrain`, the method's `adapt`, or the
+        terrain given to a method that `takes_terrain`; a given `params` is kept whole) and the
+        method runs as `gfjax filter` runs it (`adaptive.run`),
         so the survey labels as its files joined into one would be; with one, as given. Its
         per-cloud estimates are made once for the survey (`survey_config`).
       tiling: a tiled method's tiles (`gfjax.Tiling`, None: its defaults); they also set the
@@ -228,15 +229,17 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
             raise InputError(f"tiling: method {method.name} does not tile")
         options = {**options, "tiling": tiling}
     catalog = index(paths, folder, returns=returns, units=units, client=client, classes=classes, keep_points=True)
-    settled = None
-    if config is None and method.adapt is not None:
+    settled = terrain = None
+    if config is None and (method.adapt is not None or method.takes_terrain):
         terrain = survey_terrain(catalog, returns=returns)
-        if terrain is not None:
-            fixed = [f.name for f in dataclasses.fields(params)] if params is not None else []
-            if params is None and method.Params is not None:
-                params = method.Params()
-            settled = adaptive.settle_terrain(method.adapt, terrain, method.Config(), params, fixed=fixed)
-            config, params = settled.config, settled.params
+    if terrain is not None and method.takes_terrain:
+        options = {**options, "terrain": terrain}
+    if terrain is not None and method.adapt is not None:
+        fixed = [f.name for f in dataclasses.fields(params)] if params is not None else []
+        if params is None and method.Params is not None:
+            params = method.Params()
+        settled = adaptive.settle_terrain(method.adapt, terrain, method.Config(), params, fixed=fixed)
+        config, params = settled.config, settled.params
     config = survey_config(method, method.Config() if config is None else config, catalog, returns=returns)
     filter_fn = functools.partial(_method_filter, method, config, params, settled, options)
     run = Runner(catalog, filter_fn, methods.lattice(method, config, tiling), folder, returns=returns, context=False,

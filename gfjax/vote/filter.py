@@ -18,6 +18,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from gfjax import cache
+from gfjax.adaptive import Terrain
 from gfjax.io.cloud import CloudView
 from gfjax.method import Method
 from gfjax.result import Result
@@ -72,7 +73,7 @@ class Ballot(NamedTuple):
 
 @cache.persistent
 def filter(cloud: CloudView, *, config: Config | None = None, params: None = None, returns: str = "all",  # noqa: A001 (the package API name)
-           progress: bool = False, tiling: Tiling | None = None) -> Result:
+           progress: bool = False, tiling: Tiling | None = None, terrain: Terrain | None = None) -> Result:
     """Classify a cloud's ground points by the majority of several filters.
 
     Args:
@@ -83,6 +84,8 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: None = Non
       progress: the voters' progress bars.
       tiling: the buffered tiles of the voters that tile (`Method.tiles`: SMRF and PMF cut the
         cloud, DMF its raster; `gfjax.tiling.tiles.Tiling`), None for their default.
+      terrain: what the voters' values settle on (`gfjax.adaptive.Terrain`), None for the
+        cloud's own (measured once for them all); a survey gives its own.
 
     Returns:
       `Result(ground, diagnostics, settled=Ballot, notes)`: `ground` bool `(n,)`, False for
@@ -94,7 +97,8 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: None = Non
     config = Config() if config is None else config
     voters = [methods.get(name) for name in config.names]
     # Measured once for every voter whose values follow the cloud, not once by each.
-    terrain = adaptive.measure_cloud(cloud, returns) if any(v.adapt is not None for v in voters) else None
+    if terrain is None and any(v.adapt is not None for v in voters):
+        terrain = adaptive.measure_cloud(cloud, returns)
 
     def run(voter: Method) -> Result:
         shared = {"terrain": terrain} if voter.adapt is not None else {}
