@@ -89,7 +89,7 @@ class Params:
 
 
 def _short(value) -> str:
-    """`0.15` for a concrete scalar, `f32[3]` for a batch, the tracer's shape under `jit`."""
+    """`0.15` for a concrete scalar, `float32[3]` for a batch or a tracer under `jit`."""
     if isinstance(value, jax.Array) and not isinstance(value, jax.core.Tracer) and value.ndim == 0:
         return f"{float(value):g}"
     shape = getattr(value, "shape", None)

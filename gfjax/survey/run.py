@@ -205,8 +205,8 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
       method: a `gfjax.method.Method`, its package (`gfjax.dmf`) or its name.
       folder: a private temporary folder for the catalog's stores.
       config, params: the method's settings. Without a `config`, the values that follow the data
-        are settled once on the whole survey (`survey_terrain`, the method's `adapt`, or the
-        terrain given to a method that `takes_terrain`; a given `params` is kept whole) and the
+        are settled once on the whole survey (`survey_terrain`, the method's `adapt`; a given
+        `params` is kept whole; a method that `takes_terrain` is given it, config or not) and the
         method runs as `gfjax filter` runs it (`adaptive.run`),
         so the survey labels as its files joined into one would be; with one, as given. Its
         per-cloud estimates are made once for the survey (`survey_config`).
@@ -230,7 +230,8 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
         options = {**options, "tiling": tiling}
     catalog = index(paths, folder, returns=returns, units=units, client=client, classes=classes, keep_points=True)
     settled = terrain = None
-    if config is None and (method.adapt is not None or method.takes_terrain):
+    # a method that takes the terrain settles on it whatever its config (the vote's voters)
+    if method.takes_terrain or (config is None and method.adapt is not None):
         terrain = survey_terrain(catalog, returns=returns)
     if terrain is not None and method.takes_terrain:
         options = {**options, "terrain": terrain}
