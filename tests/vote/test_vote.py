@@ -152,8 +152,10 @@ def test_verbose_names_what_each_voter_chose(tmp_path, capsys):
     np.testing.assert_array_equal(written.classification == 2, alone.ground)
 
 
-def test_a_survey_gives_the_voters_its_terrain(tmp_path):
-    """Each file's window is voted on with the values the voters settle on the whole survey."""
+def test_a_survey_gives_the_voters_its_terrain(tmp_path, capsys):
+    """Each file's window is voted on with the values the voters settle on the whole survey, in
+    Python (a config or not) and on the command line, which says that terrain once."""
+    from cli_helpers import run_cli
     from test_survey import town, write_grid
 
     import gfjax
@@ -162,8 +164,14 @@ def test_a_survey_gives_the_voters_its_terrain(tmp_path):
     paths, _, union = write_grid(tmp_path, *town())
     whole = adaptive.measure_cloud(gfjax.read(union))
     (tmp_path / "work").mkdir()
-    for _, result in survey.filtered(paths, "vote", tmp_path / "work"):
-        assert [s.terrain for s in result.settled.settled] == [whole] * 3
+    for config in (None, vote.Config(voters="pmf,smrf")):
+        for _, result in survey.filtered(paths, "vote", tmp_path / "work", config=config):
+            voters = (config or vote.Config()).names
+            assert [s.terrain for s in result.settled.settled] == [whole] * len(voters)
+    (tmp_path / "out").mkdir()
+    code, _, err = run_cli(capsys, "filter", *paths, "-o", tmp_path / "out", "-v", "-q")
+    assert code == 0, err
+    assert err.count(f"the survey: terrain: {whole.describe()}") == 1
 
 
 def test_a_survey_of_files_labels_nearly_as_their_union(tmp_path):
