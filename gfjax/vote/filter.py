@@ -118,11 +118,14 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: None = Non
 
 def _extent_m(cloud: CloudView, returns: str) -> tuple[float, float] | None:
     """The x, y extent of the cloud's used points [m], None without one."""
+    from gfjax.io import columns
+
     use = cloud.filter_mask(returns)
     if not use.any():
         return None
-    xyz = cloud.xyz_m
-    return tuple(float(np.ptp(xyz[:, j] if use.all() else xyz[:, j][use])) for j in range(2))
+    xy = cloud.xyz_m[:, :2] if use.all() else cloud.xyz_m[use, :2]
+    span = columns.highs(xy) - columns.lows(xy)
+    return float(span[0]), float(span[1])
 
 
 def _tiling(voter: Method, tiling: Tiling | None) -> dict:
