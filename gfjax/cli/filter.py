@@ -256,24 +256,18 @@ def _whole(setup, catalog) -> bool:
 
 
 def _survey_setup(setup, catalog, args):
-    """`setup` for a survey (or one file read from disk): the values that follow the data set
-    once from all of its points (`gfjax.survey.survey_terrain`; a method that `takes_terrain`
-    is given the terrain itself), then the method's survey-wide estimates
-    (`gfjax.survey.survey_config`), so that every tile and halo shares them."""
-    from gfjax import adaptive, survey
+    """`setup` for a survey (or one file read from disk) with the values its files share
+    (`gfjax.survey.survey_settings`), said with `-v`."""
+    from gfjax import survey
 
-    rule = setup.method.adapt
-    if setup.fixed is not None and (rule is not None or setup.method.takes_terrain):
-        terrain = survey.survey_terrain(catalog, returns=args.returns)
-        if terrain is not None and rule is not None:
-            setup = setup.fixed_at(adaptive.settle_terrain(rule, terrain, setup.config, setup.params,
-                                                           fixed=setup.fixed))
-            _say_settled(args, "the survey", setup.settled)
-        elif terrain is not None:
-            setup = setup._replace(options={**(setup.options or {}), "terrain": terrain})
-            if getattr(args, "verbose", False):
-                print(f"gfjax: the survey: terrain: {terrain.describe()}", file=sys.stderr)
-    return setup._replace(config=survey.survey_config(setup.method, setup.config, catalog, returns=args.returns))
+    settings = survey.survey_settings(setup.method, catalog, setup.config, setup.params, fixed=setup.fixed,
+                                      returns=args.returns)
+    if settings.settled is not None:
+        setup = setup.fixed_at(settings.settled)
+        _say_settled(args, "the survey", settings.settled)
+    elif settings.terrain is not None and getattr(args, "verbose", False):
+        print(f"gfjax: the survey: terrain: {settings.terrain.describe()}", file=sys.stderr)
+    return setup._replace(config=settings.config, options={**(setup.options or {}), **settings.options})
 
 
 def _say_settled(args, what: str, settled) -> None:

@@ -14,15 +14,17 @@ from gfjax.io.cloud import Points
 from gfjax.survey.catalog import Catalog, Entry, index
 from gfjax.survey.halo import (
     HALO_M,
+    Settings,
     filter_file,
     fits_whole,
     halo_region,
     halo_width,
     survey_config,
+    survey_settings,
     survey_terrain,
     window,
 )
 from gfjax.survey.run import Runner, filter, filtered
 
-__all__ = ["HALO_M", "Catalog", "Entry", "Points", "Runner", "filter", "filter_file", "filtered", "fits_whole",
-           "halo_region", "halo_width", "index", "survey_config", "survey_terrain", "window"]
+__all__ = ["HALO_M", "Catalog", "Settings", "Entry", "Points", "Runner", "filter", "filter_file", "filtered", "fits_whole",
+           "halo_region", "halo_width", "index", "survey_config", "survey_settings", "survey_terrain", "window"]

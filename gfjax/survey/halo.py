@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import math
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -153,6 +154,36 @@ def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrai
             for read in readers:
                 yield from read()
         return adaptive.measure_chunks(chunks)
+
+
+class Settings(NamedTuple):
+    """A method's settings for a whole survey (`survey_settings`): `config` and `params`,
+    `settled` (`adaptive.Settled`, None when nothing was left to the data), the survey's
+    `terrain` (None when the method reads none), and `options`, the further keyword arguments
+    of the method's `filter` (the terrain, for a method that `takes_terrain`)."""
+
+    config: Any
+    params: Any
+    settled: adaptive.Settled | None
+    terrain: adaptive.Terrain | None
+    options: dict
+
+
+def survey_settings(method: Method, catalog: Catalog, config, params, *, fixed: Iterable[str] | None,
+                    returns: str = "all") -> Settings:
+    """The values a survey's files all share: those that follow the data settled once on the
+    survey's terrain (`survey_terrain`, the method's `adapt`) but the fields in `fixed` (None:
+    nothing settles, the values stay as given), the terrain itself for a method that
+    `takes_terrain` (the vote's voters settle on it whatever the vote's own values), then the
+    method's per-cloud estimates made once for the survey (`survey_config`)."""
+    settles = fixed is not None and method.adapt is not None
+    terrain = survey_terrain(catalog, returns=returns) if settles or method.takes_terrain else None
+    settled = None
+    if settles and terrain is not None:
+        settled = adaptive.settle_terrain(method.adapt, terrain, config, params, fixed=fixed)
+        config, params = settled.config, settled.params
+    options = {"terrain": terrain} if method.takes_terrain and terrain is not None else {}
+    return Settings(survey_config(method, config, catalog, returns=returns), params, settled, terrain, options)
 
 
 def _chunks(entry: Entry, returns: str, spill: Path) -> Callable[[], Iterator[adaptive.Chunk]]:

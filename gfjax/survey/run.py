@@ -31,9 +31,8 @@ from gfjax.survey.halo import (
     filter_file,
     fits_whole,
     halo_width,
-    survey_config,
     survey_labels,
-    survey_terrain,
+    survey_settings,
 )
 from gfjax.survey.lattice import TileLabels
 from gfjax.tiling.tiles import Lattice, Tiling
@@ -205,11 +204,9 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
       method: a `gfjax.method.Method`, its package (`gfjax.dmf`) or its name.
       folder: a private temporary folder for the catalog's stores.
       config, params: the method's settings. Without a `config`, the values that follow the data
-        are settled once on the whole survey (`survey_terrain`, the method's `adapt`; a given
-        `params` is kept whole; a method that `takes_terrain` is given it, config or not) and the
-        method runs as `gfjax filter` runs it (`adaptive.run`),
-        so the survey labels as its files joined into one would be; with one, as given. Its
-        per-cloud estimates are made once for the survey (`survey_config`).
+        are settled once on the whole survey (`survey_settings`; a given `params` is kept whole)
+        and the method runs as `gfjax filter` runs it (`adaptive.run`), so the survey labels as
+        its files joined into one would be; with one, as given.
       tiling: a tiled method's tiles (`gfjax.Tiling`, None: its defaults); they also set the
         windows each file is filtered with.
       returns: "all" or "last".
@@ -229,20 +226,15 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
             raise InputError(f"tiling: method {method.name} does not tile")
         options = {**options, "tiling": tiling}
     catalog = index(paths, folder, returns=returns, units=units, client=client, classes=classes, keep_points=True)
-    settled = terrain = None
-    # a method that takes the terrain settles on it whatever its config (the vote's voters)
-    if method.takes_terrain or (config is None and method.adapt is not None):
-        terrain = survey_terrain(catalog, returns=returns)
-    if terrain is not None and method.takes_terrain:
-        options = {**options, "terrain": terrain}
-    if terrain is not None and method.adapt is not None:
+    fixed = None                    # a config given: nothing settles
+    if config is None:
         fixed = [f.name for f in dataclasses.fields(params)] if params is not None else []
         if params is None and method.Params is not None:
             params = method.Params()
-        settled = adaptive.settle_terrain(method.adapt, terrain, method.Config(), params, fixed=fixed)
-        config, params = settled.config, settled.params
-    config = survey_config(method, method.Config() if config is None else config, catalog, returns=returns)
-    filter_fn = functools.partial(_method_filter, method, config, params, settled, options)
+    settings = survey_settings(method, catalog, method.Config() if config is None else config, params, fixed=fixed,
+                               returns=returns)
+    config, options = settings.config, {**options, **settings.options}
+    filter_fn = functools.partial(_method_filter, method, config, settings.params, settings.settled, options)
     run = Runner(catalog, filter_fn, methods.lattice(method, config, tiling), folder, returns=returns, context=False,
                  client=client, whole=fits_whole(method, config, catalog), halo_m=halo_width(method, config))
     for i, entry in enumerate(catalog.entries):

@@ -161,6 +161,33 @@ def test_the_survey_terrain_is_the_union_measured_as_one_cloud(grid, tmp_path, r
         assert getattr(got, key) == pytest.approx(getattr(want, key), rel=1e-12, abs=1e-9), key
 
 
+def test_survey_settings_settle_what_is_left_open_and_give_the_vote_its_terrain(grid, tmp_path):
+    """The values that follow the data settle on the survey's terrain but for the fields
+    kept; with nothing left open (`fixed=None`) they stay as given, yet the vote's voters
+    still get the terrain (they settle on it whatever the vote's own values)."""
+    from gfjax import vote
+
+    paths, _, _ = grid
+    catalog = survey.index(paths, tmp_path)
+    terrain = survey.survey_terrain(catalog)
+    chosen = smrf.adapt(terrain)
+    config, params = smrf.Config(), smrf.Params()
+
+    open_ = survey.survey_settings(smrf.METHOD, catalog, config, params, fixed=[])
+    assert open_.settled is not None and open_.settled.chosen == chosen
+    assert open_.config.cell_m == chosen["cell_m"] and open_.options == {}
+    assert open_.terrain == terrain
+
+    kept = survey.survey_settings(smrf.METHOD, catalog, config, params, fixed=["cell_m"])
+    assert kept.config.cell_m == config.cell_m and "cell_m" not in kept.settled.chosen
+
+    given = survey.survey_settings(smrf.METHOD, catalog, config, params, fixed=None)
+    assert given.settled is None and given.terrain is None and given.config == config
+
+    voting = survey.survey_settings(vote.METHOD, catalog, vote.Config(), None, fixed=None)
+    assert voting.settled is None and voting.options["terrain"] == terrain
+
+
 def test_files_with_different_crs_are_refused_naming_both(tmp_path):
     import pyproj
 
