@@ -34,23 +34,25 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from gfjax import low_outliers, spikes
+from gfjax import limits, low_outliers, spikes
 from gfjax.errors import InputError, SettingError
 from gfjax.io.cloud import CloudView, Frame
 
 RETURNS = ("all", "last")
 
-__all__ = ["Terrain", "measure", "measure_chunks", "Chunk", "follows", "run", "finish", "hide", "Hidden", "raster_cell_m", "settle_cloud", "measure_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
+__all__ = ["Terrain", "measure", "measure_chunks", "cloud_parts", "Chunk", "Parts", "follows", "run", "finish", "hide", "Hidden", "raster_cell_m", "settle_cloud", "measure_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
 
 # The preset name that keeps a method's fixed defaults (no rule applied).
 FIXED_PRESET = "fixed"
 _POINTS_PER_COVER_CELL = 16      # mean points per cell of the cover grid, so cells are empty for want of data,
 _MIN_COVER_CELL_M = 2.0          # not by chance
+_PART_POINTS = 1 << 18          # used points a slice of one cloud holds at least (`cloud_parts`)
 _COVER_PASSES = 4                # the cover cell from the box's density, then three times from the area's
 _OBJECT_M = 30.0                 # objects narrower than this are taken off the minimum surface before slopes
 _EROSION_PERCENTILE = 10         # ... by this percentile of a square of that side
@@ -189,7 +191,8 @@ Chunk = tuple[tuple[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.nd
 
 def measure(xyz_m: np.ndarray, last_xyz_m: np.ndarray | None = None) -> Terrain:
     """The statistics of `Terrain` for points `(n, 3)` [m] (float; the points a method uses)
-    and their last returns `(k, 3)` (None or empty: the same points): `measure_chunks` of one chunk.
+    and their last returns `(k, 3)` (None or empty: the same points): `measure_chunks` of one cloud
+    (`cloud_parts`).
 
     Raises:
       ValueError: fewer than one point.
@@ -200,34 +203,80 @@ def measure(xyz_m: np.ndarray, last_xyz_m: np.ndarray | None = None) -> Terrain:
     if last_xyz_m is not None:
         last = np.asarray(last_xyz_m, dtype=np.float64)
         last_xy = (np.ascontiguousarray(last[:, 0]), np.ascontiguousarray(last[:, 1]))
-    terrain = measure_chunks(lambda: [(used, last_xy)])
+    terrain = measure_chunks(cloud_parts(used, last_xy))
     if terrain is None:
         raise ValueError("measure needs at least one point")
     return terrain
 
 
-def measure_chunks(chunks: Callable[[], Iterable[Chunk]]) -> Terrain | None:
-    """`measure` of points read a chunk at a time: `chunks()` yields them anew at each call
-    (`Chunk`s), so memory holds one chunk and a few grids of about a sixteenth as many cells as
-    points, never the whole cloud; None when no point is used. The statistics are `measure`'s
-    of the chunks' points joined, exactly: each grid (the box, the occupied cells of each cover
-    pass, the minimum per slope cell) is a union or a minimum over the chunks, and each pass's
-    cell follows from the previous pass's grid, so `chunks` is read `_COVER_PASSES + 2` times
-    (a file on disk is read again, never held). The last returns' spacing is that of every
-    point where none or all of them are last."""
-    n, box, n_last, last_box = _extents(chunks)
+# Where the chunks come from: parts read anew at each call, side by side (a survey's files, a
+# cloud's slices: `cloud_parts`).
+Parts = Sequence[Callable[[], Iterable[Chunk]]]
+
+
+def cloud_parts(used: tuple[np.ndarray, np.ndarray, np.ndarray], last_xy: tuple[np.ndarray, np.ndarray], *,
+                workers: int | None = None) -> list[Callable[[], list[Chunk]]]:
+    """One cloud in memory as `measure_chunks` parts: its used points' columns `used` and its
+    last returns' `last_xy` (float64 `(n,)`, `(k,)`) cut into slices (views) of at least
+    `_PART_POINTS` used points, at most one per worker (`limits.processors`)."""
+    workers = limits.processors() if workers is None else workers
+    count = max(1, min(workers, len(used[0]) // _PART_POINTS))
+
+    def cut(columns: tuple[np.ndarray, ...], k: int) -> tuple[np.ndarray, ...]:
+        edges = np.linspace(0, len(columns[0]), count + 1).astype(np.int64)
+        return tuple(c[edges[k]:edges[k + 1]] for c in columns)
+
+    return [lambda k=k: [(cut(used, k), cut(last_xy, k))] for k in range(count)]
+
+
+def measure_chunks(parts: Parts, *, workers: int | None = None) -> Terrain | None:
+    """`measure` of points read a chunk at a time from `parts` (a survey's files, a cloud's
+    slices: each `part()` yields its `Chunk`s anew at each call), so memory holds a chunk a
+    worker and a few grids of about a sixteenth as many cells as points a worker, never the
+    whole cloud; None when no point is used. The parts are read side by side on `workers`
+    threads (default: the processors, `limits.processors`; numpy's work on a chunk leaves the
+    interpreter free). The statistics are `measure`'s of the chunks' points joined, exactly:
+    each grid (the box, the occupied cells of each cover pass, the minimum per slope cell) is
+    a union or a minimum over the chunks, whatever their order, and each pass's cell follows
+    from the previous pass's grid, so every part is read `_COVER_PASSES + 2` times (a file on
+    disk is read again, never held). The last returns' spacing is that of every point where
+    none or all of them are last."""
+    workers = limits.processors() if workers is None else workers
+    n, box, n_last, last_box = _extents(parts, workers)
     if n == 0:
         return None
     with_last = 0 < n_last < n
-    area, spacing = _spacing(chunks, n, box, n_last, last_box if with_last else None)
+    area, spacing = _spacing(parts, workers, n, box, n_last, last_box if with_last else None)
     slope_cell = max(_MIN_SLOPE_CELL_M, _SLOPE_CELLS_PER_SPACING * spacing[0])
     lo, shape = box[0], _shape(box, slope_cell)
-    z_min = np.full(shape[0] * shape[1], np.inf)
-    for (x, y, z), _ in chunks():
-        np.minimum.at(z_min, _flat_cells(x - lo[0], y - lo[1], slope_cell, shape), z)
+
+    def lowest(chunks: Iterable[Chunk]) -> np.ndarray:
+        z_min = np.full(shape[0] * shape[1], np.inf)
+        for (x, y, z), _ in chunks:
+            np.minimum.at(z_min, _flat_cells(x - lo[0], y - lo[1], slope_cell, shape), z)
+        return z_min
+
+    z_min = functools.reduce(np.minimum, _side_by_side(parts, workers, lowest))
     p50, p90, relief = _surface(z_min.reshape(shape), slope_cell)
     return Terrain(n_points=n, area_m2=float(area), spacing_m=spacing[0], last_spacing_m=spacing[-1],
                    slope_cell_m=slope_cell, slope_p50=p50, slope_p90=p90, relief_m=relief)
+
+
+def _side_by_side(parts: Parts, workers: int, fold: Callable[[Iterator[Chunk]], Any]) -> list[Any]:
+    """`fold(chunks)` of the parts dealt to each of at most `workers` threads in turn (each
+    thread folds the chunks of its parts, one after another, into one value: memory holds one
+    fold's grids a thread, however many parts): the values, one a thread."""
+    count = max(1, min(workers, len(parts)))
+    groups = [parts[k::count] for k in range(count)]
+
+    def chunks(group: Parts) -> Iterator[Chunk]:
+        for part in group:
+            yield from part()
+
+    if count == 1:
+        return [fold(chunks(groups[0]))]
+    with ThreadPoolExecutor(count, thread_name_prefix="gfjax-measure") as pool:
+        return list(pool.map(lambda group: fold(chunks(group)), groups))
 
 
 def _surface(z_min: np.ndarray, slope_cell: float) -> tuple[float, float, float]:
@@ -257,22 +306,29 @@ def _surface(z_min: np.ndarray, slope_cell: float) -> tuple[float, float, float]
 Box = tuple[np.ndarray, np.ndarray]
 
 
-def _extents(chunks: Callable[[], Iterable[Chunk]]) -> tuple[int, Box, int, Box]:
+def _extents(parts: Parts, workers: int) -> tuple[int, Box, int, Box]:
     """`(n, box, n_last, last_box)`: the count and `_box` of the used points and of their last
     returns over every chunk (a box of `inf`, `-inf` where there is none)."""
-    counts = [0, 0]
-    boxes = [(np.full(2, np.inf), np.full(2, -np.inf)) for _ in range(2)]
-    for used, last in chunks():
-        for i, (x, y) in enumerate((used[:2], last)):
-            if len(x):
-                counts[i] += len(x)
-                lo, hi = _box(x, y)
-                np.minimum(boxes[i][0], lo, out=boxes[i][0])
-                np.maximum(boxes[i][1], hi, out=boxes[i][1])
+    def fold(chunks: Iterable[Chunk]) -> tuple[list[int], list[Box]]:
+        counts = [0, 0]
+        boxes = [(np.full(2, np.inf), np.full(2, -np.inf)) for _ in range(2)]
+        for used, last in chunks:
+            for i, (x, y) in enumerate((used[:2], last)):
+                if len(x):
+                    counts[i] += len(x)
+                    lo, hi = _box(x, y)
+                    np.minimum(boxes[i][0], lo, out=boxes[i][0])
+                    np.maximum(boxes[i][1], hi, out=boxes[i][1])
+        return counts, boxes
+
+    folds = _side_by_side(parts, workers, fold)
+    counts = [sum(c[i] for c, _ in folds) for i in range(2)]
+    boxes = [(functools.reduce(np.minimum, [b[i][0] for _, b in folds]),
+              functools.reduce(np.maximum, [b[i][1] for _, b in folds])) for i in range(2)]
     return counts[0], boxes[0], counts[1], boxes[1]
 
 
-def _spacing(chunks: Callable[[], Iterable[Chunk]], n: int, box: Box, n_last: int,
+def _spacing(parts: Parts, workers: int, n: int, box: Box, n_last: int,
              last_box: Box | None) -> tuple[float, list[float]]:
     """`(area_m2, spacings_m)` of the used points (`n` >= 1 of them, their `box`) [m]
     (`Terrain`): their area, and the spacing of them and, where `last_box` is given, of their
@@ -281,7 +337,7 @@ def _spacing(chunks: Callable[[], Iterable[Chunk]], n: int, box: Box, n_last: in
     The cover grid's cell is set from the density, which is what is measured: start from the
     box's, then the covered area's, a few times over, so a stray point kilometres away or an
     L-shaped survey does not make the cells (and so the area) as large as the box. Each pass
-    reads every chunk once and keeps one occupancy grid per selection.
+    reads every chunk once and keeps one occupancy grid per selection (a worker).
     """
     sets = [(0, n, box)] + ([] if last_box is None else [(1, n_last, last_box)])
     areas = [float(np.maximum(b[1] - b[0], 1.0).prod()) for _, _, b in sets]
@@ -289,13 +345,19 @@ def _spacing(chunks: Callable[[], Iterable[Chunk]], n: int, box: Box, n_last: in
         grids = []
         for (_, count, grid_box), area in zip(sets, areas):
             cover_m = max(_MIN_COVER_CELL_M, math.sqrt(_POINTS_PER_COVER_CELL * area / count))
-            shape = _shape(grid_box, cover_m)
-            grids.append((cover_m, shape, np.zeros(shape[0] * shape[1], dtype=bool)))
-        for chunk in chunks():
-            for (i, _, (lo, _)), (cover_m, shape, occupied) in zip(sets, grids):
-                x, y = chunk[i][:2]
-                occupied[_flat_cells(x - lo[0], y - lo[1], cover_m, shape)] = True
-        areas = [np.count_nonzero(occupied) * cover_m * cover_m for cover_m, _, occupied in grids]
+            grids.append((cover_m, _shape(grid_box, cover_m)))
+
+        def fold(chunks: Iterable[Chunk], grids=grids) -> list[np.ndarray]:
+            occupied = [np.zeros(shape[0] * shape[1], dtype=bool) for _, shape in grids]
+            for chunk in chunks:
+                for (i, _, (lo, _)), (cover_m, shape), cells in zip(sets, grids, occupied):
+                    x, y = chunk[i][:2]
+                    cells[_flat_cells(x - lo[0], y - lo[1], cover_m, shape)] = True
+            return occupied
+
+        folds = _side_by_side(parts, workers, fold)
+        occupied = [functools.reduce(np.logical_or, [f[k] for f in folds]) for k in range(len(sets))]
+        areas = [np.count_nonzero(cells) * cover_m * cover_m for (cover_m, _), cells in zip(grids, occupied)]
     return areas[0], [math.sqrt(area / count) for (_, count, _), area in zip(sets, areas)]
 
 
@@ -489,7 +551,7 @@ def measure_cloud(cloud: Any, returns: str = "all") -> Terrain | None:
     columns = [np.ascontiguousarray(xyz[:, j]) for j in range(3)]
     used = tuple(columns) if use.all() else tuple(c[use] for c in columns)
     last_xy = (columns[0][last], columns[1][last])
-    return measure_chunks(lambda: [(used, last_xy)])
+    return measure_chunks(cloud_parts(used, last_xy))
 
 
 def settle_cloud(rule: Callable[[Terrain], dict[str, Any]] | None, cloud: Any, config: Any, params: Any, *,

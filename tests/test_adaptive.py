@@ -65,17 +65,21 @@ def test_measure_of_one_point_and_of_none():
 
 
 def chunked(xyz: np.ndarray, last: np.ndarray, bounds: list[int], last_bounds: list[int]):
-    """`measure_chunks`' reader of `xyz` and `last` cut at `bounds` and `last_bounds` (as many
-    of each: a chunk may hold no point, or no last return)."""
-    def chunks():
-        for (a, b), (c, d) in zip(zip(bounds[:-1], bounds[1:]), zip(last_bounds[:-1], last_bounds[1:])):
-            yield tuple(xyz[a:b, j] for j in range(3)), (last[c:d, 0], last[c:d, 1])
-    return chunks
+    """`measure_chunks`' chunks of `xyz` and `last` cut at `bounds` and `last_bounds` (as many
+    of each: a chunk may hold no point, or no last return), a list."""
+    return [(tuple(xyz[a:b, j] for j in range(3)), (last[c:d, 0], last[c:d, 1]))
+            for (a, b), (c, d) in zip(zip(bounds[:-1], bounds[1:]), zip(last_bounds[:-1], last_bounds[1:]))]
+
+
+def as_parts(chunks: list, per_part: int) -> list:
+    """`chunks` dealt into parts of `per_part` chunks each (a part yields its chunks anew at each call)."""
+    return [lambda k=k: iter(chunks[k:k + per_part]) for k in range(0, len(chunks), per_part)]
 
 
 @pytest.mark.parametrize("seed", range(4))
 def test_a_cloud_measured_in_chunks_is_the_cloud_measured_whole(seed):
-    """Every statistic equal, exactly, whatever the chunks: single, empty, without a last return."""
+    """Every statistic equal, exactly, whatever the chunks, however they are dealt into parts
+    and read side by side: single, empty, without a last return."""
     rng = np.random.default_rng(seed)
     n = int(rng.integers(2_000, 40_000))
     xyz = rng.uniform(0.0, rng.uniform(50.0, 2_000.0), (n, 3)) + [500_000.0, 5_000_000.0, 0.0]
@@ -88,18 +92,37 @@ def test_a_cloud_measured_in_chunks_is_the_cloud_measured_whole(seed):
         ([0, n], [0, k]),                                   # one chunk
         ([0, n, n], [0, k, k]),                             # and an empty one
         ([0, n // 2, n], [0, 0, k]),                        # a chunk with no last return
-        ([0, 0, n], [0, k, k]),                             # last returns alone, then points alone
+        ([0, n // 3, 2 * n // 3, n], [0, k // 3, 2 * k // 3, k]),
         (list(range(0, n, 997)) + [n], np.linspace(0, k, len(range(0, n, 997)) + 1).astype(int).tolist()),
     ]
     for bounds, last_bounds in cuts:
-        assert adaptive.measure_chunks(chunked(xyz, last, bounds, last_bounds)) == whole
-    assert adaptive.measure_chunks(chunked(xyz, xyz[:0], [0, n // 3, n], [0, 0, 0])) == adaptive.measure(xyz)
+        chunks = chunked(xyz, last, bounds, last_bounds)
+        for per_part, workers in ((len(chunks), 1), (1, 1), (1, 2), (2, 3)):
+            assert adaptive.measure_chunks(as_parts(chunks, per_part), workers=workers) == whole
+    chunks = chunked(xyz, xyz[:0], [0, n // 3, n], [0, 0, 0])
+    assert adaptive.measure_chunks(as_parts(chunks, 1), workers=2) == adaptive.measure(xyz)
+
+
+def test_a_cloud_in_slices_measures_as_one(monkeypatch):
+    """`cloud_parts` cuts a cloud into slices read side by side; the statistics stay exactly
+    those of one slice."""
+    rng = np.random.default_rng(7)
+    xyz = rng.uniform(0.0, 300.0, (5_000, 3))
+    last = xyz[rng.random(5_000) < 0.5]
+    whole = adaptive.measure(xyz, last)
+    monkeypatch.setattr(adaptive, "_PART_POINTS", 700)
+    parts = adaptive.cloud_parts(tuple(xyz[:, j] for j in range(3)), (last[:, 0], last[:, 1]), workers=3)
+    assert len(parts) == 3
+    assert sum(len(chunk[0][0]) for part in parts for chunk in part()) == 5_000
+    assert adaptive.measure_chunks(parts, workers=3) == whole
+    assert adaptive.measure(xyz, last) == whole
 
 
 def test_chunks_without_a_point_measure_nothing():
     empty = np.empty((0, 3))
-    assert adaptive.measure_chunks(chunked(empty, empty, [0, 0, 0], [0, 0, 0])) is None
-    assert adaptive.measure_chunks(lambda: []) is None
+    assert adaptive.measure_chunks(as_parts(chunked(empty, empty, [0, 0, 0], [0, 0, 0]), 1), workers=2) is None
+    assert adaptive.measure_chunks([lambda: iter([])]) is None
+    assert adaptive.measure_chunks([]) is None
 
 
 def test_combine_of_two_halves_matches_the_whole():

@@ -145,15 +145,12 @@ def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrai
     joined into one and the survey labels as that file would be (each file's own statistics
     combined, `adaptive.combine`, gave other slopes and relief: PMF then labelled 19 % of
     bcts_1 + bcts_2 cut 3 x 3 otherwise). None when no point is used. Each pass reads every
-    store a block at a time: memory holds a block and the measuring grids, never a file's points.
+    store a block at a time, the files side by side: memory holds a block and the measuring grids
+    a worker, never a file's points.
     A COPC file has no store: its used points are decompressed once into temporary files."""
     with tempfile.TemporaryDirectory(prefix="gfjax-terrain-") as folder:
-        readers = [_chunks(entry, returns, Path(folder) / str(i)) for i, entry in enumerate(catalog.entries)]
-
-        def chunks() -> Iterator[adaptive.Chunk]:
-            for read in readers:
-                yield from read()
-        return adaptive.measure_chunks(chunks)
+        return adaptive.measure_chunks([_chunks(entry, returns, Path(folder) / str(i))
+                                        for i, entry in enumerate(catalog.entries)])
 
 
 class Settings(NamedTuple):
