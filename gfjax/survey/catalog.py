@@ -14,12 +14,14 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
 
 import laspy
 import numpy as np
 
+from gfjax import limits
 from gfjax.errors import InputError
 from gfjax.io import asprs, columns, copc, point_store, stream
 from gfjax.io import las as las_io
@@ -174,7 +176,7 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
       trust_data: index the points a file holds when its header's count disagrees
         (`gfjax.io.las.read`).
       client: a `dask.distributed.Client` whose workers index the files, each file a task
-        (`folder` must be one they reach), or None: here, one file after another.
+        (`folder` must be one they reach), or None: here, two files at a time.
       classes: the classes the filter ignores (`asprs.ClassRules`).
       keep_points: also keep each file's point records as read (`Entry.points`: 1 byte on disk
         per byte of the point format), so its copy is written without reading the file again.
@@ -190,10 +192,26 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
     jobs = [(i, path, Path(folder) / f"{i}.npy", Path(folder) / f"{i}.points.npy" if keep_points else None)
             for i, path in enumerate(paths)]
     options = dict(returns=returns, units=units, trust_data=trust_data, classes=classes)
-    if client is None:
-        done = (index_file(*job, **options) for job in jobs)
-    else:
-        done = _gathered(client, jobs, options)
+    if client is not None:
+        entries = _checked(_gathered(client, jobs, options))
+    else:           # two files at a time: one's records are written while the other decompresses
+        with ThreadPoolExecutor(min(2, limits.processors()), thread_name_prefix="gfjax-index") as pool:
+            futures = [pool.submit(index_file, *job, **options) for job in jobs]
+            try:
+                entries = _checked(future.result() for future in futures)
+            finally:          # after a failure, the files not yet begun are not read
+                for future in futures:
+                    future.cancel()
+    frame = None
+    for entry in entries:
+        if entry.frame is not None:
+            frame = entry.frame if frame is None else frame.union(entry.frame)
+    return Catalog(tuple(entries), frame)
+
+
+def _checked(done: Iterator[_Indexed]) -> list[Entry]:
+    """The entries of the files indexed, in order, once each is checked against those before it:
+    the same CRS and units, not the same tile twice (`InputError` otherwise)."""
     entries, first = [], None
     for indexed in done:
         entry = indexed.entry
@@ -209,11 +227,7 @@ def index(paths: Sequence[str | os.PathLike], folder: str | os.PathLike, *, retu
                 raise InputError(f"{entry.path}: holds as many points in the same bounds as {other.path}: "
                                  "the same tile twice? Filter one of them, or the files independently")
         entries.append(entry)
-    frame = None
-    for entry in entries:
-        if entry.frame is not None:
-            frame = entry.frame if frame is None else frame.union(entry.frame)
-    return Catalog(tuple(entries), frame)
+    return entries
 
 
 def check_scratch_space(paths: Sequence[Path], folder: str | os.PathLike, *, keep_points: bool) -> None:

@@ -188,6 +188,39 @@ def test_survey_settings_settle_what_is_left_open_and_give_the_vote_its_terrain(
     assert voting.settled is None and voting.options["terrain"] == terrain
 
 
+def test_an_index_stops_reading_at_a_bad_file(tmp_path, monkeypatch):
+    """Files are indexed two at a time; after one fails, the files not yet begun are not read
+    and the error names the bad file."""
+    import threading
+    import time
+
+    from gfjax.survey import catalog as catalog_module
+
+    xyz, cls = town(size=(20.0, 20.0))
+    paths = []
+    for k in range(12):
+        path = tmp_path / f"f{k:02d}.las"
+        Cloud.from_xyz(xyz + [100.0 * k, 0.0, 0.0], classification=cls).las.write(path)
+        paths.append(path)
+    paths[0].write_bytes(b"not a LAS file")
+    real, begun = catalog_module.index_file, []
+    lock = threading.Lock()
+
+    def index_file(i, *args, **kwargs):
+        with lock:
+            begun.append(i)
+        if i:
+            time.sleep(0.5)                # the others still in flight when the first fails
+        return real(i, *args, **kwargs)
+
+    monkeypatch.setattr(catalog_module, "index_file", index_file)
+    folder = tmp_path / "stores"
+    folder.mkdir()
+    with pytest.raises(InputError, match="f00.las"):
+        survey.index(paths, folder)
+    assert 0 in begun and len(begun) <= 3, begun
+
+
 def test_files_with_different_crs_are_refused_naming_both(tmp_path):
     import pyproj
 
