@@ -146,6 +146,10 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
         origin[2] = cloud.frame.origin_m[2]
         anchor = Anchor(np.zeros(2, np.float32), np.float32(0.0))
     local, trend = detrended(xyz_m - origin, use, config)
+    if anchor is not None and trend is not None:
+        # heights less a trend fitted on this cloud: the survey's height says nothing of them,
+        # so the cloth falls from this cloud's highest inverted point, as without a frame
+        anchor = anchor._replace(top_u=np.float32(-local[use, 2].min()))
     h, w = grid_shape(local, use, cell_m=config.cell_m, anchor=anchor)
     n = len(local)
     capacity = canonical_points(n)

@@ -148,3 +148,26 @@ def test_under_a_sparse_canopy_the_trend_widens_to_stay_on_the_ground():
 
     assert above_ground(csf.TREND_M) > 4.0
     assert above_ground(window) < 1.5
+
+
+def test_a_framed_cloud_on_its_trend_falls_as_the_cloud_alone():
+    """A survey's window (a frame) lays the cloth on the survey's lattice; with a trend taken
+    off, the cloth still falls from the window's own highest point: a window holding the
+    whole cloud labels it as the cloud alone."""
+    from gfjax import csf
+    from gfjax.io.cloud import Cloud, Frame, Points
+
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(0.0, 120.0, (12_000, 2))
+    z = 0.3 * xy[:, 0] + 4.0 * np.sin(xy[:, 1] / 15.0) + rng.normal(0.0, 0.05, len(xy))
+    house = np.all(np.abs(xy - 60.0) < 8.0, axis=1)
+    z[house] += 6.0
+    xyz = np.column_stack([xy + [400_000.0, 5_000_000.0], z + 200.0])
+    cloud = Cloud.from_xyz(xyz)
+    config = csf.Config(trend_m=30.0)
+    alone = np.asarray(csf.filter(cloud, config=config).ground)
+    frame = Frame(xyz.min(axis=0), xyz[:, :2].max(axis=0))
+    window = Points(xyz_m=xyz, classification=cloud.classification, return_number=cloud.return_number,
+                    number_of_returns=cloud.number_of_returns, ignored=cloud.ignored, name="window", frame=frame)
+    np.testing.assert_array_equal(np.asarray(csf.filter(window, config=config).ground), alone)
+    assert alone[~house].mean() > 0.95 and not alone[house].any()
