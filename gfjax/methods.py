@@ -21,9 +21,6 @@ from gfjax.method import Method
 # The method `gfjax filter` runs without `--method`: the soundest across the labelled files with
 # its defaults (`experiments/results/corpus_eval.md`; the README says why).
 DEFAULT_METHOD = "vote"
-# What `gfjax filter` runs instead of the default, when left to itself, on a file it must filter
-# out of core: the default reads a file whole (MASF votes), SMRF a tile window at a time.
-OUT_OF_CORE_METHOD = "smrf"
 
 # name -> package exporting `METHOD`: the one place a method is registered.
 PACKAGES: dict[str, str] = {

@@ -23,10 +23,14 @@ or `--instances`). Outputs, errors and the summary are those of one process; a w
 dies has its task run again.
 
 A file too large for the memory budget (`GFJAX_MEMORY_BUDGET_GB`, default half the
-machine's memory) is filtered out of core by SMRF and PMF (`--out-of-core` forces it): read
+machine's memory) is filtered out of core, by any method (`--out-of-core` forces it): read
 a chunk at a time into an index on disk (28 bytes a point, in a private temporary folder),
-filtered one tile window at a time, and written by copying the input a chunk at a time with
-the new classes; memory follows the largest tile window, not the file.
+filtered one window at a time, and written by copying the input a chunk at a time with
+the new classes; memory follows the largest window, not the file. SMRF and PMF run tile
+windows, with exactly the labels of the file in memory; any other method runs 500 m pieces
+(smaller where a piece of the densest file would not fit the budget) with the points within
+its survey halo around each (50 m; DMF's its own), so labels near a piece's edge are close
+to, not exactly, those of the file in memory, as near a file's edge in a survey.
 
 Every option, input and output is checked before the first file is filtered (option ranges
 and the memory their rasters need, headers, CRS and units, output folders, free space), so a
@@ -112,8 +116,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="filter the tiles on the Dask cluster at ADDRESS (tcp://host:8786); its workers "
                              "must reach the inputs and the temporary folder (TMPDIR)")
     parser.add_argument("--out-of-core", action="store_true",
-                        help="filter tile by tile from disk, memory bounded by a tile's window (SMRF, PMF; "
-                             "chosen by itself for a file larger than the memory budget)")
+                        help="filter from disk, memory bounded by a tile's window (SMRF, PMF) or a piece and its "
+                             "halo (any other method); chosen by itself for a file larger than the memory budget")
     add_units_option(parser)
     parser.add_argument("--trust-data", action="store_true",
                         help="when a header's point count disagrees with the points the file holds, "
@@ -372,12 +376,11 @@ def _run(args, setup, inputs, planned, runner) -> int:
 
 
 def _out_of_core(args, setup, planned):
-    """The setup to filter with tile by tile from disk, or None to filter in memory. Out of core:
+    """The setup to filter with from disk, or None to filter in memory. Out of core:
     `--out-of-core`, or a file whose points, filtered in memory, would take more than the memory
-    budget (`limits.IN_MEMORY_BYTES_PER_POINT`). A method that cannot (no tile lattice) is
-    refused, but for the default method left to itself (no `--method`, `--preset`, `--set` or
-    `--params`): then `methods.OUT_OF_CORE_METHOD` filters, and one line says so."""
-    from gfjax import limits, methods
+    budget (`limits.IN_MEMORY_BYTES_PER_POINT`): a tiled method a tile window at a time, any
+    other a piece and its halo at a time (`gfjax.survey.lattice.Pieces`)."""
+    from gfjax import limits
     budget = limits.memory_budget_bytes()
     need = [(job, job.header.point_count * (job.header.point_format.size + limits.IN_MEMORY_BYTES_PER_POINT))
             for job in planned]
@@ -388,16 +391,6 @@ def _out_of_core(args, setup, planned):
         f"{large[0][0].source}: {large[0][0].header.point_count:,} points need about {large[0][1] / 2**30:.1f} "
         f"GiB filtered in memory, more than the budget of {budget / 2**30:.1f} GiB (set {limits.BUDGET_ENV} to "
         "change it)")
-    instead = ""
-    if setup.lattice is None:
-        left_to_itself = args.method is None and args.preset is None and not args.set_values and args.params is None
-        if not left_to_itself:
-            tiled = [name for name in methods.names() if methods.get(name).tile_labels]
-            raise InputError(f"{why}: method {setup.name} filters a file in memory only; {' and '.join(tiled)} "
-                             "filter it out of core, a tile at a time")
-        instead = f" with {methods.OUT_OF_CORE_METHOD} (the default, {setup.name}, filters a file in memory only)"
-        setup = method_setup(argparse.Namespace(**{**vars(args), "method": methods.OUT_OF_CORE_METHOD}),
-                             tiling=(args.tile_size, args.buffer))
     from gfjax.io import copc_writer
 
     copcs = [job.target for job in planned if copc_writer.is_copc_name(job.target)]
@@ -405,8 +398,10 @@ def _out_of_core(args, setup, planned):
                           (f"-o {copcs[0] if copcs else ''} (COPC, an octree over every point)", bool(copcs))):
         if given:
             raise InputError(f"{why}: {option} needs the file in memory; filter without it out of core")
-    if instead or not args.out_of_core:
-        print(f"gfjax: {why}: filtering out of core{instead}, a tile at a time", file=sys.stderr)
+    if not args.out_of_core:
+        how = "a tile at a time" if setup.lattice is not None else \
+            "a piece and its halo at a time (labels near a piece's edge may differ from the file's in memory)"
+        print(f"gfjax: {why}: filtering out of core with {setup.name}, {how}", file=sys.stderr)
     return setup
 
 
@@ -420,10 +415,7 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
     if client is not None or (len(inputs) > 1 and not args.independent):
         catalog = survey.index(inputs, folder, returns=args.returns, units=args.units, trust_data=args.trust_data,
                                client=client, classes=args.classes)
-        settled = _survey_setup(setup, catalog, args)
-        shared = (survey.Runner(catalog, functools.partial(_filter, settled, False), settled.lattice, folder,
-                                returns=args.returns, context=False, client=client),
-                  {source: i for i, source in enumerate(inputs)})
+        shared = (_disk_runner(setup, catalog, folder, args, client), {source: i for i, source in enumerate(inputs)})
 
     def one(job: _job.Planned) -> None:
         if shared is not None:
@@ -431,9 +423,7 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
         with tempfile.TemporaryDirectory(prefix="file-", dir=folder) as own:      # this file's index only
             catalog = survey.index([job.source], own, returns=args.returns, units=args.units,
                                    trust_data=args.trust_data, classes=args.classes)
-            settled = _survey_setup(setup, catalog, args)
-            write(job, survey.Runner(catalog, functools.partial(_filter, settled, False), settled.lattice, own,
-                                     returns=args.returns, context=False), 0)
+            write(job, _disk_runner(setup, catalog, own, args), 0)
 
     def write(job: _job.Planned, runner, i: int) -> None:
         start_s = time.perf_counter()
@@ -445,6 +435,19 @@ def _run_out_of_core(args, setup, inputs, planned, folder, client=None) -> int:
               f"points ({100.0 * n_ground / max(n, 1):.1f} %), {seconds:.1f} s ({n / max(seconds, 1e-9):,.0f} points/s)")
 
     return _job.run_files(planned, one, keep_going=args.keep_going, report=None)
+
+
+def _disk_runner(setup, catalog, folder, args, client=None):
+    """The `gfjax.survey.Runner` that labels `catalog`'s files from disk (`Runner.ground`): a
+    tiled method tile by tile, any other on `gfjax.survey.lattice.pieces`, each with its halo."""
+    from gfjax import survey
+    from gfjax.survey import lattice
+
+    settled = _survey_setup(setup, catalog, args)
+    halo_m = survey.halo_width(settled.method, settled.config)
+    pieces = lattice.pieces(catalog, halo_m) if settled.lattice is None else None
+    return survey.Runner(catalog, functools.partial(_filter, settled, False), settled.lattice, folder,
+                         returns=args.returns, context=False, client=client, halo_m=halo_m, pieces=pieces)
 
 
 def _write(labelled, target: Path, dtm_target: Path | None, cloud, ground: np.ndarray,

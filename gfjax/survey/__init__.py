@@ -8,7 +8,8 @@ method runs each tile of the survey's lattice once from a window gathered across
 when it fits in memory (`fits_whole`), any other method each file with a halo of its
 neighbours' points (`halo`); a method's per-cloud estimates are made once for the survey
 (`survey_config`). The tiles (or files) can run as tasks on a Dask cluster (`cluster`,
-`filter(..., client=...)`).
+`filter(..., client=...)`). Out of core, a method that does not tile runs the same way on
+`pieces` of the survey, each with its halo.
 """
 from gfjax.io.cloud import Points
 from gfjax.survey.catalog import Catalog, Entry, index
@@ -24,7 +25,8 @@ from gfjax.survey.halo import (
     survey_terrain,
     window,
 )
+from gfjax.survey.lattice import Pieces, pieces
 from gfjax.survey.run import Runner, filter, filtered
 
-__all__ = ["HALO_M", "Catalog", "Settings", "Entry", "Points", "Runner", "filter", "filter_file", "filtered", "fits_whole",
-           "halo_region", "halo_width", "index", "survey_config", "survey_settings", "survey_terrain", "window"]
+__all__ = ["HALO_M", "Catalog", "Settings", "Entry", "Pieces", "Points", "Runner", "filter", "filter_file", "filtered", "fits_whole",
+           "halo_region", "halo_width", "index", "pieces", "survey_config", "survey_settings", "survey_terrain", "window"]

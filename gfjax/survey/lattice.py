@@ -1,4 +1,4 @@
-"""A tiled method over a survey: each tile of the survey's lattice filtered once.
+"""A survey filtered tile by tile: each tile of a lattice on the survey's frame filtered once.
 
 A tiled method's labels for a tile's core depend only on the points of the tile's window, so
 a survey is filtered tile by tile rather than file by file: a tile's window is gathered from
@@ -8,35 +8,72 @@ store (1 byte a point, memory-mapped in the catalog's folder). A file's labels a
 the tiles holding its points are done. Each tile runs once, however many files it meets (a
 500 m tile over 200 m files meets about nine), and memory follows the largest window, not the
 survey or the files.
+
+A method that does not tile runs out of core the same way on `Pieces`: squares of the frame,
+each filtered with the points within a halo around it (as a survey's file is,
+`gfjax.survey.halo`), its own points' labels kept; labels near a piece's edge are then close
+to, not exactly, those of one file (as near a file's edge in a survey).
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
+from gfjax import limits
 from gfjax.io.cloud import use_mask
 from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import STORE, Catalog
 from gfjax.survey.halo import Points, ground_near, tiles_region, within_box
 from gfjax.tiling import tiles
-from gfjax.tiling.tiles import Lattice
+from gfjax.tiling.tiles import Lattice, Tiling
+
+MIN_PIECE_M = 50.0          # the smallest side `pieces` gives a piece [m]
+
+
+class Pieces(NamedTuple):
+    """The squares a method that does not tile is run on out of core (`TileLabels`): sides of
+    `tile_size_m` [m] laid from the survey frame's corner, each filtered with the points within
+    `halo_m` [m] around it (the method's survey halo, `gfjax.survey.halo.halo_width`)."""
+
+    tile_size_m: float
+    halo_m: float
+
+
+def pieces(catalog: Catalog, halo_m: float) -> Pieces:
+    """`Pieces` with the default tile side (`Tiling`), smaller where the densest file's points
+    in a piece and its halo would not fit the memory budget (`limits`; at least `MIN_PIECE_M`)."""
+    def density(frame, n_points: int) -> float:
+        """Points a square metre of a file's box (at least 1 m²)."""
+        span = np.asarray(frame.upper_m, np.float64) - np.asarray(frame.origin_m[:2], np.float64)
+        return n_points / max(float(np.prod(span)), 1.0)
+
+    densest = max((density(e.frame, e.n_points) for e in catalog.entries if e.frame is not None), default=0.0)
+    side = Tiling().tile_size_m
+    if densest > 0:
+        fits = math.sqrt(limits.memory_budget_bytes() / (densest * limits.IN_MEMORY_BYTES_PER_POINT))
+        side = min(side, max(MIN_PIECE_M, fits - 2 * halo_m))
+    return Pieces(side, halo_m)
 
 
 class TileLabels:
-    """The labels of a survey's points under a tiled method, computed tile by tile on demand.
+    """The labels of a survey's points under a tiled method, or a method run on `Pieces`,
+    computed tile by tile on demand.
 
     Args:
       catalog: the survey (`gfjax.survey.index`; its frame is not None).
       filter_fn: `filter_fn(points, returns) -> Result` on a `Points` window.
-      lattice: the method's tiling at its cell (`gfjax.methods.lattice`).
+      lattice: the method's tiling at its cell (`gfjax.methods.lattice`), or the `Pieces` of a
+        method that does not tile.
       folder: the catalog's private folder (the label stores go there).
       returns: "all" or "last".
     """
 
-    def __init__(self, catalog: Catalog, filter_fn: Callable, lattice: Lattice, folder: str | Path, *,
+    def __init__(self, catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces, folder: str | Path, *,
                  returns: str = "all"):
         self.catalog, self.filter_fn, self.lattice, self.returns = catalog, filter_fn, lattice, returns
         self.labels_of, self.keys, self.done, self.pending = [], [], set(), {}
@@ -111,14 +148,14 @@ class TileLabels:
                 self.pending[key] = submit(tile_labels, self.lattice, key, returns=self.returns)
 
 
-def tile_key(xy_m: np.ndarray, catalog: Catalog, lattice: Lattice) -> np.ndarray:
+def tile_key(xy_m: np.ndarray, catalog: Catalog, lattice: Lattice | Pieces) -> np.ndarray:
     """Tile key `(col, row)` int64 `(n, 2)` of points `xy_m` `(n, 2)` [m] on the survey's
     lattice, as `gfjax.tiling.tiles.split` computes it."""
     origin = np.asarray(catalog.frame.origin_m[:2], np.float64)
     return np.floor((np.asarray(xy_m, np.float64) - origin) / lattice.tile_size_m).astype(np.int64)
 
 
-def in_tile(xyz_m: np.ndarray, catalog: Catalog, lattice: Lattice, key: tuple[int, int]) -> np.ndarray:
+def in_tile(xyz_m: np.ndarray, catalog: Catalog, lattice: Lattice | Pieces, key: tuple[int, int]) -> np.ndarray:
     """Points `(n, 3)` [m] in the core of tile `key`: bool `(n,)`, `tile_key(...) == key` a
     column at a time."""
     origin = np.asarray(catalog.frame.origin_m[:2], np.float64)
@@ -128,9 +165,10 @@ def in_tile(xyz_m: np.ndarray, catalog: Catalog, lattice: Lattice, key: tuple[in
     return inside
 
 
-def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tuple[int, int], *,
+def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces, key: tuple[int, int], *,
                 returns: str = "all") -> list[tuple[int, np.ndarray, np.ndarray]]:
-    """Tile `key` filtered from its window's points, gathered from every file it meets.
+    """Tile `key` filtered from its window's points, gathered from every file it meets (a
+    piece's window: the piece grown by its halo, filtered on the survey's whole frame).
 
     A pure function of the catalog (its stores are read, nothing is written), so it runs in
     any process that reaches the catalog's folder: a Dask worker's too.
@@ -139,6 +177,8 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tu
       `(j, index, ground)` per file `j` with points in the tile's core: `index` uint32 or
       int64 `(k,)` of those points in file `j`, `ground` bool `(k,)` their labels.
     """
+    if isinstance(lattice, Pieces):
+        return _piece_labels(catalog, filter_fn, lattice, key, returns=returns)
     frame = catalog.frame
     window_lo, window_hi, _, _ = tiles.window_px(np.asarray(key), tiles.extent_cells(frame, lattice.cell_m), *lattice)
     lo, hi = tiles_region(np.asarray(key), np.asarray(key), frame, lattice)       # a cell wider than the window
@@ -162,9 +202,30 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice, key: tu
             parts.append(records if mine.size == len(records) else records[mine])
             owners.append((j, _rows(take if mine.size == len(records) else take[mine])))
     del records, take
+    return _core_labels(catalog, filter_fn, lattice, key, parts, owners, frame.only([key]), returns=returns)
+
+
+def _piece_labels(catalog: Catalog, filter_fn: Callable, pieces: Pieces, key: tuple[int, int], *,
+                  returns: str = "all") -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """`tile_labels` of a piece: its points and those within its halo, from every file they lie in."""
+    origin = np.asarray(catalog.frame.origin_m[:2], np.float64)
+    lo = origin + np.asarray(key, np.float64) * pieces.tile_size_m - pieces.halo_m
+    hi = lo + pieces.tile_size_m + 2 * pieces.halo_m
+    parts, owners = [], []
+    for j, take, records in within_box(catalog, lo, hi):
+        parts.append(records)
+        owners.append((j, _rows(take)))
+    return _core_labels(catalog, filter_fn, pieces, key, parts, owners, catalog.frame, returns=returns)
+
+
+def _core_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces, key: tuple[int, int],
+                 parts: list[np.ndarray], owners: list, frame, *, returns: str) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """The window of `parts` (`STORE` records, emptied as they are joined; `owners`: `(j, rows)`
+    of each, its file and its rows there) filtered on `frame`, and the labels of tile `key`'s
+    core points, per file (`tile_labels`' value)."""
     if not parts:
         return []
-    points = _joined(parts, f"survey tile {key}", frame.only([key]))
+    points = _joined(parts, f"survey tile {key}", frame)
     result: Result = filter_fn(points, returns=returns)
     ground = np.asarray(result.ground, bool)
     in_core = in_tile(points.xyz_m, catalog, lattice, key)

@@ -34,7 +34,7 @@ from gfjax.survey.halo import (
     survey_labels,
     survey_settings,
 )
-from gfjax.survey.lattice import TileLabels
+from gfjax.survey.lattice import Pieces, TileLabels
 from gfjax.tiling.tiles import Lattice, Tiling
 
 
@@ -58,21 +58,26 @@ class Runner:
         (`fits_whole`; a method without `lattice`): exactly one file's labels.
       halo_m: the context each file of a method without `lattice` is filtered with [m]
         (`gfjax.survey.halo.halo_width`).
+      pieces: run a method without `lattice` tile by tile on these squares instead, each with
+        its halo (`gfjax.survey.lattice.pieces`): out of core, memory follows a piece, not a
+        file (labels near a piece's edge close to, not exactly, one file's). None: file by file.
     """
 
     def __init__(self, catalog: Catalog, filter_fn: Callable, lattice: Lattice | None, folder: str | Path, *,
                  returns: str = "all",
-                 context: bool = True, client=None, whole: bool = False, halo_m: float = HALO_M):
+                 context: bool = True, client=None, whole: bool = False, halo_m: float = HALO_M,
+                 pieces: Pieces | None = None):
         self.catalog, self.filter_fn, self.lattice, self.returns = catalog, filter_fn, lattice, returns
         self.halo_m = halo_m
         self.context = context
-        self.whole = whole and lattice is None
+        self.whole = whole and lattice is None and pieces is None
         self.tiles, self.pending, self.submit, self.survey = None, {}, None, None
         self.survey_error: BaseException | None = None        # the whole survey's run failed
         if client is not None:
             self.submit = _submitter(client, catalog, filter_fn)
-        if lattice is not None and catalog.frame is not None:
-            self.tiles = TileLabels(catalog, filter_fn, lattice, folder, returns=returns)
+        grid = lattice if lattice is not None else pieces
+        if grid is not None and catalog.frame is not None:
+            self.tiles = TileLabels(catalog, filter_fn, grid, folder, returns=returns)
             if client is not None:
                 self.tiles.submit(self.submit)
         elif client is not None and self.whole:
@@ -111,10 +116,11 @@ class Runner:
             self.tiles.pending.clear()
 
     def ground(self, i: int) -> np.ndarray:
-        """File `i`'s labels, bool `(n_i,)` memory-mapped (a tiled method only: the file is
-        never read whole; `gfjax filter --out-of-core`)."""
+        """File `i`'s labels, bool `(n_i,)` memory-mapped (a tiled method, or any on `pieces`:
+        the file is never read whole; `gfjax filter --out-of-core`)."""
         if self.tiles is None:
-            raise ValueError("Runner.ground: only a tiled method labels a file without reading it")
+            raise ValueError("Runner.ground: only a tiled method, or one run on pieces, labels a file without "
+                             "reading it")
         return self.tiles.labels(i)
 
     def __call__(self, i: int, cloud: Cloud) -> tuple[Result, np.ndarray]:

@@ -75,21 +75,54 @@ def test_a_survey_out_of_core_labels_as_the_union(files, tmp_path, monkeypatch):
 def test_a_file_over_the_budget_goes_out_of_core_by_itself(files, tmp_path, monkeypatch, capsys):
     *_, union = files
     monkeypatch.setattr(limits, "IN_MEMORY_BYTES_PER_POINT", 1 << 40)
-    assert main(["filter", str(union), "-o", str(tmp_path / "a.laz"), *TILING]) == 0
-    err = capsys.readouterr().err
-    # the default method reads a file whole: left to itself, SMRF filters it instead, and says so
-    assert "union.laz" in err and "filtering out of core with smrf (the default, vote, filters a file in memory only)" in err
-    assert main(["filter", str(union), "-o", str(tmp_path / "smrf.laz"), *TILING, "--method", "smrf"]) == 0
+    assert main(["filter", str(union), "-o", str(tmp_path / "a.laz"), *TILING, "--method", "smrf"]) == 0
+    assert "union.laz" in capsys.readouterr().err
+    assert main(["filter", str(union), "-o", str(tmp_path / "b.laz"), *TILING, "--method", "smrf", "--out-of-core"]) == 0
     np.testing.assert_array_equal(laspy.read(tmp_path / "a.laz").classification,
-                                  laspy.read(tmp_path / "smrf.laz").classification)
+                                  laspy.read(tmp_path / "b.laz").classification)
     capsys.readouterr()
-    for extra, problem in ((["--method", "dmf"], "method dmf filters a file in memory only"),
-                           (["--method", "vote"], "method vote filters a file in memory only; smrf and pmf filter"),
-                           (["--set", "voters=smrf,pmf"], "method vote filters a file in memory only"),
-                           (["--dtm", str(tmp_path / "d.tif")], "--dtm needs the file in memory")):
-        assert main(["filter", str(union), "-o", str(tmp_path / "b.laz"), *extra]) == 2
-        assert problem in capsys.readouterr().err
-        assert not (tmp_path / "b.laz").exists() and not (tmp_path / "d.tif").exists()
+    for option in (["--dtm", str(tmp_path / "d.tif")], ["--instances"]):
+        assert main(["filter", str(union), "-o", str(tmp_path / "c.laz"), *option]) == 2
+        assert f"{option[0]} needs the file in memory" in capsys.readouterr().err
+        assert not (tmp_path / "c.laz").exists() and not (tmp_path / "d.tif").exists()
+
+
+@pytest.mark.parametrize("method", ["dmf", "csf", "vote"])
+def test_a_method_that_does_not_tile_runs_out_of_core_a_piece_at_a_time(files, method, tmp_path, monkeypatch,
+                                                                       capsys):
+    """One piece holding the whole file labels it as in memory; pieces of 50 m, each with its
+    halo, label all but a few points near their edges alike; every other dimension kept."""
+    *_, union = files
+    args = ["filter", str(union), "--method", method]
+    assert main([*args, "-o", str(tmp_path / "memory.laz")]) == 0
+    assert main([*args, "-o", str(tmp_path / "one.laz"), "--out-of-core"]) == 0
+    memory = np.asarray(laspy.read(tmp_path / "memory.laz").classification)
+    np.testing.assert_array_equal(np.asarray(laspy.read(tmp_path / "one.laz").classification), memory)
+    capsys.readouterr()
+    monkeypatch.setattr(limits, "IN_MEMORY_BYTES_PER_POINT", 1 << 40)     # over the budget: pieces of 50 m
+    assert main([*args, "-o", str(tmp_path / "pieces.laz")]) == 0
+    assert f"filtering out of core with {method}, a piece and its halo at a time" in capsys.readouterr().err
+    pieces = np.asarray(laspy.read(tmp_path / "pieces.laz").classification)
+    assert np.mean(pieces == memory) >= 0.995
+    assert np.any(pieces == 2) and np.any(pieces != 2)
+    _same_but_classification(union, tmp_path / "pieces.laz")
+
+
+def test_pieces_shrink_where_a_piece_would_not_fit(tmp_path, monkeypatch):
+    """The default side, smaller for a dense file under a small budget, never below the minimum."""
+    from gfjax import survey
+    from gfjax.io.cloud import Cloud
+    from gfjax.survey import lattice
+
+    xyz, cls = town(size=(60.0, 60.0))
+    Cloud.from_xyz(xyz, classification=cls).las.write(tmp_path / "a.las")
+    catalog = survey.index([tmp_path / "a.las"], tmp_path)
+    assert lattice.pieces(catalog, 50.0) == lattice.Pieces(500.0, 50.0)
+    density = catalog.entries[0].n_points / np.prod(catalog.frame.upper_m - catalog.frame.origin_m[:2])
+    monkeypatch.setattr(limits, "memory_budget_bytes", lambda: density * limits.IN_MEMORY_BYTES_PER_POINT * 300.0 ** 2)
+    assert lattice.pieces(catalog, 50.0).tile_size_m == pytest.approx(200.0)
+    monkeypatch.setattr(limits, "memory_budget_bytes", lambda: 1.0)
+    assert lattice.pieces(catalog, 50.0).tile_size_m == lattice.MIN_PIECE_M
 
 
 def test_a_truncated_file_read_in_chunks_is_refused_naming_it(files, tmp_path, monkeypatch):
