@@ -266,11 +266,12 @@ def _survey_setup(setup, catalog, args):
 
     settings = survey.survey_settings(setup.method, catalog, setup.config, setup.params, fixed=setup.fixed,
                                       returns=args.returns)
+    what = str(catalog.entries[0].path) if len(catalog.entries) == 1 else "the survey"
     if settings.settled is not None:
         setup = setup.fixed_at(settings.settled)
-        _say_settled(args, "the survey", settings.settled)
+        _say_settled(args, what, settings.settled)
     elif settings.terrain is not None and getattr(args, "verbose", False):
-        print(f"gfjax: the survey: terrain: {settings.terrain.describe()}", file=sys.stderr)
+        print(f"gfjax: {what}: terrain: {settings.terrain.describe()}", file=sys.stderr)
     return setup._replace(config=settings.config, options={**(setup.options or {}), **settings.options})
 
 
