@@ -27,10 +27,11 @@ machine's memory) is filtered out of core, by any method (`--out-of-core` forces
 a chunk at a time into an index on disk (28 bytes a point, in a private temporary folder),
 filtered one window at a time, and written by copying the input a chunk at a time with
 the new classes; memory follows the largest window, not the file. SMRF and PMF run tile
-windows, with exactly the labels of the file in memory; any other method runs 500 m pieces
-(smaller where a piece of the densest file would not fit the budget) with the points within
-its survey halo around each (50 m; DMF's its own), so labels near a piece's edge are close
-to, not exactly, those of the file in memory, as near a file's edge in a survey.
+windows, with exactly the labels of the file in memory; any other method runs pieces with the
+points within its survey halo around each (50 m; DMF's its own), a piece and its halo one
+500 m tile (smaller where the densest file's points in one would not fit the budget), so
+labels near a piece's edge are close to, not exactly, those of the file in memory, as near a
+file's edge in a survey.
 
 Every option, input and output is checked before the first file is filtered (option ranges
 and the memory their rasters need, headers, CRS and units, output folders, free space), so a
@@ -443,10 +444,13 @@ def _disk_runner(setup, catalog, folder, args, client=None):
     tiled method tile by tile, any other on `gfjax.survey.lattice.pieces`, each with its halo."""
     from gfjax import survey
     from gfjax.survey import lattice
+    from gfjax.tiling.tiles import Tiling
 
     settled = _survey_setup(setup, catalog, args)
     halo_m = survey.halo_width(settled.method, settled.config)
-    pieces = lattice.pieces(catalog, halo_m) if settled.lattice is None else None
+    pieces = None
+    if settled.lattice is None:
+        pieces = lattice.pieces(catalog, halo_m, (settled.tiling or Tiling()).tile_size_m)
     return survey.Runner(catalog, functools.partial(_filter, settled, False), settled.lattice, folder,
                          returns=args.returns, context=False, client=client, halo_m=halo_m, pieces=pieces)
 

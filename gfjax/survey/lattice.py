@@ -44,20 +44,21 @@ class Pieces(NamedTuple):
     halo_m: float
 
 
-def pieces(catalog: Catalog, halo_m: float) -> Pieces:
-    """`Pieces` with the default tile side (`Tiling`), smaller where the densest file's points
-    in a piece and its halo would not fit the memory budget (`limits`; at least `MIN_PIECE_M`)."""
+def pieces(catalog: Catalog, halo_m: float, tile_size_m: float = Tiling().tile_size_m) -> Pieces:
+    """`Pieces` whose windows (a piece and its halo) are one tile of `tile_size_m` [m] (the
+    method's own tiling, whose rasters then run as one tile, not as four mostly of buffer),
+    smaller where the densest file's points in a window would not fit the memory budget
+    (`limits`); at least `MIN_PIECE_M`."""
     def density(frame, n_points: int) -> float:
         """Points a square metre of a file's box (at least 1 m²)."""
         span = np.asarray(frame.upper_m, np.float64) - np.asarray(frame.origin_m[:2], np.float64)
         return n_points / max(float(np.prod(span)), 1.0)
 
     densest = max((density(e.frame, e.n_points) for e in catalog.entries if e.frame is not None), default=0.0)
-    side = Tiling().tile_size_m
+    window = tile_size_m
     if densest > 0:
-        fits = math.sqrt(limits.memory_budget_bytes() / (densest * limits.IN_MEMORY_BYTES_PER_POINT))
-        side = min(side, max(MIN_PIECE_M, fits - 2 * halo_m))
-    return Pieces(side, halo_m)
+        window = min(window, math.sqrt(limits.memory_budget_bytes() / (densest * limits.IN_MEMORY_BYTES_PER_POINT)))
+    return Pieces(max(MIN_PIECE_M, window - 2 * halo_m), halo_m)
 
 
 class TileLabels:

@@ -109,7 +109,8 @@ def test_a_method_that_does_not_tile_runs_out_of_core_a_piece_at_a_time(files, m
 
 
 def test_pieces_shrink_where_a_piece_would_not_fit(tmp_path, monkeypatch):
-    """The default side, smaller for a dense file under a small budget, never below the minimum."""
+    """A window (a piece and its halo) of one tile, smaller for a dense file under a small
+    budget, never below the minimum."""
     from gfjax import survey
     from gfjax.io.cloud import Cloud
     from gfjax.survey import lattice
@@ -117,7 +118,8 @@ def test_pieces_shrink_where_a_piece_would_not_fit(tmp_path, monkeypatch):
     xyz, cls = town(size=(60.0, 60.0))
     Cloud.from_xyz(xyz, classification=cls).las.write(tmp_path / "a.las")
     catalog = survey.index([tmp_path / "a.las"], tmp_path)
-    assert lattice.pieces(catalog, 50.0) == lattice.Pieces(500.0, 50.0)
+    assert lattice.pieces(catalog, 50.0) == lattice.Pieces(400.0, 50.0)
+    assert lattice.pieces(catalog, 10.0, 250.0) == lattice.Pieces(230.0, 10.0)
     density = catalog.entries[0].n_points / np.prod(catalog.frame.upper_m - catalog.frame.origin_m[:2])
     monkeypatch.setattr(limits, "memory_budget_bytes", lambda: density * limits.IN_MEMORY_BYTES_PER_POINT * 300.0 ** 2)
     assert lattice.pieces(catalog, 50.0).tile_size_m == pytest.approx(200.0)
