@@ -46,7 +46,7 @@ from gfjax.io.cloud import CloudView, Frame
 
 RETURNS = ("all", "last")
 
-__all__ = ["Terrain", "measure", "measure_chunks", "cloud_parts", "Chunk", "Parts", "follows", "run", "finish", "hide", "Hidden", "raster_cell_m", "settle_cloud", "measure_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
+__all__ = ["Terrain", "measure", "measure_chunks", "cloud_parts", "Chunk", "Parts", "follows", "run", "finish", "hide", "Hidden", "raster_cell_m", "settle_cloud", "given_params", "measure_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
 
 # The preset name that keeps a method's fixed defaults (no rule applied).
 FIXED_PRESET = "fixed"
@@ -222,11 +222,11 @@ def cloud_parts(used: tuple[np.ndarray, np.ndarray, np.ndarray], last_xy: tuple[
     workers = limits.processors() if workers is None else workers
     count = max(1, min(workers, len(used[0]) // _PART_POINTS))
 
-    def cut(columns: tuple[np.ndarray, ...], k: int) -> tuple[np.ndarray, ...]:
+    def cut(columns: tuple[np.ndarray, ...]) -> list[tuple[np.ndarray, ...]]:
         edges = np.linspace(0, len(columns[0]), count + 1).astype(np.int64)
-        return tuple(c[edges[k]:edges[k + 1]] for c in columns)
+        return [tuple(c[a:b] for c in columns) for a, b in zip(edges[:-1], edges[1:])]
 
-    return [lambda k=k: [(cut(used, k), cut(last_xy, k))] for k in range(count)]
+    return [lambda u=u, v=v: [(u, v)] for u, v in zip(cut(used), cut(last_xy))]
 
 
 def measure_chunks(parts: Parts, *, workers: int | None = None) -> Terrain | None:
@@ -241,12 +241,27 @@ def measure_chunks(parts: Parts, *, workers: int | None = None) -> Terrain | Non
     from the previous pass's grid, so every part is read `_COVER_PASSES + 2` times (a file on
     disk is read again, never held). The last returns' spacing is that of every point where
     none or all of them are last."""
-    workers = limits.processors() if workers is None else workers
-    n, box, n_last, last_box = _extents(parts, workers)
+    workers = min(limits.processors() if workers is None else workers, len(parts))
+    if workers <= 1:
+        return _measured(parts, _Threads(1, map))
+    with ThreadPoolExecutor(workers, thread_name_prefix="gfjax-measure") as pool:
+        return _measured(parts, _Threads(workers, pool.map))
+
+
+class _Threads(NamedTuple):
+    """Where `measure_chunks`' passes run: `count` threads and the `map` that runs on them."""
+
+    count: int
+    map: Callable
+
+
+def _measured(parts: Parts, threads: _Threads) -> Terrain | None:
+    """`measure_chunks` with its passes on `threads`."""
+    n, box, n_last, last_box = _extents(parts, threads)
     if n == 0:
         return None
     with_last = 0 < n_last < n
-    area, spacing = _spacing(parts, workers, n, box, n_last, last_box if with_last else None)
+    area, spacing = _spacing(parts, threads, n, box, n_last, last_box if with_last else None)
     slope_cell = max(_MIN_SLOPE_CELL_M, _SLOPE_CELLS_PER_SPACING * spacing[0])
     lo, shape = box[0], _shape(box, slope_cell)
 
@@ -256,27 +271,22 @@ def measure_chunks(parts: Parts, *, workers: int | None = None) -> Terrain | Non
             np.minimum.at(z_min, _flat_cells(x - lo[0], y - lo[1], slope_cell, shape), z)
         return z_min
 
-    z_min = functools.reduce(np.minimum, _side_by_side(parts, workers, lowest))
+    z_min = functools.reduce(np.minimum, _side_by_side(parts, threads, lowest))
     p50, p90, relief = _surface(z_min.reshape(shape), slope_cell)
     return Terrain(n_points=n, area_m2=float(area), spacing_m=spacing[0], last_spacing_m=spacing[-1],
                    slope_cell_m=slope_cell, slope_p50=p50, slope_p90=p90, relief_m=relief)
 
 
-def _side_by_side(parts: Parts, workers: int, fold: Callable[[Iterator[Chunk]], Any]) -> list[Any]:
-    """`fold(chunks)` of the parts dealt to each of at most `workers` threads in turn (each
-    thread folds the chunks of its parts, one after another, into one value: memory holds one
-    fold's grids a thread, however many parts): the values, one a thread."""
-    count = max(1, min(workers, len(parts)))
-    groups = [parts[k::count] for k in range(count)]
+def _side_by_side(parts: Parts, threads: _Threads, fold: Callable[[Iterator[Chunk]], Any]) -> list[Any]:
+    """`fold(chunks)` of the parts dealt to each of the threads in turn (each thread folds the
+    chunks of its parts, one after another, into one value: memory holds one fold's grids a
+    thread, however many parts): the values, one a thread."""
+    groups = [parts[k::threads.count] for k in range(threads.count)]
 
-    def chunks(group: Parts) -> Iterator[Chunk]:
-        for part in group:
-            yield from part()
+    def folded(group: Parts) -> Any:
+        return fold(chunk for part in group for chunk in part())
 
-    if count == 1:
-        return [fold(chunks(groups[0]))]
-    with ThreadPoolExecutor(count, thread_name_prefix="gfjax-measure") as pool:
-        return list(pool.map(lambda group: fold(chunks(group)), groups))
+    return list(threads.map(folded, groups))
 
 
 def _surface(z_min: np.ndarray, slope_cell: float) -> tuple[float, float, float]:
@@ -306,7 +316,7 @@ def _surface(z_min: np.ndarray, slope_cell: float) -> tuple[float, float, float]
 Box = tuple[np.ndarray, np.ndarray]
 
 
-def _extents(parts: Parts, workers: int) -> tuple[int, Box, int, Box]:
+def _extents(parts: Parts, threads: _Threads) -> tuple[int, Box, int, Box]:
     """`(n, box, n_last, last_box)`: the count and `_box` of the used points and of their last
     returns over every chunk (a box of `inf`, `-inf` where there is none)."""
     def fold(chunks: Iterable[Chunk]) -> tuple[list[int], list[Box]]:
@@ -321,14 +331,14 @@ def _extents(parts: Parts, workers: int) -> tuple[int, Box, int, Box]:
                     np.maximum(boxes[i][1], hi, out=boxes[i][1])
         return counts, boxes
 
-    folds = _side_by_side(parts, workers, fold)
+    folds = _side_by_side(parts, threads, fold)
     counts = [sum(c[i] for c, _ in folds) for i in range(2)]
     boxes = [(functools.reduce(np.minimum, [b[i][0] for _, b in folds]),
               functools.reduce(np.maximum, [b[i][1] for _, b in folds])) for i in range(2)]
     return counts[0], boxes[0], counts[1], boxes[1]
 
 
-def _spacing(parts: Parts, workers: int, n: int, box: Box, n_last: int,
+def _spacing(parts: Parts, threads: _Threads, n: int, box: Box, n_last: int,
              last_box: Box | None) -> tuple[float, list[float]]:
     """`(area_m2, spacings_m)` of the used points (`n` >= 1 of them, their `box`) [m]
     (`Terrain`): their area, and the spacing of them and, where `last_box` is given, of their
@@ -355,7 +365,7 @@ def _spacing(parts: Parts, workers: int, n: int, box: Box, n_last: int,
                     cells[_flat_cells(x - lo[0], y - lo[1], cover_m, shape)] = True
             return occupied
 
-        folds = _side_by_side(parts, workers, fold)
+        folds = _side_by_side(parts, threads, fold)
         occupied = [functools.reduce(np.logical_or, [f[k] for f in folds]) for k in range(len(sets))]
         areas = [np.count_nonzero(cells) * cover_m * cover_m for (cover_m, _), cells in zip(grids, occupied)]
     return areas[0], [math.sqrt(area / count) for (_, count, _), area in zip(sets, areas)]
@@ -463,9 +473,7 @@ def follows(rule: Callable[[Terrain], dict[str, Any]], config_type: type, params
                    **kwargs):
             settled = None
             if config is None and isinstance(cloud, CloudView) and returns in RETURNS:
-                fixed = [f.name for f in dataclasses.fields(params)] if params is not None else []
-                if params is None and params_type is not None:
-                    params = params_type()
+                params, fixed = given_params(params, params_type)
                 settled = settle_cloud(rule, cloud, config_type(), params, fixed=fixed, returns=returns,
                                        terrain=terrain)
                 if settled.terrain is None:                 # no point used: nothing to follow
@@ -552,6 +560,15 @@ def measure_cloud(cloud: Any, returns: str = "all") -> Terrain | None:
     used = tuple(columns) if use.all() else tuple(c[use] for c in columns)
     last_xy = (columns[0][last], columns[1][last])
     return measure_chunks(cloud_parts(used, last_xy))
+
+
+def given_params(params: Any, params_type: type | None) -> tuple[Any, list[str]]:
+    """`(params, fixed)` for settling a caller's values: a given `params` kept whole (every
+    field fixed), else the defaults (`params_type()`, None for a method without Params) with
+    every field left to the data."""
+    if params is not None:
+        return params, [f.name for f in dataclasses.fields(params)]
+    return (None if params_type is None else params_type()), []
 
 
 def settle_cloud(rule: Callable[[Terrain], dict[str, Any]] | None, cloud: Any, config: Any, params: Any, *,

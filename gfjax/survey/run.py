@@ -6,7 +6,6 @@ one whose labels depend on the whole cloud, the whole survey at once when it fit
 """
 from __future__ import annotations
 
-import dataclasses
 import functools
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -234,9 +233,7 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
     catalog = index(paths, folder, returns=returns, units=units, client=client, classes=classes, keep_points=True)
     fixed = None                    # a config given: nothing settles
     if config is None:
-        fixed = [f.name for f in dataclasses.fields(params)] if params is not None else []
-        if params is None and method.Params is not None:
-            params = method.Params()
+        params, fixed = adaptive.given_params(params, method.Params)
     settings = survey_settings(method, catalog, method.Config() if config is None else config, params, fixed=fixed,
                                returns=returns)
     config, options = settings.config, {**options, **settings.options}

@@ -19,6 +19,7 @@ import numpy as np
 
 from gfjax import cache
 from gfjax.adaptive import Terrain
+from gfjax.io import columns
 from gfjax.io.cloud import CloudView
 from gfjax.method import Method
 from gfjax.result import Result
@@ -118,8 +119,6 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: None = Non
 
 def _extent_m(cloud: CloudView, returns: str) -> tuple[float, float] | None:
     """The x, y extent of the cloud's used points [m], None without one."""
-    from gfjax.io import columns
-
     use = cloud.filter_mask(returns)
     if not use.any():
         return None
