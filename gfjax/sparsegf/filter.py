@@ -13,7 +13,7 @@ import numpy as np
 
 from gfjax import adaptive, cache, spikes
 from gfjax.errors import InputError
-from gfjax.io.cloud import CloudView
+from gfjax.io.cloud import CloudView, Frame
 from gfjax.result import Result
 from gfjax.sparsegf import checkpoint
 from gfjax.sparsegf.config import DECISION_FIELDS, DENSITY_SLACK, LEVEL_TOLERANCE_M, Config
@@ -52,21 +52,28 @@ class Diagnostics(NamedTuple):
 
 
 def patches(xyz_m: np.ndarray, config: Config, *, angle: float | Callable[[], float] = 0.0, seed: int = 0,
-            shift_m=(0.0, 0.0), cloud_feats: np.ndarray | None = None, count: Callable[[int], None] | None = None):
+            shift_m=(0.0, 0.0), cloud_feats: np.ndarray | None = None, count: Callable[[int], None] | None = None,
+            frame: Frame | None = None):
     """Every voxelized patch of a cloud, in partition order (`angle`: a rotation about z [rad]
     for every patch, or a function drawing one per patch; `cloud_feats`: the cloud's
     `features.cloud_features`, computed here when None and the feature set has some; `count`
-    is told the number of patches once the partition is made, before the first is yielded)."""
+    is told the number of patches once the partition is made, before the first is yielded).
+
+    `frame` (filtering; `grid_frame`): the patch grid is laid on its box, and each patch's
+    context is thinned with the seed of its cell there (`Partition.cells`), so a patch whose
+    cylinder a window holds whole is the same patch in every window of that frame. Without
+    it (training), on the points' own box, thinned with the seed of its row."""
     if cloud_feats is None:
         cloud_feats = cloud_features(xyz_m, config.features)
     part = partition(xyz_m, PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m),
-                     shift_m=shift_m)
+                     shift_m=shift_m, box=None if frame is None else (frame.origin_m[:2], frame.upper_m))
     if count is not None:
         count(sum(len(batch.patch_id) for batch in part.batches))
     for batch in part.batches:
         for row, pid in enumerate(batch.patch_id):
             members = batch.index[row][batch.valid[row]]
-            yield prepare(xyz_m, members, part.centers_m[pid], int(pid), config=config,
+            name = int(pid) if frame is None else int(part.cells[pid])
+            yield prepare(xyz_m, members, part.centers_m[pid], name, config=config,
                           angle=angle() if callable(angle) else angle, seed=seed, cloud_feats=cloud_feats)
 
 
@@ -77,9 +84,9 @@ IN_FLIGHT = 2
 
 
 def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progress: bool = False,
-                       cloud_feats: np.ndarray | None = None):
+                       cloud_feats: np.ndarray | None = None, frame: Frame | None = None):
     """Soft-voted ground probability and vote count per point of `xyz_m` `(n, 3)` [m]
-    (`cloud_feats`: as `patches`).
+    (`cloud_feats`, `frame`: as `patches`).
 
     Patches are prepared on the host while `IN_FLIGHT` packs run, each on a worker thread (a
     pack whose pyramid overflowed its plan runs again with a grown plan there). Packs are read
@@ -111,7 +118,7 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
             if bar is not None:
                 bar.reset(total=count)
 
-        for todo in group(patches(xyz_m, config, cloud_feats=cloud_feats, count=total), PACK_SLOTS):
+        for todo in group(patches(xyz_m, config, cloud_feats=cloud_feats, count=total, frame=frame), PACK_SLOTS):
             packed = pack(todo, PACK_SLOTS, plans,
                           min_capacity=min_capacity(todo, cloud_voxels_at_most=n_patches[0] * n))
             running.append((packed, pool.submit(run, packed)))
@@ -271,6 +278,18 @@ def seen_points(cloud: CloudView, config: Config, *, returns: str = "all") -> Se
     return Seen(cloud, index, terrain)
 
 
+def grid_frame(cloud: CloudView, returns: str = "all") -> Frame | None:
+    """The frame the patch grid of `cloud` is laid on (`patches`): its own (`cloud.frame`: a
+    survey's, on its windows) or the box of its used points, the same box a survey of the one
+    file would have (None without a used point)."""
+    if cloud.frame is not None:
+        return cloud.frame
+    used = cloud.filter_mask(returns)
+    if not used.any():
+        return None
+    return Frame.of(cloud.xyz_m if used.all() else cloud.xyz_m[used])
+
+
 @cache.persistent
 def filter(cloud: CloudView, *, config: Config | None = None, params=None, returns: str = "all",
            progress: bool = False, model: Model | str | None = None) -> Result:
@@ -309,6 +328,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
         cloud.filter_mask(returns)
     except ValueError as err:
         raise InputError(f"{cloud.name}: --returns: {err}") from None
+    frame = grid_frame(cloud, returns)
     cloud, used_index, terrain = seen_points(cloud, config, returns=returns)
     xyz_m = cloud.xyz_m[used_index]
     if seen is not None and terrain is not None and config.decision == "network+smrf":
@@ -326,7 +346,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
     smrf = smrf_heights(xyz_m) if config.reads_smrf else None
     smrf_ground = None if smrf is None else smrf[:, 1] >= 0
     prob, votes, n_patches = ground_probability(model, xyz_m, config, progress=progress,
-                                                cloud_feats=cloud_features(xyz_m, config.features, smrf=smrf))
+                                                cloud_feats=cloud_features(xyz_m, config.features, smrf=smrf), frame=frame)
 
     def full(values, dtype):                     # per used point -> per point of the cloud (0 elsewhere)
         out = np.zeros(cloud.n_points, dtype)

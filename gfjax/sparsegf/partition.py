@@ -2,7 +2,8 @@
 
 The cloud is cut by a "sliding cylindrical window": vertical cylinders of radius
 R_oo = 150 m whose axes stand on a square grid with a 50 m step. The grid is the set of
-centres of 50 m cells tiling the cloud's x-y bounding box (centred on it), so every point
+centres of 50 m cells tiling the cloud's x-y bounding box (centred on it; or a given box's,
+a survey's frame, so every window of it shares one grid), so every point
 lies in one *home* cell and is at most `step * sqrt(2) / 2 = 25 * sqrt(2) m = R_in` from its
 home centre: the central regions (radius R_in, Sec. 3.3) cover every point at least once,
 points on the cloud's edge and clouds smaller than one cell included. A point near a cell
@@ -102,12 +103,15 @@ class Partition(NamedTuple):
       n_points: `(p,)` int64, points in each cylinder (`r <= r_oo_m`).
       batches: one `PatchBatch` per capacity bucket, increasing capacity.
       config: the geometry used.
+      cells: `(p,)` int64, each patch's cell on the grid of the box it was laid on
+        (`partition`'s `box`, row-major), the same in every window laid on that box.
     """
 
     centers_m: np.ndarray
     n_points: np.ndarray
     batches: tuple[PatchBatch, ...]
     config: PartitionConfig
+    cells: np.ndarray = np.zeros(0, np.int64)
 
 
 def grid_centers(xy_min: np.ndarray, xy_max: np.ndarray, step_m: float) -> tuple[np.ndarray, tuple[int, int], np.ndarray]:
@@ -117,17 +121,27 @@ def grid_centers(xy_min: np.ndarray, xy_max: np.ndarray, step_m: float) -> tuple
       `(centers (ny * nx, 2) float64, (ny, nx), origin (2,))`: row-major over `(iy, ix)`;
       cell `(iy, ix)` spans `origin + [ix, ix + 1] * step_m` in x (likewise y).
     """
+    origin, shape = _grid(xy_min, xy_max, step_m)
+    return _centers(origin, shape, step_m), (int(shape[1]), int(shape[0])), origin
+
+
+def _grid(xy_min: np.ndarray, xy_max: np.ndarray, step_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """`(origin (2,), (nx, ny))` of `grid_centers`' grid."""
+    xy_min, xy_max = np.asarray(xy_min, np.float64), np.asarray(xy_max, np.float64)
     extent = np.maximum(xy_max - xy_min, 0.0)
     shape = np.maximum(np.ceil(extent / step_m).astype(np.int64), 1)
-    origin = xy_min - (shape * step_m - extent) / 2.0
-    nx, ny = int(shape[0]), int(shape[1])
-    cx = origin[0] + (np.arange(nx) + 0.5) * step_m
-    cy = origin[1] + (np.arange(ny) + 0.5) * step_m
-    centers = np.stack(np.meshgrid(cx, cy, indexing="xy"), axis=-1).reshape(-1, 2)
-    return centers, (ny, nx), origin
+    return xy_min - (shape * step_m - extent) / 2.0, shape
 
 
-def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift_m=(0.0, 0.0)) -> Partition:
+def _centers(origin: np.ndarray, shape: np.ndarray, step_m: float) -> np.ndarray:
+    """The centres `(ny * nx, 2)` of the `shape` `(nx, ny)` cells of `step_m` from `origin`, row-major."""
+    cx = origin[0] + (np.arange(shape[0]) + 0.5) * step_m
+    cy = origin[1] + (np.arange(shape[1]) + 0.5) * step_m
+    return np.stack(np.meshgrid(cx, cy, indexing="xy"), axis=-1).reshape(-1, 2)
+
+
+def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift_m=(0.0, 0.0),
+              box: tuple[np.ndarray, np.ndarray] | None = None) -> Partition:
     """Cut a cloud into cylinders of radius `r_oo_m` on a `step_m` grid of axes.
 
     Args:
@@ -136,6 +150,9 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
       shift_m: `(dx, dy)` [m], moves the grid of axes by this much (modulo the step; the
         grid grows by a cell per axis to keep covering the cloud). Training draws it at
         random, so the central regions fall on new places each epoch.
+      box: `(xy_min, xy_max)` [m], a box holding every point that the grid is laid on instead
+        of the points' own (a survey's frame: its windows then share the whole survey's
+        patches where their points reach); only the cells the points reach are made.
 
     Returns:
       A `Partition`. Every point is within `r_in_m` of at least one kept axis. An empty
@@ -154,14 +171,21 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
         raise InputError(f"partition: {len(xy)} points do not fit int32 indices; tile the cloud first")
 
     step = config.step_m
-    centers, (ny, nx), origin = grid_centers(xy.min(axis=0), xy.max(axis=0), step)
+    lows, highs = xy.min(axis=0), xy.max(axis=0)
+    origin, shape = _grid(*((lows, highs) if box is None else box), step)
     shift = np.mod(np.asarray(shift_m, np.float64), step)
     if np.any(shift > 0):
         # one more cell per axis, so the shifted grid still covers the box
-        origin = origin - step + shift
-        nx, ny = nx + 1, ny + 1
-        cx, cy = origin[0] + (np.arange(nx) + 0.5) * step, origin[1] + (np.arange(ny) + 0.5) * step
-        centers = np.stack(np.meshgrid(cx, cy, indexing="xy"), axis=-1).reshape(-1, 2)
+        origin, shape = origin - step + shift, shape + 1
+    # the cells whose centres the points' central regions can reach (a box far larger than
+    # the points costs nothing)
+    reach_in = math.floor((config.r_in_m + CENTRAL_TOL_M) / step + 0.5)
+    first = np.clip(np.floor((lows - origin) / step).astype(np.int64) - reach_in, 0, shape - 1)
+    last = np.clip(np.floor((highs - origin) / step).astype(np.int64) + reach_in, first, shape - 1)
+    whole_nx = int(shape[0])
+    origin = origin + first * step
+    nx, ny = (int(v) for v in last - first + 1)
+    centers = _centers(origin, np.array([nx, ny]), step)
     cell_ix = np.clip(np.floor((xy - origin) / step).astype(np.int64), 0, [nx - 1, ny - 1])
     home = cell_ix[:, 1] * nx + cell_ix[:, 0]                  # home cell per point
     order = np.argsort(home, kind="stable")                    # points grouped by cell
@@ -177,7 +201,6 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
     # only cells with a point within r_in of their centre are kept, and such a point lies at
     # most `reach_in` cells away: the loop visits the occupied cells' neighbourhoods, never
     # the empty box (a sparse cloud over a large extent costs its points, not its box)
-    reach_in = math.floor((config.r_in_m + CENTRAL_TOL_M) / step + 0.5)
     occupied = np.unique(home)
     oy, ox = np.divmod(occupied, nx)
     around = []
@@ -200,6 +223,8 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
         kept.append(cell)
         members.append(cand[r_sq <= r_oo_sq].astype(np.int32))
 
+    kept = np.asarray(kept, np.int64)
+    cells = (kept // nx + first[1]) * whole_nx + kept % nx + first[0]
     centers = centers[kept]
     n_points = np.array([len(m) for m in members], dtype=np.int64)
     caps = np.array([capacity_bucket(int(n), minimum=config.min_capacity) for n in n_points])
@@ -211,4 +236,4 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
             index[row, :n_points[pid]] = members[pid]
         batches.append(PatchBatch(patch_id=ids.astype(np.int32), center_m=centers[ids],
                                   index=index, valid=index >= 0))
-    return Partition(centers_m=centers, n_points=n_points, batches=tuple(batches), config=config)
+    return Partition(centers_m=centers, n_points=n_points, batches=tuple(batches), config=config, cells=cells)

@@ -71,7 +71,8 @@ class Patch(NamedTuple):
       point_index: `(c,)` int64, the cloud index of each central point.
       point_voxel: `(c,)` int32, the row of its voxel in `coords`.
       point_feats: `(c, f)` float32, its features less its voxel's (mean) features.
-      patch_id: the patch's row in the partition.
+      patch_id: the patch's name in the partition (its row, or its cell of the frame's grid:
+        `filter.patches`); it seeds the thinning of its context.
     """
 
     coords: np.ndarray

@@ -149,6 +149,56 @@ def test_a_sparse_cloud_over_a_large_box_keeps_exactly_the_cells_near_its_points
     np.testing.assert_allclose(part.centers_m[order], want[np.lexsort((want[:, 0], want[:, 1]))], atol=1e-6)
 
 
+def _patches_by_cell(part, point_index):
+    """`{cell: (centre, members as indices of the whole cloud)}` of a partition."""
+    out = {}
+    for batch in part.batches:
+        for row, pid in enumerate(batch.patch_id):
+            members = batch.index[row][batch.valid[row]]
+            out[int(part.cells[pid])] = (part.centers_m[pid], np.sort(point_index[members]))
+    return out
+
+
+@pytest.mark.parametrize("window", [(0, 0, 230, 170), (0, 0, 420, 250), (-50, 100, 80, 500)], ids=str)
+def test_a_window_laid_on_the_frame_shares_the_whole_clouds_patches(window):
+    # the window's patches are cells of the frame's grid: those whose cylinder's points the
+    # window holds all of are the whole cloud's patches of the same cells, point for point
+    xyz = l_shaped_cloud() + UTM
+    box = (xyz[:, :2].min(axis=0), xyz[:, :2].max(axis=0))
+    whole = _patches_by_cell(partition(xyz, box=box), np.arange(len(xyz)))
+    lo, hi = np.asarray(window[:2], float) + UTM[:2], np.asarray(window[2:], float) + UTM[:2]
+    inside = np.flatnonzero(np.all((xyz[:, :2] >= lo) & (xyz[:, :2] <= hi), axis=1))
+    part = partition(xyz[inside], box=box)
+    held = 0
+    for cell, (centre, members) in _patches_by_cell(part, inside).items():
+        assert cell in whole
+        np.testing.assert_array_equal(centre, whole[cell][0])
+        if np.isin(whole[cell][1], inside).all():
+            np.testing.assert_array_equal(members, whole[cell][1])
+            held += 1
+    assert held
+
+
+def test_a_grid_laid_on_a_box_names_its_cells_on_that_box():
+    # a cloud of 30 points at one end of a 200 km box: the cells are the box's, and the
+    # partition makes only those near the points
+    xy = np.random.default_rng(3).uniform(0, 80, (30, 2)) + [199_900.0, 10.0]
+    box = (np.zeros(2), np.array([200_000.0, 400.0]))
+    part = partition(np.column_stack([xy, np.zeros(30)]), box=box)
+    centres, (ny, nx), _ = grid_centers(*box, STEP_M)
+    np.testing.assert_allclose(part.centers_m, centres[part.cells])
+    near = np.hypot(*(centres[:, None, :] - xy[None, :, :]).transpose(2, 0, 1)) <= R_IN_M + CENTRAL_TOL_M
+    assert set(part.cells.tolist()) == set(np.flatnonzero(near.any(axis=1)).tolist())
+
+
+def test_without_a_box_the_cells_are_those_of_the_points_own_grid():
+    xyz = l_shaped_cloud()
+    own = partition(xyz)
+    laid = partition(xyz, box=(xyz[:, :2].min(axis=0), xyz[:, :2].max(axis=0)))
+    np.testing.assert_array_equal(own.cells, laid.cells)
+    np.testing.assert_array_equal(own.centers_m, laid.centers_m)
+
+
 def test_local_xyz_is_relative_to_the_axis():
     xyz = grid_corner_cloud()
     batch = partition(xyz).batches[0]

@@ -98,3 +98,31 @@ def test_a_cloud_with_few_voxels_packs_into_the_tiny_capacity_and_only_such_a_cl
     assert pipeline.min_capacity(many, cloud_voxels_at_most=50_000) == full
     assert pipeline.pack(few, 4, min_capacity=tiny).coords.shape == (tiny, 4)
 
+
+
+def test_a_patch_a_window_holds_whole_is_the_whole_clouds_patch_thinned_alike():
+    # context thinned (at most 300 points a patch): a window laid on the cloud's frame
+    # prepares the patches it holds whole exactly as the whole cloud does, same thinning
+    import sys
+
+    from gfjax.io.cloud import Frame
+    from gfjax.sparsegf import Config
+
+    patches = sys.modules["gfjax.sparsegf.filter"].patches
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(0, 420, (6000, 2))
+    xyz = np.column_stack([xy + [512_000.0, 5_400_000.0], 100 + rng.normal(0, 0.3, len(xy))])
+    config = Config(features="xyz", max_context_points=1_000)
+    frame = Frame.of(xyz)
+    whole = {p.patch_id: p for p in patches(xyz, config, frame=frame)}
+    inside = np.flatnonzero(xy[:, 0] <= 330)
+    held = 0
+    for patch in patches(xyz[inside], config, frame=frame):
+        mine = whole[patch.patch_id]
+        centre_x = xy[inside[patch.point_index], 0].mean()
+        if centre_x + 150 + 36 < 330:            # its cylinder lies inside the window
+            np.testing.assert_array_equal(inside[patch.point_index], mine.point_index)
+            np.testing.assert_array_equal(patch.coords, mine.coords)
+            np.testing.assert_array_equal(patch.feats, mine.feats)
+            held += 1
+    assert held >= 4
