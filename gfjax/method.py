@@ -56,7 +56,8 @@ class Method:
         fixed once for a whole survey (DMF's voxel size), or None.
       survey_halo: `survey_halo(config) -> float`, the context [m] a survey gives each file of
         a method that labels neither tile by tile nor as one cloud (from the survey's config:
-        DMF's is a multiple of its voxel size), or None for `gfjax.survey.HALO_M`.
+        DMF's is a multiple of its voxel size, SparseGF's its patches' outer radius), or None
+        for `gfjax.survey.HALO_M`.
       load_model: `load_model(path or None) -> (model, Config it was trained with)` for a
         method whose `filter` takes `model=` (a model file; None: the one shipped; SparseGF),
         else None. A bad file raises `InputError` here, before any output is written.

@@ -28,10 +28,10 @@ a chunk at a time into an index on disk (28 bytes a point, in a private temporar
 filtered one window at a time, and written by copying the input a chunk at a time with
 the new classes; memory follows the largest window, not the file. SMRF and PMF run tile
 windows, with exactly the labels of the file in memory; any other method runs pieces with the
-points within its survey halo around each (50 m; DMF's its own), a piece and its halo one
-500 m tile (smaller where the densest file's points in one would not fit the budget), so
-labels near a piece's edge are close to, not exactly, those of the file in memory, as near a
-file's edge in a survey.
+points within its survey halo around each (50 m; DMF's and SparseGF's their own), a piece and
+its halo one 500 m tile (smaller where the densest file's points in one would not fit the
+budget), so labels near a piece's edge are close to, not exactly, those of the file in
+memory, as near a file's edge in a survey.
 
 Every option, input and output is checked before the first file is filtered (option ranges
 and the memory their rasters need, headers, CRS and units, output folders, free space), so a

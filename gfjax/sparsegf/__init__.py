@@ -23,7 +23,7 @@ and the filter itself, with the same shape as every other method:
 """
 from gfjax.method import Method
 from gfjax.sparsegf.compress import CENTRAL_TOL_M, R_IN_M, R_OC_M, R_OO_M, Compressed, compress, compression_ratio
-from gfjax.sparsegf.config import PRESETS, RANGES, Config
+from gfjax.sparsegf.config import PRESETS, RANGES, Config, survey_halo
 from gfjax.sparsegf.filter import Diagnostics, filter, load_model, warm
 from gfjax.sparsegf.hag import HAG_BIN_EDGES_M, N_HAG_BINS, HagTargets, ground_surface, hag_bins, hag_targets
 from gfjax.sparsegf.loss import HAG_WEIGHTS, LAMBDA, HeightAwareLoss, height_aware_loss
@@ -32,7 +32,8 @@ from gfjax.sparsegf.partition import STEP_M, Partition, PartitionConfig, PatchBa
 from gfjax.sparsegf.vote import UNCOVERED, Vote, decide, soft_vote
 
 Params = None      # no thresholds: the network's weights are SparseGF's parameters
-METHOD = Method("sparsegf", filter, Config, Params, PRESETS, RANGES, warm=warm, load_model=load_model)
+METHOD = Method("sparsegf", filter, Config, Params, PRESETS, RANGES, warm=warm, load_model=load_model,
+                takes_terrain=True, survey_halo=survey_halo)
 
 __all__ = [
     "METHOD", "Config", "Diagnostics", "Model", "NET_PRESETS", "NetConfig", "PRESETS", "Params", "SparseGFNet",

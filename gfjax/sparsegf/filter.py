@@ -255,21 +255,26 @@ class Seen(NamedTuple):
     """The points of a cloud SparseGF's network sees: `cloud`, the cloud with its low outliers
     hidden where they are (`adaptive.Hidden`), `index` int64 `(k,)` the rows of the points the
     prior, the features and the patches are made of, and `terrain`, the used points'
-    `adaptive.Terrain` (None without a used point)."""
+    `adaptive.Terrain` (or the one given: a survey's; None without a used point)."""
 
     cloud: CloudView
     index: np.ndarray
     terrain: adaptive.Terrain | None
 
 
-def seen_points(cloud: CloudView, config: Config, *, returns: str = "all") -> Seen:
+def seen_points(cloud: CloudView, config: Config, *, returns: str = "all",
+                terrain: adaptive.Terrain | None = None) -> Seen:
     """The points the network sees of `cloud` (`Seen`), for the filter and for training alike:
     the used returns (`cloud.filter_mask(returns)`: noise and withheld points left out), and
-    under the default decision less the cloud's low outliers (`adaptive.hide`), as SMRF hides
-    them (`gfjax.smrf.config.HIDES_LOW_OUTLIERS`): the prior and the patches are made without
-    them, the filter calls them non-ground and training does not score them."""
+    under the default decision less the cloud's low outliers (`adaptive.hide`, on `terrain`
+    when given, else the used points'), as SMRF hides them (`gfjax.smrf.config.HIDES_LOW_OUTLIERS`):
+    the prior and the patches are made without them, the filter calls them non-ground and
+    training does not score them."""
     index = np.flatnonzero(cloud.filter_mask(returns))
-    terrain = adaptive.measure(cloud.xyz_m[index], cloud.xyz_m[cloud.filter_mask("last")]) if len(index) else None
+    if not len(index):
+        terrain = None
+    elif terrain is None:
+        terrain = adaptive.measure(cloud.xyz_m[index], cloud.xyz_m[cloud.filter_mask("last")])
     if config.decision == "network+smrf" and terrain is not None:
         hidden = adaptive.hide(cloud, terrain, returns=returns)
         if hidden is not None:
@@ -292,7 +297,8 @@ def grid_frame(cloud: CloudView, returns: str = "all") -> Frame | None:
 
 @cache.persistent
 def filter(cloud: CloudView, *, config: Config | None = None, params=None, returns: str = "all",
-           progress: bool = False, model: Model | str | None = None) -> Result:
+           progress: bool = False, model: Model | str | None = None,
+           terrain: adaptive.Terrain | None = None) -> Result:
     """Classify ground points with SparseGF.
 
     Args:
@@ -304,6 +310,9 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
       progress: show a bar over patches.
       model: a `Model` (`gfjax.sparsegf.init`, `train.fit`), a model file path, or None for
         the model shipped in gfjax.
+      terrain: the terrain (`gfjax.adaptive.Terrain`) its low-outlier test, density check and
+        ground-spike guard read in place of the cloud's own: a survey's, so that each window
+        is judged as the whole survey is (`gfjax.method.Method.takes_terrain`).
 
     Returns:
       `Result(ground, Diagnostics)`; ground by `config.decision` (`vote.decide`): by default
@@ -329,7 +338,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
     except ValueError as err:
         raise InputError(f"{cloud.name}: --returns: {err}") from None
     frame = grid_frame(cloud, returns)
-    cloud, used_index, terrain = seen_points(cloud, config, returns=returns)
+    cloud, used_index, terrain = seen_points(cloud, config, returns=returns, terrain=terrain)
     xyz_m = cloud.xyz_m[used_index]
     if seen is not None and terrain is not None and config.decision == "network+smrf":
         density, (low, high) = 1.0 / terrain.spacing_m ** 2, seen
@@ -343,7 +352,7 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
         # the network's program loaded first, in this thread: SMRF's programs then reuse the
         # scratch memory of its load (a 30-point file's process: 390 MB at most, not 415)
         prepare_predict(model, tiny_pack(model.net.config.in_features))
-    smrf = smrf_heights(xyz_m) if config.reads_smrf else None
+    smrf = smrf_heights(xyz_m, cloud.frame) if config.reads_smrf else None
     smrf_ground = None if smrf is None else smrf[:, 1] >= 0
     prob, votes, n_patches = ground_probability(model, xyz_m, config, progress=progress,
                                                 cloud_feats=cloud_features(xyz_m, config.features, smrf=smrf), frame=frame)

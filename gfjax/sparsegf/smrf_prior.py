@@ -24,17 +24,20 @@ import numpy as np
 import scipy.ndimage
 from jaxtyping import Float
 
+from gfjax.io.cloud import Frame
+
 N_SMRF_FEATURES = 2      # the columns of `smrf_heights`: (dz, margin)
 
 
 
-def smrf_heights(xyz_m: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 2"]:
+def smrf_heights(xyz_m: Float[np.ndarray, "n 3"], frame: Frame | None = None) -> Float[np.ndarray, "n 2"]:
     """`(dz, margin)` `(n, 2)` float32 [m] of every point (module docstring), raw (not logged).
 
     SMRF runs over the cloud's buffered tiles as `gfjax.smrf.filter` does (groups of points
     far apart each on tiles of its own, `gfjax.tiling.driver.classify_groups`), and each point is
     read off the rasters of the tile whose core holds it, sampled as SMRF's own point test
-    samples them."""
+    samples them. `frame`: the lattice's box (a survey's, whose windows then grid their points
+    as the whole survey does: `gfjax.io.cloud.Frame`), None for the points' own."""
     from gfjax import adaptive
     from gfjax.smrf import programs
     from gfjax.smrf.config import MAX_BATCH, Config, Params, adapt
@@ -47,10 +50,12 @@ def smrf_heights(xyz_m: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 2"]:
     config, params = Config(**adapt(adaptive.measure(xyz_m))), Params()
     lattice = lattice_of(None, config.cell_m)
     use = np.ones(len(xyz_m), bool)
-    members = groups.members(xyz_m[:, :2], max(driver.GROUP_GAP_M, lattice.buffer_m))
+    members = None
+    if frame is None:                 # a survey's window keeps the survey's lattice
+        members = groups.members(xyz_m[:, :2], max(driver.GROUP_GAP_M, lattice.buffer_m))
     if members is None:
         run = driver.classify_cloud(xyz_m, use, programs.classify_batch, params, config, lattice=lattice,
-                                   max_batch=MAX_BATCH)
+                                   max_batch=MAX_BATCH, frame=frame)
     else:
         run = driver.classify_groups(xyz_m, use, members, programs.classify_batch, params, config, lattice=lattice,
                                     max_batch=MAX_BATCH, keep_diagnostics=True)

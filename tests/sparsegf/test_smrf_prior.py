@@ -72,3 +72,20 @@ def test_cloud_features_do_not_depend_on_numpys_cpu_dispatch(tmp_path):
            "PYTHONPATH": str(Path(F.__file__).parents[2])}
     subprocess.run([sys.executable, "-c", code, str(tmp_path / "h.npy"), str(tmp_path / "f.npy")], env=env, check=True)
     np.testing.assert_array_equal(F.cloud_features(None, "xyz+tophat+smrf", smrf=h), np.load(tmp_path / "f.npy"))
+
+
+def test_a_window_laid_on_the_frame_reads_the_whole_clouds_surface_away_from_its_cut():
+    # a window cut 27.3 m into the town: on its own box its lattice starts off the whole
+    # cloud's cells and its values differ everywhere; laid on the whole cloud's frame, the
+    # points 20 m and more from the cut read the surface the whole cloud gives them
+    from gfjax.io.cloud import Frame
+
+    xyz, _ = town(seed=3, size_m=80.0)
+    frame = Frame.of(xyz)
+    whole = smrf_heights(xyz)
+    inside = np.flatnonzero(xyz[:, 0] - frame.origin_m[0] >= 27.3)
+    far = xyz[inside, 0] - frame.origin_m[0] >= 47.3
+    laid = smrf_heights(xyz[inside], frame)
+    np.testing.assert_allclose(laid[far], whole[inside][far], atol=1e-4)
+    own = smrf_heights(xyz[inside])
+    assert np.mean(np.abs(own[far, 0] - whole[inside][far, 0]) > 1e-3) > 0.5

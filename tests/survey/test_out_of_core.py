@@ -108,6 +108,19 @@ def test_a_method_that_does_not_tile_runs_out_of_core_a_piece_at_a_time(files, m
     _same_but_classification(union, tmp_path / "pieces.laz")
 
 
+def test_sparsegf_out_of_core_on_one_piece_labels_as_in_memory(files, tmp_path):
+    """SparseGF's window on the survey's frame (its patch grid, SMRF's surface under it) labels
+    a file its halo holds whole as the file in memory does, every other dimension kept."""
+    *_, union = files
+    args = ["filter", str(union), "--method", "sparsegf"]
+    assert main([*args, "-o", str(tmp_path / "memory.laz")]) == 0
+    assert main([*args, "-o", str(tmp_path / "one.laz"), "--out-of-core"]) == 0
+    memory = np.asarray(laspy.read(tmp_path / "memory.laz").classification)
+    np.testing.assert_array_equal(np.asarray(laspy.read(tmp_path / "one.laz").classification), memory)
+    assert np.any(memory == 2) and np.any(memory != 2)
+    _same_but_classification(union, tmp_path / "one.laz")
+
+
 def test_pieces_shrink_where_a_piece_would_not_fit(tmp_path, monkeypatch):
     """A window (a piece and its halo) of one tile, smaller for a dense file under a small
     budget, never below the minimum."""
