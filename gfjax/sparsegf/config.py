@@ -128,4 +128,3 @@ def survey_halo(config: Config) -> float:
     its labels in memory with this halo, 98.33 % with 50 m
     (`experiments/results/out_of_core_pieces.md`)."""
     return float(config.r_oo_m)
-
