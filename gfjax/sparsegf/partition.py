@@ -65,7 +65,8 @@ class PatchBatch(NamedTuple):
       patch_id: `(b,)` int32, row of each patch in `Partition.centers_m`.
       center_m: `(b, 2)` float64, the cylinder axes, in the frame of the partitioned xyz [m].
       index: `(b, capacity)` int32, the cloud's point indices in each cylinder, grouped by
-        the 50 m cell they lie in (increasing within a cell), then `-1` padding.
+        the 50 m cell they lie in (increasing within a cell; with `partition`'s `box`, in the
+        order of their x, y, z), then `-1` padding.
       valid: `(b, capacity)` bool, `index >= 0`.
     """
 
@@ -152,7 +153,8 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
         random, so the central regions fall on new places each epoch.
       box: `(xy_min, xy_max)` [m], a box holding every point that the grid is laid on instead
         of the points' own (a survey's frame: its windows then share the whole survey's
-        patches where their points reach); only the cells the points reach are made.
+        patches where they hold their points, each patch listing its points in the order of
+        their coordinates whatever the window's order); only the cells the points reach are made.
 
     Returns:
       A `Partition`. Every point is within `r_in_m` of at least one kept axis. An empty
@@ -188,7 +190,10 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
     centers = _centers(origin, np.array([nx, ny]), step)
     cell_ix = np.clip(np.floor((xy - origin) / step).astype(np.int64), 0, [nx - 1, ny - 1])
     home = cell_ix[:, 1] * nx + cell_ix[:, 0]                  # home cell per point
-    order = np.argsort(home, kind="stable")                    # points grouped by cell
+    if box is None:
+        order = np.argsort(home, kind="stable")                # points grouped by cell
+    else:       # ... and within a cell by coordinates: a patch lists its points alike in any window
+        order = np.lexsort((*(xyz_m[:, 2:3].T if xyz_m.shape[1] == 3 else ()), xy[:, 1], xy[:, 0], home))
     starts = np.searchsorted(home[order], np.arange(nx * ny + 1))
 
     reach = math.floor(config.r_oo_m / step + 0.5)             # cells a disc can touch, per axis

@@ -101,8 +101,9 @@ def test_a_cloud_with_few_voxels_packs_into_the_tiny_capacity_and_only_such_a_cl
 
 
 def test_a_patch_a_window_holds_whole_is_the_whole_clouds_patch_thinned_alike():
-    # context thinned (at most 300 points a patch): a window laid on the cloud's frame
-    # prepares the patches it holds whole exactly as the whole cloud does, same thinning
+    # context thinned (at most 1,000 points a patch): a window laid on the cloud's frame, its
+    # points in another order (a survey's window lists its own file's first), prepares the
+    # patches it holds whole exactly as the whole cloud does, same thinning
     import sys
 
     from gfjax.io.cloud import Frame
@@ -115,7 +116,7 @@ def test_a_patch_a_window_holds_whole_is_the_whole_clouds_patch_thinned_alike():
     config = Config(features="xyz", max_context_points=1_000)
     frame = Frame.of(xyz)
     whole = {p.patch_id: p for p in patches(xyz, config, frame=frame)}
-    inside = np.flatnonzero(xy[:, 0] <= 330)
+    inside = rng.permutation(np.flatnonzero(xy[:, 0] <= 330))
     held = 0
     for patch in patches(xyz[inside], config, frame=frame):
         mine = whole[patch.patch_id]
