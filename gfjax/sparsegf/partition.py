@@ -112,7 +112,7 @@ class Partition(NamedTuple):
     n_points: np.ndarray
     batches: tuple[PatchBatch, ...]
     config: PartitionConfig
-    cells: np.ndarray = np.zeros(0, np.int64)
+    cells: np.ndarray
 
 
 def grid_centers(xy_min: np.ndarray, xy_max: np.ndarray, step_m: float) -> tuple[np.ndarray, tuple[int, int], np.ndarray]:
@@ -168,7 +168,7 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
     if not np.all(np.isfinite(xy)):
         raise InputError("partition: xyz_m has non-finite x or y")
     if len(xy) == 0:
-        return Partition(np.zeros((0, 2)), np.zeros(0, np.int64), (), config)
+        return Partition(np.zeros((0, 2)), np.zeros(0, np.int64), (), config, np.zeros(0, np.int64))
     if len(xy) >= 2 ** 31:
         raise InputError(f"partition: {len(xy)} points do not fit int32 indices; tile the cloud first")
 
@@ -193,7 +193,8 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
     if box is None:
         order = np.argsort(home, kind="stable")                # points grouped by cell
     else:       # ... and within a cell by coordinates: a patch lists its points alike in any window
-        order = np.lexsort((*(xyz_m[:, 2:3].T if xyz_m.shape[1] == 3 else ()), xy[:, 1], xy[:, 0], home))
+        keys = (xy[:, 1], xy[:, 0], home) if xyz_m.shape[1] == 2 else (xyz_m[:, 2], xy[:, 1], xy[:, 0], home)
+        order = np.lexsort(keys)                               # the last key sorts first
     starts = np.searchsorted(home[order], np.arange(nx * ny + 1))
 
     reach = math.floor(config.r_oo_m / step + 0.5)             # cells a disc can touch, per axis
