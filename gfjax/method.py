@@ -52,8 +52,9 @@ class Method:
       takes_terrain: `filter` takes `terrain=` (a `gfjax.adaptive.Terrain`), the terrain its values
         settle on in place of the cloud's own (the vote's voters): a survey passes its own, so
         every window is labelled with the values of the whole survey.
-      survey_config: `survey_config(config, clouds) -> Config`, the estimates made per cloud
-        fixed once for a whole survey (DMF's voxel size), or None.
+      survey_config: `survey_config(config, clouds, frame) -> Config`, the estimates made per
+        cloud fixed once for a whole survey run in windows (DMF's voxel size, CSF's cloth start),
+        from each file's points (`clouds`, float64 `(n_i, 3)` [m]) on the survey's `frame`, or None.
       survey_halo: `survey_halo(config) -> float`, the context [m] a survey gives each file of
         a method that labels neither tile by tile nor as one cloud (from the survey's config:
         DMF's is a multiple of its voxel size, SparseGF's its patches' outer radius), or None

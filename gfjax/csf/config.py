@@ -31,6 +31,7 @@ RANGES: dict[str, Range] = {
     "class_threshold_m": Range(0, 1000, low_open=True, unit="m"),
     "time_step": Range(0, 10, low_open=True),
     "trend_m": Range(0, 10_000, low_open=True, unit="m", none_ok=True),
+    "lowest_m": Range(-10_000, 10_000, unit="m", none_ok=True),
 }
 # The cloth: about 24 float32 / int32 arrays per particle (heights, velocities, flags, the
 # simulation's work arrays) [bytes per particle], and the simulation's ring of snapshots, one
@@ -108,6 +109,12 @@ class Config:
       trend_m: None (the package's CSF), or take the terrain's trend off the cloud before the
         cloth falls, objects narrower than this many metres left on it (`gfjax.csf.trend`): a
         stiff cloth then meets slopes as flat ground. Not in the paper.
+      lowest_m: with `trend_m`, the lowest height of the cloud's points above the trend [m]
+        (at most 0 in practice): the cloth falls from `CLOTH_START_M` above it, inverted. None:
+        the cloud's own. A survey run in windows fixes it once (`gfjax.csf.survey_config`), so
+        every window's cloth falls from the height the whole survey's would: the cloth's
+        labels follow its start (bcts_2's cloth started 1 m higher labels 0.7 % of its
+        points otherwise). Not in the paper.
     """
 
     cell_m: float = 1.0
@@ -115,6 +122,7 @@ class Config:
     iterations: int = 500
     slope_smooth: bool = True
     trend_m: float | None = None
+    lowest_m: float | None = None
 
     def __post_init__(self) -> None:
         limits.check_fields(self, RANGES)

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
+from collections.abc import Iterable
 from typing import NamedTuple
 
 import jax
@@ -38,14 +40,14 @@ from gfjax.csf.programs import (
     grid_shape,
     point_surface,
 )
-from gfjax.csf.trend import trend_at
-from gfjax.io.cloud import CloudView
+from gfjax.csf.trend import reach_m, trend_at
+from gfjax.io.cloud import CloudView, Frame
 from gfjax.result import Result
 from gfjax.tiling import groups
 from gfjax.tiling.checks import check_memory, checked_options
 from gfjax.tiling.driver import filter_groups
 
-__all__ = ["filter", "warm", "detrended", "Diagnostics"]
+__all__ = ["filter", "warm", "detrended", "framed", "survey_config", "survey_halo", "Diagnostics"]
 
 
 class Diagnostics(NamedTuple):
@@ -89,17 +91,66 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
     return aot.warm_all([job((h, w)) for h in sides for w in sides], progress=progress, desc="csf programs")
 
 
-def detrended(local: np.ndarray, use: np.ndarray, config: Config):
+def detrended(local: np.ndarray, use: np.ndarray, config: Config, trend_corner_m: np.ndarray | None = None):
     """Points `(n, 3)` in local metres as the cloth meets them: float32, less the terrain's trend
-    where `config.trend_m` asks for it (`gfjax.csf.trend`); and that trend (`height(xy)`, local
-    metres) or None. The tuning (`gfjax.csf.tuning`) frames its samples with it too."""
+    where `config.trend_m` asks for it (`gfjax.csf.trend`, its first cell at `trend_corner_m`,
+    local x, y [m]; None: the used points' own); and that trend (`height(xy)`, local metres) or
+    None. The tuning (`gfjax.csf.tuning`) frames its samples with it too."""
     local = np.asarray(local, np.float64)
     if config.trend_m is None:
         return local.astype(np.float32), None
-    trend = trend_at(local, use, window_m=config.trend_m, cell_m=config.trend_m / TREND_CELLS)
+    trend = trend_at(local, use, window_m=config.trend_m, cell_m=config.trend_m / TREND_CELLS,
+                     corner_m=trend_corner_m)
     local = local.copy()
     local[:, 2] -= trend(local[:, :2])
     return local.astype(np.float32), trend
+
+
+def framed(lowest_m: np.ndarray, frame: Frame | None, config: Config) -> tuple[np.ndarray, np.ndarray | None]:
+    """The local origin, float64 `(3,)` [m], of a cloud whose used points' lowest x, y, z are
+    `lowest_m`, and the first cell of its trend in local x, y `(2,)` [m] (None: the points'
+    own). On a survey's `frame` (a window), the survey's particle and trend lattices and its
+    lowest z, as in one file of the whole survey; else the points' own corner."""
+    if frame is None:
+        return np.asarray(lowest_m, np.float64), None
+    origin = frame.snap(lowest_m, config.cell_m)
+    origin[2] = frame.origin_m[2]
+    corner = None
+    if config.trend_m is not None:
+        corner = (frame.snap(lowest_m, config.trend_m / TREND_CELLS) - origin)[:2]
+    return origin, corner
+
+
+def survey_halo(config: Config) -> float:
+    """The context [m] the trend needs (`gfjax.method.Method.survey_halo`): a window holding
+    this much around its own points has the whole survey's trend under them (`reach_m`); 0
+    without a trend."""
+    return 0.0 if config.trend_m is None else reach_m(config.trend_m, config.trend_m / TREND_CELLS)
+
+
+def survey_config(config: Config, clouds: Iterable[np.ndarray], frame: Frame | None = None) -> Config:
+    """`config` with the cloth's start fixed once for a whole survey: `lowest_m`, the lowest
+    height of its points above the trend, each file's trend laid on the survey's `frame`
+    (`framed`) over the file and its halo, as the files joined into one lay it. A window's own
+    lowest point is not the survey's, and the cloth's labels follow the height it falls from.
+    `config` as it is without a trend or with `lowest_m` set.
+
+    Args:
+      config: the survey's settings.
+      clouds: each file's points the cloth meets (used, low outliers hidden) and its halo's,
+        float64 `(n_i, 3)` [m], and bool `(n_i,)` marking the file's own.
+      frame: the survey's frame (`gfjax.io.cloud.Frame`), or None.
+    """
+    if config.trend_m is None or config.lowest_m is not None:
+        return config
+    lowest = math.inf
+    for xyz, own in clouds:
+        if own.any():
+            xyz = np.asarray(xyz, np.float64)
+            origin, corner = framed(xyz.min(axis=0), frame, config)
+            local, _ = detrended(xyz - origin, np.ones(len(xyz), bool), config, corner)
+            lowest = min(lowest, float(local[own, 2].min()))
+    return config if lowest == math.inf else dataclasses.replace(config, lowest_m=lowest)
 
 
 @cache.persistent
@@ -131,25 +182,25 @@ def filter(cloud: CloudView, *, config: Config | None = None, params: Params | N
                                           params_type=Params, package="gfjax.csf")
     if not use.any():
         return Result(ground=np.zeros(cloud.n_points, bool), diagnostics=None)
-    apart = filter_groups(cloud, use, functools.partial(filter, config=config, params=params),
+    # a group far from the others is a cloud of its own, its cloth falling from its own points
+    alone = dataclasses.replace(config, lowest_m=None)
+    apart = filter_groups(cloud, use, functools.partial(filter, config=alone, params=params),
                           gap_m=groups.GAP_M, estimates=config.memory_estimates)
     if apart is not None:
         return apart
     xyz_m = cloud.xyz_m
     check_memory(cloud.name, config.memory_estimates, xyz_m[use, :2])
-    origin = xyz_m[use].min(axis=0)
-    anchor = None
-    if cloud.frame is not None:
-        # A survey's window: the cloth lies on the survey's particle lattice and falls from the
-        # survey's highest inverted point (its lowest z), as in one file of the whole survey.
-        origin = cloud.frame.snap(origin, config.cell_m)
-        origin[2] = cloud.frame.origin_m[2]
-        anchor = Anchor(np.zeros(2, np.float32), np.float32(0.0))
-    local, trend = detrended(xyz_m - origin, use, config)
-    if anchor is not None and trend is not None:
-        # heights less a trend fitted on this cloud: the survey's height says nothing of them,
-        # so the cloth falls from this cloud's highest inverted point, as without a frame
-        anchor = anchor._replace(top_u=np.float32(-local[use, 2].min()))
+    origin, trend_corner = framed(xyz_m[use].min(axis=0), cloud.frame, config)
+    # A survey's window: the cloth lies on the survey's particle lattice and falls from the
+    # survey's highest inverted point (its lowest z), as in one file of the whole survey.
+    anchor = None if cloud.frame is None else Anchor(np.zeros(2, np.float32), np.float32(0.0))
+    local, trend = detrended(xyz_m - origin, use, config, trend_corner)
+    if trend is not None and (anchor is not None or config.lowest_m is not None):
+        # heights less the trend: the survey's lowest z says nothing of them, so the cloth falls
+        # from the lowest of them, the survey's where it was fixed (`survey_config`)
+        lowest = local[use, 2].min() if config.lowest_m is None else config.lowest_m
+        anchor = Anchor(np.zeros(2, np.float32), np.float32(-lowest))
+    config = alone                                   # the compiled programs do not read it
     h, w = grid_shape(local, use, cell_m=config.cell_m, anchor=anchor)
     n = len(local)
     capacity = canonical_points(n)

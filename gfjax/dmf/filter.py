@@ -296,7 +296,7 @@ def _layers(vox: voxels.Voxels, cell_m: float, config: Config, tiling: Tiling, w
     return in_ndng, basal, rs, v_r.reshape(h, w), table.overflowed
 
 
-def survey_config(config: Config, clouds: Iterable[np.ndarray]) -> Config:
+def survey_config(config: Config, clouds: Iterable[np.ndarray], frame=None) -> Config:
     """`config` with W fixed once for a whole survey, so every file and its halo share one voxel
     lattice (a file's own estimate could round to another whole metre than its neighbour's).
 
@@ -306,12 +306,15 @@ def survey_config(config: Config, clouds: Iterable[np.ndarray]) -> Config:
 
     Args:
       config: the survey's settings.
-      clouds: each file's points filtered, float64 `(n_i, 3)` [m].
+      clouds: each file's points filtered, float64 `(n_i, 3)` [m], and bool `(n_i,)`
+        marking the file's own (`Method.survey_config`).
+      frame: the survey's frame (W does not depend on it).
     """
     if config.voxel_m is not None:
         return config
     total, count = 0.0, 0
-    for xyz in clouds:
+    for xyz, own in clouds:
+        xyz = xyz[own]
         if len(xyz) >= 2:
             dist = voxels.nn_distances(np.asarray(xyz, np.float64), fraction=config.sample_fraction,
                                        minimum=config.sample_min)

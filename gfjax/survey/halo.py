@@ -35,8 +35,12 @@ HALO_M = 50.0           # context around a file for methods that do not tile [m]
 def halo_width(method: Method, config) -> float:
     """The context [m] a survey gives each file of `method` run with `config` (the survey's,
     `survey_config`) when it labels neither tile by tile nor as one cloud: its own
-    (`Method.survey_halo`) or `HALO_M`."""
-    return HALO_M if method.survey_halo is None else float(method.survey_halo(config))
+    (`Method.survey_halo`) or `HALO_M`; for a method whose labels depend on the whole cloud,
+    `HALO_M` or its own where that is wider."""
+    if method.survey_halo is None:
+        return HALO_M
+    own = float(method.survey_halo(config))
+    return max(HALO_M, own) if method.whole_cloud else own
 
 
 def halo_region(box: Frame, frame: Frame, lattice: Lattice | None,
@@ -106,7 +110,7 @@ def classified_ground_near(catalog: Catalog, i: int, xyz_m: np.ndarray, buffer_m
     return np.concatenate(parts)
 
 
-def window(catalog: Catalog, i: int, cloud: Cloud, lattice: Lattice | None, halo_m: float = HALO_M) -> Points:
+def window(catalog: Catalog, i: int, cloud: Cloud | Points, lattice: Lattice | None, halo_m: float = HALO_M) -> Points:
     """File `i` of the catalog (read as `cloud`) followed by its halo (`halo_region`), on the
     survey's frame."""
     entry = catalog.entries[i]
@@ -120,23 +124,37 @@ def window(catalog: Catalog, i: int, cloud: Cloud, lattice: Lattice | None, halo
     return Points(**fields, name=cloud.name, frame=catalog.frame)
 
 
-def _file_points(catalog: Catalog, returns: str) -> Iterator[np.ndarray]:
-    """Per file of the catalog, its used points `(k, 3)` [m] (`use_mask` of `returns`), read
-    block by block from its store."""
-    for entry in catalog.entries:
-        parts = [block["xyz_m"][use_mask(block["ignored"], block["return_number"], block["number_of_returns"], returns)]
-                 for _, block in entry.blocks()]
-        yield np.concatenate(parts) if parts else np.empty((0, 3))
+def _file_points(catalog: Catalog, returns: str, terrain: adaptive.Terrain | None,
+                 halo_m: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Per file of the catalog, its used points (`use_mask` of `returns`) and, with `halo_m` >
+    0, those of its halo (`window`), float64 `(k, 3)` [m], and bool `(k,)` marking the file's
+    own; with a `terrain`, the low outliers (`adaptive.hide`, on the survey's frame) left out,
+    as a run whose values follow the data leaves them."""
+    for i, entry in enumerate(catalog.entries):
+        own = Points.from_records(entry.records(), str(entry.path), catalog.frame)
+        points = window(catalog, i, own, None, halo_m) if halo_m > 0 else own
+        used = points.filter_mask(returns)
+        low = None if terrain is None else adaptive.hide(points, terrain, returns=returns)
+        if low is not None:
+            used &= ~low
+        yield points.xyz_m[used], (np.arange(points.n_points) < own.n_points)[used]
 
 
-def survey_config(method: Method, config, catalog: Catalog, *, returns: str = "all"):
+def survey_config(method: Method, config, catalog: Catalog, *, returns: str = "all",
+                  hidden_by: adaptive.Terrain | None = None):
     """`config` with the method's per-cloud estimates made once for the whole survey
-    (`Method.survey_config`, where the method has one: DMF's voxel size W), so every file and
-    its halo share them; otherwise `config` as it is. Reads each file's store once."""
+    (`Method.survey_config`, where the method has one: DMF's voxel size W, CSF's cloth start),
+    so every file and its halo share them; otherwise `config` as it is. Reads each file's store
+    once, and for a method whose labels depend on the whole cloud (`Method.whole_cloud`) its
+    halo (`halo_width`), so that what the estimates read is what the files joined into one
+    give. `hidden_by`: the terrain whose low outliers the method's run hides (`adaptive.run`),
+    left out of the points the estimates see; None: none hidden."""
     hook = method.survey_config
     if hook is None:
         return config
-    return hook(config, _file_points(catalog, returns))
+    hidden_by = hidden_by if method.hides_low_outliers else None
+    halo_m = halo_width(method, config) if method.whole_cloud else 0.0
+    return hook(config, _file_points(catalog, returns, hidden_by, halo_m), catalog.frame)
 
 
 def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrain | None:
@@ -180,7 +198,8 @@ def survey_settings(method: Method, catalog: Catalog, config, params, *, fixed: 
         settled = adaptive.settle_terrain(method.adapt, terrain, config, params, fixed=fixed)
         config, params = settled.config, settled.params
     options = {"terrain": terrain} if method.takes_terrain and terrain is not None else {}
-    return Settings(survey_config(method, config, catalog, returns=returns), params, settled, terrain, options)
+    config = survey_config(method, config, catalog, returns=returns, hidden_by=None if settled is None else settled.terrain)
+    return Settings(config, params, settled, terrain, options)
 
 
 def _chunks(entry: Entry, returns: str, spill: Path) -> Callable[[], Iterator[adaptive.Chunk]]:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from gfjax.csf.trend import TREND_PERCENTILE, trend_at
+from gfjax.csf.trend import TREND_PERCENTILE, reach_m, trend_at
 
 
 def brute_force(xyz, use, window_m, cell_m, xy):
@@ -171,3 +171,30 @@ def test_a_framed_cloud_on_its_trend_falls_as_the_cloud_alone():
                     number_of_returns=cloud.number_of_returns, ignored=cloud.ignored, name="window", frame=frame)
     np.testing.assert_array_equal(np.asarray(csf.filter(window, config=config).ground), alone)
     assert alone[~house].mean() > 0.95 and not alone[house].any()
+
+
+def test_a_window_laid_on_the_whole_lattice_has_the_whole_trend_inside():
+    """A window's trend with its first cell on the whole cloud's lattice (`corner_m`) is the
+    whole cloud's trend wherever the window holds all it reads (`reach_m` around it); laid from
+    the window's own corner, its cells and so its surface differ."""
+    rng = np.random.default_rng(4)
+    n = 30_000
+    xy = rng.uniform(0, 300, (n, 2))
+    z = 50 + 0.2 * xy[:, 0] + 3 * np.sin(xy[:, 1] / 25) + rng.normal(0, 0.1, n)
+    objects = rng.random(n) < 0.2
+    z[objects] += rng.uniform(2, 15, objects.sum())
+    xyz = np.column_stack([xy, z])
+    use = np.ones(n, bool)
+    window_m, cell_m = 30.0, 5.0
+    whole = trend_at(xyz, use, window_m=window_m, cell_m=cell_m)
+    inside = np.all((xy > 83) & (xy < 217), axis=1)
+    lo = xy.min(axis=0)
+
+    def laid(margin_m: float, corner: bool = True) -> np.ndarray:
+        part = np.all((xy > 83 - margin_m) & (xy < 217 + margin_m), axis=1)
+        first = lo + np.floor((xy[part].min(axis=0) - lo) / cell_m) * cell_m if corner else None
+        return trend_at(xyz[part], use[part], window_m=window_m, cell_m=cell_m, corner_m=first)(xy[inside])
+
+    reach = reach_m(window_m, cell_m)
+    np.testing.assert_allclose(laid(reach), whole(xy[inside]), atol=1e-9)
+    assert np.abs(laid(reach, corner=False) - whole(xy[inside])).max() > 0.05

@@ -492,6 +492,41 @@ def test_a_whole_cloud_method_labels_a_survey_that_fits_exactly_as_one_file(tmp_
     assert np.count_nonzero(found[False] != want) > 100           # what the halos left
 
 
+def test_csf_cloth_falls_from_the_survey_height_in_every_window(tmp_path, monkeypatch):
+    """The cloth's labels follow the height it falls from: with the trend taken off, each window
+    of a survey run with halos starts its cloth at the survey's lowest height above the trend
+    (`csf.survey_config`, each file's trend laid with its halo), which is the union's. The
+    shipped sample cut 2 x 2 then labels as the one file does but for a few points (each window
+    from its own lowest point: some hundreds); what is left comes from the stopping rule, which
+    reads the whole cloth (a window stops at another step than the union)."""
+    import dataclasses
+
+    from gfjax import csf
+    from gfjax.csf.filter import detrended, framed
+    from gfjax.data import demo_sample
+
+    monkeypatch.setattr(survey_run, "fits_whole", lambda *args: False)
+    sample = las_io.read(demo_sample())
+    paths, members, union = write_grid(tmp_path, sample.xyz_m, np.asarray(sample.classification))
+    whole = las_io.read(union)
+    given = dataclasses.replace(csf.Config(), trend_m=csf.TREND_M, rigidness=1)
+    use = whole.filter_mask()
+    origin, _ = framed(whole.xyz_m[use].min(axis=0), None, given)
+    own_lowest = detrended(whole.xyz_m - origin, use, given)[0][use, 2].min()
+    (tmp_path / "catalog").mkdir()
+    catalog = survey.index(paths, tmp_path / "catalog")
+    assert survey.survey_config(csf.METHOD, given, catalog).lowest_m == pytest.approx(float(own_lowest), abs=1e-5)
+    want = csf.filter(whole).ground                      # values that follow the data, low outliers hidden
+    found = {}
+    for name, method in (("survey's", csf.METHOD), ("own", dataclasses.replace(csf.METHOD, survey_config=None))):
+        got = np.zeros(whole.n_points, bool)
+        (tmp_path / name).mkdir()
+        for (_, result), keep in zip(survey.filtered(paths, method, tmp_path / name), members):
+            got[keep] = result.ground
+        found[name] = np.count_nonzero(got != want)
+    assert found["survey's"] <= 10 and found["own"] > 100, found
+
+
 def test_a_whole_cloud_survey_over_the_budget_says_it_takes_halos(grid, tmp_path, monkeypatch, capsys):
     """A survey whose points do not fit the memory budget as one cloud (24,750 points need about
     15 MB; the files alone 4 MB each) runs file by file with halos, and says so once."""
