@@ -124,8 +124,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="when a header's point count disagrees with the points the file holds, "
                              "filter the points present (and say so) instead of stopping")
     parser.add_argument("-v", "--verbose", action="store_true",
-                        help="say on stderr the values chosen from the data (cell sizes, thresholds) and "
-                             "the terrain statistics they follow from")
+                        help="say on stderr the values chosen from the data (cell sizes, thresholds), "
+                             "the terrain statistics they follow from, and on a survey the values fixed once "
+                             "for every file")
     parser.add_argument("--force", action="store_true",
                         help="overwrite existing output files, and input files given as outputs")
     parser.add_argument("--keep-going", action="store_true",
@@ -273,6 +274,10 @@ def _survey_setup(setup, catalog, args):
         _say_settled(args, what, settings.settled)
     elif settings.terrain is not None and getattr(args, "verbose", False):
         print(f"gfjax: {what}: terrain: {settings.terrain.describe()}", file=sys.stderr)
+    if settings.estimated and getattr(args, "verbose", False):
+        values = ", ".join(f"{name}={value:.4g}" if isinstance(value, float) else f"{name}={value}"
+                           for name, value in settings.estimated.items())
+        print(f"gfjax: {what}: estimated once for every file: {values}", file=sys.stderr)
     return setup._replace(config=settings.config, options={**(setup.options or {}), **settings.options})
 
 

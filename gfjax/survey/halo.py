@@ -14,6 +14,7 @@ exactly one file's.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import tempfile
 from collections.abc import Callable, Iterable, Iterator
@@ -174,14 +175,16 @@ def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrai
 class Settings(NamedTuple):
     """A method's settings for a whole survey (`survey_settings`): `config` and `params`,
     `settled` (`adaptive.Settled`, None when nothing was left to the data), the survey's
-    `terrain` (None when the method reads none), and `options`, the further keyword arguments
-    of the method's `filter` (the terrain, for a method that `takes_terrain`)."""
+    `terrain` (None when the method reads none), `options`, the further keyword arguments of
+    the method's `filter` (the terrain, for a method that `takes_terrain`), and `estimated`,
+    field -> value of the config that the survey fixed once for every file (`survey_config`)."""
 
     config: Any
     params: Any
     settled: adaptive.Settled | None
     terrain: adaptive.Terrain | None
     options: dict
+    estimated: dict[str, Any] = {}
 
 
 def survey_settings(method: Method, catalog: Catalog, config, params, *, fixed: Iterable[str] | None,
@@ -198,8 +201,11 @@ def survey_settings(method: Method, catalog: Catalog, config, params, *, fixed: 
         settled = adaptive.settle_terrain(method.adapt, terrain, config, params, fixed=fixed)
         config, params = settled.config, settled.params
     options = {"terrain": terrain} if method.takes_terrain and terrain is not None else {}
-    config = survey_config(method, config, catalog, returns=returns, hidden_by=None if settled is None else settled.terrain)
-    return Settings(config, params, settled, terrain, options)
+    fixed_config = survey_config(method, config, catalog, returns=returns,
+                                 hidden_by=None if settled is None else settled.terrain)
+    estimated = {field.name: getattr(fixed_config, field.name) for field in dataclasses.fields(fixed_config)
+                 if getattr(fixed_config, field.name) != getattr(config, field.name)}
+    return Settings(fixed_config, params, settled, terrain, options, estimated)
 
 
 def _chunks(entry: Entry, returns: str, spill: Path) -> Callable[[], Iterator[adaptive.Chunk]]:

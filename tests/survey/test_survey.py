@@ -492,6 +492,15 @@ def test_a_whole_cloud_method_labels_a_survey_that_fits_exactly_as_one_file(tmp_
     assert np.count_nonzero(found[False] != want) > 100           # what the halos left
 
 
+def test_a_verbose_survey_says_what_it_estimated_once_for_every_file(grid, tmp_path, capsys):
+    """`-v` names the values the survey fixed once for all its files (DMF's voxel size), the
+    values a user would otherwise see differ from one file filtered alone."""
+    paths, _, _ = grid
+    assert main(["filter", *map(str, paths), "-o", str(tmp_path), "--method", "dmf", "-v", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "gfjax: the survey: estimated once for every file: voxel_m=" in err, err
+
+
 def test_csf_cloth_falls_from_the_survey_height_in_every_window(tmp_path, monkeypatch):
     """The cloth's labels follow the height it falls from: with the trend taken off, each window
     of a survey run with halos starts its cloth at the survey's lowest height above the trend
