@@ -41,7 +41,7 @@ def smrf_heights(xyz_m: Float[np.ndarray, "n 3"], frame: Frame | None = None) ->
     from gfjax import adaptive
     from gfjax.smrf import programs
     from gfjax.smrf.config import MAX_BATCH, Config, Params, adapt
-    from gfjax.tiling import driver, groups, tiles
+    from gfjax.tiling import driver, tiles
     from gfjax.tiling.checks import lattice_of
 
     xyz_m = np.asarray(xyz_m, np.float64)
@@ -50,9 +50,7 @@ def smrf_heights(xyz_m: Float[np.ndarray, "n 3"], frame: Frame | None = None) ->
     config, params = Config(**adapt(adaptive.measure(xyz_m))), Params()
     lattice = lattice_of(None, config.cell_m)
     use = np.ones(len(xyz_m), bool)
-    members = None
-    if frame is None:                 # a survey's window keeps the survey's lattice
-        members = groups.members(xyz_m[:, :2], max(driver.GROUP_GAP_M, lattice.buffer_m))
+    members = driver.tiled_groups(xyz_m[:, :2], use, lattice, frame)
     if members is None:
         run = driver.classify_cloud(xyz_m, use, programs.classify_batch, params, config, lattice=lattice,
                                    max_batch=MAX_BATCH, frame=frame)

@@ -30,7 +30,7 @@ from gfjax.tiling import tiles as tiles_lib
 from gfjax.tiling.checks import Estimates, check_memory, checked_options, lattice_of
 from gfjax.tiling.mosaic import Mosaic, mosaic
 
-__all__ = ["GROUP_GAP_M", "ClassifyBatch", "filter_groups", "run_batches", "warm", "classify_cloud",
+__all__ = ["GROUP_GAP_M", "ClassifyBatch", "filter_groups", "run_batches", "warm", "tiled_groups", "classify_cloud",
            "classify_groups", "TiledRun", "Filtered", "filter_cloud"]
 
 # A cloud whose groups of points at least this far apart (or a tiling's buffer, if larger) fill a
@@ -253,6 +253,18 @@ class Filtered(NamedTuple):
     n_tiles: int
 
 
+def tiled_groups(xy_m: np.ndarray, use: np.ndarray, lattice: tiles_lib.Lattice,
+                 frame: tiles_lib.Frame | None) -> list[np.ndarray] | None:
+    """The groups of points far apart that a tiled method classifies each on tiles of its own
+    (`classify_groups`): `groups.members` of the used points' x, y `xy_m` `(k, 2)` [m] at
+    `GROUP_GAP_M` or the `lattice`'s buffer if larger, as indices into `use` (bool `(n,)`); None
+    for one lattice over the cloud (`classify_cloud`), always on a survey's window (`frame`),
+    which keeps the survey's lattice."""
+    if frame is not None:
+        return None
+    return groups.members(xy_m, max(GROUP_GAP_M, lattice.buffer_m), index=np.flatnonzero(use))
+
+
 def filter_cloud(cloud: Any, config: Any, params: Any, returns: str, *, tiling: tiles_lib.Tiling | None,
                  config_type: type, params_type: type, package: str, classify_batch: ClassifyBatch, max_batch: int,
                  rasters: Sequence[str], heights: Sequence[str], progress: bool = False) -> Filtered:
@@ -267,9 +279,7 @@ def filter_cloud(cloud: Any, config: Any, params: Any, returns: str, *, tiling: 
     estimates = functools.partial(config.memory_estimates, tiling=tiling)
     desc = f"{package.rsplit('.', 1)[-1]} tiles"
     xy_m = cloud.xyz_m[:, :2] if use.all() else cloud.xyz_m[use, :2]     # no copy when every point is used
-    apart = None
-    if cloud.frame is None:                 # a survey's window keeps the survey's lattice
-        apart = groups.members(xy_m, max(GROUP_GAP_M, lattice.buffer_m), index=np.flatnonzero(use))
+    apart = tiled_groups(xy_m, use, lattice, cloud.frame)
     if apart is not None:
         check_memory(cloud.name, estimates, None)
         run = classify_groups(cloud.xyz_m, use, apart, classify_batch, params, config, lattice=lattice,
