@@ -277,7 +277,7 @@ def _survey_setup(setup, catalog, args):
     if settings.estimated and getattr(args, "verbose", False):
         values = ", ".join(f"{name}={value:.4g}" if isinstance(value, float) else f"{name}={value}"
                            for name, value in settings.estimated.items())
-        print(f"gfjax: {what}: estimated once for every file: {values}", file=sys.stderr)
+        print(f"gfjax: {what}: estimated once on all of it: {values}", file=sys.stderr)
     return setup._replace(config=settings.config, options={**(setup.options or {}), **settings.options})
 
 

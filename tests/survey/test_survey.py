@@ -498,7 +498,7 @@ def test_a_verbose_survey_says_what_it_estimated_once_for_every_file(grid, tmp_p
     paths, _, _ = grid
     assert main(["filter", *map(str, paths), "-o", str(tmp_path), "--method", "dmf", "-v", "-q"]) == 0
     err = capsys.readouterr().err
-    assert "gfjax: the survey: estimated once for every file: voxel_m=" in err, err
+    assert "gfjax: the survey: estimated once on all of it: voxel_m=" in err, err
 
 
 def test_csf_cloth_falls_from_the_survey_height_in_every_window(tmp_path, monkeypatch):
