@@ -83,7 +83,7 @@ def report(record: dict) -> list[str]:
              "default decision. Beside it SMRF's and the shipped model's rows of `corpus_eval.json` (the "
              "shipped model trained on these files). A file passes with type I ≤ 10 % and DTM RMSE ≤ 0.30 m. "
              "A fold's wall time counts the minutes its training was stopped while benchmarks ran beside it "
-             "(isprs1, isprs2, isprs4, bcts, topography, autzen, pyfor, pdal_hexbin, pdal_4_6; isprs7, topography and pyfor also shared "
+             "(isprs1, isprs2, isprs4, bcts, topography, autzen, pyfor, pdal_hexbin, pdal_4_6, ign_st_barth; isprs7, topography and pyfor also shared "
              "the cores with test runs; autzen's and pdal_4_6's second epochs resumed from a checkpoint in a later session, and "
              "their times are the resumed runs'; alone a fold takes 13-19 min).",
              "", "| survey | file | held out: total error % / type I % / RMSE m | SMRF | shipped model (trained on it) "
