@@ -49,7 +49,7 @@ def on_pieces(method, path: Path, side_m: float, folder: Path) -> np.ndarray:
     with tempfile.TemporaryDirectory(dir=folder) as own:
         catalog = survey.index([path], own)
         settings = survey.survey_settings(method, catalog, method.Config(), method.Params() if method.Params else None,
-                                          fixed=[])
+                                          fixed=[], whole=False)
         filter_fn = functools.partial(_method_filter, method, settings.config, settings.params, settings.settled,
                                       settings.options)
         halo_m = survey.halo_width(method, settings.config)

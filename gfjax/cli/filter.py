@@ -261,13 +261,14 @@ def _whole(setup, catalog) -> bool:
     return False
 
 
-def _survey_setup(setup, catalog, args):
+def _survey_setup(setup, catalog, args, whole: bool | None = None):
     """`setup` for a survey (or one file read from disk) with the values its files share
-    (`gfjax.survey.survey_settings`), said with `-v`."""
+    (`gfjax.survey.survey_settings`; `whole`: whether it runs as one cloud, None: as
+    `gfjax.survey.fits_whole` says), said with `-v`."""
     from gfjax import survey
 
     settings = survey.survey_settings(setup.method, catalog, setup.config, setup.params, fixed=setup.fixed,
-                                      returns=args.returns)
+                                      returns=args.returns, whole=whole)
     what = str(catalog.entries[0].path) if len(catalog.entries) == 1 else "the survey"
     if settings.settled is not None:
         setup = setup.fixed_at(settings.settled)
@@ -451,7 +452,7 @@ def _disk_runner(setup, catalog, folder, args, client=None):
     from gfjax.survey import lattice
     from gfjax.tiling.tiles import Tiling
 
-    settled = _survey_setup(setup, catalog, args)
+    settled = _survey_setup(setup, catalog, args, whole=False)
     halo_m = survey.halo_width(settled.method, settled.config)
     pieces = None
     if settled.lattice is None:

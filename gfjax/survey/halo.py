@@ -188,12 +188,13 @@ class Settings(NamedTuple):
 
 
 def survey_settings(method: Method, catalog: Catalog, config, params, *, fixed: Iterable[str] | None,
-                    returns: str = "all") -> Settings:
+                    returns: str = "all", whole: bool | None = None) -> Settings:
     """The values a survey's files all share: those that follow the data settled once on the
     survey's terrain (`survey_terrain`, the method's `adapt`) but the fields in `fixed` (None:
     nothing settles, the values stay as given), the terrain itself for a method that
     `takes_terrain` (the vote's voters settle on it whatever the vote's own values), then the
-    method's per-cloud estimates made once for the survey (`survey_config`)."""
+    method's per-cloud estimates made once for the survey (`survey_config`), unless the survey
+    runs as one cloud (`whole`; None: as `fits_whole` says), which makes its own."""
     settles = fixed is not None and method.adapt is not None
     terrain = survey_terrain(catalog, returns=returns) if settles or method.takes_terrain else None
     settled = None
@@ -201,8 +202,10 @@ def survey_settings(method: Method, catalog: Catalog, config, params, *, fixed: 
         settled = adaptive.settle_terrain(method.adapt, terrain, config, params, fixed=fixed)
         config, params = settled.config, settled.params
     options = {"terrain": terrain} if method.takes_terrain and terrain is not None else {}
-    fixed_config = survey_config(method, config, catalog, returns=returns,
-                                 hidden_by=None if settled is None else settled.terrain)
+    if whole is None:
+        whole = fits_whole(method, config, catalog)
+    fixed_config = config if whole else survey_config(method, config, catalog, returns=returns,
+                                                      hidden_by=None if settled is None else settled.terrain)
     estimated = {field.name: getattr(fixed_config, field.name) for field in dataclasses.fields(fixed_config)
                  if getattr(fixed_config, field.name) != getattr(config, field.name)}
     return Settings(fixed_config, params, settled, terrain, options, estimated)
