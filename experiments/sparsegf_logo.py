@@ -85,7 +85,9 @@ def report(record: dict) -> list[str]:
              "A fold's wall time counts the minutes its training was stopped while benchmarks ran beside it "
              "(isprs1, isprs2, isprs4, bcts, topography, autzen, pyfor, pdal_hexbin, pdal_4_6, ign_st_barth; isprs7, topography and pyfor also shared "
              "the cores with test runs; autzen's and pdal_4_6's second epochs resumed from a checkpoint in a later session, and "
-             "their times are the resumed runs'; alone a fold takes 13-19 min).",
+             "their times are the resumed runs'; the ign and ahn3 models, lost with an earlier machine, were trained again "
+             "with the same command and gave the same rows, ign's model bit for bit the one recorded (its sha256), and their "
+             "times are the reruns'; alone a fold takes 13-19 min).",
              "", "| survey | file | held out: total error % / type I % / RMSE m | SMRF | shipped model (trained on it) "
              "| fold's samp31 validation % | fold's training wall time |", "| --- | --- | --- | --- | --- | ---: | ---: |"]
 
