@@ -141,8 +141,10 @@ def main() -> None:
               "0.23 m with the fallback), where the network is meant to be best; with the spike guard the threshold "
               "passes as many training files at a lower total error. A rejected point level with the ground kept "
               "around it (within 0.1 m) is given back: on a flat plane of 20 points/m² the network rejects half of "
-              "the points with votes under 0.05 (a test: `tests/test_adaptive.py`). Shipped: "
-              "`smrf_ground_probability = 0.05`, level ground kept, then `gfjax.spikes.despike`."]
+              "the points with votes under 0.05 (a test: `tests/test_adaptive.py`). Shipped then: "
+              "`smrf_ground_probability = 0.05`, level ground kept, then `gfjax.spikes.despike`; since replaced by "
+              "0.2, chosen the same way on the votes of models that never saw the file's survey "
+              "(`--out-of-fold`, `sparsegf_decision_out_of_fold.md`)."]
     out = RESULTS / "sparsegf_decision_corpus.md"
     out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

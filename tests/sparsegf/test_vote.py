@@ -151,7 +151,8 @@ def test_decide_on_numpy_votes_gives_the_labels_of_jax(name):
 
 
 def test_decide_with_smrf_changes_labels_only_against_the_network_when_confident():
-    prob = np.array([0.35, 0.35, 0.75, 0.75, 0.95, 0.1, 0.04], np.float32)
+    keep = Config().smrf_ground_probability           # SMRF's ground stays ground above it
+    prob = np.array([0.35, 0.35, 0.75, 0.75, 0.95, keep + 0.05, keep - 0.01], np.float32)
     verdict = np.array([True, False, True, False, False, True, True])
     np.testing.assert_array_equal(np.asarray(decide(prob, verdict, config=Config())),
                                   [True, False, True, False, True, True, False])
