@@ -46,7 +46,7 @@ from gfjax.io.cloud import CloudView, Frame
 
 RETURNS = ("all", "last")
 
-__all__ = ["Terrain", "measure", "measure_chunks", "cloud_parts", "Chunk", "Parts", "follows", "run", "finish", "hide", "Hidden", "raster_cell_m", "settle_cloud", "given_params", "measure_cloud", "combine", "settle_terrain", "Settled", "FIXED_PRESET"]
+__all__ = ["Terrain", "measure", "measure_chunks", "cloud_parts", "Chunk", "Parts", "follows", "run", "finish", "hide", "Hidden", "raster_cell_m", "settle_cloud", "given_params", "measure_cloud", "combine", "settle_terrain", "Settled", "show", "FIXED_PRESET"]
 
 # The preset name that keeps a method's fixed defaults (no rule applied).
 FIXED_PRESET = "fixed"
@@ -420,7 +420,7 @@ def settle_terrain(rule: Callable[[Terrain], dict[str, Any]] | None, terrain: Te
         if not given:
             raise
         # a user's value against one the cloud chose: the user says which to change
-        picked = ", ".join(f"{k}={_show(v)}" for k, v in chosen.items() if k in err.keys)
+        picked = show({k: v for k, v in chosen.items() if k in err.keys})
         raise InputError(f"{err}: {', '.join(given)} given, {picked or 'the rest'} chosen from the cloud; "
                          "set both (--set), or --preset fixed") from None
     return Settled(config, params, chosen, terrain)
@@ -446,15 +446,14 @@ class Settled(NamedTuple):
 
     def choices(self) -> list[str]:
         """`describe`'s lines after the terrain's: the values chosen, the low outliers hidden."""
-        values = ", ".join(f"{k}={_show(v)}" for k, v in self.chosen.items()) or "none (every value fixed)"
+        values = show(self.chosen) or "none (every value fixed)"
         hidden = [] if self.low_outliers is None else [f"low outliers hidden from it: {self.low_outliers:,}"]
         return [f"chosen from it: {values}", *hidden]
 
 
-def _show(value: Any) -> str:
-    if isinstance(value, float):
-        return f"{value:.4g}"
-    return str(value)
+def show(values: dict[str, Any]) -> str:
+    """`name=value, ...` of settings for `gfjax filter -v` (floats to 4 significant digits)."""
+    return ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items())
 
 
 def follows(rule: Callable[[Terrain], dict[str, Any]], config_type: type, params_type: type | None, *,

@@ -276,9 +276,9 @@ def _survey_setup(setup, catalog, args, whole: bool | None = None):
     elif settings.terrain is not None and getattr(args, "verbose", False):
         print(f"gfjax: {what}: terrain: {settings.terrain.describe()}", file=sys.stderr)
     if settings.estimated and getattr(args, "verbose", False):
-        values = ", ".join(f"{name}={value:.4g}" if isinstance(value, float) else f"{name}={value}"
-                           for name, value in settings.estimated.items())
-        print(f"gfjax: {what}: estimated once on all of it: {values}", file=sys.stderr)
+        from gfjax import adaptive
+
+        print(f"gfjax: {what}: estimated once on all of it: {adaptive.show(settings.estimated)}", file=sys.stderr)
     return setup._replace(config=settings.config, options={**(setup.options or {}), **settings.options})
 
 
