@@ -24,11 +24,10 @@ from typing import NamedTuple
 import numpy as np
 
 from gfjax import limits
-from gfjax.io.cloud import use_mask
 from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import STORE, Catalog
-from gfjax.survey.halo import Points, ground_near, tiles_region, within_box
+from gfjax.survey.halo import Points, ground_near, overlaps, tiles_region, within_box
 from gfjax.tiling import tiles
 from gfjax.tiling.tiles import Lattice, Tiling
 
@@ -81,15 +80,16 @@ class TileLabels:
         for i, entry in enumerate(catalog.entries):
             self.labels_of.append(np.lib.format.open_memmap(Path(folder) / f"{i}.ground.npy", mode="w+",
                                                          dtype=np.bool_, shape=(entry.n_points,)))
-            packed = set()
-            for _, block in entry.blocks():
-                keys = self.key_of(block["xyz_m"][self._used(block), :2])
-                # one int64 per key: np.unique on rows sorts 20x slower
-                packed.update(np.unique((keys[:, 0] << 32) | keys[:, 1]).tolist())
-            self.keys.append({(int(k >> 32), int(k & 0xFFFFFFFF)) for k in packed})
+            self.keys.append(self._keys_over(entry.frame))
 
-    def _used(self, records) -> np.ndarray:
-        return use_mask(records["ignored"], records["return_number"], records["number_of_returns"], self.returns)
+    def _keys_over(self, frame) -> set[tuple[int, int]]:
+        """The tiles whose cores meet a file's `frame` (the box of its points filtered, from the
+        index: no point read). A tile among them without a point of the file labels none of
+        its points, and one without any point filtered in its core runs no filter."""
+        if frame is None:
+            return set()
+        first, last = self.key_of(np.stack([frame.origin_m[:2], frame.upper_m]))
+        return {(c, r) for c in range(int(first[0]), int(last[0]) + 1) for r in range(int(first[1]), int(last[1]) + 1)}
 
     def key_of(self, xy_m: np.ndarray) -> np.ndarray:
         """`tile_key` on this survey."""
@@ -186,24 +186,53 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces
     # a file whose points filtered lie a cell within the window's edges lies in it whole
     origin = np.asarray(frame.origin_m[:2], np.float64)
     sure_lo, sure_hi = origin + (window_lo + 1) * lattice.cell_m, origin + (window_hi - 1) * lattice.cell_m
-    parts, owners, records, take = [], [], None, None
-    for j, take, records in within_box(catalog, lo, hi):
-        box = catalog.entries[j].frame
+    parts, owners = [], []
+    for j, entry in enumerate(catalog.entries):
+        box = entry.frame
+        if not overlaps(box, lo, hi):
+            continue
         if np.all(box.origin_m[:2] >= sure_lo) and np.all(box.upper_m <= sure_hi):
+            take, records = entry.within(lo, hi)
             parts.append(records)
             owners.append((j, _rows(take)))
             continue
-        # exactly the window's points (`split`'s cells): `split` then cuts the tile without copying them
+        if entry.store is None:              # a COPC file: the octree nodes that meet the box, read
+            take, records = entry.within(lo, hi)
+            found, rows = _in_window([records], [(j, take)], frame, lattice, window_lo, window_hi)
+            parts += found
+            owners += rows
+            continue
+        for start, block in entry.blocks():
+            # exactly the window's points (`split`'s cells): `split` then cuts the tile without copying them
+            found, rows = _in_window([block], [(j, range(start, start + len(block)))], frame, lattice, window_lo,
+                                     window_hi)
+            parts += found
+            owners += rows
+            del block, found
+    return _core_labels(catalog, filter_fn, lattice, key, parts, owners, frame.only([key]), returns=returns)
+
+
+def _in_window(parts: list[np.ndarray], owners: list, frame, lattice: Lattice, window_lo: np.ndarray,
+               window_hi: np.ndarray) -> tuple[list[np.ndarray], list]:
+    """`parts` (`STORE` records) and their `owners` `(j, rows)` cut to the points whose cells
+    (`tiles.point_cells` on `frame`'s lattice) lie in the window `[window_lo, window_hi)`; a part
+    with none is dropped."""
+    out_parts, out_owners = [], []
+    for records, (j, rows) in zip(parts, owners):
         cells = tiles.point_cells(records["xyz_m"][:, :2], frame, lattice.cell_m)
         inside = (cells[:, 0] >= window_lo[0]) & (cells[:, 0] < window_hi[0])
         inside &= (cells[:, 1] >= window_lo[1]) & (cells[:, 1] < window_hi[1])
+        del cells
         mine = np.flatnonzero(inside)
-        del cells, inside
-        if mine.size:
-            parts.append(records if mine.size == len(records) else records[mine])
-            owners.append((j, _rows(take if mine.size == len(records) else take[mine])))
-    del records, take
-    return _core_labels(catalog, filter_fn, lattice, key, parts, owners, frame.only([key]), returns=returns)
+        if not mine.size:
+            continue
+        if mine.size == len(records):
+            out_parts.append(records)
+            out_owners.append((j, rows))
+        else:
+            out_parts.append(records[mine])
+            out_owners.append((j, _rows(rows.start + mine if isinstance(rows, range) else rows[mine])))
+    return out_parts, out_owners
 
 
 def _piece_labels(catalog: Catalog, filter_fn: Callable, pieces: Pieces, key: tuple[int, int], *,
@@ -227,9 +256,11 @@ def _core_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Piece
     if not parts:
         return []
     points = _joined(parts, f"survey tile {key}", frame)
+    in_core = in_tile(points.xyz_m, catalog, lattice, key)
+    if not np.any(in_core & points.filter_mask(returns)):       # a tile of the files' boxes, not of their points
+        return []
     result: Result = filter_fn(points, returns=returns)
     ground = np.asarray(result.ground, bool)
-    in_core = in_tile(points.xyz_m, catalog, lattice, key)
     del points, result
     out, start = [], 0
     for j, take in owners:
