@@ -20,6 +20,7 @@ import secrets
 import stat as stat_
 import time
 
+from gfjax import heap
 from gfjax.aot import folder
 
 __all__ = ["MAX_FILES", "MAX_BYTES", "SUFFIX", "EXPORT_SUFFIX", "PLAIN_SUFFIX", "MAGIC", "read_entry", "wrap",
@@ -111,33 +112,15 @@ TRIM_AFTER_BYTES = 2**20
 
 
 def _return_scratch() -> None:
-    """Give the heap's free pages back to the system (glibc's `malloc_trim`; elsewhere nothing).
+    """Give the heap's free pages back to the system (`gfjax.heap.trim`).
 
     Loading an executable allocates about as much scratch memory as the program keeps and
     frees it again, and glibc keeps those pages: SparseGF's network (525 kernels, 3.4 MB)
     grows the heap by about 100 MB, half of it freed. Without this a 30-point file's process
     peaked at 380 MB (SparseGF) and 277 MB (SMRF), with it at 362 and 267 MB. A trim walks the
-    heap (9-27 ms on a fragmented 0.5 GB one), so only large programs' loads (`TRIM_AFTER_BYTES`:
-    a method's few costly programs) are followed by one."""
-    trim = _TRIM.get("fn")
-    if trim is None:
-        trim = _TRIM["fn"] = _malloc_trim()
-    trim()
-
-
-_TRIM: dict = {}
-
-
-def _malloc_trim():
-    import ctypes
-    import sys
-
-    if sys.platform.startswith("linux"):
-        with contextlib.suppress(OSError, AttributeError):
-            libc = ctypes.CDLL("libc.so.6")
-            fn = libc.malloc_trim
-            return lambda: fn(0)
-    return lambda: None
+    heap, so only large programs' loads (`TRIM_AFTER_BYTES`: a method's few costly programs)
+    are followed by one."""
+    heap.trim()
 
 
 def load_exported(dir_fd: int, name: str, key: str):

@@ -36,7 +36,7 @@ from collections.abc import Sequence
 from types import ModuleType
 from typing import NoReturn
 
-from gfjax import aot, cache
+from gfjax import aot, cache, heap
 from gfjax.errors import InputError
 
 # Subcommand module names, in help order, with their one-line help (shown without importing).
@@ -276,58 +276,16 @@ def _end_process(code: int) -> NoReturn:
     os._exit(code)
 
 
-# glibc's mallopt options (malloc.h)
-_M_TRIM_THRESHOLD, _M_MMAP_MAX, _M_ARENA_MAX = -1, -4, -8
-_KEEP_FREED_BYTES = 1 << 30      # freed heap kept for reuse, not given back to the system [bytes]
-
-
-def _tune_heap() -> None:
-    """glibc's heap set for one large window after another, before JAX starts its threads.
-
-    - At most one malloc arena per core. glibc gives every thread that allocates its own arena
-      (up to 8 per core) and returns little of a freed arena to the system, so a process that
-      filters one large window after another keeps the high-water mark of each thread: DMF
-      over a survey of 12 bcts_2 copies (`experiments/survey_scale.py`'s files) peaked at
-      1.74 GiB with the default and 0.97 GiB with one arena per core, in about the same time.
-    - Freed memory kept for the next window (no block mapped apart, up to
-      `_KEEP_FREED_BYTES` free at the heap's top). By default every array over 32 MB (a
-      column of a 4 M-point window) is a mapping of its own, and the heap above 128 kB is
-      given back: each window's temporaries then fault in fresh zeroed pages, and the kernel's
-      time went to that. A 42-file SMRF survey took 36.0 s instead of 44.9 s (system time
-      6.5 s instead of 12.7 s), peaking at 1.01 GiB instead of 0.94 GiB
-      (`experiments/results/survey_scale.md`).
-
-    The user's own settings win (`MALLOC_ARENA_MAX`, `MALLOC_MMAP_MAX_`,
-    `MALLOC_TRIM_THRESHOLD_`, malloc tunables in `GLIBC_TUNABLES`); other C libraries are
-    left alone.
-    """
-    if not sys.platform.startswith("linux"):
-        return
-    import ctypes
-
-    env = os.environ
-    theirs = "glibc.malloc." in env.get("GLIBC_TUNABLES", "")
-    settings = []
-    if "MALLOC_ARENA_MAX" not in env and not theirs:
-        settings.append((_M_ARENA_MAX, max(1, os.cpu_count() or 1)))
-    if not ({"MALLOC_MMAP_MAX_", "MALLOC_TRIM_THRESHOLD_"} & env.keys()) and not theirs:
-        settings += [(_M_MMAP_MAX, 0), (_M_TRIM_THRESHOLD, _KEEP_FREED_BYTES)]
-    with contextlib.suppress(OSError, AttributeError):
-        libc = ctypes.CDLL("libc.so.6")
-        for option, value in settings:
-            libc.mallopt(option, value)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run `gfjax` with `argv` and return the exit code.
 
     Without `argv` (the `gfjax` program: `sys.argv[1:]`) the process ends here with that code,
     skipping the interpreter's teardown (`_end_process`), and its heap is set for large
-    windows (`_tune_heap`); with `argv` (tests, other Python code) the code is
+    windows (`gfjax.heap.tune`); with `argv` (tests, other Python code) the code is
     returned and the process's allocator is left as it is.
     """
     if argv is None:
-        _tune_heap()
+        heap.tune()
         _end_process(_run(sys.argv[1:]))
     return _run(argv)
 

@@ -24,7 +24,7 @@ import threading
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from gfjax import limits
+from gfjax import heap, limits
 from gfjax.errors import InputError
 
 WORKERS_ENV = "GFJAX_WORKERS"        # set in a local cluster's workers: how many share this machine's cores
@@ -203,8 +203,10 @@ def result(future, what: str, again: Callable[[], Any] | None = None):
 
 def dask_setup(worker) -> None:
     """Run by each local worker as it starts (Dask's preload hook), before any task imports
-    JAX: worker k of N keeps cores k, k+N, ... of this machine, so JAX's thread pool (sized
-    from the cores a process may use) does not oversubscribe them."""
+    JAX: its heap set as the `gfjax` program's (`gfjax.heap.tune`), and worker k of N keeps
+    cores k, k+N, ... of this machine, so JAX's thread pool (sized from the cores a process
+    may use) does not oversubscribe them."""
+    heap.tune()
     n = int(os.environ.get(WORKERS_ENV, "0") or 0)
     if n <= 1 or not hasattr(os, "sched_setaffinity"):
         return

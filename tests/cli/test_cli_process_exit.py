@@ -9,7 +9,6 @@ from pathlib import Path
 
 import laspy
 import numpy as np
-import pytest
 from cli_helpers import SCENE_CLASSES, write_scene
 
 REPO = Path(__file__).resolve().parents[2]
@@ -87,56 +86,27 @@ def test_program_whose_reader_is_gone_keeps_the_file_it_wrote(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.las", "out.laz"]
 
 
-def _mallopt_calls(monkeypatch) -> list[tuple[int, int]]:
-    """The `mallopt(option, value)` calls `_tune_heap` makes, recorded instead of made."""
-    import ctypes
+def test_the_program_sets_its_heap_and_a_call_with_arguments_leaves_it_alone(monkeypatch, capsys):
+    """`main()` as the program sets the heap (`gfjax.heap.tune`) before any work; tests and
+    other Python code call `main(argv)`: the process's allocator is theirs."""
+    from gfjax import heap
+    from gfjax.cli import main as cli_main
 
     calls = []
 
-    class Libc:
-        def mallopt(self, option, value):
-            calls.append((option, value))
-            return 1
+    def end(code):
+        calls.append(code)
+        raise SystemExit(code)
 
-    monkeypatch.setattr(ctypes, "CDLL", lambda name: Libc())
-    for name in ("MALLOC_ARENA_MAX", "MALLOC_MMAP_MAX_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES"):
-        monkeypatch.delenv(name, raising=False)
-    return calls
-
-
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's heap only")
-def test_the_program_sets_the_heap_for_large_windows_once(monkeypatch):
-    """`main()` as the program calls glibc's `mallopt` before any work: one arena per core,
-    no block mapped apart, freed memory kept for reuse."""
-    from gfjax.cli import main as cli_main
-
-    calls = _mallopt_calls(monkeypatch)
-    cli_main._tune_heap()
-    assert calls == [(-8, os.cpu_count()), (-4, 0), (-1, cli_main._KEEP_FREED_BYTES)]
-    assert 0 < cli_main._KEEP_FREED_BYTES < 2 ** 31                 # mallopt takes a C int
-
-
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's heap only")
-@pytest.mark.parametrize(("name", "value", "kept"), [
-    ("MALLOC_ARENA_MAX", "4", [(-4, 0), (-1, 1 << 30)]),
-    ("MALLOC_MMAP_MAX_", "65536", [(-8, None)]),
-    ("MALLOC_TRIM_THRESHOLD_", "131072", [(-8, None)]),
-    ("GLIBC_TUNABLES", "glibc.malloc.trim_threshold=131072", []),
-])
-def test_the_users_own_heap_settings_win(monkeypatch, name, value, kept):
-    from gfjax.cli import main as cli_main
-
-    calls = _mallopt_calls(monkeypatch)
-    monkeypatch.setenv(name, value)
-    cli_main._tune_heap()
-    assert [(option, os.cpu_count() if v is None else v) for option, v in kept] == calls
-
-
-def test_a_call_with_arguments_leaves_the_heap_alone(monkeypatch, capsys):
-    """Tests and other Python code call `main(argv)`: the process's allocator is theirs."""
-    from gfjax.cli import main as cli_main
-
-    calls = _mallopt_calls(monkeypatch)
+    monkeypatch.setattr(heap, "tune", lambda: calls.append("tune"))
+    monkeypatch.setattr(cli_main, "_end_process", end)
+    monkeypatch.setattr(sys, "argv", ["gfjax", "--version"])
+    try:
+        cli_main.main()
+    except SystemExit:
+        pass
+    assert calls == ["tune", 0]
+    calls.clear()
     assert cli_main.main(["--version"]) == 0
     assert calls == []
 

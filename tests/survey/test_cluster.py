@@ -342,3 +342,19 @@ def test_workers_on_a_survey_too_small_says_so_and_filters_here(grid, tmp_path, 
     for path in grid:
         np.testing.assert_array_equal(las_io.read(tmp_path / "asked" / path.name).classification,
                                       las_io.read(tmp_path / "one" / path.name).classification)
+
+
+def test_a_local_worker_starts_with_the_programs_heap_and_its_share_of_the_cores(monkeypatch):
+    """`dask_setup` (Dask's preload hook of a local worker): the heap as the `gfjax` program
+    sets it, then worker k of N on cores k, k+N, ..."""
+    from types import SimpleNamespace
+
+    from gfjax import heap
+
+    done = []
+    monkeypatch.setattr(heap, "tune", lambda: done.append("tune"))
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
+    monkeypatch.setattr(os, "sched_setaffinity", lambda pid, cores: done.append(sorted(cores)), raising=False)
+    monkeypatch.setenv(cluster.WORKERS_ENV, "2")
+    cluster.dask_setup(SimpleNamespace(name=1))
+    assert done == ["tune", [1, 3]]
