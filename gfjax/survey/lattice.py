@@ -197,42 +197,31 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces
             owners.append((j, _rows(take)))
             continue
         if entry.store is None:              # a COPC file: the octree nodes that meet the box, read
-            take, records = entry.within(lo, hi)
-            found, rows = _in_window([records], [(j, take)], frame, lattice, window_lo, window_hi)
-            parts += found
-            owners += rows
-            continue
-        for start, block in entry.blocks():
+            reads = [entry.within(lo, hi)]
+        else:                                # a block at a time
+            reads = ((range(start, start + len(block)), block) for start, block in entry.blocks())
+        for rows, records in reads:
             # exactly the window's points (`split`'s cells): `split` then cuts the tile without copying them
-            found, rows = _in_window([block], [(j, range(start, start + len(block)))], frame, lattice, window_lo,
-                                     window_hi)
-            parts += found
-            owners += rows
-            del block, found
+            mine = _in_window(records, frame, lattice, window_lo, window_hi)
+            if not mine.size:
+                continue
+            if mine.size < len(records):
+                records = records[mine]
+                rows = rows.start + mine if isinstance(rows, range) else rows[mine]
+            parts.append(records)
+            owners.append((j, rows if isinstance(rows, range) else _rows(rows)))
+            del records
     return _core_labels(catalog, filter_fn, lattice, key, parts, owners, frame.only([key]), returns=returns)
 
 
-def _in_window(parts: list[np.ndarray], owners: list, frame, lattice: Lattice, window_lo: np.ndarray,
-               window_hi: np.ndarray) -> tuple[list[np.ndarray], list]:
-    """`parts` (`STORE` records) and their `owners` `(j, rows)` cut to the points whose cells
-    (`tiles.point_cells` on `frame`'s lattice) lie in the window `[window_lo, window_hi)`; a part
-    with none is dropped."""
-    out_parts, out_owners = [], []
-    for records, (j, rows) in zip(parts, owners):
-        cells = tiles.point_cells(records["xyz_m"][:, :2], frame, lattice.cell_m)
-        inside = (cells[:, 0] >= window_lo[0]) & (cells[:, 0] < window_hi[0])
-        inside &= (cells[:, 1] >= window_lo[1]) & (cells[:, 1] < window_hi[1])
-        del cells
-        mine = np.flatnonzero(inside)
-        if not mine.size:
-            continue
-        if mine.size == len(records):
-            out_parts.append(records)
-            out_owners.append((j, rows))
-        else:
-            out_parts.append(records[mine])
-            out_owners.append((j, _rows(rows.start + mine if isinstance(rows, range) else rows[mine])))
-    return out_parts, out_owners
+def _in_window(records: np.ndarray, frame, lattice: Lattice, window_lo: np.ndarray,
+               window_hi: np.ndarray) -> np.ndarray:
+    """The rows, int64 `(k,)` ascending, of the `STORE` records whose cells (`tiles.point_cells`
+    on `frame`'s lattice) lie in the window `[window_lo, window_hi)`."""
+    cells = tiles.point_cells(records["xyz_m"][:, :2], frame, lattice.cell_m)
+    inside = (cells[:, 0] >= window_lo[0]) & (cells[:, 0] < window_hi[0])
+    inside &= (cells[:, 1] >= window_lo[1]) & (cells[:, 1] < window_hi[1])
+    return np.flatnonzero(inside)
 
 
 def _piece_labels(catalog: Catalog, filter_fn: Callable, pieces: Pieces, key: tuple[int, int], *,
