@@ -7,7 +7,7 @@ import pytest
 
 from gfjax import heap
 
-_ENV = ("MALLOC_ARENA_MAX", "MALLOC_MMAP_MAX_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES")
+_ENV = ("MALLOC_ARENA_MAX", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES")
 
 
 class _Libc:
@@ -34,18 +34,18 @@ def libc(monkeypatch):
     return fake
 
 
-def test_tune_asks_one_arena_a_core_no_mapped_blocks_and_freed_memory_kept(libc):
+def test_tune_asks_one_arena_a_core_and_freed_memory_kept(libc):
     heap.tune()
-    assert libc.calls == [(-8, os.cpu_count()), (-4, 0), (-1, heap.KEEP_FREED_BYTES)]
+    assert libc.calls == [(-8, os.cpu_count()), (-3, heap.MAPPED_APART_BYTES), (-1, heap.KEEP_FREED_BYTES)]
     assert 0 < heap.KEEP_FREED_BYTES < 2 ** 31                 # mallopt takes a C int
 
 
 @pytest.mark.parametrize(("name", "value", "asked"), [
-    ("MALLOC_ARENA_MAX", "4", [(-4, 0), (-1, heap.KEEP_FREED_BYTES)]),
-    ("MALLOC_MMAP_MAX_", "65536", ["arenas"]),
+    ("MALLOC_ARENA_MAX", "4", [(-3, heap.MAPPED_APART_BYTES), (-1, heap.KEEP_FREED_BYTES)]),
+    ("MALLOC_MMAP_THRESHOLD_", "131072", ["arenas"]),
     ("MALLOC_TRIM_THRESHOLD_", "131072", ["arenas"]),
     ("GLIBC_TUNABLES", "glibc.malloc.trim_threshold=131072", []),
-    ("GLIBC_TUNABLES", "glibc.rtld.optional_static_tls=1024", ["arenas", (-4, 0), (-1, heap.KEEP_FREED_BYTES)]),
+    ("GLIBC_TUNABLES", "glibc.rtld.optional_static_tls=1024", ["arenas", (-3, heap.MAPPED_APART_BYTES), (-1, heap.KEEP_FREED_BYTES)]),
 ])
 def test_the_users_own_heap_settings_win(libc, monkeypatch, name, value, asked):
     monkeypatch.setenv(name, value)
