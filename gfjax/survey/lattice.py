@@ -80,15 +80,15 @@ class TileLabels:
         for i, entry in enumerate(catalog.entries):
             self.labels_of.append(np.lib.format.open_memmap(Path(folder) / f"{i}.ground.npy", mode="w+",
                                                          dtype=np.bool_, shape=(entry.n_points,)))
-            self.keys.append(self._keys_over(entry.frame))
+            # the tiles its box of points filtered meets (from the index: no point read); one
+            # without a point of the file labels none of them, one without any point filtered
+            # in its core runs no filter
+            frame = entry.frame
+            self.keys.append(set() if frame is None else self._keys_over(frame.origin_m[:2], frame.upper_m))
 
-    def _keys_over(self, frame) -> set[tuple[int, int]]:
-        """The tiles whose cores meet a file's `frame` (the box of its points filtered, from the
-        index: no point read). A tile among them without a point of the file labels none of
-        its points, and one without any point filtered in its core runs no filter."""
-        if frame is None:
-            return set()
-        first, last = self.key_of(np.stack([frame.origin_m[:2], frame.upper_m]))
+    def _keys_over(self, lo: np.ndarray, hi: np.ndarray) -> set[tuple[int, int]]:
+        """The keys `(col, row)` of the tiles whose cores meet the x-y box `lo`..`hi` [m]."""
+        first, last = self.key_of(np.stack([lo, hi]))
         return {(c, r) for c in range(int(first[0]), int(last[0]) + 1) for r in range(int(first[1]), int(last[1]) + 1)}
 
     def key_of(self, xy_m: np.ndarray) -> np.ndarray:
@@ -109,9 +109,7 @@ class TileLabels:
         needed = set(self.keys[i])
         box = self._box(i, margin_m)
         if box is not None:
-            first, last = self.key_of(box[0][None])[0], self.key_of(box[1][None])[0]
-            needed |= {k for keys in self.keys for k in keys
-                       if first[0] <= k[0] <= last[0] and first[1] <= k[1] <= last[1]}
+            needed |= self._keys_over(*box) & set().union(*self.keys)
         for key in sorted(needed - self.done, key=lambda k: (k[1], k[0])):
             self._run(key)
         self.labels_of[i].flush()
