@@ -29,6 +29,7 @@ __all__ = ["guard", "despike", "unstack", "stacked_drop_m", "NEIGHBOURS", "THRES
 # over the three; ties: the lowest ISPRS total error of SMRF): 8 neighbours, 1 m, slope 0.5.
 PROBE = 256             # ground points looked at first for stacks of coincident points
 QUERY_ROWS = 1 << 18     # ground points whose neighbours are found at a time (memory, not labels)
+SURE_CELL_SPACINGS = 3.0   # the cell of `_unsure`, in point spacings (speed, not labels)
 NEIGHBOURS = 8           # ground neighbours a point is compared with
 THRESHOLD_M = 1.0        # height off their median tolerated next to them [m]
 SLOPE = 0.5              # ... plus this rise over run, over the median distance to them
@@ -87,14 +88,53 @@ def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRES
     if np.any(tree.query(xy[probe], k=k + 1, workers=-1)[0][:, k] == 0.0):
         return _despike_stacked(z, xy, index, ground, threshold_m=threshold_m, slope=slope, k=k)
     out = ground.copy()
-    for start in range(0, len(xy), QUERY_ROWS):   # a slice at a time: k neighbours a point is 150 bytes
-        rows = slice(start, start + QUERY_ROWS)
+    unsure = _unsure(xy, z, threshold_m=threshold_m, slope=slope, k=k)
+    for start in range(0, unsure.size, QUERY_ROWS):   # a slice at a time: k neighbours a point is 150 bytes
+        rows = unsure[start:start + QUERY_ROWS]
         distance, neighbour = tree.query(xy[rows], k=k + 1, workers=-1)
         distance, neighbour = distance[:, 1:], neighbour[:, 1:]          # the point itself first
         off = z[rows] - _median_rows(z[neighbour])
         allowed = threshold_m + slope * _median_sorted_rows(distance)  # distances come sorted
         out[index[rows][np.abs(off) > allowed]] = False
     return out
+
+
+def _unsure(xy: np.ndarray, z: np.ndarray, *, threshold_m: float, slope: float, k: int) -> np.ndarray:
+    """The rows, int64 `(m,)` ascending, of the ground points `xy` `(n, 2)` [m from their
+    corner], `z` `(n,)` [m] that `despike` must compare with their neighbours: all but those
+    that no median of their neighbours can make a spike.
+
+    On square cells of `SURE_CELL_SPACINGS` point spacings, a point whose own cell holds more
+    than `k` points has its `k` nearest within a cell's diagonal, so inside the 5 x 5 cells
+    around it; when every height there lies within `threshold_m` of its own, so does their
+    median, and the tolerance of `despike` (`threshold_m` plus a rise of `slope` >= 0) holds it,
+    exactly, in floating point too (each step rounds monotonically). Such points are no query:
+    most ground points of a dense, gentle cloud (the cells' extremes cost one pass). A cloud
+    whose box the points do not fill (more than `4 n` cells) queries every point."""
+    every = np.arange(len(xy))
+    span = xy.max(axis=0)
+    area = float(span[0]) * float(span[1])
+    if slope < 0 or not threshold_m >= 0 or not area > 0:
+        return every
+    from scipy import ndimage
+
+    cell_m = SURE_CELL_SPACINGS * np.sqrt(area / len(xy))
+    shape = (int(span[1] // cell_m) + 1, int(span[0] // cell_m) + 1)
+    if shape[0] * shape[1] > 4 * len(xy):
+        return every
+    key = (xy[:, 1] // cell_m).astype(np.int64)
+    key *= shape[1]
+    key += (xy[:, 0] // cell_m).astype(np.int64)
+    count = np.bincount(key, minlength=shape[0] * shape[1])
+    low, high = np.full(count.size, np.inf), np.full(count.size, -np.inf)
+    np.minimum.at(low, key, z)
+    np.maximum.at(high, key, z)
+    low = ndimage.minimum_filter(low.reshape(shape), size=5, mode="constant", cval=np.inf).reshape(-1)
+    high = ndimage.maximum_filter(high.reshape(shape), size=5, mode="constant", cval=-np.inf).reshape(-1)
+    sure = count[key] > k
+    sure &= z - low[key] <= threshold_m
+    sure &= high[key] - z <= threshold_m
+    return np.flatnonzero(~sure)
 
 
 def _despike_stacked(z, xy, index, ground, *, threshold_m: float, slope: float, k: int) -> np.ndarray:

@@ -72,6 +72,47 @@ def test_stacks_of_coincident_points_match_brute_force(seed):
     np.testing.assert_array_equal(got[outside[far]], want[outside[far]])
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_points_no_median_can_unmake_are_not_queried_and_labels_match_brute_force(seed):
+    """A dense, gentle cloud: most ground points lie within `THRESHOLD_M` of every height of the
+    5 x 5 cells around them and go unqueried; the spikes, points a hair off their neighbours'
+    tolerance and a sparse corner where cells hold k points or fewer are queried, all as the
+    brute force labels them."""
+    rng = np.random.default_rng(seed)
+    xyz = terrain(n=2500, seed=seed, slope=0.01)
+    xyz[:, :2] *= 0.5                                              # 50 x 50 m: 1 m spacing
+    corner = np.column_stack([rng.uniform(60, 90, (40, 2)), 50 + rng.normal(0, 0.05, 40)])
+    xyz = np.vstack([xyz, corner])
+    spiked = rng.choice(2500, 3, replace=False)
+    xyz[spiked, 2] += [-1.2, 0.95, 1.05]                                 # on both sides of 1 m
+    ground = rng.random(len(xyz)) < 0.9
+    index = np.flatnonzero(ground)
+    xy = xyz[index, :2] - xyz[index, :2].min(axis=0)
+    unsure = spikes._unsure(xy, xyz[index, 2], threshold_m=spikes.THRESHOLD_M, slope=spikes.SLOPE,
+                            k=spikes.NEIGHBOURS)
+    assert unsure.size < 0.75 * index.size
+    in_corner = np.flatnonzero(index >= 2500)
+    assert np.isin(in_corner, unsure).all()                       # too few a cell there
+    np.testing.assert_array_equal(spikes.despike(xyz, ground),
+                                  brute_force(xyz, ground, threshold_m=spikes.THRESHOLD_M, slope=spikes.SLOPE,
+                                              k=spikes.NEIGHBOURS))
+
+
+def test_every_point_is_queried_where_the_cells_prove_nothing():
+    """A negative slope (a tolerance below `threshold_m`), no threshold, points on one line (no
+    area) and a strip whose cells would outnumber its points: every point is compared with its
+    neighbours."""
+    xyz = terrain(n=400)
+    xy, z = xyz[:, :2] - xyz[:, :2].min(axis=0), xyz[:, 2]
+    for kwargs in (dict(threshold_m=1.0, slope=-0.1), dict(threshold_m=-1.0, slope=0.5),
+                   dict(threshold_m=np.nan, slope=0.5)):
+        np.testing.assert_array_equal(spikes._unsure(xy, z, k=8, **kwargs), np.arange(400))
+    line = np.column_stack([xy[:, 0], np.zeros(400)])
+    np.testing.assert_array_equal(spikes._unsure(line, z, threshold_m=1.0, slope=0.5, k=8), np.arange(400))
+    strip = np.column_stack([xy[:, 0] * 10, xy[:, 1] * 1e-5])        # 1 km by 1 mm: cells the points do not fill
+    np.testing.assert_array_equal(spikes._unsure(strip, z, threshold_m=1.0, slope=0.5, k=8), np.arange(400))
+
+
 def test_a_million_coincident_points_cost_what_a_few_do():
     xyz = np.vstack([np.tile([[10.0, 10.0, 5.0]], (1_000_000, 1)), terrain(n=100)])
     ground = np.ones(len(xyz), bool)
