@@ -209,11 +209,15 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
     if not ground.any() or not used.any():
         return ground.copy()
     xyz = np.asarray(xyz_m, dtype=np.float64)
-    points = np.flatnonzero(used | ground)
+    either = used | ground
+    # None when every point is used or ground (a window's millions: no 8 bytes a point of index)
+    points = None if either.all() else np.flatnonzero(either)
+    del either
+
     # column by column (numpy runs (n, 2) arithmetic through an inner loop of two elements),
     # gathered only when some point is neither used nor ground
     def column(j: int) -> np.ndarray:
-        return xyz[:, j] if points.size == len(xyz) else xyz[:, j][points]
+        return xyz[:, j] if points is None else xyz[:, j][points]
 
     # cells from the points' corner, as the rule was chosen: a survey's window lays them from its
     # own corner, so near a window's edge its labels may differ from one file's (as the spikes')
@@ -225,13 +229,13 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
     key += i
     del i, j
     z = column(2)
-    on_used = used[points]
-    on_ground = ground[points]
+    on_used = used if points is None else used[points]
+    on_ground = ground if points is None else ground[points]
     cell = key[on_ground]
     top = z[on_ground] - drop_m
     stacked = np.zeros(cell.size, dtype=bool)
     steps = (-width - 1, -width, -width + 1, -1, 0, 1, width - 1, width, width + 1)
-    if n_keys <= 4 * len(points):
+    if n_keys <= 4 * len(z):
         # a box the points fill: the lowest return of every cell of it, O(n), then of the 3 x 3
         # cells around each (the ring's cells keep +inf), read once per ground point
         lowest = np.full(n_keys, np.inf)
@@ -253,7 +257,8 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
             at = np.minimum(np.searchsorted(cells, near), cells.size - 1)
             stacked |= (cells[at] == near) & (lowest[at] < top)
     out = ground.copy()
-    out[points[on_ground][stacked]] = False
+    on_ground = np.flatnonzero(on_ground)[stacked]
+    out[on_ground if points is None else points[on_ground]] = False
     return out
 
 

@@ -123,21 +123,20 @@ class Tile:
         return int(self.index.shape[0])
 
 
-def _clamp_into_cells(local: Sequence[np.ndarray], cell: np.ndarray, cell_m: float, out: np.ndarray) -> None:
-    """Clamp `out`, float32 `(n, k)`, the columns `local` (k float64 `(n,)` [m]) rounded, so each
-    value stays inside the cell `cell` (int `(n, k)`) its float64 value is in; in place."""
-    if not len(local[0]):
+def _clamp_into_cell(values: np.ndarray, cell: np.ndarray, cell_m: float, out: np.ndarray) -> None:
+    """Clamp `out`, float32 `(n,)` (a column: a strided view is fine), the values `values`
+    (float64 `(n,)` [m]) rounded, so each stays inside the cell `cell` (int `(n,)`) its float64
+    value is in; in place."""
+    if not len(values):
         return
     # Only a value within a few float32 steps of its cell's edge can round out of it; the
     # others are left as they are (the clip would keep them), so the clip runs on few rows.
-    largest = max(max(abs(float(values.min())), abs(float(values.max()))) for values in local)
+    largest = max(abs(float(values.min())), abs(float(values.max())))
     margin = 4.0 * float(np.spacing(np.float32(largest + cell_m)))
-    near_any = np.zeros(len(local[0]), bool)
-    for j, values in enumerate(local):
-        offset = cell[:, j] * cell_m
-        np.subtract(values, offset, out=offset)
-        near_any |= (offset < margin) | (offset > cell_m - margin)
-    near = np.flatnonzero(near_any)
+    offset = cell * cell_m
+    np.subtract(values, offset, out=offset)
+    near = np.flatnonzero((offset < margin) | (offset > cell_m - margin))
+    del offset
     if near.size:
         c = cell[near]
         lo = (c * cell_m).astype(np.float32)
@@ -330,14 +329,13 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         # local coordinates as (point - origin) - shift, each step rounded as before
         local32 = np.empty((index.size, 3), np.float32)
         local32[:, 2] = less(2, origin[2], rows)
-        local = []
-        for j in range(2):
+        for j in range(2):                 # a column at a time: one float64 column alive, not two
             values = less(j, origin[j], rows)
             values -= shift[j]
             local32[:, j] = values
-            local.append(values)
-        _clamp_into_cells(local, local_cell, cell_m, out=local32[:, :2])
-        del local, local_cell
+            _clamp_into_cell(values, local_cell[:, j], cell_m, out=local32[:, j])
+            del values
+        del local_cell
         shape = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))
         core_lo, core_hi = np.maximum(core_lo, lo), np.minimum(core_hi, hi)
         tiles.append(Tile(key=(ti, tj), origin_m=origin + np.concatenate([shift, [0.0]]), shape=shape, index=index,
