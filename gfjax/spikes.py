@@ -116,8 +116,6 @@ def _unsure(xy: np.ndarray, z: np.ndarray, *, threshold_m: float, slope: float, 
     area = float(span[0]) * float(span[1])
     if slope < 0 or not threshold_m >= 0 or not area > 0:
         return every
-    from scipy import ndimage
-
     cell_m = SURE_CELL_SPACINGS * np.sqrt(area / len(xy))
     shape = (int(span[1] // cell_m) + 1, int(span[0] // cell_m) + 1)
     if shape[0] * shape[1] > 4 * len(xy):
@@ -129,12 +127,21 @@ def _unsure(xy: np.ndarray, z: np.ndarray, *, threshold_m: float, slope: float, 
     low, high = np.full(count.size, np.inf), np.full(count.size, -np.inf)
     np.minimum.at(low, key, z)
     np.maximum.at(high, key, z)
-    low = ndimage.minimum_filter(low.reshape(shape), size=5, mode="constant", cval=np.inf).reshape(-1)
-    high = ndimage.maximum_filter(high.reshape(shape), size=5, mode="constant", cval=-np.inf).reshape(-1)
+    # a grid of about n / 9 cells: numpy's windowed view, not scipy.ndimage's import (0.07 s)
+    low = _around(low.reshape(shape), np.inf, np.min)
+    high = _around(high.reshape(shape), -np.inf, np.max)
     sure = count[key] > k
     sure &= z - low[key] <= threshold_m
     sure &= high[key] - z <= threshold_m
     return np.flatnonzero(~sure)
+
+
+def _around(grid: np.ndarray, empty: float, fold) -> np.ndarray:
+    """`fold` (`np.min`, `np.max`) of the 5 x 5 cells around each cell of `grid` `(h, w)`,
+    `empty` beyond its edges: flat `(h * w,)`."""
+    window = np.lib.stride_tricks.sliding_window_view
+    rows = fold(window(np.pad(grid, 2, constant_values=empty), 5, axis=1), axis=2)     # (h + 4, w)
+    return fold(window(rows, 5, axis=0), axis=2).reshape(-1)
 
 
 def _despike_stacked(z, xy, index, ground, *, threshold_m: float, slope: float, k: int) -> np.ndarray:

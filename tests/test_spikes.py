@@ -98,6 +98,19 @@ def test_points_no_median_can_unmake_are_not_queried_and_labels_match_brute_forc
                                               k=spikes.NEIGHBOURS))
 
 
+@pytest.mark.parametrize("shape", [(1, 1), (1, 9), (9, 1), (3, 7), (40, 30)])
+def test_the_5_by_5_extremes_match_scipy(shape):
+    from scipy import ndimage
+
+    rng = np.random.default_rng(sum(shape))
+    grid = rng.normal(size=shape)
+    grid[rng.random(shape) < 0.3] = np.inf                          # empty cells
+    np.testing.assert_array_equal(spikes._around(grid, np.inf, np.min),
+                                  ndimage.minimum_filter(grid, size=5, mode="constant", cval=np.inf).reshape(-1))
+    np.testing.assert_array_equal(spikes._around(-grid, -np.inf, np.max),
+                                  ndimage.maximum_filter(-grid, size=5, mode="constant", cval=-np.inf).reshape(-1))
+
+
 def test_every_point_is_queried_where_the_cells_prove_nothing():
     """A negative slope (a tolerance below `threshold_m`), no threshold, points on one line (no
     area) and a strip whose cells would outnumber its points: every point is compared with its
