@@ -109,17 +109,17 @@ def _unsure(xy: np.ndarray, z: np.ndarray, *, threshold_m: float, slope: float, 
     around it; when every height there lies within `threshold_m` of its own, so does their
     median, and the tolerance of `despike` (`threshold_m` plus a rise of `slope` >= 0) holds it,
     exactly, in floating point too (each step rounds monotonically). Such points are no query:
-    most ground points of a dense, gentle cloud (the cells' extremes cost one pass). A cloud
-    whose box the points do not fill (more than `4 n` cells) queries every point."""
-    every = np.arange(len(xy))
+    most ground points of a dense, gentle cloud (the cells' extremes cost one pass). Every point
+    is queried under a negative slope or threshold, and for points on a line or a strip so
+    thin that its cells would outnumber them four times."""
     span = xy.max(axis=0)
     area = float(span[0]) * float(span[1])
     if slope < 0 or not threshold_m >= 0 or not area > 0:
-        return every
+        return np.arange(len(xy))
     cell_m = SURE_CELL_SPACINGS * np.sqrt(area / len(xy))
     shape = (int(span[1] // cell_m) + 1, int(span[0] // cell_m) + 1)
     if shape[0] * shape[1] > 4 * len(xy):
-        return every
+        return np.arange(len(xy))
     key = (xy[:, 1] // cell_m).astype(np.int64)
     key *= shape[1]
     key += (xy[:, 0] // cell_m).astype(np.int64)
