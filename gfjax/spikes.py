@@ -136,12 +136,13 @@ def _unsure(xy: np.ndarray, z: np.ndarray, *, threshold_m: float, slope: float, 
     return np.flatnonzero(~sure)
 
 
-def _around(grid: np.ndarray, empty: float, fold) -> np.ndarray:
-    """`fold` (`np.min`, `np.max`) of the 5 x 5 cells around each cell of `grid` `(h, w)`,
-    `empty` beyond its edges: flat `(h * w,)`."""
+def _around(grid: np.ndarray, empty: float, fold, size: int = 5) -> np.ndarray:
+    """`fold` (`np.min`, `np.max`) of the `size` x `size` cells (odd) around each cell of
+    `grid` `(h, w)`, `empty` beyond its edges: flat `(h * w,)`."""
     window = np.lib.stride_tricks.sliding_window_view
-    rows = fold(window(np.pad(grid, 2, constant_values=empty), 5, axis=1), axis=2)     # (h + 4, w)
-    return fold(window(rows, 5, axis=0), axis=2).reshape(-1)
+    reach = size // 2
+    rows = fold(window(np.pad(grid, reach, constant_values=empty), size, axis=1), axis=2)   # (h + 2 reach, w)
+    return fold(window(rows, size, axis=0), axis=2).reshape(-1)
 
 
 def _despike_stacked(z, xy, index, ground, *, threshold_m: float, slope: float, k: int) -> np.ndarray:
@@ -247,13 +248,7 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
         # cells around each (the ring's cells keep +inf), read once per ground point
         lowest = np.full(n_keys, np.inf)
         np.minimum.at(lowest, key[on_used], z[on_used])
-        grid = lowest.reshape(-1, width)
-        around = np.full_like(grid, np.inf)
-        inner = around[1:-1, 1:-1]
-        for dj in (0, 1, 2):
-            for di in (0, 1, 2):
-                np.minimum(inner, grid[dj:dj + grid.shape[0] - 2, di:di + width - 2], out=inner)
-        stacked = around.reshape(-1)[cell] < top
+        stacked = _around(lowest.reshape(-1, width), np.inf, np.min, size=3)[cell] < top
     else:
         # the occupied cells only (sorted keys): a stray point kilometres away adds one cell, not a raster
         cells, slot = np.unique(key[on_used], return_inverse=True)
