@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import shutil
 import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -31,6 +32,7 @@ from gfjax.survey.catalog import STORE, Catalog, Entry
 from gfjax.tiling.tiles import Lattice
 
 HALO_M = 50.0           # context around a file for methods that do not tile [m]
+SPILL_BYTES_PER_POINT = 40   # `survey_terrain`'s columns of a point on disk, at most: x, y, z and a last return's x, y
 
 
 def halo_width(method: Method, config) -> float:
@@ -165,8 +167,8 @@ def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrai
     combined, `adaptive.combine`, gave other slopes and relief: PMF then labelled 19 % of
     bcts_1 + bcts_2 cut 3 x 3 otherwise). None when no point is used. Each pass reads every
     store a block at a time, the files side by side: memory holds a block and the measuring grids
-    a worker, never a file's points.
-    A COPC file has no store: its used points are decompressed once into temporary files."""
+    a worker, never a file's points; the first pass writes each block's columns to temporary
+    files, which the others read (`_chunks`)."""
     with tempfile.TemporaryDirectory(prefix="gfjax-terrain-") as folder:
         return adaptive.measure_chunks([_chunks(entry, returns, Path(folder) / str(i))
                                         for i, entry in enumerate(catalog.entries)])
@@ -213,8 +215,15 @@ def survey_settings(method: Method, catalog: Catalog, config, params, *, fixed: 
 
 def _chunks(entry: Entry, returns: str, spill: Path) -> Callable[[], Iterator[adaptive.Chunk]]:
     """The `adaptive.Chunk`s of a file's blocks, anew at each call: its used points (`use_mask`
-    of `returns`) and their last returns, read from the file's store, or for a file without one
-    (COPC) from the folder `spill`, where they are written block by block at the first call."""
+    of `returns`) and their last returns, read at the first call from the file's store (a COPC
+    file's from the file) and written there, block by block, to the folder `spill` as the
+    contiguous columns the passes read, which the later calls read back. Preparing a block's
+    columns (its masks, the last returns' rows) cost four times reading them; where the
+    folder's disk lacks the room, every call reads the store (a COPC file always spills: it
+    has no store)."""
+    sizes: list[tuple[int, int]] = []          # (used, last) points of each block spilled
+    complete = []                              # [True] once every block is
+
     def blocks() -> Iterator[adaptive.Chunk]:
         for _, block in entry.blocks():
             args = (block["ignored"], block["return_number"], block["number_of_returns"])
@@ -224,19 +233,34 @@ def _chunks(entry: Entry, returns: str, spill: Path) -> Callable[[], Iterator[ad
             columns = [xyz[:, j] for j in range(3)]
             used = tuple(columns) if use.all() else tuple(c[use] for c in columns)
             yield used, (columns[0][last], columns[1][last])
-    if entry.store is not None:
-        return blocks
+
+    def spilling() -> Iterator[adaptive.Chunk]:
+        shutil.rmtree(spill, ignore_errors=True)           # a pass given up half way
+        spill.mkdir()
+        sizes.clear()
+        for k, (used, last) in enumerate(blocks()):
+            with open(spill / f"{k}.f8", "wb") as out:
+                for column in (*used, *last):
+                    np.ascontiguousarray(column).tofile(out)
+            sizes.append((len(used[0]), len(last[0])))
+            yield used, last
+        complete.append(True)
 
     def spilled() -> Iterator[adaptive.Chunk]:
-        if not spill.exists():
-            spill.mkdir()
-            for k, (used, last) in enumerate(blocks()):
-                np.savez(spill / f"{k}.npz", *used, *last)
-        for k in range(len(list(spill.iterdir()))):
-            with np.load(spill / f"{k}.npz") as saved:
-                columns = [saved[f"arr_{j}"] for j in range(5)]
-            yield tuple(columns[:3]), tuple(columns[3:])
-    return spilled
+        for k, (n_used, n_last) in enumerate(sizes):
+            columns = np.fromfile(spill / f"{k}.f8")
+            used = tuple(columns[j * n_used:(j + 1) * n_used] for j in range(3))
+            yield used, (columns[3 * n_used:3 * n_used + n_last], columns[3 * n_used + n_last:])
+
+    def chunks() -> Iterator[adaptive.Chunk]:
+        if complete:
+            return spilled()
+        # room for this file's columns twice over: the other files spill beside it
+        if entry.store is not None and shutil.disk_usage(spill.parent).free < 2 * SPILL_BYTES_PER_POINT * entry.n_points:
+            return blocks()
+        return spilling()
+
+    return chunks
 
 
 def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, lattice: Lattice | None, *,

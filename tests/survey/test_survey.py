@@ -1,6 +1,8 @@
 """Whole surveys: files filtered with their neighbours' halos label like one file of the survey."""
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 
@@ -143,22 +145,45 @@ def test_the_survey_frame_is_the_union_of_the_files_points_filtered(grid, tmp_pa
 
 
 @pytest.mark.parametrize("returns", ["all", "last"])
-@pytest.mark.parametrize("copc", [False, True])
-def test_the_survey_terrain_is_the_union_measured_as_one_cloud(grid, tmp_path, returns, copc):
-    """Every statistic the rules read equals the union file's (a store's blocks, or a COPC
-    file's points spilled to disk): so the values that follow the data are the union's."""
+@pytest.mark.parametrize("source", ["spilled", "store", "copc"])
+def test_the_survey_terrain_is_the_union_measured_as_one_cloud(grid, tmp_path, monkeypatch, returns, source):
+    """Every statistic the rules read equals the union file's, whether the passes read the
+    columns the first one spilled, every pass reads the stores (no room on disk for the
+    columns), or a COPC file's points (spilled, room or not): so the values that follow the
+    data are the union's."""
     from gfjax import adaptive
+    from gfjax.survey import halo
 
     paths, _, union = grid
     catalog = survey.index(paths, tmp_path)
-    if copc:
+    if source == "copc":
         catalog = catalog._replace(entries=tuple(e._replace(store=None) for e in catalog.entries))
+    if source != "spilled":
+        monkeypatch.setattr(halo.shutil, "disk_usage", lambda _: shutil._ntuple_diskusage(1, 1, 0))
     whole = las_io.read(union)
     last = whole.filter_mask("last")
     want = adaptive.measure(whole.xyz_m[whole.filter_mask(returns)], whole.xyz_m[last])
     got = survey.survey_terrain(catalog, returns=returns)
     for key in want._fields:
         assert getattr(got, key) == pytest.approx(getattr(want, key), rel=1e-12, abs=1e-9), key
+
+
+def test_terrain_chunks_read_back_what_the_first_pass_spilled_even_after_a_pass_given_up(grid, tmp_path):
+    """A file's chunks are the same at every call: from its store at the first, from the
+    spilled columns after; a first pass left half way spills again from the start."""
+    from gfjax.survey import halo
+
+    paths, _, _ = grid
+    catalog = survey.index(paths, tmp_path, returns="all")
+    entry = catalog.entries[0]
+    chunks = halo._chunks(entry, "last", tmp_path / "spill")
+    next(iter(chunks()))                                   # a pass given up after one block
+    first, again = list(chunks()), list(chunks())
+    assert (tmp_path / "spill").is_dir() and len(first) == len(again) >= 1
+    for (used, last), (used2, last2) in zip(first, again):
+        for a, b in zip((*used, *last), (*used2, *last2)):
+            np.testing.assert_array_equal(a, b)
+            assert b.flags.c_contiguous
 
 
 def test_survey_settings_settle_what_is_left_open_and_give_the_vote_its_terrain(grid, tmp_path):
