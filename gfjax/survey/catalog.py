@@ -117,6 +117,16 @@ def in_box(xyz_m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return inside
 
 
+def field_arrays(records: np.ndarray, rows: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Each field of `STORE` records `(n,)` as an array of its own (`xyz_m` float64 `(k, 3)`,
+    the others `(k,)`), of the `rows` (int `(k,)`) or of every record: copies, contiguous. A
+    field taken from the records costs about half what the records' rows taken whole and then
+    split into fields cost."""
+    if rows is None:
+        return {field: np.array(records[field]) for field in STORE.names}
+    return {field: np.take(records[field], rows, axis=0) for field in STORE.names}
+
+
 def _joined(parts: list[np.ndarray], dtype: np.dtype) -> np.ndarray:
     """`parts` one after another (the part itself when there is one: no copy)."""
     if len(parts) == 1:

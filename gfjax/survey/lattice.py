@@ -26,7 +26,7 @@ import numpy as np
 from gfjax import limits
 from gfjax.result import Result
 from gfjax.survey import cluster
-from gfjax.survey.catalog import STORE, Catalog
+from gfjax.survey.catalog import STORE, Catalog, field_arrays
 from gfjax.survey.halo import Points, ground_near, overlaps, tiles_region, within_box
 from gfjax.tiling import tiles
 from gfjax.tiling.tiles import Lattice, Tiling
@@ -189,24 +189,21 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces
         box = entry.frame
         if not overlaps(box, lo, hi):
             continue
-        if np.all(box.origin_m[:2] >= sure_lo) and np.all(box.upper_m <= sure_hi):
-            take, records = entry.within(lo, hi)
-            parts.append(records)
-            owners.append((j, _rows(take)))
-            continue
+        whole = bool(np.all(box.origin_m[:2] >= sure_lo) and np.all(box.upper_m <= sure_hi))
         if entry.store is None:              # a COPC file: the octree nodes that meet the box, read
             reads = [entry.within(lo, hi)]
         else:                                # a block at a time
             reads = ((range(start, start + len(block)), block) for start, block in entry.blocks())
         for rows, records in reads:
             # exactly the window's points (`split`'s cells): `split` then cuts the tile without copying them
-            mine = _in_window(records, frame, lattice, window_lo, window_hi)
-            if not mine.size:
-                continue
-            if mine.size < len(records):
-                records = records[mine]
+            mine = None if whole else _in_window(records, frame, lattice, window_lo, window_hi)
+            if mine is not None and mine.size == len(records):
+                mine = None
+            if mine is not None:
+                if not mine.size:
+                    continue
                 rows = rows.start + mine if isinstance(rows, range) else rows[mine]
-            parts.append(records)
+            parts.append(field_arrays(records, mine))
             owners.append((j, rows if isinstance(rows, range) else _rows(rows)))
             del records
     return _core_labels(catalog, filter_fn, lattice, key, parts, owners, frame.only([key]), returns=returns)
@@ -230,14 +227,15 @@ def _piece_labels(catalog: Catalog, filter_fn: Callable, pieces: Pieces, key: tu
     hi = lo + pieces.tile_size_m + 2 * pieces.halo_m
     parts, owners = [], []
     for j, take, records in within_box(catalog, lo, hi):
-        parts.append(records)
+        parts.append(field_arrays(records))
         owners.append((j, _rows(take)))
+        del records
     return _core_labels(catalog, filter_fn, pieces, key, parts, owners, catalog.frame, returns=returns)
 
 
 def _core_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces, key: tuple[int, int],
-                 parts: list[np.ndarray], owners: list, frame, *, returns: str) -> list[tuple[int, np.ndarray, np.ndarray]]:
-    """The window of `parts` (`STORE` records, emptied as they are joined; `owners`: `(j, rows)`
+                 parts: list[dict[str, np.ndarray]], owners: list, frame, *, returns: str) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """The window of `parts` (`field_arrays` of `STORE` records, emptied as they are joined; `owners`: `(j, rows)`
     of each, its file and its rows there) filtered on `frame`, and the labels of tile `key`'s
     core points, per file (`tile_labels`' value)."""
     if not parts:
@@ -270,16 +268,18 @@ def _rows(take: np.ndarray) -> np.ndarray | range:
     return take
 
 
-def _joined(parts: list[np.ndarray], name: str, frame) -> Points:
-    """`Points.from_records(parts, name, frame)`, each part dropped from the list once copied, so
-    the window's points are never held twice (the list is empty afterwards)."""
-    n = sum(len(part) for part in parts)
+def _joined(parts: list[dict[str, np.ndarray]], name: str, frame) -> Points:
+    """The `Points` of `parts` (`field_arrays` of `STORE` records) one after another, each part
+    dropped from the list once copied, so the window's points are never held twice (the list
+    is empty afterwards)."""
+    n = sum(len(part["ignored"]) for part in parts)
     fields = {field: np.empty((n, *STORE[field].shape), STORE[field].base) for field in STORE.names}
     start = 0
     while parts:
         part = parts.pop(0)
+        count = len(part["ignored"])
         for field, out in fields.items():
-            out[start:start + len(part)] = part[field]
-        start += len(part)
+            out[start:start + count] = part[field]
+        start += count
         del part
     return Points(**fields, name=name, frame=frame)
