@@ -40,12 +40,15 @@ def town(seed=0, size=(150.0, 110.0)):
     return np.column_stack([xy + [500_000.0, 5_400_000.0], z]), cls
 
 
-def write_grid(folder, xyz, cls, cuts=(2, 2)):
+def write_grid(folder, xyz, cls, cuts=(2, 2), returns=None):
     """The cloud cut into `cuts` files at its coordinate quantiles; their paths and the cloud's
-    indices of each file's points, in file order."""
+    indices of each file's points, in file order. `returns`: `(return_number,
+    number_of_returns)` of the points (default: single returns)."""
     xi = np.digitize(xyz[:, 0], np.quantile(xyz[:, 0], np.arange(1, cuts[0]) / cuts[0]))
     yi = np.digitize(xyz[:, 1], np.quantile(xyz[:, 1], np.arange(1, cuts[1]) / cuts[1]))
     whole = Cloud.from_xyz(xyz, classification=cls)
+    if returns is not None:
+        whole.las.return_number, whole.las.number_of_returns = returns
     paths, members = [], []
     for i in range(cuts[0]):
         for j in range(cuts[1]):
@@ -65,6 +68,16 @@ def grid(tmp_path_factory):
     folder = tmp_path_factory.mktemp("survey")
     xyz, cls = town()
     return write_grid(folder, xyz, cls)
+
+
+@pytest.fixture(scope="module")
+def echoes(tmp_path_factory):
+    """`grid`, its points of one to three returns each."""
+    folder = tmp_path_factory.mktemp("echoes")
+    xyz, cls = town()
+    rng = np.random.default_rng(1)
+    count = rng.integers(1, 4, len(xyz))
+    return write_grid(folder, xyz, cls, returns=(rng.integers(0, count) + 1, count))
 
 
 @pytest.mark.parametrize("method", [smrf, pmf], ids=["smrf", "pmf"])
@@ -146,7 +159,8 @@ def test_the_survey_frame_is_the_union_of_the_files_points_filtered(grid, tmp_pa
 
 @pytest.mark.parametrize("returns", ["all", "last"])
 @pytest.mark.parametrize("source", ["spilled", "store", "copc"])
-def test_the_survey_terrain_is_the_union_measured_as_one_cloud(grid, tmp_path, monkeypatch, returns, source):
+@pytest.mark.parametrize("data", ["grid", "echoes"])
+def test_the_survey_terrain_is_the_union_measured_as_one_cloud(request, data, tmp_path, monkeypatch, returns, source):
     """Every statistic the rules read equals the union file's, whether the passes read the
     columns the first one spilled, every pass reads the stores (no room on disk for the
     columns), or a COPC file's points (spilled, room or not): so the values that follow the
@@ -154,7 +168,7 @@ def test_the_survey_terrain_is_the_union_measured_as_one_cloud(grid, tmp_path, m
     from gfjax import adaptive
     from gfjax.survey import halo
 
-    paths, _, union = grid
+    paths, _, union = request.getfixturevalue(data)
     catalog = survey.index(paths, tmp_path)
     if source == "copc":
         catalog = catalog._replace(entries=tuple(e._replace(store=None) for e in catalog.entries))
@@ -168,15 +182,16 @@ def test_the_survey_terrain_is_the_union_measured_as_one_cloud(grid, tmp_path, m
         assert getattr(got, key) == pytest.approx(getattr(want, key), rel=1e-12, abs=1e-9), key
 
 
-def test_terrain_chunks_read_back_what_the_first_pass_spilled_even_after_a_pass_given_up(grid, tmp_path):
+@pytest.mark.parametrize("returns", ["all", "last"])
+def test_terrain_chunks_read_back_what_the_first_pass_spilled_even_after_a_pass_given_up(echoes, tmp_path, returns):
     """A file's chunks are the same at every call: from its store at the first, from the
     spilled columns after; a first pass left half way spills again from the start."""
     from gfjax.survey import halo
 
-    paths, _, _ = grid
+    paths, _, _ = echoes
     catalog = survey.index(paths, tmp_path, returns="all")
     entry = catalog.entries[0]
-    chunks = halo._chunks(entry, "last", tmp_path / "spill")
+    chunks = halo._chunks(entry, returns, tmp_path / "spill")
     next(iter(chunks()))                                   # a pass given up after one block
     first, again = list(chunks()), list(chunks())
     assert (tmp_path / "spill").is_dir() and len(first) == len(again) >= 1
