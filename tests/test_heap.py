@@ -7,7 +7,7 @@ import pytest
 
 from gfjax import heap
 
-_ENV = ("MALLOC_ARENA_MAX", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES")
+_ENV = ("MALLOC_ARENA_MAX", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES", "NUMPY_MADVISE_HUGEPAGE")
 
 
 class _Libc:
@@ -29,14 +29,16 @@ class _Libc:
 def libc(monkeypatch):
     fake = _Libc()
     monkeypatch.setattr(heap, "_libc", lambda: fake)
+    monkeypatch.setattr(heap, "_numpy_huge_pages", lambda: lambda on: fake.calls.append(("numpy huge pages", on)))
     for name in _ENV:
         monkeypatch.delenv(name, raising=False)
     return fake
 
 
-def test_tune_asks_one_arena_a_core_and_freed_memory_kept(libc):
+def test_tune_asks_one_arena_a_core_and_freed_memory_kept_and_no_huge_pages(libc):
     heap.tune()
-    assert libc.calls == [(-8, os.cpu_count()), (-3, heap.MAPPED_APART_BYTES), (-1, heap.KEEP_FREED_BYTES)]
+    assert libc.calls == [("numpy huge pages", False), (-8, os.cpu_count()), (-3, heap.MAPPED_APART_BYTES),
+                          (-1, heap.KEEP_FREED_BYTES)]
     assert 0 < heap.KEEP_FREED_BYTES < 2 ** 31                 # mallopt takes a C int
 
 
@@ -50,7 +52,24 @@ def test_tune_asks_one_arena_a_core_and_freed_memory_kept(libc):
 def test_the_users_own_heap_settings_win(libc, monkeypatch, name, value, asked):
     monkeypatch.setenv(name, value)
     heap.tune()
-    assert libc.calls == [(-8, os.cpu_count()) if a == "arenas" else a for a in asked]
+    assert libc.calls == [("numpy huge pages", False), *((-8, os.cpu_count()) if a == "arenas" else a for a in asked)]
+
+
+def test_the_users_own_numpy_huge_pages_setting_wins(libc, monkeypatch):
+    monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", "1")
+    heap.tune()
+    assert ("numpy huge pages", False) not in libc.calls
+
+
+def test_numpys_own_switch_is_found_and_turns_huge_pages_off_and_on_again():
+    """This numpy has the switch `tune` uses; it answers what was set before."""
+    setter = heap._numpy_huge_pages()
+    assert setter is not None
+    was = setter(False)
+    try:
+        assert setter(False) is False
+    finally:
+        setter(was)
 
 
 def test_trim_gives_the_free_pages_back(libc):
@@ -58,8 +77,9 @@ def test_trim_gives_the_free_pages_back(libc):
     assert libc.calls == [("trim", 0)]
 
 
-def test_without_glibc_nothing_is_asked(monkeypatch):
+def test_without_glibc_nothing_is_asked_of_the_heap(monkeypatch):
     monkeypatch.setattr(heap, "_libc", lambda: None)
+    monkeypatch.setattr(heap, "_numpy_huge_pages", lambda: None)
     heap.tune()
     heap.trim()
 
