@@ -65,8 +65,9 @@ class Entry(NamedTuple):
         return np.load(self.store, mmap_mode="r")
 
     def blocks(self, size: int = BLOCK_POINTS) -> Iterator[tuple[int, np.ndarray]]:
-        """`(start, records)` of `size` rows at a time, read into memory (not mapped, so a pass
-        over a file larger than memory holds one block)."""
+        """`(start, records)` of `size` rows at a time: a store's mapped, read-only (`mapped`), a
+        block at a time, so a pass over a file larger than memory holds one block; a COPC
+        file's decompressed."""
         if self.store is None:
             with laspy.open(self.path, laz_backend=las_io.LAZ_BACKENDS) as reader:
                 start = 0
@@ -77,7 +78,7 @@ class Entry(NamedTuple):
         offset = np.load(self.store, mmap_mode="r").offset          # the header's length; no page read
         for start in range(0, self.n_points, size):
             count = min(size, self.n_points - start)
-            yield start, np.fromfile(self.store, dtype=STORE, count=count, offset=offset + start * STORE.itemsize)
+            yield start, mapped(self.store, STORE, count, offset + start * STORE.itemsize)
 
     def within(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The points inside the x-y box `lo`..`hi` [m]: `(index, records)`, int64 `(k,)` their
@@ -94,15 +95,28 @@ class Entry(NamedTuple):
                 index, points = reader.within(lo, hi, self.scale_m[0])
             return index, to_records(points, self.scale_m, self.classes)
         found, chosen = [], []
-        for start, block in self.blocks():          # read, not mapped: mapped pages would stay resident
+        for start, block in self.blocks():          # copied: a block's mapping leaves with it
             if inside:
                 found.append(np.arange(start, start + len(block)))
-                chosen.append(block)
+                chosen.append(np.array(block))
                 continue
             hit = np.flatnonzero(in_box(block["xyz_m"], lo, hi))
             found.append(start + hit)
             chosen.append(block[hit])
         return _joined(found, np.dtype(np.int64)), _joined(chosen, STORE)
+
+
+def mapped(path: str | os.PathLike, dtype: np.dtype, count: int | None = None, offset: int = 0) -> np.ndarray:
+    """`count` rows of `dtype` (None: to the file's end) from byte `offset` of the file `path`,
+    mapped read-only. Nothing is copied out of the page cache, which cost a survey's passes over
+    its stores more than their arithmetic (reading 2.8 GB in blocks of 40 MB: 1.1-1.6 s of
+    system time, mapped 0.2 s); the mapping lasts as long as the array or a view of it does,
+    and its pages count as the process's while they do."""
+    if count is None:
+        count = (os.path.getsize(path) - offset) // np.dtype(dtype).itemsize
+    if count == 0:
+        return np.empty(0, dtype)
+    return np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=(count,)).view(np.ndarray)
 
 
 def in_box(xyz_m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -28,7 +28,7 @@ from gfjax import adaptive, limits
 from gfjax.io.cloud import Cloud, Frame, Points, use_mask
 from gfjax.method import Method
 from gfjax.result import Result
-from gfjax.survey.catalog import STORE, Catalog, Entry
+from gfjax.survey.catalog import STORE, Catalog, Entry, mapped
 from gfjax.tiling.tiles import Lattice
 
 HALO_M = 50.0           # context around a file for methods that do not tile [m]
@@ -248,7 +248,7 @@ def _chunks(entry: Entry, returns: str, spill: Path) -> Callable[[], Iterator[ad
 
     def spilled() -> Iterator[adaptive.Chunk]:
         for k, (n_used, n_last) in enumerate(sizes):
-            columns = np.fromfile(spill / f"{k}.f8")
+            columns = mapped(spill / f"{k}.f8", np.dtype(np.float64))
             used = tuple(columns[j * n_used:(j + 1) * n_used] for j in range(3))
             yield used, (columns[3 * n_used:3 * n_used + n_last], columns[3 * n_used + n_last:])
 

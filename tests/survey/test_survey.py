@@ -645,3 +645,24 @@ def test_adaptive_survey_labels_nearly_as_the_union(grid, tmp_path):
     for path, keep in zip(paths, members):
         got[keep] = las_io.read(tmp_path / "out" / path.name).classification == 2
     assert np.mean(got == want) >= 0.999
+
+
+def test_mapped_rows_are_the_files_rows_read_only(tmp_path):
+    """`mapped` gives the rows `fromfile` reads, from any offset, to the end by default, none
+    from an empty file; they cannot be written (a store is never changed once indexed)."""
+    from gfjax.survey.catalog import STORE, mapped
+
+    rows = np.zeros(7, STORE)
+    rows["xyz_m"] = np.arange(21.0).reshape(7, 3)
+    rows["classification"] = np.arange(7)
+    path = tmp_path / "rows.bin"
+    path.write_bytes(b"head" + rows.tobytes())
+    got = mapped(path, STORE, 3, 4 + 2 * STORE.itemsize)
+    np.testing.assert_array_equal(got, np.fromfile(path, STORE, 3, offset=4 + 2 * STORE.itemsize))
+    np.testing.assert_array_equal(mapped(path, STORE, offset=4), rows)
+    assert type(got) is np.ndarray and not got.flags.writeable
+    with pytest.raises(ValueError):
+        got["classification"][0] = 9
+    (tmp_path / "empty.bin").write_bytes(b"")
+    assert mapped(tmp_path / "empty.bin", np.dtype(np.float64)).shape == (0,)
+    assert mapped(path, STORE, 0, 4).shape == (0,)
