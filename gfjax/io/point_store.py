@@ -5,8 +5,8 @@ whole survey), and writes each file's classified copy afterwards. The catalog's 
 each file's records, exactly as the file holds them (the point format's bytes, every dimension
 and extra byte), in a `.npy` of the point format's dtype (`write`); the copy and the file's
 `Cloud` are then made from it (`blocks`, `load`; `gfjax.io.stream.open_points(stored=...)`,
-`gfjax.io.las.read(stored=...)`), not by decompressing the file again. Reads go through
-`np.fromfile`, not a memory map: mapped pages read stay resident while the map lives.
+`gfjax.io.las.read(stored=...)`), not by decompressing the file again. They are mapped
+(`mapped`), not read: nothing is copied out of the page cache.
 """
 from __future__ import annotations
 
@@ -48,14 +48,30 @@ def _layout(path: str | os.PathLike) -> tuple[np.dtype, int, int]:
 
 def blocks(path: str | os.PathLike, size: int) -> Iterator[tuple[int, np.ndarray]]:
     """`(start, records)`: the store's rows `start` to `start + len(records)`, `size` at a time,
-    read into memory."""
+    mapped copy-on-write (`mapped`)."""
     dtype, n, offset = _layout(path)
     for start in range(0, n, size):
         count = min(size, n - start)
-        yield start, np.fromfile(path, dtype=dtype, count=count, offset=offset + start * dtype.itemsize)
+        yield start, mapped(path, dtype, count, offset + start * dtype.itemsize, writable=True)
 
 
 def load(path: str | os.PathLike) -> np.ndarray:
-    """Every row of a store `(n,)`, read into memory."""
+    """Every row of a store `(n,)`, mapped copy-on-write (`mapped`)."""
     dtype, n, offset = _layout(path)
-    return np.fromfile(path, dtype=dtype, count=n, offset=offset)
+    return mapped(path, dtype, n, offset, writable=True)
+
+
+def mapped(path: str | os.PathLike, dtype: np.dtype, count: int | None = None, offset: int = 0, *,
+           writable: bool = False) -> np.ndarray:
+    """`count` rows of `dtype` (None: to the file's end) from byte `offset` of the file `path`,
+    mapped: read-only, or `writable` copy-on-write (a write changes this array, not the file).
+    Nothing is copied out of the page cache, which cost a survey's passes over its stores more
+    than their arithmetic (reading 2.8 GB in blocks of 40 MB: 1.1-1.6 s of system time; mapped,
+    0.2 s). The mapping lasts as long as the array or a view of it does, and its pages count as
+    the process's while they do."""
+    if count is None:
+        count = (os.path.getsize(path) - offset) // np.dtype(dtype).itemsize
+    if count == 0:
+        return np.empty(0, dtype)
+    return np.memmap(path, dtype=dtype, mode="c" if writable else "r", offset=offset,
+                     shape=(count,)).view(np.ndarray)

@@ -65,8 +65,8 @@ class Entry(NamedTuple):
         return np.load(self.store, mmap_mode="r")
 
     def blocks(self, size: int = BLOCK_POINTS) -> Iterator[tuple[int, np.ndarray]]:
-        """`(start, records)` of `size` rows at a time: a store's mapped, read-only (`mapped`), a
-        block at a time, so a pass over a file larger than memory holds one block; a COPC
+        """`(start, records)` of `size` rows at a time: a store's mapped, read-only
+        (`gfjax.io.point_store.mapped`), a block at a time, so a pass over a file larger than memory holds one block; a COPC
         file's decompressed."""
         if self.store is None:
             with laspy.open(self.path, laz_backend=las_io.LAZ_BACKENDS) as reader:
@@ -78,7 +78,7 @@ class Entry(NamedTuple):
         offset = np.load(self.store, mmap_mode="r").offset          # the header's length; no page read
         for start in range(0, self.n_points, size):
             count = min(size, self.n_points - start)
-            yield start, mapped(self.store, STORE, count, offset + start * STORE.itemsize)
+            yield start, point_store.mapped(self.store, STORE, count, offset + start * STORE.itemsize)
 
     def within(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The points inside the x-y box `lo`..`hi` [m]: `(index, records)`, int64 `(k,)` their
@@ -104,19 +104,6 @@ class Entry(NamedTuple):
             found.append(start + hit)
             chosen.append(block[hit])
         return _joined(found, np.dtype(np.int64)), _joined(chosen, STORE)
-
-
-def mapped(path: str | os.PathLike, dtype: np.dtype, count: int | None = None, offset: int = 0) -> np.ndarray:
-    """`count` rows of `dtype` (None: to the file's end) from byte `offset` of the file `path`,
-    mapped read-only. Nothing is copied out of the page cache, which cost a survey's passes over
-    its stores more than their arithmetic (reading 2.8 GB in blocks of 40 MB: 1.1-1.6 s of
-    system time, mapped 0.2 s); the mapping lasts as long as the array or a view of it does,
-    and its pages count as the process's while they do."""
-    if count is None:
-        count = (os.path.getsize(path) - offset) // np.dtype(dtype).itemsize
-    if count == 0:
-        return np.empty(0, dtype)
-    return np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=(count,)).view(np.ndarray)
 
 
 def in_box(xyz_m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

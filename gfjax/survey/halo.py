@@ -25,10 +25,11 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from gfjax import adaptive, limits
+from gfjax.io import point_store
 from gfjax.io.cloud import Cloud, Frame, Points, use_mask
 from gfjax.method import Method
 from gfjax.result import Result
-from gfjax.survey.catalog import STORE, Catalog, Entry, mapped
+from gfjax.survey.catalog import STORE, Catalog, Entry
 from gfjax.tiling.tiles import Lattice
 
 HALO_M = 50.0           # context around a file for methods that do not tile [m]
@@ -248,7 +249,7 @@ def _chunks(entry: Entry, returns: str, spill: Path) -> Callable[[], Iterator[ad
 
     def spilled() -> Iterator[adaptive.Chunk]:
         for k, (n_used, n_last) in enumerate(sizes):
-            columns = mapped(spill / f"{k}.f8", np.dtype(np.float64))
+            columns = point_store.mapped(spill / f"{k}.f8", np.dtype(np.float64))
             used = tuple(columns[j * n_used:(j + 1) * n_used] for j in range(3))
             yield used, (columns[3 * n_used:3 * n_used + n_last], columns[3 * n_used + n_last:])
 

@@ -649,8 +649,10 @@ def test_adaptive_survey_labels_nearly_as_the_union(grid, tmp_path):
 
 def test_mapped_rows_are_the_files_rows_read_only(tmp_path):
     """`mapped` gives the rows `fromfile` reads, from any offset, to the end by default, none
-    from an empty file; they cannot be written (a store is never changed once indexed)."""
-    from gfjax.survey.catalog import STORE, mapped
+    from an empty file; they cannot be written (a store is never changed once indexed), or,
+    copy-on-write, are written without changing the file."""
+    from gfjax.io.point_store import mapped
+    from gfjax.survey.catalog import STORE
 
     rows = np.zeros(7, STORE)
     rows["xyz_m"] = np.arange(21.0).reshape(7, 3)
@@ -666,3 +668,6 @@ def test_mapped_rows_are_the_files_rows_read_only(tmp_path):
     (tmp_path / "empty.bin").write_bytes(b"")
     assert mapped(tmp_path / "empty.bin", np.dtype(np.float64)).shape == (0,)
     assert mapped(path, STORE, 0, 4).shape == (0,)
+    private = mapped(path, STORE, offset=4, writable=True)
+    private["classification"][0] = 9                      # copy-on-write: the file keeps its bytes
+    assert private["classification"][0] == 9 and mapped(path, STORE, offset=4)["classification"][0] == 0
