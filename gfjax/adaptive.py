@@ -57,6 +57,7 @@ _COVER_PASSES = 4                # the cover cell from the box's density, then t
 _OBJECT_M = 30.0                 # objects narrower than this are taken off the minimum surface before slopes
 _EROSION_PERCENTILE = 10         # ... by this percentile of a square of that side
 _FILTER_BLOCK = 1 << 22          # window values a block of `_percentile_filter` holds at once
+_SURFACE_RASTERS = 6             # float64 rasters `_surface` holds beside the minimum surfaces, at most
 _SLOPE_CELLS_PER_SPACING = 4     # the slope grid's cell, in point spacings: a few points per cell, so its
 _MIN_SLOPE_CELL_M = 5.0          # minimum is mostly ground under canopy
 
@@ -229,7 +230,7 @@ def cloud_parts(used: tuple[np.ndarray, np.ndarray, np.ndarray], last_xy: tuple[
     return [lambda u=u, v=v: [(u, v)] for u, v in zip(cut(used), cut(last_xy))]
 
 
-def measure_chunks(parts: Parts, *, workers: int | None = None) -> Terrain | None:
+def measure_chunks(parts: Parts, *, workers: int | None = None, name: str = "the points") -> Terrain | None:
     """`measure` of points read a chunk at a time from `parts` (a survey's files, a cloud's
     slices: each `part()` yields its `Chunk`s anew at each call), so memory holds a chunk a
     worker and a few grids of about a sixteenth as many cells as points a worker, never the
@@ -240,12 +241,17 @@ def measure_chunks(parts: Parts, *, workers: int | None = None) -> Terrain | Non
     a union or a minimum over the chunks, whatever their order, and each pass's cell follows
     from the previous pass's grid, so every part is read `_COVER_PASSES + 2` times (a file on
     disk is read again, never held). The last returns' spacing is that of every point where
-    none or all of them are last."""
+    none or all of them are last.
+
+    Raises:
+      InputError: a grid over the points' box would not fit the memory budget: groups of
+        points far apart, named `name` in the message (`_check_grid`).
+    """
     workers = min(limits.processors() if workers is None else workers, len(parts))
     if workers <= 1:
-        return _measured(parts, _Threads(1, map))
+        return _measured(parts, _Threads(1, map), name)
     with ThreadPoolExecutor(workers, thread_name_prefix="gfjax-measure") as pool:
-        return _measured(parts, _Threads(workers, pool.map))
+        return _measured(parts, _Threads(workers, pool.map), name)
 
 
 class _Threads(NamedTuple):
@@ -255,15 +261,17 @@ class _Threads(NamedTuple):
     map: Callable
 
 
-def _measured(parts: Parts, threads: _Threads) -> Terrain | None:
+def _measured(parts: Parts, threads: _Threads, name: str) -> Terrain | None:
     """`measure_chunks` with its passes on `threads`."""
     n, box, n_last, last_box = _extents(parts, threads)
     if n == 0:
         return None
     with_last = 0 < n_last < n
-    area, spacing = _spacing(parts, threads, n, box, n_last, last_box if with_last else None)
+    area, spacing = _spacing(parts, threads, n, box, n_last, last_box if with_last else None, name)
     slope_cell = max(_MIN_SLOPE_CELL_M, _SLOPE_CELLS_PER_SPACING * spacing[0])
     lo, shape = box[0], _shape(box, slope_cell)
+    # a minimum surface a thread, and the erosion's few rasters of it
+    _check_grid(name, box, slope_cell, shape, 8.0 * (threads.count + _SURFACE_RASTERS))
 
     def lowest(chunks: Iterable[Chunk]) -> np.ndarray:
         z_min = np.full(shape[0] * shape[1], np.inf)
@@ -339,7 +347,7 @@ def _extents(parts: Parts, threads: _Threads) -> tuple[int, Box, int, Box]:
 
 
 def _spacing(parts: Parts, threads: _Threads, n: int, box: Box, n_last: int,
-             last_box: Box | None) -> tuple[float, list[float]]:
+             last_box: Box | None, name: str = "the points") -> tuple[float, list[float]]:
     """`(area_m2, spacings_m)` of the used points (`n` >= 1 of them, their `box`) [m]
     (`Terrain`): their area, and the spacing of them and, where `last_box` is given, of their
     last returns (`n_last` in `last_box`) after it.
@@ -356,6 +364,7 @@ def _spacing(parts: Parts, threads: _Threads, n: int, box: Box, n_last: int,
         for (_, count, grid_box), area in zip(sets, areas):
             cover_m = max(_MIN_COVER_CELL_M, math.sqrt(_POINTS_PER_COVER_CELL * area / count))
             grids.append((cover_m, _shape(grid_box, cover_m)))
+            _check_grid(name, grid_box, cover_m, grids[-1][1], float(threads.count * len(sets)))
 
         def fold(chunks: Iterable[Chunk], grids=grids) -> list[np.ndarray]:
             occupied = [np.zeros(shape[0] * shape[1], dtype=bool) for _, shape in grids]
@@ -369,6 +378,22 @@ def _spacing(parts: Parts, threads: _Threads, n: int, box: Box, n_last: int,
         occupied = [functools.reduce(np.logical_or, [f[k] for f in folds]) for k in range(len(sets))]
         areas = [np.count_nonzero(cells) * cover_m * cover_m for (cover_m, _), cells in zip(grids, occupied)]
     return areas[0], [math.sqrt(area / count) for (_, count, _), area in zip(sets, areas)]
+
+
+def _check_grid(name: str, box: Box, cell_m: float, shape: tuple[int, int], bytes_per_cell: float) -> None:
+    """`InputError` when a measuring grid of `shape` cells of `cell_m` over `box`, at
+    `bytes_per_cell`, would not fit the memory budget (`limits`): its points lie in groups far
+    apart (files of distant places filtered as one survey), whose box is mostly empty."""
+    need = float(shape[0]) * float(shape[1]) * bytes_per_cell
+    budget = limits.memory_budget_bytes()
+    if need <= budget:
+        return
+    span_km = (np.asarray(box[1], np.float64) - np.asarray(box[0], np.float64)) / 1000.0
+    raise InputError(f"{name}: spread over {span_km[0]:,.1f} x {span_km[1]:,.1f} km, so measuring their terrain "
+                     f"takes a grid of {shape[0]:,} x {shape[1]:,} cells of {cell_m:.3g} m, about "
+                     f"{limits.byte_size(need)}, more than the memory budget of {limits.byte_size(budget)} "
+                     f"(set {limits.BUDGET_ENV} to change it); filter places far apart separately (gfjax filter "
+                     "--independent, or one survey per place)")
 
 
 def combine(terrains: Iterable[Terrain]) -> Terrain:
@@ -558,7 +583,7 @@ def measure_cloud(cloud: Any, returns: str = "all") -> Terrain | None:
     columns = [np.ascontiguousarray(xyz[:, j]) for j in range(3)]
     used = tuple(columns) if use.all() else tuple(c[use] for c in columns)
     last_xy = (columns[0][last], columns[1][last])
-    return measure_chunks(cloud_parts(used, last_xy))
+    return measure_chunks(cloud_parts(used, last_xy), name=getattr(cloud, "name", "the points"))
 
 
 def given_params(params: Any, params_type: type | None) -> tuple[Any, list[str]]:

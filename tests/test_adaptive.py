@@ -64,6 +64,28 @@ def test_measure_of_one_point_and_of_none():
         adaptive.measure(np.empty((0, 3)))
 
 
+def test_points_far_apart_are_refused_by_name_before_a_grid_beyond_the_budget(monkeypatch):
+    """Two groups 400 km apart: the measuring grids over their box would not fit a 1 GiB
+    budget, so `InputError` names the points and the extent before any such grid is made;
+    the same groups 2 km apart measure as usual."""
+    from gfjax.errors import InputError
+    from gfjax.limits import BUDGET_ENV
+
+    monkeypatch.setenv(BUDGET_ENV, "1")
+    rng = np.random.default_rng(0)
+    group = np.column_stack([rng.uniform(0, 100, (5000, 2)), rng.normal(50, 1, 5000)])
+    made = []
+    for maker in ("full", "zeros"):
+        original = getattr(np, maker)
+        monkeypatch.setattr(np, maker, lambda shape, *a, made_by=original, **k: made.append(shape) or made_by(shape, *a, **k))
+    far = np.concatenate([group, group + [400_000.0, 300_000.0, 0.0]])
+    with pytest.raises(InputError, match=r"far.laz: spread over 400\.1 x 300\.1 km.*memory budget of 1\.00 GiB"):
+        adaptive.measure_chunks(adaptive.cloud_parts(tuple(far.T), tuple(far[:, :2].T)), name="far.laz")
+    assert all(np.prod(shape) < 2**27 for shape in made)
+    near = np.concatenate([group, group + [2_000.0, 0.0, 0.0]])
+    assert adaptive.measure(near).n_points == len(near)
+
+
 def chunked(xyz: np.ndarray, last: np.ndarray, bounds: list[int], last_bounds: list[int]):
     """`measure_chunks`' chunks of `xyz` and `last` cut at `bounds` and `last_bounds` (as many
     of each: a chunk may hold no point, or no last return), a list."""

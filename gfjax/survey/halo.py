@@ -172,7 +172,8 @@ def survey_terrain(catalog: Catalog, *, returns: str = "all") -> adaptive.Terrai
     files, which the others read (`_chunks`)."""
     with tempfile.TemporaryDirectory(prefix="gfjax-terrain-") as folder:
         return adaptive.measure_chunks([_chunks(entry, returns, Path(folder) / str(i))
-                                        for i, entry in enumerate(catalog.entries)])
+                                        for i, entry in enumerate(catalog.entries)],
+                                       name=f"the survey of {len(catalog.entries)} files")
 
 
 class Settings(NamedTuple):
