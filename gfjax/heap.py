@@ -62,9 +62,10 @@ def tune() -> None:
       marks every array of 4 MB or more for huge pages, and the kernel, by default, compacts
       memory on the spot to find them for such arrays: a survey's windows of millions of points
       then spent more time in the kernel than the pages saved. 16 copies of bcts_2 as a SMRF
-      survey took 0.937 of the time without them (27.0 s against 28.5 s, system time 5.8 s
-      against 6.9 s, the same peak; `farm-bench`, 4 pairs, each pair in favour), the same
-      files one at a time 1.05 (within the runs' spread: their arrays are a quarter as large).
+      survey took 0.959 of the time without them (27.9 s against 28.9 s, system time 4.7 s
+      against 6.0 s, the same peak; `farm-bench`, 4 pairs; 0.937 in 4 pairs without the
+      settings above, each in favour), the same files one at a time 1.05 (within the runs'
+      spread: their arrays are a quarter as large).
     """
     env = os.environ
     if "NUMPY_MADVISE_HUGEPAGE" not in env:

@@ -65,9 +65,9 @@ class Entry(NamedTuple):
         return np.load(self.store, mmap_mode="r")
 
     def blocks(self, size: int = BLOCK_POINTS) -> Iterator[tuple[int, np.ndarray]]:
-        """`(start, records)` of `size` rows at a time: a store's mapped, read-only
-        (`gfjax.io.point_store.mapped`), a block at a time, so a pass over a file larger than memory holds one block; a COPC
-        file's decompressed."""
+        """`(start, records)` of `size` rows at a time: a store's mapped read-only a block at a
+        time (`gfjax.io.point_store.mapped`), so a pass over a file larger than memory holds one
+        block; a COPC file's decompressed."""
         if self.store is None:
             with laspy.open(self.path, laz_backend=las_io.LAZ_BACKENDS) as reader:
                 start = 0
