@@ -71,7 +71,7 @@ def test_the_voters_share_one_terrain_and_label_alike_side_by_side_or_one_by_one
     cloud = Cloud.from_xyz(scene(2))
     measured = []
     real = adaptive.measure_chunks
-    monkeypatch.setattr(adaptive, "measure_chunks", lambda chunks: measured.append(1) or real(chunks))
+    monkeypatch.setattr(adaptive, "measure_chunks", lambda chunks, **kw: measured.append(1) or real(chunks, **kw))
     side_by_side = vote.filter(cloud)
     assert len(measured) == 1
     assert vote.Config().workers() > 1 or limits.processors() == 1
