@@ -46,9 +46,11 @@ def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=False)
 
 
-def classify_batch(xyz: Float[Host, "b n 3"], valid: Bool[Host, "b n"], hw: Int[Host, "b 2"],
+def classify_batch(xyz: Float[Host, "b m 3"], valid: Bool[Host, "b n"], hw: Int[Host, "b 2"],
                    params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Host, "b n"], TileDiagnostics]:
-    """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared)."""
+    """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared). `xyz`
+    may hold fewer rows `m` than the capacity `n` when they run a chunk at a time
+    (`batches.TileBatch`): the rest is padding."""
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=True)
 
 

@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gfjax.tiling import buckets
+from gfjax.tiling import buckets, chunks
 from gfjax.tiling.buckets import SHAPE_QUANTUM_PX, SMALL_SIDES_PX, SMALLEST_SIDE_PX
 from gfjax.tiling.tiles import Tile
 
@@ -27,7 +27,10 @@ class TileBatch(NamedTuple):
     """Tiles padded to one capacity and one raster shape, stacked for `jax.vmap`.
 
     Attributes:
-      xyz: float32 `(b, cap, 3)` local metres (zeros on padding).
+      xyz: float32 `(b, cap, 3)` local metres (zeros on padding); for a lone window whose
+        points run a chunk at a time (`batches` with `sides`, `chunks.chunked`), its own
+        `local_xyz` `(1, m, 3)` instead, not copied: the rows from `m` to `cap` are padding
+        (`chunks.lowest` pads them a chunk at a time).
       valid: bool `(b, cap)` real points.
       hw: int32 `(b, 2)` each tile's own raster extent (rows, cols) inside `shape`.
       shape: the padded raster `(h, w)` (static for jit).
@@ -48,16 +51,19 @@ def _canonical_shape(shape: tuple[int, int], sides: Sequence[int]) -> tuple[int,
     return square
 
 
-def _pad(tiles: Sequence[Tile], capacity: int, shape: tuple[int, int]) -> TileBatch:
+def _pad(tiles: Sequence[Tile], capacity: int, shape: tuple[int, int], *, share: bool = False) -> TileBatch:
     b = len(tiles)
-    xyz = np.zeros((b, capacity, 3), np.float32)
+    # a survey's window holds millions of points: a second copy of them is the largest array of its run
+    share = share and b == 1 and chunks.chunked(capacity) and tiles[0].local_xyz.flags.c_contiguous
+    xyz = tiles[0].local_xyz[None] if share else np.zeros((b, capacity, 3), np.float32)
     valid = np.zeros((b, capacity), bool)
     hw = np.zeros((b, 2), np.int32)
     for i, tile in enumerate(tiles):
         if tile.n_points > capacity or tile.shape[0] > shape[0] or tile.shape[1] > shape[1]:
             raise ValueError(f"tile {tile.key} ({tile.n_points} points, {tile.shape}) does not fit "
                              f"capacity {capacity} / shape {shape}")
-        xyz[i, :tile.n_points] = tile.local_xyz
+        if not share:
+            xyz[i, :tile.n_points] = tile.local_xyz
         valid[i, :tile.n_points] = True
         hw[i] = tile.shape
     return TileBatch(xyz=xyz, valid=valid, hw=hw, shape=tuple(shape), tiles=tuple(tiles))
@@ -105,7 +111,7 @@ def batches(tiles: Sequence[Tile], *, max_batch: int = 8, capacity: int | None =
             chunks = [members[i:i + max_batch] for i in range(0, full, max_batch)] + [[t] for t in members[full:]]
         for chunk in chunks:
             cap = capacity if capacity is not None else bucket(max(t.n_points for t in chunk))
-            yield _pad(chunk, cap, group_shape)
+            yield _pad(chunk, cap, group_shape, share=sides is not None)
 
 
 def small_batches(tiles: Sequence[Tile], *, max_batch: int = 8) -> Iterator[TileBatch]:

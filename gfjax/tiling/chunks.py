@@ -20,7 +20,12 @@ import numpy as np
 from gfjax._types import Host
 from gfjax.tiling.buckets import POINT_CHUNK
 
-__all__ = ["POINT_CHUNK", "lowest", "labels"]
+__all__ = ["POINT_CHUNK", "chunked", "lowest", "labels"]
+
+
+def chunked(capacity: int) -> bool:
+    """Whether a point axis of `capacity` slots runs a chunk at a time (`lowest`, `labels`)."""
+    return _slices(capacity) is not None
 
 
 def _slices(capacity: int) -> list[slice] | None:
@@ -31,16 +36,28 @@ def _slices(capacity: int) -> list[slice] | None:
     return [slice(start, start + POINT_CHUNK) for start in range(0, capacity, POINT_CHUNK)]
 
 
+def _rows(xyz, part: slice):
+    """Rows `part` of points `xyz` `(..., m, 3)`, zeros where they run past its `m` rows: a
+    lone window's points are passed unpadded (`batches.TileBatch`), padded a chunk at a time."""
+    m = xyz.shape[-2]
+    if part.stop <= m:
+        return xyz[..., part, :]
+    out = np.zeros((*xyz.shape[:-2], part.stop - part.start, xyz.shape[-1]), xyz.dtype)
+    out[..., :max(0, m - part.start), :] = xyz[..., part.start:m, :]
+    return out
+
+
 def lowest(program: Callable, xyz, valid) -> tuple:
     """`program(xyz, valid) -> (z_min, filled)`, the lowest z per cell (+inf where empty) and the
     cells holding a point, `(..., h, w)`, over points `xyz` `(..., cap, 3)`, `valid` `(..., cap)`:
-    one call, or the minimum and union over chunks of `POINT_CHUNK` points (host numpy)."""
-    parts = _slices(xyz.shape[-2])
+    one call, or the minimum and union over chunks of `POINT_CHUNK` points (host numpy; then
+    `xyz` may hold fewer rows than `valid`, the rest padding)."""
+    parts = _slices(valid.shape[-1])
     if parts is None:
         return program(xyz, valid)
     z_min = filled = None
     for part in parts:
-        z, f = program(xyz[..., part, :], valid[..., part])
+        z, f = program(_rows(xyz, part), valid[..., part])
         if z_min is None:
             z_min, filled = np.array(z), np.array(f)
         else:
@@ -51,12 +68,12 @@ def lowest(program: Callable, xyz, valid) -> tuple:
 
 def labels(program: Callable, xyz, valid, *rasters) -> Host:
     """`program(xyz, valid, *rasters) -> ground` `(..., cap)` bool, one call, or one call per
-    chunk of `POINT_CHUNK` points joined (host numpy); `rasters`: the program's other arguments,
+    chunk of `POINT_CHUNK` points joined (host numpy; `xyz` as `lowest`'s); `rasters`: the program's other arguments,
     the same for every chunk."""
-    parts = _slices(xyz.shape[-2])
+    parts = _slices(valid.shape[-1])
     if parts is None:
         return program(xyz, valid, *rasters)
     out = np.empty(valid.shape, bool)
     for part in parts:
-        out[..., part] = np.asarray(program(xyz[..., part, :], valid[..., part], *rasters))
+        out[..., part] = np.asarray(program(_rows(xyz, part), valid[..., part], *rasters))
     return out

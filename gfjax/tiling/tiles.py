@@ -39,6 +39,7 @@ __all__ = ["Tiling", "Lattice", "RANGES", "Tile", "split", "merge", "tiled_estim
 
 CROP_SAVING = 4.0             # a window shrinks to its core points' box + buffer when that is this many times smaller
 FEW_CORES = 4                 # `split` finds the points of at most this many named tiles by masks
+SPLIT_ROWS = 1 << 18          # points `split` cuts one tile's window from, `merge` labels, at a time (memory)
 
 
 # The valid range of each tiling option (`Tiling`; `--tile-size`, `--buffer`).
@@ -145,18 +146,22 @@ def _clamp_into_cell(values: np.ndarray, cell: np.ndarray, cell_m: float, out: n
         out[near] = np.clip(out[near], lo, np.maximum(lo, hi))
 
 
-def _cropped(cells: np.ndarray, of_core: np.ndarray, reach_px: int, lo: np.ndarray,
-             hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The window `[lo, hi)` (cells) cut to the box of its core points' cells (`cells` int
-    `(m, 2)` where `of_core`, bool `(m,)`, at least one) grown by `reach_px`, when that box is at
-    most `1 / CROP_SAVING` of it: a core of a few points in a mostly empty box rasterises their
-    surroundings, not a whole tile."""
+def _core_box(cells: np.ndarray, of_core: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The lowest and highest cell `(col, row)`, int64 `(2,)` each, of the core points (`cells`
+    int `(m, 2)` where `of_core`, bool `(m,)`, at least one)."""
     if of_core.all():
-        lows, highs = columns.lows(cells), columns.highs(cells)
-    else:                                      # a column at a time, without copying the core's rows
-        top = np.iinfo(cells.dtype)
-        lows = np.array([cells[:, j].min(where=of_core, initial=top.max) for j in range(2)], np.int64)
-        highs = np.array([cells[:, j].max(where=of_core, initial=top.min) for j in range(2)], np.int64)
+        return columns.lows(cells).astype(np.int64), columns.highs(cells).astype(np.int64)
+    top = np.iinfo(cells.dtype)                # a column at a time, without copying the core's rows
+    lows = np.array([cells[:, j].min(where=of_core, initial=top.max) for j in range(2)], np.int64)
+    highs = np.array([cells[:, j].max(where=of_core, initial=top.min) for j in range(2)], np.int64)
+    return lows, highs
+
+
+def _cropped(lows: np.ndarray, highs: np.ndarray, reach_px: int, lo: np.ndarray,
+             hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The window `[lo, hi)` (cells) cut to the box of its core points' cells (`lows`..`highs`,
+    `_core_box`) grown by `reach_px`, when that box is at most `1 / CROP_SAVING` of it: a core
+    of a few points in a mostly empty box rasterises their surroundings, not a whole tile."""
     box_lo = np.maximum(lows - reach_px, lo)
     box_hi = np.minimum(highs + 1 + reach_px, hi)
     if np.prod((box_hi - box_lo).astype(np.float64)) * CROP_SAVING > np.prod((hi - lo).astype(np.float64)):
@@ -223,6 +228,25 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     if use.shape != (len(xyz_m),):
         raise ValueError(f"use must have shape ({len(xyz_m)},), got {use.shape}")
     every_used = bool(use.all())
+    for j in range(3):
+        if not np.all(np.isfinite(xyz_m[:, j]), where=use):
+            raise ValueError("xyz_m holds non-finite coordinates")
+    if not use.any():
+        return []
+    lows = np.array([xyz_m[:, j].min(where=use, initial=np.inf) for j in range(3)])
+    highs = np.array([xyz_m[:, j].max(where=use, initial=-np.inf) for j in range(2)])
+    frame = Frame(lows, highs) if frame is None else frame
+    origin = np.asarray(frame.origin_m, np.float64)
+    if np.any(lows < origin) or np.any(highs > np.asarray(frame.upper_m)):
+        raise ValueError("points lie outside the tiling frame")
+    # Cells and tile keys from the coordinates less the origin (float64, >= 0); in int32 where
+    # the lattice fits (the same values; a core spans at least one cell).
+    extent_px = extent_cells(frame, cell_m)
+    small = np.int32 if extent_px.max() < np.iinfo(np.int32).max else np.int64
+    lattice = Lattice(tile_size_m, buffer_m, cell_m)
+    if frame.cores is not None and len(frame.cores) == 1:
+        tile = _one_tile(xyz_m, None if every_used else use, next(iter(frame.cores)), origin, extent_px, lattice, small)
+        return [] if tile is None else [tile]
     used = np.flatnonzero(use)
 
     def column(j: int, rows: np.ndarray | None = None) -> np.ndarray:
@@ -241,28 +265,9 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         values -= offset
         return values
 
-    if not all(np.isfinite(column(j)).all() for j in range(3)):
-        raise ValueError("xyz_m holds non-finite coordinates")
-    if used.size == 0:
-        return []
-    lows = np.array([column(j).min() for j in range(3)])
-    highs = np.array([column(j).max() for j in range(2)])
-    frame = Frame(lows, highs) if frame is None else frame
-    origin = np.asarray(frame.origin_m, np.float64)
-    if np.any(lows < origin) or np.any(highs > np.asarray(frame.upper_m)):
-        raise ValueError("points lie outside the tiling frame")
-    # Cells and tile keys from the coordinates less the origin (float64, >= 0); in int32 where
-    # the lattice fits (the same values; a core spans at least one cell).
-    extent_px = extent_cells(frame, cell_m)
-    small = np.int32 if extent_px.max() < np.iinfo(np.int32).max else np.int64
     cell, core = np.empty((used.size, 2), small), np.empty((used.size, 2), small)
     for j in range(2):
-        rel = less(j, origin[j])
-        scaled = np.divide(rel, cell_m)
-        cell[:, j] = np.floor(scaled, out=scaled)
-        np.divide(rel, tile_size_m, out=scaled)
-        core[:, j] = np.floor(scaled, out=scaled)
-        del rel, scaled
+        cell[:, j], core[:, j] = _cells_and_cores(less(j, origin[j]), lattice, small)
     buffer_px = math.ceil(buffer_m / cell_m - 1e-9)
 
     reach = max(1, math.ceil((buffer_px + 1) * cell_m / tile_size_m))   # neighbour cores a window reaches
@@ -311,7 +316,7 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
         del cc
         if wanted[-1] == (ti, tj):
             del core                                     # its last use
-        lo, hi = _cropped(c, of_core, buffer_px, lo, hi)
+        lo, hi = _cropped(*_core_box(c, of_core), buffer_px, lo, hi)
         inside = (c[:, 0] >= lo[0]) & (c[:, 0] < hi[0]) & (c[:, 1] >= lo[1]) & (c[:, 1] < hi[1])
         every = every and bool(inside.all())
         if candidates is None and not every:
@@ -344,6 +349,79 @@ def split(xyz_m: np.ndarray, *, tile_size_m: float = 500.0, buffer_m: float = 50
     return tiles
 
 
+def _cells_and_cores(rel: np.ndarray, lattice: Lattice, dtype) -> tuple[np.ndarray, np.ndarray]:
+    """The cells and tile cores along one axis, `dtype` `(n,)` each, of coordinates `rel`
+    float64 `(n,)` [m] from the lattice's corner (consumed: it is scaled in place)."""
+    cells = np.floor(np.divide(rel, lattice.cell_m)).astype(dtype)
+    rel /= lattice.tile_size_m
+    return cells, np.floor(rel, out=rel).astype(dtype)
+
+
+def _one_tile(xyz_m: np.ndarray, use: np.ndarray | None, key: tuple[int, int], origin: np.ndarray,
+              extent_px: np.ndarray, lattice: Lattice, small) -> Tile | None:
+    """`split`'s tile `key` of a frame naming that one core (a survey's window), made
+    `SPLIT_ROWS` points at a time: beside the tile, a few columns of one slice of points, not
+    of the window's millions (`use`: the used points, None for all). None when no used point
+    lies in the core."""
+    n = len(xyz_m)
+    slices = [slice(start, min(start + SPLIT_ROWS, n)) for start in range(0, n, SPLIT_ROWS)]
+
+    def rows_of(part: slice) -> np.ndarray | slice:
+        return part if use is None else np.flatnonzero(use[part]) + part.start
+
+    def cells(rows: np.ndarray | slice) -> tuple[np.ndarray, np.ndarray]:
+        """Cells and cores `(k, 2)` of the points `rows`, as `split` makes them."""
+        count = rows.stop - rows.start if isinstance(rows, slice) else len(rows)
+        cell, core = np.empty((2, count, 2), small)
+        for j in range(2):
+            cell[:, j], core[:, j] = _cells_and_cores(xyz_m[rows, j] - origin[j], lattice, small)
+        return cell, core
+
+    # the core's points' box of cells, then the window's points (cells within it), slice by slice
+    box_lo, box_hi = np.full(2, np.iinfo(np.int64).max), np.full(2, np.iinfo(np.int64).min)
+    for part in slices:
+        cell, core = cells(rows_of(part))
+        of_core = (core[:, 0] == key[0]) & (core[:, 1] == key[1])
+        if of_core.any():
+            lows, highs = _core_box(cell, of_core)
+            box_lo, box_hi = np.minimum(box_lo, lows), np.maximum(box_hi, highs)
+    if box_lo[0] > box_hi[0]:
+        return None
+    buffer_px = math.ceil(lattice.buffer_m / lattice.cell_m - 1e-9)
+    lo, hi, core_lo, core_hi = window_px(np.asarray(key), extent_px, *lattice)
+    lo, hi = _cropped(box_lo, box_hi, buffer_px, lo, hi)
+    shift = lo * lattice.cell_m
+    count = n if use is None else int(np.count_nonzero(use))
+    local32 = np.empty((count, 3), np.float32)
+    index, in_core = np.empty(count, np.int64), np.empty(count, bool)
+    start = 0
+    for part in slices:
+        rows = rows_of(part)
+        cell, core = cells(rows)
+        inside = (cell[:, 0] >= lo[0]) & (cell[:, 0] < hi[0]) & (cell[:, 1] >= lo[1]) & (cell[:, 1] < hi[1])
+        if not inside.all():
+            pick = np.flatnonzero(inside)
+            rows = (np.arange(part.start, part.stop) if isinstance(rows, slice) else rows)[pick]
+            cell, core = cell[pick], core[pick]
+        stop = start + len(cell)
+        index[start:stop] = np.arange(part.start, part.stop) if isinstance(rows, slice) else rows
+        in_core[start:stop] = (core[:, 0] == key[0]) & (core[:, 1] == key[1])
+        local32[start:stop, 2] = xyz_m[rows, 2] - origin[2]
+        for j in range(2):
+            values = xyz_m[rows, j] - origin[j]
+            values -= shift[j]
+            local32[start:stop, j] = values
+            _clamp_into_cell(values, cell[:, j] - lo[j], lattice.cell_m, out=local32[start:stop, j])
+        start = stop
+    if start < count:                          # a cropped window: the rows its points filled
+        local32, index, in_core = local32[:start].copy(), index[:start].copy(), in_core[:start].copy()
+    core_lo, core_hi = np.maximum(core_lo, lo), np.minimum(core_hi, hi)
+    return Tile(key=tuple(int(k) for k in key), origin_m=origin + np.concatenate([shift, [0.0]]),
+                shape=(int(hi[1] - lo[1]), int(hi[0] - lo[0])), index=index, core=in_core, local_xyz=local32,
+                window_px=(int(lo[0]), int(lo[1])),
+                core_px=(int(core_lo[0]), int(core_lo[1]), int(core_hi[0]), int(core_hi[1])))
+
+
 def merge(n_points: int, tiles: Sequence[Tile], labels: Sequence[np.ndarray], *,
           fill: bool = False) -> np.ndarray:
     """Per-point labels of the whole cloud from per-tile labels, core points only.
@@ -363,8 +441,11 @@ def merge(n_points: int, tiles: Sequence[Tile], labels: Sequence[np.ndarray], *,
     dtype = np.asarray(labels[0]).dtype if labels else np.bool_
     out = np.full(n_points, fill, dtype=dtype)
     for tile, lab in zip(tiles, labels):
-        lab = np.asarray(lab)[:tile.n_points]
-        out[tile.index[tile.core]] = lab[tile.core]
+        lab = np.asarray(lab)
+        for start in range(0, tile.n_points, SPLIT_ROWS):     # a window's millions a slice at a time
+            part = slice(start, min(start + SPLIT_ROWS, tile.n_points))
+            core = tile.core[part]
+            out[tile.index[part][core]] = lab[part][core]
     return out
 
 

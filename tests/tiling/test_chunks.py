@@ -61,3 +61,28 @@ def test_capacity_of_no_whole_chunks_runs_in_one_call(monkeypatch):
         return valid
     chunks.labels(program, np.zeros((1, 1536, 3), np.float32), np.ones((1, 1536), bool))
     assert calls == [(1, 1536, 3)]
+
+
+@pytest.mark.parametrize("package, programs, config, params", [
+    ("smrf", smrf_programs, smrf.Config(window_m=6.0), smrf.Params()),
+    ("pmf", pmf_programs, pmf.Config(), pmf.Params()),
+])
+def test_a_lone_window_run_in_chunks_is_not_copied_and_labels_as_padded(monkeypatch, package, programs, config,
+                                                                      params):
+    """A filter's lone window that runs a chunk at a time passes its own points, unpadded (no
+    second copy of a survey's millions): the labels and rasters of the padded batch."""
+    padded = _batch(4096)
+    monkeypatch.setattr(chunks, "POINT_CHUNK", 1024)
+    tile, = padded.tiles
+    shared, = batches.batches([tile], max_batch=1, capacity=4096, sides=buckets.canonical_sides(100.0, 10.0, 1.0))
+    assert shared.xyz.shape == (1, tile.n_points, 3) and np.shares_memory(shared.xyz, tile.local_xyz)
+    assert shared.valid.shape == (1, 4096)
+    ground, diag = programs.classify_batch(shared.xyz, shared.valid, shared.hw, params, config=config,
+                                           shape=shared.shape)
+    want_ground, want_diag = programs.classify_batch(padded.xyz, padded.valid, padded.hw, params, config=config,
+                                                     shape=padded.shape)
+    np.testing.assert_array_equal(ground, want_ground)
+    for a, b in zip(diag, want_diag):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    tuned, = batches.batches([tile], max_batch=1, capacity=4096)          # tuning's batches: always padded
+    assert tuned.xyz.shape == (1, 4096, 3)

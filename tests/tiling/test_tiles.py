@@ -238,3 +238,34 @@ def test_a_tiles_window_holds_the_points_whose_cells_window_px_names():
         assert tile.core_px == (*core_lo, *core_hi)
         inside = np.flatnonzero(np.all((cells >= lo) & (cells < hi), axis=1))
         np.testing.assert_array_equal(tile.index, inside)
+
+
+@pytest.mark.parametrize("rows", [7, 1000, 1 << 18])
+def test_a_window_made_for_one_tile_is_that_tile_of_the_whole_split(monkeypatch, rows):
+    """A survey's window names one core (`Frame.only`): it is cut a slice of points at a time,
+    into exactly the tile the whole cloud's split makes, cropped windows, unused points and
+    points on cell edges included; a core without a used point makes none."""
+    rng = np.random.default_rng(5)
+    for trial in range(12):
+        n = int(rng.integers(1, 6000))
+        xyz = ORIGIN + np.column_stack([rng.uniform(0, 130, n), rng.uniform(0, 90, n), rng.normal(0, 1, n)])
+        xyz[:n // 3, :2] = np.round(xyz[:n // 3, :2] * 4) / 4
+        if trial % 4 == 0:
+            xyz[1:, :2] = xyz[:1, :2] + rng.uniform(0, 3, (n - 1, 2))     # a few cells: the window cropped
+            xyz[-1, :2] += 120.0
+        use = rng.random(n) > (0.0 if trial % 2 else 0.3)
+        if not use.any():
+            continue
+        frame = Frame.of(xyz[use])
+        options = dict(tile_size_m=float(rng.choice([20.0, 40.0])), buffer_m=float(rng.choice([0.0, 7.5])),
+                       cell_m=float(rng.choice([0.5, 1.0])), use=use)
+        whole = tiling.split(xyz, **options, frame=frame)
+        monkeypatch.setattr(tiling, "SPLIT_ROWS", rows)
+        for tile in whole:
+            one, = tiling.split(xyz, **options, frame=frame.only([tile.key]))
+            for field in ("key", "shape", "window_px", "core_px"):
+                assert getattr(one, field) == getattr(tile, field)
+            for field in ("origin_m", "index", "core", "local_xyz"):
+                np.testing.assert_array_equal(getattr(one, field), getattr(tile, field))
+        assert tiling.split(xyz, **options, frame=frame.only([(99, 99)])) == []
+        monkeypatch.undo()
