@@ -43,6 +43,7 @@ MIN_COMPANY = 6          # fewer cells than this in the cone: alone (a cluster o
 MIN_ABOVE = 12           # and at least this many cells above the cone: the terrain is there and far
                          # above (a point at the edge of the data or between empty water cells is kept)
 MAX_PASSES = 8           # outliers stacked in one cell go one a pass: 8 of them at most
+SLICE_ROWS = 1 << 20     # points the first pass reads at a time (memory, not flags)
 _DENSE_CELLS_PER_POINT = 8   # a raster of the box up to this many cells a point; beyond, the occupied cells
 
 
@@ -92,39 +93,48 @@ def detect(xyz_m: np.ndarray, used: np.ndarray, *, last_spacing_m: float,
     """
     used = np.asarray(used, dtype=bool)
     low = np.zeros(used.shape, dtype=bool)
-    index = np.flatnonzero(used)
-    if index.size == 0:
+    count = int(np.count_nonzero(used))
+    if count == 0:
         return low
-    # A column at a time: a survey's window holds millions of points, and each (n, 3) temporary
-    # costs more pages than the arithmetic on it.
     xyz_m = np.asarray(xyz_m, dtype=np.float64)
-    every = index.size == used.size
-    x, y = (xyz_m[:, j] if every else xyz_m[index, j] for j in range(2))
     cell = cell_m(last_spacing_m)
-    lo = (float(x.min()), float(y.min())) if origin_m is None else np.asarray(origin_m, np.float64)[:2]
-    ij = []
-    for values, start in zip((x, y), lo):
-        scaled = np.subtract(values, start)
-        scaled /= cell
-        along = np.floor(scaled, out=scaled).astype(np.int64)
-        along -= along.min()                              # a frame's corner may lie below the points'
-        ij.append(along)
-        del scaled
-    del x, y
-    width = int(ij[0].max()) + 1
-    shape = (int(ij[1].max()) + 1, width)
-    key = ij[1]
-    key *= width
-    key += ij[0]
-    del ij
-    z = xyz_m[:, 2] if every else xyz_m[index, 2]
-    dense = shape[0] * shape[1] <= _DENSE_CELLS_PER_POINT * index.size + 4096
+    lows = [float(xyz_m[:, j].min(where=used, initial=np.inf)) for j in range(2)]
+    highs = [float(xyz_m[:, j].max(where=used, initial=-np.inf)) for j in range(2)]
+    corner = lows if origin_m is None else np.asarray(origin_m, np.float64)[:2]
+    # the cells of the lowest and highest points: floor((v - corner) / cell) never decreases with v
+    first, last = ([math.floor((v - c) / cell) for v, c in zip(ends, corner)] for ends in (lows, highs))
+    width = last[0] - first[0] + 1
+    shape = (last[1] - first[1] + 1, width)
+
+    def keys(rows) -> np.ndarray:
+        """Flat cell keys int64 `(k,)` of the points `rows`, from the used points' first cell."""
+        key = None
+        for j in (1, 0):
+            scaled = np.subtract(xyz_m[rows, j], corner[j])
+            scaled /= cell
+            along = np.floor(scaled, out=scaled).astype(np.int64)
+            along -= first[j]
+            if key is None:
+                key = along
+                key *= width
+            else:
+                key += along
+            del scaled
+        return key
+
+    dense = shape[0] * shape[1] <= _DENSE_CELLS_PER_POINT * count + 4096
     if dense:
-        # the first pass without sorting the points: most clouds have no low outlier at all
+        # the first pass a slice of points at a time, without sorting them: most clouds have no
+        # low outlier at all, and a survey's window holds millions of points
         z_min = np.full(shape[0] * shape[1], np.inf)
-        np.minimum.at(z_min, key, z)
+        for start in range(0, len(used), SLICE_ROWS):
+            rows = np.flatnonzero(used[start:start + SLICE_ROWS]) + start
+            np.minimum.at(z_min, keys(rows), xyz_m[rows, 2])
         if not _alone(z_min.reshape(shape), cell).any():
             return low
+    index = np.flatnonzero(used)
+    key = keys(index)
+    z = xyz_m[index, 2]
     # points sorted by cell, then height: a cell's lowest remaining point is its first not flagged
     order = np.lexsort((z, key))
     flagged = np.zeros(index.size, dtype=bool)

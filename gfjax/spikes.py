@@ -20,6 +20,8 @@ out.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["guard", "despike", "unstack", "stacked_drop_m", "NEIGHBOURS", "THRESHOLD_M", "SLOPE", "MIN_DROP_M",
@@ -28,7 +30,8 @@ __all__ = ["guard", "despike", "unstack", "stacked_drop_m", "NEIGHBOURS", "THRES
 # Chosen on the training files with the labels of SMRF, DMF and MASF (the most files passing
 # over the three; ties: the lowest ISPRS total error of SMRF): 8 neighbours, 1 m, slope 0.5.
 PROBE = 256             # ground points looked at first for stacks of coincident points
-QUERY_ROWS = 1 << 18     # ground points whose neighbours are found at a time (memory, not labels)
+SLICE_ROWS = 1 << 20     # points `unstack` reads at a time (memory, not labels)
+QUERY_ROWS = 1 << 16     # ground points whose neighbours are found at a time (memory, not labels)
 SURE_CELL_SPACINGS = 3.0   # the cell of `_unsure`, in point spacings (speed, not labels)
 NEIGHBOURS = 8           # ground neighbours a point is compared with
 THRESHOLD_M = 1.0        # height off their median tolerated next to them [m]
@@ -77,10 +80,13 @@ def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRES
     if index.size <= k:
         return ground.copy()
     # column by column: numpy runs (n, 2) and (n, 3) arithmetic through an inner loop of 2 or 3
-    x, y, z = (np.asarray(xyz_m, dtype=np.float64)[:, j][index] for j in range(3))
+    xyz = np.asarray(xyz_m, dtype=np.float64)
     xy = np.empty((index.size, 2))
-    np.subtract(x, x.min(), out=xy[:, 0])
-    np.subtract(y, y.min(), out=xy[:, 1])
+    for j in range(2):                    # one gathered column alive at a time
+        column = xyz[:, j][index]
+        np.subtract(column, column.min(), out=xy[:, j])
+        del column
+    z = xyz[:, 2][index]
     tree = cKDTree(xy)
     # A place held by more than k points (a stack of coincident returns) would make every query
     # near it scan the whole stack. A probe tells whether the cloud has one worth the care.
@@ -187,10 +193,11 @@ def stacked_drop_m(cell_m: float, slope_p90: float) -> float:
     return max(MIN_DROP_M, DROP_SLOPES * cell_m * slope_p90)
 
 
-def _cells_from_corner(values: np.ndarray, cell_m: float) -> np.ndarray:
-    """int64 `(n,)` cells `floor((values - min) / cell_m) + 1` of coordinates `(n,)` [m] (a ring
-    of empty cells before the first), through one float temporary."""
-    scaled = np.subtract(values, values.min())
+def _cells_from_corner(values: np.ndarray, cell_m: float, corner: float) -> np.ndarray:
+    """int64 `(n,)` cells `floor((values - corner) / cell_m) + 1` of coordinates `(n,)` [m] (a
+    ring of empty cells before the first, at `corner`, the lowest value), through one float
+    temporary."""
+    scaled = np.subtract(values, corner)
     scaled /= cell_m
     cells = np.floor(scaled, out=scaled).astype(np.int64)
     cells += 1
@@ -218,49 +225,54 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
         return ground.copy()
     xyz = np.asarray(xyz_m, dtype=np.float64)
     either = used | ground
-    # None when every point is used or ground (a window's millions: no 8 bytes a point of index)
-    points = None if either.all() else np.flatnonzero(either)
-    del either
-
-    # column by column (numpy runs (n, 2) arithmetic through an inner loop of two elements),
-    # gathered only when some point is neither used nor ground
-    def column(j: int) -> np.ndarray:
-        return xyz[:, j] if points is None else xyz[:, j][points]
-
     # cells from the points' corner, as the rule was chosen: a survey's window lays them from its
     # own corner, so near a window's edge its labels may differ from one file's (as the spikes')
-    i, j = (_cells_from_corner(column(axis), cell_m) for axis in range(2))
-    width = int(i.max()) + 2
-    n_keys = (int(j.max()) + 2) * width
-    key = j
-    key *= width
-    key += i
-    del i, j
-    z = column(2)
-    on_used = used if points is None else used[points]
-    on_ground = ground if points is None else ground[points]
-    cell = key[on_ground]
-    top = z[on_ground] - drop_m
-    stacked = np.zeros(cell.size, dtype=bool)
-    steps = (-width - 1, -width, -width + 1, -1, 0, 1, width - 1, width, width + 1)
-    if n_keys <= 4 * len(z):
-        # a box the points fill: the lowest return of every cell of it, O(n), then of the 3 x 3
-        # cells around each (the ring's cells keep +inf), read once per ground point
-        lowest = np.full(n_keys, np.inf)
-        np.minimum.at(lowest, key[on_used], z[on_used])
+    corner = [float(xyz[:, j].min(where=either, initial=np.inf)) for j in range(2)]
+    # `_cells_from_corner` of the highest point: floor((v - corner) / cell) never decreases with v
+    width, height = (math.floor((float(xyz[:, j].max(where=either, initial=-np.inf)) - corner[j]) / cell_m) + 3
+                     for j in range(2))
+
+    def keys(rows) -> np.ndarray:
+        """Flat keys int64 `(k,)` of the points `rows`' cells (a ring of empty cells around)."""
+        key = _cells_from_corner(xyz[rows, 1], cell_m, corner[1])
+        key *= width
+        key += _cells_from_corner(xyz[rows, 0], cell_m, corner[0])
+        return key
+
+    # the ground points' cells and tops, and the lowest used return of each cell, a slice of
+    # points at a time: a survey's window holds millions of points, ground a third of them
+    dense = height * width <= 4 * int(np.count_nonzero(either))
+    lowest = np.full(height * width, np.inf) if dense else None
+    cell, top, on_ground, used_keys, used_z = [], [], [], [], []
+    for start in range(0, len(ground), SLICE_ROWS):
+        part = slice(start, start + SLICE_ROWS)
+        rows = np.flatnonzero(ground[part]) + start
+        on_ground.append(rows)
+        cell.append(keys(rows))
+        top.append(xyz[rows, 2] - drop_m)
+        rows = np.flatnonzero(used[part]) + start
+        if dense:
+            np.minimum.at(lowest, keys(rows), xyz[rows, 2])
+        else:
+            used_keys.append(keys(rows))
+            used_z.append(xyz[rows, 2])
+    cell, top, on_ground = (np.concatenate(parts) for parts in (cell, top, on_ground))
+    if dense:
+        # a box the points fill: the lowest return of every cell of it, then of the 3 x 3 cells
+        # around each (the ring's cells keep +inf), read once per ground point
         stacked = _around(lowest.reshape(-1, width), np.inf, np.min, size=3)[cell] < top
     else:
         # the occupied cells only (sorted keys): a stray point kilometres away adds one cell, not a raster
-        cells, slot = np.unique(key[on_used], return_inverse=True)
+        cells, slot = np.unique(np.concatenate(used_keys), return_inverse=True)
         lowest = np.full(cells.size, np.inf)
-        np.minimum.at(lowest, slot, z[on_used])
-        for step in steps:
+        np.minimum.at(lowest, slot, np.concatenate(used_z))
+        stacked = np.zeros(cell.size, dtype=bool)
+        for step in (-width - 1, -width, -width + 1, -1, 0, 1, width - 1, width, width + 1):
             near = cell + step
             at = np.minimum(np.searchsorted(cells, near), cells.size - 1)
             stacked |= (cells[at] == near) & (lowest[at] < top)
     out = ground.copy()
-    on_ground = np.flatnonzero(on_ground)[stacked]
-    out[on_ground if points is None else points[on_ground]] = False
+    out[on_ground[stacked]] = False
     return out
 
 

@@ -146,3 +146,23 @@ def test_fixed_values_run_the_method_alone():
     assert not ran.ground[3]                                           # and non-ground
     adaptive.run(filter_fn, cloud, settled, config=None, params=None, hides_low_outliers=False)
     assert seen[-1].all()                                              # a method that does not hide
+
+
+@pytest.mark.parametrize("origin", [None, ORIGIN[:2] - 7.3], ids=["points' corner", "frame's corner"])
+def test_the_first_pass_a_slice_at_a_time_gives_the_same_flags(monkeypatch, origin):
+    """A survey's window is read a slice of points at a time (the corner's point in the last
+    slice, unused points among them): the flags of one slice, outliers or none."""
+    xyz = plane(seed=8)
+    used = np.random.default_rng(8).random(len(xyz)) > 0.1
+    xyz[-1, :2] = ORIGIN[:2] - 0.4
+    for sunk in ([], [3, 700, 701]):
+        sunk_xyz = xyz.copy()
+        sunk_xyz[sunk, 2] -= 25.0
+        used[sunk] = True
+        whole = low_outliers.detect(sunk_xyz, used, last_spacing_m=1.0, origin_m=origin)
+        np.testing.assert_array_equal(np.flatnonzero(whole), sunk)
+        for rows in (5, 333):
+            monkeypatch.setattr(low_outliers, "SLICE_ROWS", rows)
+            np.testing.assert_array_equal(low_outliers.detect(sunk_xyz, used, last_spacing_m=1.0, origin_m=origin),
+                                          whole)
+            monkeypatch.undo()

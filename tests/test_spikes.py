@@ -227,3 +227,22 @@ def test_the_median_of_sorted_rows_is_the_partitioned_median(k):
     """despike reads the median distance off the KD-tree's sorted rows: the same values."""
     rows = np.sort(np.round(np.random.default_rng(k).exponential(2.0, (500, k)), 1), axis=1)   # ties
     np.testing.assert_array_equal(spikes._median_sorted_rows(rows), spikes._median_rows(rows))
+
+
+@pytest.mark.parametrize("far", [False, True], ids=["box", "stray point"])
+def test_unstack_a_slice_at_a_time_gives_the_same_labels(monkeypatch, far):
+    """A survey's window is read a slice of points at a time: slices of 7 and of 64 points, and
+    the corner's cells met in a later slice than the first, give the labels of one slice."""
+    rng = np.random.default_rng(4)
+    xyz = terrain(n=1000, seed=4)
+    xyz[rng.choice(1000, 150, replace=False), 2] += rng.uniform(-12, 12, 150)
+    ground, used = rng.random(1000) < 0.7, rng.random(1000) < 0.9
+    xyz[-1, :2] = -3.0                                  # the corner's point last
+    if far:
+        xyz[-2, :2] += [30_000.0, 20_000.0]
+    whole = spikes.unstack(xyz, used, ground, cell_m=1.5, drop_m=2.0)
+    np.testing.assert_array_equal(whole, brute_force_unstack(xyz, used, ground, cell_m=1.5, drop_m=2.0))
+    assert (ground & ~whole).sum() > 20                 # a real test: many points unmade
+    for rows in (7, 64):
+        monkeypatch.setattr(spikes, "SLICE_ROWS", rows)
+        np.testing.assert_array_equal(spikes.unstack(xyz, used, ground, cell_m=1.5, drop_m=2.0), whole)
