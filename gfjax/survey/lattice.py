@@ -4,7 +4,8 @@ A tiled method's labels for a tile's core depend only on the points of the tile'
 a survey is filtered tile by tile rather than file by file: a tile's window is gathered from
 whichever files overlap it (their catalog stores), filtered on the survey's frame restricted
 to that one tile (`Frame.only`), and its core points' labels are kept in their file's label
-store (1 byte a point, memory-mapped in the catalog's folder). A file's labels are ready once
+store (1 byte a point in the catalog's folder, mapped only while a tile writes it or a caller
+reads it, so this process holds no label of the survey's files). A file's labels are ready once
 the tiles holding its points are done. Each tile runs once, however many files it meets (a
 500 m tile over 200 m files meets about nine), and memory follows the largest window, not the
 survey or the files.
@@ -76,10 +77,10 @@ class TileLabels:
     def __init__(self, catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces, folder: str | Path, *,
                  returns: str = "all"):
         self.catalog, self.filter_fn, self.lattice, self.returns = catalog, filter_fn, lattice, returns
-        self.labels_of, self.keys, self.done, self.pending = [], [], set(), {}
+        self.stores, self.keys, self.done, self.pending = [], [], set(), {}
         for i, entry in enumerate(catalog.entries):
-            self.labels_of.append(np.lib.format.open_memmap(Path(folder) / f"{i}.ground.npy", mode="w+",
-                                                         dtype=np.bool_, shape=(entry.n_points,)))
+            self.stores.append(Path(folder) / f"{i}.ground.npy")
+            np.lib.format.open_memmap(self.stores[-1], mode="w+", dtype=np.bool_, shape=(entry.n_points,))
             # the tiles its box of points filtered meets (from the index: no point read); one
             # without a point of the file labels none of them, one without any point filtered
             # in its core runs no filter
@@ -112,8 +113,12 @@ class TileLabels:
             needed |= self._keys_over(*box) & set().union(*self.keys)
         for key in sorted(needed - self.done, key=lambda k: (k[1], k[0])):
             self._run(key)
-        self.labels_of[i].flush()
-        return self.labels_of[i]
+        return self._labels_of(i)
+
+    def _labels_of(self, i: int, *, writable: bool = False) -> np.ndarray:
+        """File `i`'s label store, bool `(n_i,)`, mapped while the caller holds it: a survey's
+        labels stay on disk, not in this process's memory (1 byte a point of every file)."""
+        return np.load(self.stores[i], mmap_mode="r+" if writable else "r")
 
     def near_ground(self, i: int, margin_m: float) -> np.ndarray:
         """The other files' ground points within `margin_m` of file `i`'s bounding box, float64
@@ -121,7 +126,7 @@ class TileLabels:
         box = self._box(i, margin_m)
         if box is None:
             return np.empty((0, 3), np.float64)
-        return ground_near(self.catalog, i, *box, lambda j: self.labels_of[j])
+        return ground_near(self.catalog, i, *box, self._labels_of)
 
     def _run(self, key: tuple[int, int]) -> None:
         """Filter tile `key` (here, or on the cluster that `submit` sent it to) and store its
@@ -133,7 +138,9 @@ class TileLabels:
 
         parts = here() if future is None else cluster.result(future, f"survey tile {key}", again=here)
         for j, index, ground in parts:
-            self.labels_of[j][index] = ground
+            store = self._labels_of(j, writable=True)
+            store[index] = ground            # the page cache keeps it: no sync to disk
+            del store
         self.done.add(key)
 
     def submit(self, submit: Callable) -> None:
