@@ -268,11 +268,12 @@ def _core_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Piece
 
 
 def _rows(take: np.ndarray) -> np.ndarray | range:
-    """A file's rows in a window, int64 `(k,)` ascending: a `range` when they are consecutive (a
-    file wholly inside: no 8 bytes a point held while the window is filtered), else `take`."""
+    """A file's rows in a window, `take` int64 `(k,)` ascending: a `range` when they are
+    consecutive (a file wholly inside: no 8 bytes a point held while the window is filtered),
+    else `take` in uint32 where they fit (4 bytes a point)."""
     if take.size and int(take[-1]) - int(take[0]) + 1 == take.size:
         return range(int(take[0]), int(take[-1]) + 1)
-    return take
+    return take.astype(np.uint32) if take.size and int(take[-1]) <= np.iinfo(np.uint32).max else take
 
 
 def _joined(parts: list[dict[str, np.ndarray]], name: str, frame) -> Points:

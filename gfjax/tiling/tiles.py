@@ -100,7 +100,8 @@ class Tile:
       origin_m: float64 `(3,)`: the window's south-west corner (x, y) and the cloud's z
         origin [m]; local coordinates are `xyz_m - origin_m`.
       shape: raster `(h, w)` of the window at `cell_m` (its own extent, before padding).
-      index: int64 `(m,)` indices into the cloud of the window's points.
+      index: int64 `(m,)` indices into the cloud of the window's points (int32 for the one tile of a
+        frame naming one core, a survey's window, of a cloud under 2^31 points).
       core: bool `(m,)` which of them lie in the tile core.
       local_xyz: float32 `(m, 3)` local metres of those points, each clamped into the raster
         cell its float64 coordinates fall in.
@@ -393,7 +394,9 @@ def _one_tile(xyz_m: np.ndarray, use: np.ndarray | None, key: tuple[int, int], o
     shift = lo * lattice.cell_m
     count = n if use is None else int(np.count_nonzero(use))
     local32 = np.empty((count, 3), np.float32)
-    index, in_core = np.empty(count, np.int64), np.empty(count, bool)
+    # rows of a cloud under 2^31 points in int32: a survey's window keeps them while it is filtered
+    index = np.empty(count, np.int32 if n <= np.iinfo(np.int32).max else np.int64)
+    in_core = np.empty(count, bool)
     start = 0
     for part in slices:
         rows = rows_of(part)
