@@ -27,6 +27,8 @@ import math
 
 import numpy as np
 
+from gfjax.io import columns
+
 __all__ = ["detect", "cell_m", "MIN_CELL_M", "RADIUS_CELLS", "THRESHOLD_M", "SLOPE", "MIN_COMPANY", "MIN_ABOVE",
            "MAX_PASSES"]
 
@@ -43,7 +45,6 @@ MIN_COMPANY = 6          # fewer cells than this in the cone: alone (a cluster o
 MIN_ABOVE = 12           # and at least this many cells above the cone: the terrain is there and far
                          # above (a point at the edge of the data or between empty water cells is kept)
 MAX_PASSES = 8           # outliers stacked in one cell go one a pass: 8 of them at most
-SLICE_ROWS = 1 << 20     # points the first pass reads at a time (memory, not flags)
 _DENSE_CELLS_PER_POINT = 8   # a raster of the box up to this many cells a point; beyond, the occupied cells
 
 
@@ -127,8 +128,8 @@ def detect(xyz_m: np.ndarray, used: np.ndarray, *, last_spacing_m: float,
         # the first pass a slice of points at a time, without sorting them: most clouds have no
         # low outlier at all, and a survey's window holds millions of points
         z_min = np.full(shape[0] * shape[1], np.inf)
-        for start in range(0, len(used), SLICE_ROWS):
-            rows = np.flatnonzero(used[start:start + SLICE_ROWS]) + start
+        for part in columns.slices(len(used)):
+            rows = np.flatnonzero(used[part]) + part.start
             np.minimum.at(z_min, keys(rows), xyz_m[rows, 2])
         if not _alone(z_min.reshape(shape), cell).any():
             return low

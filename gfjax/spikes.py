@@ -24,13 +24,14 @@ import math
 
 import numpy as np
 
+from gfjax.io import columns
+
 __all__ = ["guard", "despike", "unstack", "stacked_drop_m", "NEIGHBOURS", "THRESHOLD_M", "SLOPE", "MIN_DROP_M",
            "DROP_SLOPES", "MIN_CELL_M"]
 
 # Chosen on the training files with the labels of SMRF, DMF and MASF (the most files passing
 # over the three; ties: the lowest ISPRS total error of SMRF): 8 neighbours, 1 m, slope 0.5.
 PROBE = 256             # ground points looked at first for stacks of coincident points
-SLICE_ROWS = 1 << 20     # points `unstack` reads at a time (memory, not labels)
 QUERY_ROWS = 1 << 16     # ground points whose neighbours are found at a time (memory, not labels)
 SURE_CELL_SPACINGS = 3.0   # the cell of `_unsure`, in point spacings (speed, not labels)
 NEIGHBOURS = 8           # ground neighbours a point is compared with
@@ -244,13 +245,12 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
     dense = height * width <= 4 * int(np.count_nonzero(either))
     lowest = np.full(height * width, np.inf) if dense else None
     cell, top, on_ground, used_keys, used_z = [], [], [], [], []
-    for start in range(0, len(ground), SLICE_ROWS):
-        part = slice(start, start + SLICE_ROWS)
-        rows = np.flatnonzero(ground[part]) + start
+    for part in columns.slices(len(ground)):
+        rows = np.flatnonzero(ground[part]) + part.start
         on_ground.append(rows)
         cell.append(keys(rows))
         top.append(xyz[rows, 2] - drop_m)
-        rows = np.flatnonzero(used[part]) + start
+        rows = np.flatnonzero(used[part]) + part.start
         if dense:
             np.minimum.at(lowest, keys(rows), xyz[rows, 2])
         else:

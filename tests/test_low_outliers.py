@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gfjax import adaptive, low_outliers, methods
+from gfjax.io import columns
 from gfjax.io.cloud import Cloud, Points
 
 ORIGIN = np.array([500_000.0, 5_000_000.0, 200.0])
@@ -162,7 +163,7 @@ def test_the_first_pass_a_slice_at_a_time_gives_the_same_flags(monkeypatch, orig
         whole = low_outliers.detect(sunk_xyz, used, last_spacing_m=1.0, origin_m=origin)
         np.testing.assert_array_equal(np.flatnonzero(whole), sunk)
         for rows in (5, 333):
-            monkeypatch.setattr(low_outliers, "SLICE_ROWS", rows)
+            monkeypatch.setattr(columns, "SLICE_ROWS", rows)
             np.testing.assert_array_equal(low_outliers.detect(sunk_xyz, used, last_spacing_m=1.0, origin_m=origin),
                                           whole)
             monkeypatch.undo()

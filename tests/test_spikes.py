@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from gfjax import spikes
+from gfjax.io import columns
 
 
 def brute_force(xyz, ground, *, threshold_m, slope, k):
@@ -244,5 +245,5 @@ def test_unstack_a_slice_at_a_time_gives_the_same_labels(monkeypatch, far):
     np.testing.assert_array_equal(whole, brute_force_unstack(xyz, used, ground, cell_m=1.5, drop_m=2.0))
     assert (ground & ~whole).sum() > 20                 # a real test: many points unmade
     for rows in (7, 64):
-        monkeypatch.setattr(spikes, "SLICE_ROWS", rows)
+        monkeypatch.setattr(columns, "SLICE_ROWS", rows)
         np.testing.assert_array_equal(spikes.unstack(xyz, used, ground, cell_m=1.5, drop_m=2.0), whole)

@@ -39,7 +39,6 @@ __all__ = ["Tiling", "Lattice", "RANGES", "Tile", "split", "merge", "tiled_estim
 
 CROP_SAVING = 4.0             # a window shrinks to its core points' box + buffer when that is this many times smaller
 FEW_CORES = 4                 # `split` finds the points of at most this many named tiles by masks
-SPLIT_ROWS = 1 << 18          # points `split` cuts one tile's window from, `merge` labels, at a time (memory)
 
 
 # The valid range of each tiling option (`Tiling`; `--tile-size`, `--buffer`).
@@ -361,11 +360,11 @@ def _cells_and_cores(rel: np.ndarray, lattice: Lattice, dtype) -> tuple[np.ndarr
 def _one_tile(xyz_m: np.ndarray, use: np.ndarray | None, key: tuple[int, int], origin: np.ndarray,
               extent_px: np.ndarray, lattice: Lattice, small) -> Tile | None:
     """`split`'s tile `key` of a frame naming that one core (a survey's window), made
-    `SPLIT_ROWS` points at a time: beside the tile, a few columns of one slice of points, not
+    a slice of points at a time (`columns.slices`): beside the tile, a few columns of a slice, not
     of the window's millions (`use`: the used points, None for all). None when no used point
     lies in the core."""
     n = len(xyz_m)
-    slices = [slice(start, min(start + SPLIT_ROWS, n)) for start in range(0, n, SPLIT_ROWS)]
+    slices = columns.slices(n)
 
     def rows_of(part: slice) -> np.ndarray | slice:
         return part if use is None else np.flatnonzero(use[part]) + part.start
@@ -445,8 +444,7 @@ def merge(n_points: int, tiles: Sequence[Tile], labels: Sequence[np.ndarray], *,
     out = np.full(n_points, fill, dtype=dtype)
     for tile, lab in zip(tiles, labels):
         lab = np.asarray(lab)
-        for start in range(0, tile.n_points, SPLIT_ROWS):     # a window's millions a slice at a time
-            part = slice(start, min(start + SPLIT_ROWS, tile.n_points))
+        for part in columns.slices(tile.n_points):            # a window's millions a slice at a time
             core = tile.core[part]
             out[tile.index[part][core]] = lab[part][core]
     return out

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from gfjax.errors import InputError, SettingError
+from gfjax.io import columns
 from gfjax.io.cloud import Cloud, Frame
 from gfjax.smrf import Config, Params, programs
 from gfjax.smrf import filter as smrf_filter
@@ -260,7 +261,7 @@ def test_a_window_made_for_one_tile_is_that_tile_of_the_whole_split(monkeypatch,
         options = dict(tile_size_m=float(rng.choice([20.0, 40.0])), buffer_m=float(rng.choice([0.0, 7.5])),
                        cell_m=float(rng.choice([0.5, 1.0])), use=use)
         whole = tiling.split(xyz, **options, frame=frame)
-        monkeypatch.setattr(tiling, "SPLIT_ROWS", rows)
+        monkeypatch.setattr(columns, "SLICE_ROWS", rows)
         for tile in whole:
             one, = tiling.split(xyz, **options, frame=frame.only([tile.key]))
             for field in ("key", "shape", "window_px", "core_px"):
