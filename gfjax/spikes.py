@@ -246,16 +246,17 @@ def unstack(xyz_m: np.ndarray, used: np.ndarray, ground: np.ndarray, *, cell_m: 
     lowest = np.full(height * width, np.inf) if dense else None
     cell, top, on_ground, used_keys, used_z = [], [], [], [], []
     for part in columns.slices(len(ground)):
-        rows = np.flatnonzero(ground[part]) + part.start
-        on_ground.append(rows)
-        cell.append(keys(rows))
-        top.append(xyz[rows, 2] - drop_m)
-        rows = np.flatnonzero(used[part]) + part.start
+        rows = np.flatnonzero(either[part]) + part.start        # each point's cell found once
+        key, z = keys(rows), xyz[rows, 2]
+        mine, theirs = ground[rows], used[rows]
+        on_ground.append(rows[mine])
+        cell.append(key[mine])
+        top.append(z[mine] - drop_m)
         if dense:
-            np.minimum.at(lowest, keys(rows), xyz[rows, 2])
+            np.minimum.at(lowest, key[theirs], z[theirs])
         else:
-            used_keys.append(keys(rows))
-            used_z.append(xyz[rows, 2])
+            used_keys.append(key[theirs])
+            used_z.append(z[theirs])
     cell, top, on_ground = (np.concatenate(parts) for parts in (cell, top, on_ground))
     if dense:
         # a box the points fill: the lowest return of every cell of it, then of the 3 x 3 cells
