@@ -46,7 +46,7 @@ if os.environ.get("GFJAX_TYPECHECK", "1") == "1":
     import jaxtyping
 
     jaxtyping.install_import_hook("gfjax", "typecheck.checker")
-import gfjax  # noqa: E402,F401
+import gfjax  # noqa: E402
 
 del os.environ["GFJAX_CACHE"]
 if os.environ.get("GFJAX_TEST_JAX_CACHE", "1") == "1":
@@ -63,6 +63,34 @@ if os.environ.get("GFJAX_TEST_JAX_CACHE", "1") == "1":
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
 jax.config.update("jax_enable_x64", False)
+
+
+def _import_every_module() -> None:
+    """Import every gfjax module now, while the session runs one thread.
+
+    jaxtyping's import hook (above) parses each module's source as it is first imported, and CPython 3.11 counts
+    an AST's depth in one place per process (python/cpython#106905): a module imported while
+    another thread parses too (a Dask cluster's thread formatting a traceback does) can fail
+    with "AST constructor recursion depth mismatch". A module whose optional dependency is
+    absent is left to the tests that need it.
+    """
+    import importlib
+    import pkgutil
+
+    for module in pkgutil.walk_packages(gfjax.__path__, "gfjax."):
+        try:
+            importlib.import_module(module.name)
+        except ModuleNotFoundError as err:
+            if (err.name or "gfjax").startswith("gfjax"):
+                raise
+
+
+def pytest_configure(config):
+    # not in xdist's controller, which runs no test
+    controller = not hasattr(config, "workerinput") and bool(getattr(config.option, "numprocesses", None))
+    if os.environ.get("GFJAX_TYPECHECK", "1") == "1" and not controller:
+        _import_every_module()
+
 
 SHARED_DATA = Path(os.environ.get("GFJAX_SHARED_DATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "data")).resolve()
 ISPRS = SHARED_DATA / "isprs_filtertest" / "reference"
