@@ -34,10 +34,11 @@ if "GFJAX_TEST_KEEP_CACHE" not in os.environ:
         os.environ["GFJAX_TEST_SESSION_CACHE"] = tempfile.mkdtemp(prefix="gfjax-test-cache-")
     os.environ["XDG_CACHE_HOME"] = os.environ["GFJAX_TEST_SESSION_CACHE"]
 
-# `import gfjax` turns the persistent caches on (`gfjax.cache.setup`). The tests' own process
-# keeps gfjax's program store off, so each test sees plain jit unless it enables the store
-# itself, but uses JAX's compilation cache in the session folder (GFJAX_TEST_JAX_CACHE=0: not
-# even that). Subprocesses get the default (both caches on, in the folder above).
+# A method's first call in a process turns the persistent caches on (`gfjax.cache.ensure`).
+# The tests' own process makes that call here with the caches off, so it keeps gfjax's program
+# store off and each test sees plain jit unless it enables the store itself, but uses JAX's
+# compilation cache in the session folder (GFJAX_TEST_JAX_CACHE=0: not even that).
+# Subprocesses get the default (both caches on, in the folder above).
 os.environ["GFJAX_CACHE"] = "0"
 if os.environ.get("GFJAX_TYPECHECK", "1") == "1":
     # every annotated function of gfjax is checked at each call, jaxtyping's shapes and dtypes
@@ -47,14 +48,14 @@ if os.environ.get("GFJAX_TYPECHECK", "1") == "1":
 
     jaxtyping.install_import_hook("gfjax", "typecheck.checker")
 import gfjax  # noqa: E402
+from gfjax import cache as _cache  # noqa: E402
 
+_cache.ensure()
 del os.environ["GFJAX_CACHE"]
 if os.environ.get("GFJAX_TEST_JAX_CACHE", "1") == "1":
     # a program one worker or subprocess compiled, another loads: the suite spends most of its
     # time compiling. It changes no result (tests/test_cache.py and tests/test_warmup.py check
     # the caches themselves, in folders of their own).
-    from gfjax import cache as _cache
-
     _cache.enable()
     from gfjax import aot as _aot
 
