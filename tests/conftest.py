@@ -69,11 +69,11 @@ jax.config.update("jax_enable_x64", False)
 def _import_every_module() -> None:
     """Import every gfjax module now, while the session runs one thread.
 
-    jaxtyping's import hook (above) parses each module's source as it is first imported, and CPython 3.11 counts
-    an AST's depth in one place per process (python/cpython#106905): a module imported while
-    another thread parses too (a Dask cluster's thread formatting a traceback does) can fail
-    with "AST constructor recursion depth mismatch". A module whose optional dependency is
-    absent is left to the tests that need it.
+    jaxtyping's import hook (above) parses each module's source as it is first imported, and
+    CPython 3.11 counts an AST's depth in one place per process (python/cpython#106905): a
+    module imported while another thread parses too (a Dask cluster's thread formatting a
+    traceback does) can fail with "AST constructor recursion depth mismatch". A module whose
+    optional dependency is absent is left to the tests that need it.
     """
     import importlib
     import pkgutil
