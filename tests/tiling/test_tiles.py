@@ -241,7 +241,7 @@ def test_a_tiles_window_holds_the_points_whose_cells_window_px_names():
         np.testing.assert_array_equal(tile.index, inside)
 
 
-@pytest.mark.parametrize("rows", [7, 1000, 1 << 18])
+@pytest.mark.parametrize("rows", [61, 1000, 1 << 18])
 def test_a_window_made_for_one_tile_is_that_tile_of_the_whole_split(monkeypatch, rows):
     """A survey's window names one core (`Frame.only`): it is cut a slice of points at a time,
     into exactly the tile the whole cloud's split makes, cropped windows, unused points and
