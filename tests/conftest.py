@@ -19,9 +19,10 @@ for _folder in [_TESTS, *sorted(p for p in _TESTS.iterdir() if p.is_dir() and no
 # The suite spends most of its time compiling programs that then run on a few thousand points,
 # where LLVM's optimisation passes cost more than they save (a fifth of the suite's CPU time).
 # Level 1 runs the cloth and the scattered groups' batches faster but compiles slower: a third
-# of the suite (reliability, adaptive, CSF, SMRF, PMF, DMF, tiling, SparseGF's network) took
-# 597 s against 566 s. Worker processes and subprocesses inherit the setting. Speed is measured in experiments/, never
-# here; GFJAX_TEST_XLA_OPT=1 keeps XLA's defaults.
+# of the suite (`pytest -n 2 tests/reliability tests/test_adaptive.py tests/csf tests/smrf
+# tests/sparsegf/test_network.py tests/tiling tests/dmf tests/pmf`) took 597 s against 566 s.
+# Worker processes and subprocesses inherit the setting. Speed is measured in experiments/,
+# never here; GFJAX_TEST_XLA_OPT=1 keeps XLA's defaults.
 _FAST_COMPILE = ("--xla_backend_optimization_level=0", "--xla_llvm_disable_expensive_passes=true")
 if os.environ.get("GFJAX_TEST_XLA_OPT", "0") != "1":
     _flags = os.environ.get("XLA_FLAGS", "").split()
