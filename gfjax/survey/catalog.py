@@ -75,10 +75,15 @@ class Entry(NamedTuple):
                     yield start, to_records(chunk, self.scale_m, self.classes)
                     start += len(chunk)
             return
-        offset = np.load(self.store, mmap_mode="r").offset          # the header's length; no page read
         for start in range(0, self.n_points, size):
-            count = min(size, self.n_points - start)
-            yield start, point_store.mapped(self.store, STORE, count, offset + start * STORE.itemsize)
+            yield start, self.block(start, size)
+
+    def block(self, start: int, size: int = BLOCK_POINTS) -> np.ndarray:
+        """The stored `STORE` records of rows `start` to `start + size` (or the file's end),
+        mapped read-only (as `blocks` gives them; not for a COPC file, which has no store)."""
+        offset = np.load(self.store, mmap_mode="r").offset          # the header's length; no page read
+        count = min(size, self.n_points - start)
+        return point_store.mapped(self.store, STORE, count, offset + start * STORE.itemsize)
 
     def within(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The points inside the x-y box `lo`..`hi` [m]: `(index, records)`, int64 `(k,)` their
@@ -116,16 +121,6 @@ def in_box(xyz_m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     inside &= y >= lo[1]
     inside &= y <= hi[1]
     return inside
-
-
-def field_arrays(records: np.ndarray, rows: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Each field of `STORE` records `(n,)` as an array of its own (`xyz_m` float64 `(k, 3)`,
-    the others `(k,)`), of the `rows` (int `(k,)`) or of every record: copies, contiguous. A
-    field taken from the records costs about half what the records' rows taken whole and then
-    split into fields cost."""
-    if rows is None:
-        return {field: np.array(records[field]) for field in STORE.names}
-    return {field: np.take(records[field], rows, axis=0) for field in STORE.names}
 
 
 def _joined(parts: list[np.ndarray], dtype: np.dtype) -> np.ndarray:

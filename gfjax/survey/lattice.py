@@ -20,15 +20,15 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from gfjax import limits
 from gfjax.result import Result
 from gfjax.survey import cluster
-from gfjax.survey.catalog import STORE, Catalog, field_arrays
-from gfjax.survey.halo import Points, ground_near, overlaps, tiles_region, within_box
+from gfjax.survey.catalog import BLOCK_POINTS, STORE, Catalog, in_box
+from gfjax.survey.halo import Points, ground_near, overlaps, tiles_region
 from gfjax.tiling import tiles
 from gfjax.tiling.tiles import Lattice, Tiling
 
@@ -171,6 +171,24 @@ def in_tile(xyz_m: np.ndarray, catalog: Catalog, lattice: Lattice | Pieces, key:
     return inside
 
 
+class _Part(NamedTuple):
+    """The rows of a survey window that one file gives from one block of its store.
+
+    Attributes:
+      j: the file.
+      rows: the rows in file `j`, ascending: a `range`, or uint32 (int64 past 2^32 points) `(k,)`.
+      start: the first row of the store's block they lie in (`Entry.block`): the window reads
+        them there again when it is joined, so a window's points are copied once.
+      held: the rows' `STORE` records themselves, where no store holds them (a COPC file's
+        read), else None.
+    """
+
+    j: int
+    rows: range | np.ndarray
+    start: int = 0
+    held: np.ndarray | None = None
+
+
 def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces, key: tuple[int, int], *,
                 returns: str = "all") -> list[tuple[int, np.ndarray, np.ndarray]]:
     """Tile `key` filtered from its window's points, gathered from every file it meets (a
@@ -191,29 +209,43 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces
     # a file whose points filtered lie a cell within the window's edges lies in it whole
     origin = np.asarray(frame.origin_m[:2], np.float64)
     sure_lo, sure_hi = origin + (window_lo + 1) * lattice.cell_m, origin + (window_hi - 1) * lattice.cell_m
-    parts, owners = [], []
-    for j, entry in enumerate(catalog.entries):
+
+    def pick(entry, records: np.ndarray) -> np.ndarray | None:
+        """Exactly the window's points (`split`'s cells): `split` then cuts the tile without copying them."""
         box = entry.frame
-        if not overlaps(box, lo, hi):
+        if np.all(box.origin_m[:2] >= sure_lo) and np.all(box.upper_m <= sure_hi):
+            return None
+        return _in_window(records, frame, lattice, window_lo, window_hi)
+
+    parts = _window_parts(catalog, lo, hi, pick)
+    return _core_labels(catalog, filter_fn, lattice, key, parts, frame.only([key]), returns=returns)
+
+
+def _window_parts(catalog: Catalog, lo: np.ndarray, hi: np.ndarray,
+                  pick: Callable[[Any, np.ndarray], np.ndarray | None]) -> list[_Part]:
+    """The `_Part`s of a window inside the x-y box `lo`..`hi` [m], file by file and block by
+    block: `pick(entry, records)` gives the offsets, int64 ascending, of the window's rows among
+    a block's `STORE` records, or None for every row (then none is read). Only the rows are kept,
+    not the points: a block's mapping leaves with it."""
+    parts = []
+    for j, entry in enumerate(catalog.entries):
+        if not overlaps(entry.frame, lo, hi):
             continue
-        whole = bool(np.all(box.origin_m[:2] >= sure_lo) and np.all(box.upper_m <= sure_hi))
         if entry.store is None:              # a COPC file: the octree nodes that meet the box, read
-            reads = [entry.within(lo, hi)]
-        else:                                # a block at a time
-            reads = ((range(start, start + len(block)), block) for start, block in entry.blocks())
-        for rows, records in reads:
-            # exactly the window's points (`split`'s cells): `split` then cuts the tile without copying them
-            mine = None if whole else _in_window(records, frame, lattice, window_lo, window_hi)
-            if mine is not None and mine.size == len(records):
-                mine = None
+            index, records = entry.within(lo, hi)
+            mine = pick(entry, records)
             if mine is not None:
-                if not mine.size:
-                    continue
-                rows = rows.start + mine if isinstance(rows, range) else rows[mine]
-            parts.append(field_arrays(records, mine))
-            owners.append((j, rows if isinstance(rows, range) else _rows(rows)))
-            del records
-    return _core_labels(catalog, filter_fn, lattice, key, parts, owners, frame.only([key]), returns=returns)
+                index, records = index[mine], records[mine]
+            if index.size:
+                parts.append(_Part(j, _rows(index), held=records))
+            continue
+        for start, block in entry.blocks():
+            mine = pick(entry, block)
+            del block
+            rows = range(start, start + min(BLOCK_POINTS, entry.n_points - start)) if mine is None else _rows(start + mine)
+            if len(rows):
+                parts.append(_Part(j, rows, start))
+    return parts
 
 
 def _in_window(records: np.ndarray, frame, lattice: Lattice, window_lo: np.ndarray,
@@ -232,22 +264,24 @@ def _piece_labels(catalog: Catalog, filter_fn: Callable, pieces: Pieces, key: tu
     origin = np.asarray(catalog.frame.origin_m[:2], np.float64)
     lo = origin + np.asarray(key, np.float64) * pieces.tile_size_m - pieces.halo_m
     hi = lo + pieces.tile_size_m + 2 * pieces.halo_m
-    parts, owners = [], []
-    for j, take, records in within_box(catalog, lo, hi):
-        parts.append(field_arrays(records))
-        owners.append((j, _rows(take)))
-        del records
-    return _core_labels(catalog, filter_fn, pieces, key, parts, owners, catalog.frame, returns=returns)
+
+    def pick(entry, records: np.ndarray) -> np.ndarray | None:
+        """`Entry.within`'s rows: every row of a file whose frame lies inside the box."""
+        if np.all(entry.frame.origin_m[:2] >= lo) and np.all(entry.frame.upper_m <= hi):
+            return None
+        return np.flatnonzero(in_box(records["xyz_m"], lo, hi))
+
+    parts = _window_parts(catalog, lo, hi, pick)
+    return _core_labels(catalog, filter_fn, pieces, key, parts, catalog.frame, returns=returns)
 
 
 def _core_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces, key: tuple[int, int],
-                 parts: list[dict[str, np.ndarray]], owners: list, frame, *, returns: str) -> list[tuple[int, np.ndarray, np.ndarray]]:
-    """The window of `parts` (`field_arrays` of `STORE` records, emptied as they are joined; `owners`: `(j, rows)`
-    of each, its file and its rows there) filtered on `frame`, and the labels of tile `key`'s
-    core points, per file (`tile_labels`' value)."""
+                 parts: list[_Part], frame, *, returns: str) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """The window of `parts` (`_window_parts`) filtered on `frame`, and the labels of tile
+    `key`'s core points, per file (`tile_labels`' value)."""
     if not parts:
         return []
-    points = _joined(parts, f"survey tile {key}", frame)
+    points = _joined(catalog, parts, f"survey tile {key}", frame)
     in_core = in_tile(points.xyz_m, catalog, lattice, key)
     if not np.any(in_core & points.filter_mask(returns)):       # a tile of the files' boxes, not of their points
         return []
@@ -255,14 +289,14 @@ def _core_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Piece
     ground = np.asarray(result.ground, bool)
     del points, result
     out, start = [], 0
-    for j, take in owners:
-        count = take.stop - take.start if isinstance(take, range) else take.size
-        stop = start + count
+    for part in parts:
+        take = part.rows
+        stop = start + len(take)
         mine = in_core[start:stop]
         index = np.flatnonzero(mine) + take.start if isinstance(take, range) else take[mine]
         if index.size:
-            small = catalog.entries[j].n_points <= np.iinfo(np.uint32).max
-            out.append((j, index.astype(np.uint32) if small else index, ground[start:stop][mine]))
+            small = catalog.entries[part.j].n_points <= np.iinfo(np.uint32).max
+            out.append((part.j, index.astype(np.uint32) if small else index, ground[start:stop][mine]))
         start = stop
     return out
 
@@ -276,18 +310,28 @@ def _rows(take: np.ndarray) -> np.ndarray | range:
     return take.astype(np.uint32) if take.size and int(take[-1]) <= np.iinfo(np.uint32).max else take
 
 
-def _joined(parts: list[dict[str, np.ndarray]], name: str, frame) -> Points:
-    """The `Points` of `parts` (`field_arrays` of `STORE` records) one after another, each part
-    dropped from the list once copied, so the window's points are never held twice (the list
-    is empty afterwards)."""
-    n = sum(len(part["ignored"]) for part in parts)
+def _joined(catalog: Catalog, parts: list[_Part], name: str, frame) -> Points:
+    """The `Points` of `parts` one after another, each field copied once from its store's
+    block (mapped again: a window's points are never held twice), or from the records a part
+    holds (dropped from `parts` once copied)."""
+    n = sum(len(part.rows) for part in parts)
     fields = {field: np.empty((n, *STORE[field].shape), STORE[field].base) for field in STORE.names}
-    start = 0
-    while parts:
-        part = parts.pop(0)
-        count = len(part["ignored"])
+    at = 0
+    for k, part in enumerate(parts):
+        rows = part.rows
+        if part.held is not None:
+            records, take = part.held, None
+            parts[k] = part._replace(held=None)
+        elif isinstance(rows, range):
+            records, take = catalog.entries[part.j].block(part.start)[rows.start - part.start:rows.stop - part.start], None
+        else:
+            records, take = catalog.entries[part.j].block(part.start), rows - rows.dtype.type(part.start)
+        stop = at + len(rows)
         for field, out in fields.items():
-            out[start:start + count] = part[field]
-        start += count
-        del part
+            if take is None:
+                out[at:stop] = records[field]
+            else:
+                np.take(records[field], take, axis=0, out=out[at:stop])
+        at = stop
+        del records, take
     return Points(**fields, name=name, frame=frame)
