@@ -24,7 +24,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from gfjax import limits
+from gfjax import heap, limits
 from gfjax.result import Result
 from gfjax.survey import cluster
 from gfjax.survey.catalog import BLOCK_POINTS, STORE, Catalog, in_box
@@ -282,6 +282,9 @@ def _core_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Piece
     if not parts:
         return []
     points = _joined(catalog, parts, f"survey tile {key}", frame)
+    # the gather's block-sized temporaries freed holes that glibc keeps between the window's
+    # arrays; the window's larger arrays fit none of them, so give them back now (`heap.trim`)
+    heap.trim()
     in_core = in_tile(points.xyz_m, catalog, lattice, key)
     if not np.any(in_core & points.filter_mask(returns)):       # a tile of the files' boxes, not of their points
         return []
