@@ -75,13 +75,20 @@ class Entry(NamedTuple):
                     yield start, to_records(chunk, self.scale_m, self.classes)
                     start += len(chunk)
             return
+        offset = self._offset()
         for start in range(0, self.n_points, size):
-            yield start, self.block(start, size)
+            yield start, self._mapped(start, size, offset)
 
     def block(self, start: int, size: int = BLOCK_POINTS) -> np.ndarray:
         """The stored `STORE` records of rows `start` to `start + size` (or the file's end),
-        mapped read-only (as `blocks` gives them; not for a COPC file, which has no store)."""
-        offset = np.load(self.store, mmap_mode="r").offset          # the header's length; no page read
+        mapped read-only as `blocks` gives them (not for a COPC file, which has no store)."""
+        return self._mapped(start, size, self._offset())
+
+    def _offset(self) -> int:
+        """The store's header length [bytes]; no page of records read."""
+        return np.load(self.store, mmap_mode="r").offset
+
+    def _mapped(self, start: int, size: int, offset: int) -> np.ndarray:
         count = min(size, self.n_points - start)
         return point_store.mapped(self.store, STORE, count, offset + start * STORE.itemsize)
 

@@ -20,14 +20,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from gfjax import heap, limits
 from gfjax.result import Result
 from gfjax.survey import cluster
-from gfjax.survey.catalog import BLOCK_POINTS, STORE, Catalog, in_box
+from gfjax.survey.catalog import STORE, Catalog, Entry, in_box
 from gfjax.survey.halo import Points, ground_near, overlaps, tiles_region
 from gfjax.tiling import tiles
 from gfjax.tiling.tiles import Lattice, Tiling
@@ -177,8 +177,8 @@ class _Part(NamedTuple):
     Attributes:
       j: the file.
       rows: the rows in file `j`, ascending: a `range`, or uint32 (int64 past 2^32 points) `(k,)`.
-      start: the first row of the store's block they lie in (`Entry.block`): the window reads
-        them there again when it is joined, so a window's points are copied once.
+      start: the first row of the store's block that `rows` (an array) lie in (`Entry.block`):
+        the window reads them there again when it is joined, so its points are copied once.
       held: the rows' `STORE` records themselves, where no store holds them (a COPC file's
         read), else None.
     """
@@ -210,7 +210,7 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces
     origin = np.asarray(frame.origin_m[:2], np.float64)
     sure_lo, sure_hi = origin + (window_lo + 1) * lattice.cell_m, origin + (window_hi - 1) * lattice.cell_m
 
-    def pick(entry, records: np.ndarray) -> np.ndarray | None:
+    def pick(entry: Entry, records: np.ndarray) -> np.ndarray | None:
         """Exactly the window's points (`split`'s cells): `split` then cuts the tile without copying them."""
         box = entry.frame
         if np.all(box.origin_m[:2] >= sure_lo) and np.all(box.upper_m <= sure_hi):
@@ -222,7 +222,7 @@ def tile_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Pieces
 
 
 def _window_parts(catalog: Catalog, lo: np.ndarray, hi: np.ndarray,
-                  pick: Callable[[Any, np.ndarray], np.ndarray | None]) -> list[_Part]:
+                  pick: Callable[[Entry, np.ndarray], np.ndarray | None]) -> list[_Part]:
     """The `_Part`s of a window inside the x-y box `lo`..`hi` [m], file by file and block by
     block: `pick(entry, records)` gives the offsets, int64 ascending, of the window's rows among
     a block's `STORE` records, or None for every row (then none is read). Only the rows are kept,
@@ -241,8 +241,8 @@ def _window_parts(catalog: Catalog, lo: np.ndarray, hi: np.ndarray,
             continue
         for start, block in entry.blocks():
             mine = pick(entry, block)
+            rows = range(start, start + len(block)) if mine is None else _rows(start + mine)
             del block
-            rows = range(start, start + min(BLOCK_POINTS, entry.n_points - start)) if mine is None else _rows(start + mine)
             if len(rows):
                 parts.append(_Part(j, rows, start))
     return parts
@@ -265,7 +265,7 @@ def _piece_labels(catalog: Catalog, filter_fn: Callable, pieces: Pieces, key: tu
     lo = origin + np.asarray(key, np.float64) * pieces.tile_size_m - pieces.halo_m
     hi = lo + pieces.tile_size_m + 2 * pieces.halo_m
 
-    def pick(entry, records: np.ndarray) -> np.ndarray | None:
+    def pick(entry: Entry, records: np.ndarray) -> np.ndarray | None:
         """`Entry.within`'s rows: every row of a file whose frame lies inside the box."""
         if np.all(entry.frame.origin_m[:2] >= lo) and np.all(entry.frame.upper_m <= hi):
             return None
@@ -326,7 +326,7 @@ def _joined(catalog: Catalog, parts: list[_Part], name: str, frame) -> Points:
             records, take = part.held, None
             parts[k] = part._replace(held=None)
         elif isinstance(rows, range):
-            records, take = catalog.entries[part.j].block(part.start)[rows.start - part.start:rows.stop - part.start], None
+            records, take = catalog.entries[part.j].block(rows.start, len(rows)), None
         else:
             records, take = catalog.entries[part.j].block(part.start), rows - rows.dtype.type(part.start)
         stop = at + len(rows)
