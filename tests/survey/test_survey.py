@@ -507,16 +507,25 @@ def test_methods_that_do_not_tile_grid_a_window_on_the_survey_lattice(grid, name
     assert np.mean(got == want) >= 0.999
 
 
-def test_a_whole_cloud_method_labels_a_survey_that_fits_exactly_as_one_file(tmp_path, monkeypatch):
-    """CSF's cloth settles over the whole cloud, so no halo reproduces one file's labels: a
-    survey that fits the memory budget runs as one cloud, and its files get the union's labels
-    bit for bit. The shipped sample cut into 2 x 2 files: with 50 m halos, 849 of its 52,119
-    points differ from the one file's."""
-    from gfjax import csf
+def cropped_sample(fraction: float):
+    """The shipped sample's points in the south-west `fraction` of its extent, and their classes."""
     from gfjax.data import demo_sample
 
     sample = las_io.read(demo_sample())
-    paths, members, union = write_grid(tmp_path, sample.xyz_m, np.asarray(sample.classification))
+    xy = sample.xyz_m[:, :2]
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    keep = np.all(xy <= lo + fraction * (hi - lo), axis=1)
+    return sample.xyz_m[keep], np.asarray(sample.classification)[keep]
+
+
+def test_a_whole_cloud_method_labels_a_survey_that_fits_exactly_as_one_file(tmp_path, monkeypatch):
+    """CSF's cloth settles over the whole cloud, so no halo reproduces one file's labels: a
+    survey that fits the memory budget runs as one cloud, and its files get the union's labels
+    bit for bit. Three quarters of the shipped sample's extent cut into 2 x 2 files: with 50 m
+    halos, hundreds of its points differ from the one file's."""
+    from gfjax import csf
+
+    paths, members, union = write_grid(tmp_path, *cropped_sample(0.75))
     want = csf.filter(las_io.read(union), config=csf.Config()).ground
     found = {}
     for whole in (True, False):
@@ -552,13 +561,11 @@ def test_csf_cloth_falls_from_the_survey_height_in_every_window(tmp_path, monkey
 
     from gfjax import csf
     from gfjax.csf.filter import detrended, framed
-    from gfjax.data import demo_sample
     from gfjax.survey import halo
 
     for module in (survey_run, halo):
         monkeypatch.setattr(module, "fits_whole", lambda *args: False)
-    sample = las_io.read(demo_sample())
-    paths, members, union = write_grid(tmp_path, sample.xyz_m, np.asarray(sample.classification))
+    paths, members, union = write_grid(tmp_path, *cropped_sample(1.0))
     whole = las_io.read(union)
     given = dataclasses.replace(csf.Config(), trend_m=csf.TREND_M, rigidness=1)
     use = whole.filter_mask()
