@@ -15,6 +15,7 @@ from gfjax._types import Host
 from gfjax.pmf.config import Config, Params
 from gfjax.pmf.stages import TileDiagnostics, classify_points, rasterize_min, surfaces
 from gfjax.tiling import chunks
+from gfjax.tiling.tiles import WindowRows
 
 __all__ = ["classify_tile", "classify_batch"]
 
@@ -46,11 +47,11 @@ def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=False)
 
 
-def classify_batch(xyz: Float[Host, "b m 3"], valid: Bool[Host, "b n"], hw: Int[Host, "b 2"],
+def classify_batch(xyz: Float[Host, "b m 3"] | WindowRows, valid: Bool[Host, "b n"], hw: Int[Host, "b 2"],
                    params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Host, "b n"], TileDiagnostics]:
     """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared). `xyz`
     may hold fewer rows `m` than the capacity `n` when they run a chunk at a time
-    (`batches.TileBatch`): the rest is padding."""
+    (`batches.TileBatch`; a lone window's `WindowRows`, a batch of one): the rest is padding."""
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=True)
 
 

@@ -16,6 +16,7 @@ from gfjax._types import Host
 from gfjax.smrf.config import Config, Params
 from gfjax.smrf.stages import TileDiagnostics, classify_points, rasterize_min, surfaces
 from gfjax.tiling import chunks
+from gfjax.tiling.tiles import WindowRows
 
 __all__ = ["classify_tile", "classify_batch"]
 
@@ -48,11 +49,12 @@ def classify_tile(xyz: Float[Host, "n 3"], valid: Bool[Host, " n"], hw: Int[Host
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=False)
 
 
-def classify_batch(xyz: Float[Host, "b m 3"], valid: Bool[Host, "b n"], hw: Int[Host, "b 2"],
+def classify_batch(xyz: Float[Host, "b m 3"] | WindowRows, valid: Bool[Host, "b n"], hw: Int[Host, "b 2"],
                    params: Params, *, config: Config, shape: tuple[int, int]) -> tuple[Bool[Host, "b n"], TileDiagnostics]:
     """`classify_tile` under `jax.vmap` over a batch of padded tiles (params shared); the
     diagnostics gain a leading batch axis. `xyz` may hold fewer rows `m` than the capacity `n`
-    when they run a chunk at a time (`batches.TileBatch`): the rest is padding."""
+    when they run a chunk at a time (`batches.TileBatch`; a lone window's `WindowRows`, a
+    batch of one): the rest is padding."""
     return _run(xyz, valid, hw, params, config, tuple(shape), batched=True)
 
 

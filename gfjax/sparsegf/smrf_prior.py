@@ -60,13 +60,14 @@ def smrf_heights(xyz_m: Float[np.ndarray, "n 3"], frame: Frame | None = None) ->
     dzs, margins = [], []
     for tile, diag in zip(run.tiles, run.diagnostics):
         h, w = tile.shape
-        u = tile.local_xyz[:, 0] / config.cell_m - 0.5                     # fractional column
-        v = (h - 0.5) - tile.local_xyz[:, 1] / config.cell_m               # fractional row, row 0 = north
+        local = np.asarray(tile.local_xyz)
+        u = local[:, 0] / config.cell_m - 0.5                              # fractional column
+        v = (h - 0.5) - local[:, 1] / config.cell_m                        # fractional row, row 0 = north
 
         def at(raster, u=u, v=v):
             return scipy.ndimage.map_coordinates(np.asarray(raster, np.float64), [v, u], order=1, mode="nearest")
 
-        dz = tile.local_xyz[:, 2] - at(diag.zipro)
+        dz = local[:, 2] - at(diag.zipro)
         margin = float(params.threshold_m) + float(params.scalar) * at(diag.slope) - np.abs(dz)
         dzs.append(dz.astype(np.float32))
         margins.append(margin.astype(np.float32))

@@ -18,7 +18,7 @@ import numpy as np
 
 from gfjax.tiling import buckets, chunks
 from gfjax.tiling.buckets import SHAPE_QUANTUM_PX, SMALL_SIDES_PX, SMALLEST_SIDE_PX
-from gfjax.tiling.tiles import Tile
+from gfjax.tiling.tiles import Tile, WindowRows
 
 __all__ = ["TileBatch", "batches", "small_batches", "filled"]
 
@@ -29,8 +29,9 @@ class TileBatch(NamedTuple):
     Attributes:
       xyz: float32 `(b, cap, 3)` local metres (zeros on padding); for a lone window whose
         points run a chunk at a time (`batches` with `sides`, `chunks.chunked`), its own
-        `local_xyz` `(1, m, 3)` instead, not copied: the rows from `m` to `cap` are padding
-        (`chunks.lowest` pads them a chunk at a time).
+        `local_xyz` instead, not copied: `(1, m, 3)`, or its `WindowRows` `(m, 3)` (a batch of
+        one, made a chunk at a time); the rows from `m` to `cap` are padding (`chunks.lowest`
+        pads them a chunk at a time).
       valid: bool `(b, cap)` real points.
       hw: int32 `(b, 2)` each tile's own raster extent (rows, cols) inside `shape`.
       shape: the padded raster `(h, w)` (static for jit).
@@ -54,8 +55,13 @@ def _canonical_shape(shape: tuple[int, int], sides: Sequence[int]) -> tuple[int,
 def _pad(tiles: Sequence[Tile], capacity: int, shape: tuple[int, int], *, share: bool = False) -> TileBatch:
     b = len(tiles)
     # a survey's window holds millions of points: a second copy of them is the largest array of its run
-    share = share and b == 1 and chunks.chunked(capacity) and tiles[0].local_xyz.flags.c_contiguous
-    xyz = tiles[0].local_xyz[None] if share else np.zeros((b, capacity, 3), np.float32)
+    share = share and b == 1 and chunks.chunked(capacity)
+    if share and isinstance(tiles[0].local_xyz, WindowRows):
+        xyz = tiles[0].local_xyz                  # made a chunk at a time (`chunks.lowest`)
+    elif share and tiles[0].local_xyz.flags.c_contiguous:
+        xyz = tiles[0].local_xyz[None]
+    else:
+        share, xyz = False, np.zeros((b, capacity, 3), np.float32)
     valid = np.zeros((b, capacity), bool)
     hw = np.zeros((b, 2), np.int32)
     for i, tile in enumerate(tiles):
@@ -63,7 +69,7 @@ def _pad(tiles: Sequence[Tile], capacity: int, shape: tuple[int, int], *, share:
             raise ValueError(f"tile {tile.key} ({tile.n_points} points, {tile.shape}) does not fit "
                              f"capacity {capacity} / shape {shape}")
         if not share:
-            xyz[i, :tile.n_points] = tile.local_xyz
+            xyz[i, :tile.n_points] = np.asarray(tile.local_xyz)
         valid[i, :tile.n_points] = True
         hw[i] = tile.shape
     return TileBatch(xyz=xyz, valid=valid, hw=hw, shape=tuple(shape), tiles=tuple(tiles))

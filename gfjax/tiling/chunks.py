@@ -19,6 +19,7 @@ import numpy as np
 
 from gfjax._types import Host
 from gfjax.tiling.buckets import POINT_CHUNK
+from gfjax.tiling.tiles import WindowRows
 
 __all__ = ["POINT_CHUNK", "chunked", "lowest", "labels"]
 
@@ -38,12 +39,15 @@ def _slices(capacity: int) -> list[slice] | None:
 
 def _rows(xyz, part: slice):
     """Rows `part` of points `xyz` `(..., m, 3)`, zeros where they run past its `m` rows: a
-    lone window's points are passed unpadded (`batches.TileBatch`), padded a chunk at a time."""
+    lone window's points are passed unpadded (`batches.TileBatch`), padded a chunk at a time;
+    a `WindowRows` `(m, 3)` is a batch of one, made here a chunk at a time."""
     m = xyz.shape[-2]
-    if part.stop <= m:
-        return xyz[..., part, :]
-    out = np.zeros((*xyz.shape[:-2], part.stop - part.start, xyz.shape[-1]), xyz.dtype)
-    out[..., :max(0, m - part.start), :] = xyz[..., part.start:m, :]
+    own = slice(min(part.start, m), min(part.stop, m))
+    rows = xyz.rows(own)[None] if isinstance(xyz, WindowRows) else xyz[..., own, :]
+    if own.stop - own.start == part.stop - part.start:
+        return rows
+    out = np.zeros((*rows.shape[:-2], part.stop - part.start, rows.shape[-1]), rows.dtype)
+    out[..., :own.stop - own.start, :] = rows
     return out
 
 

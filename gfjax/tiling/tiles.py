@@ -35,7 +35,7 @@ from gfjax.io.cloud import Frame
 from gfjax.limits import Range
 from gfjax.tiling.buckets import check_lattice
 
-__all__ = ["Tiling", "Lattice", "RANGES", "Tile", "split", "merge", "tiled_estimator"]
+__all__ = ["Tiling", "Lattice", "RANGES", "WindowRows", "Tile", "split", "merge", "tiled_estimator"]
 
 CROP_SAVING = 4.0             # a window shrinks to its core points' box + buffer when that is this many times smaller
 FEW_CORES = 4                 # `split` finds the points of at most this many named tiles by masks
@@ -90,6 +90,55 @@ class Tiling:
         return Lattice(float(self.tile_size_m), float(self.buffer_m), float(cell_m))
 
 
+class WindowRows:
+    """The float32 local coordinates `(m, 3)` [m] of a window's points, made from the cloud's
+    float64 ones a slice of rows at a time, as `split` makes a tile's `local_xyz`: a survey's
+    window of millions of points runs its programs a chunk at a time (`chunks`), so its 12 bytes
+    a point are never held whole beside the cloud's own coordinates.
+
+    Args:
+      xyz_m: float64 `(n, 3)` the cloud's coordinates [m] (held, not copied).
+      index: the window's rows in `xyz_m`, int `(m,)` or a `range`.
+      origin_m: float64 `(3,)` the lattice's corner and the z origin [m].
+      lo: int64 `(2,)` the window's south-west cell `(col, row)` on the lattice.
+      cell_m: the lattice's cell [m]; cell_dtype: the integer type `split` computes cells in.
+    """
+
+    dtype = np.dtype(np.float32)
+    ndim = 2
+
+    def __init__(self, xyz_m: np.ndarray, index: np.ndarray | range, origin_m: np.ndarray, lo: np.ndarray,
+                 cell_m: float, cell_dtype: Any):
+        self.xyz_m, self.index, self.origin_m, self.lo = xyz_m, index, origin_m, lo
+        self.cell_m, self.cell_dtype = cell_m, cell_dtype
+        self.shape = (len(index), 3)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def rows(self, part: slice) -> np.ndarray:
+        """Rows `part` (a slice with a step of 1) of the local coordinates: float32 `(k, 3)`."""
+        take = self.index[part]
+        if isinstance(take, range):              # consecutive rows: views of the cloud's columns
+            take = slice(take.start, take.stop)
+        shift = self.lo * self.cell_m
+        out = np.empty((len(range(*part.indices(self.shape[0]))), 3), np.float32)
+        out[:, 2] = self.xyz_m[take, 2] - self.origin_m[2]
+        for j in range(2):
+            values = self.xyz_m[take, j] - self.origin_m[j]
+            cell = np.floor(np.divide(values, self.cell_m)).astype(self.cell_dtype) - self.lo[j]
+            values -= shift[j]
+            out[:, j] = values
+            _clamp_into_cell(values, cell, self.cell_m, out=out[:, j])
+        return out
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        out = np.empty(self.shape, np.float32)
+        for part in columns.slices(self.shape[0]):
+            out[part] = self.rows(part)
+        return out if dtype is None else out.astype(dtype, copy=False)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class Tile:
     """One buffered tile.
@@ -99,11 +148,13 @@ class Tile:
       origin_m: float64 `(3,)`: the window's south-west corner (x, y) and the cloud's z
         origin [m]; local coordinates are `xyz_m - origin_m`.
       shape: raster `(h, w)` of the window at `cell_m` (its own extent, before padding).
-      index: int64 `(m,)` indices into the cloud of the window's points (int32 for the one tile of a
-        frame naming one core, a survey's window, of a cloud under 2^31 points).
+      index: int64 `(m,)` indices into the cloud of the window's points; for the one tile of a
+        frame naming one core (a survey's window) int32 under 2^31 points, or `range(m)` when
+        the window is every point of the cloud in order (no 4 bytes a point held).
       core: bool `(m,)` which of them lie in the tile core.
       local_xyz: float32 `(m, 3)` local metres of those points, each clamped into the raster
-        cell its float64 coordinates fall in.
+        cell its float64 coordinates fall in; for the one tile of a frame naming one core, a
+        `WindowRows` that makes them a slice of rows at a time (`np.asarray` gives them all).
       window_px: `(col, row)` of the window's south-west cell in the cloud's cell lattice
         (rows counted from the south).
       core_px: `(col0, row0, col1, row1)`: the core's cells `[col0, col1) x [row0, row1)` in
@@ -113,15 +164,15 @@ class Tile:
     key: tuple[int, int]
     origin_m: np.ndarray
     shape: tuple[int, int]
-    index: np.ndarray
+    index: np.ndarray | range
     core: np.ndarray
-    local_xyz: np.ndarray
+    local_xyz: np.ndarray | WindowRows
     window_px: tuple[int, int] = (0, 0)
     core_px: tuple[int, int, int, int] = (0, 0, 0, 0)
 
     @property
     def n_points(self) -> int:
-        return int(self.index.shape[0])
+        return len(self.index)
 
 
 def _clamp_into_cell(values: np.ndarray, cell: np.ndarray, cell_m: float, out: np.ndarray) -> None:
@@ -361,7 +412,8 @@ def _one_tile(xyz_m: np.ndarray, use: np.ndarray | None, key: tuple[int, int], o
               extent_px: np.ndarray, lattice: Lattice, small) -> Tile | None:
     """`split`'s tile `key` of a frame naming that one core (a survey's window), made
     a slice of points at a time (`columns.slices`): beside the tile, a few columns of a slice, not
-    of the window's millions (`use`: the used points, None for all). None when no used point
+    of the window's millions (`use`: the used points, None for all); its local coordinates are
+    made again a chunk at a time where they are used (`WindowRows`). None when no used point
     lies in the core."""
     n = len(xyz_m)
     slices = columns.slices(n)
@@ -390,11 +442,10 @@ def _one_tile(xyz_m: np.ndarray, use: np.ndarray | None, key: tuple[int, int], o
     buffer_px = math.ceil(lattice.buffer_m / lattice.cell_m - 1e-9)
     lo, hi, core_lo, core_hi = window_px(np.asarray(key), extent_px, *lattice)
     lo, hi = _cropped(box_lo, box_hi, buffer_px, lo, hi)
-    shift = lo * lattice.cell_m
     count = n if use is None else int(np.count_nonzero(use))
-    local32 = np.empty((count, 3), np.float32)
-    # rows of a cloud under 2^31 points in int32: a survey's window keeps them while it is filtered
-    index = np.empty(count, np.int32 if n <= np.iinfo(np.int32).max else np.int64)
+    # rows of a cloud under 2^31 points in int32: a survey's window keeps them while it is
+    # filtered; none when the window is every point in order (a survey's window of whole files)
+    index = None
     in_core = np.empty(count, bool)
     start = 0
     for part in slices:
@@ -404,22 +455,23 @@ def _one_tile(xyz_m: np.ndarray, use: np.ndarray | None, key: tuple[int, int], o
         if not inside.all():
             pick = np.flatnonzero(inside)
             rows = (np.arange(part.start, part.stop) if isinstance(rows, slice) else rows)[pick]
-            cell, core = cell[pick], core[pick]
-        stop = start + len(cell)
-        index[start:stop] = np.arange(part.start, part.stop) if isinstance(rows, slice) else rows
+            core = core[pick]
+        stop = start + len(core)
+        if index is None and not (isinstance(rows, slice) and rows.start == start):
+            index = np.empty(count, np.int32 if n <= np.iinfo(np.int32).max else np.int64)
+            index[:start] = np.arange(start)
+        if index is not None:
+            index[start:stop] = np.arange(part.start, part.stop) if isinstance(rows, slice) else rows
         in_core[start:stop] = (core[:, 0] == key[0]) & (core[:, 1] == key[1])
-        local32[start:stop, 2] = xyz_m[rows, 2] - origin[2]
-        for j in range(2):
-            values = xyz_m[rows, j] - origin[j]
-            values -= shift[j]
-            local32[start:stop, j] = values
-            _clamp_into_cell(values, cell[:, j] - lo[j], lattice.cell_m, out=local32[start:stop, j])
         start = stop
-    if start < count:                          # a cropped window: the rows its points filled
-        local32, index, in_core = local32[:start].copy(), index[:start].copy(), in_core[:start].copy()
+    if index is None:
+        index = range(count)
+    elif start < count:                          # a cropped window: the rows its points filled
+        index, in_core = index[:start].copy(), in_core[:start].copy()
     core_lo, core_hi = np.maximum(core_lo, lo), np.minimum(core_hi, hi)
-    return Tile(key=tuple(int(k) for k in key), origin_m=origin + np.concatenate([shift, [0.0]]),
-                shape=(int(hi[1] - lo[1]), int(hi[0] - lo[0])), index=index, core=in_core, local_xyz=local32,
+    return Tile(key=tuple(int(k) for k in key), origin_m=origin + np.concatenate([lo * lattice.cell_m, [0.0]]),
+                shape=(int(hi[1] - lo[1]), int(hi[0] - lo[0])), index=index, core=in_core,
+                local_xyz=WindowRows(xyz_m, index, origin, lo, lattice.cell_m, small),
                 window_px=(int(lo[0]), int(lo[1])),
                 core_px=(int(core_lo[0]), int(core_lo[1]), int(core_hi[0]), int(core_hi[1])))
 
@@ -446,7 +498,11 @@ def merge(n_points: int, tiles: Sequence[Tile], labels: Sequence[np.ndarray], *,
         lab = np.asarray(lab)
         for part in columns.slices(tile.n_points):            # a window's millions a slice at a time
             core = tile.core[part]
-            out[tile.index[part][core]] = lab[part][core]
+            rows = tile.index[part]
+            if isinstance(rows, range):
+                out[rows.start:rows.stop][core] = lab[part][core]
+            else:
+                out[rows[core]] = lab[part][core]
     return out
 
 

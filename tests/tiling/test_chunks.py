@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gfjax import pmf, smrf
+from gfjax.io.cloud import Frame
 from gfjax.pmf import programs as pmf_programs
 from gfjax.smrf import programs as smrf_programs
 from gfjax.tiling import batches, buckets, chunks
@@ -21,14 +22,18 @@ def test_tile_capacity_is_canonical_up_to_a_chunk_then_whole_chunks():
     assert buckets.tile_capacities() == tuple(c for c in buckets.canonical_capacities() if c <= chunk)
 
 
-def _batch(capacity: int):
-    """One padded window of a sloped, bumpy scene of 3,000 points (2,000 of them ground)."""
+def _scene() -> np.ndarray:
+    """A sloped, bumpy scene of 3,000 points (2,000 of them ground), float64 `(3000, 3)` [m]."""
     rng = np.random.default_rng(3)
     xy = rng.uniform(0, 60, (3000, 2))
     z = 0.05 * xy[:, 0] + rng.normal(0, 0.05, 3000)
     z[:1000] += rng.uniform(2, 9, 1000)                           # vegetation and roofs
-    xyz = np.column_stack([xy + 500_000.0, z])
-    tile, = tiling.split(xyz, tile_size_m=100.0, buffer_m=10.0, cell_m=1.0)
+    return np.column_stack([xy + 500_000.0, z])
+
+
+def _batch(capacity: int):
+    """One padded window of `_scene`."""
+    tile, = tiling.split(_scene(), tile_size_m=100.0, buffer_m=10.0, cell_m=1.0)
     sides = buckets.canonical_sides(100.0, 10.0, 1.0)
     batch, = batches.batches([tile], max_batch=1, capacity=capacity, sides=sides)
     return batch
@@ -86,3 +91,37 @@ def test_a_lone_window_run_in_chunks_is_not_copied_and_labels_as_padded(monkeypa
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     tuned, = batches.batches([tile], max_batch=1, capacity=4096)          # tuning's batches: always padded
     assert tuned.xyz.shape == (1, 4096, 3)
+
+
+@pytest.mark.parametrize("package, programs, config, params", [
+    ("smrf", smrf_programs, smrf.Config(window_m=6.0), smrf.Params()),
+    ("pmf", pmf_programs, pmf.Config(), pmf.Params()),
+])
+def test_a_survey_window_made_a_chunk_at_a_time_labels_as_padded(monkeypatch, package, programs, config, params):
+    """A survey's window (a frame naming one core) holds no float32 copy of its points: they
+    are made a chunk at a time (`WindowRows`), with the labels and rasters of the padded batch."""
+    xyz = _scene()
+    monkeypatch.setattr(chunks, "POINT_CHUNK", 1024)
+    frame = Frame.of(xyz)
+    lattice = dict(tile_size_m=100.0, buffer_m=10.0, cell_m=1.0)
+    for use in (None, np.arange(len(xyz)) % 7 > 0):                  # every point in order, or some
+        tile, = tiling.split(xyz, **lattice, use=use, frame=frame.only([(0, 0)]))
+        assert isinstance(tile.local_xyz, tiling.WindowRows)
+        assert isinstance(tile.index, range) == (use is None)
+        same, = tiling.split(xyz, **lattice, use=use, frame=frame)     # the multi-tile cut, made whole
+        np.testing.assert_array_equal(np.asarray(tile.local_xyz), same.local_xyz)
+        np.testing.assert_array_equal(tile.local_xyz.rows(slice(1000, 2100)), same.local_xyz[1000:2100])
+        streamed, = batches.batches([tile], max_batch=1, capacity=4096, sides=buckets.canonical_sides(100.0, 10.0, 1.0))
+        assert streamed.xyz is tile.local_xyz
+        padded, = batches.batches([same], max_batch=1, capacity=4096, sides=buckets.canonical_sides(100.0, 10.0, 1.0))
+        ground, diag = programs.classify_batch(streamed.xyz, streamed.valid, streamed.hw, params, config=config,
+                                               shape=streamed.shape)
+        want_ground, want_diag = programs.classify_batch(padded.xyz, padded.valid, padded.hw, params, config=config,
+                                                         shape=padded.shape)
+        np.testing.assert_array_equal(ground, want_ground)
+        assert np.asarray(want_ground)[0, :tile.n_points].sum() > 1000          # many ground points
+        for a, b in zip(diag, want_diag):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        labels = np.asarray(ground)[0, :tile.n_points]
+        np.testing.assert_array_equal(tiling.merge(len(xyz), [tile], [labels]),
+                                      tiling.merge(len(xyz), [same], [labels]))
