@@ -44,6 +44,12 @@ def net():
     return init(MICRO, key=jax.random.key(2))
 
 
+def small_pack(found, plans=None):
+    """`found` in a pack of the shape `sparsegf.filter` gives the scene's patches (a small
+    pack), so that these tests run the network program the filter's tests compile."""
+    return pipeline.pack(found, pipeline.PACK_SLOTS, plans, min_capacity=pipeline.SMALL_PACK_VOXELS)
+
+
 def test_parameter_counts():
     paper = count_parameters(NET_PRESETS["paper"])
     assert abs(paper - 37.9e6) <= 0.01 * 37.9e6                     # MinkUNet34C + refinement
@@ -114,11 +120,11 @@ def test_a_patch_gets_the_same_output_alone_or_packed_with_others(net):
     assert len(found) == 2
     alone = []
     for p in found:
-        single = pipeline.pack([p], 8)
+        single = small_pack([p])
         alone += pipeline.unpack(single, np.asarray(programs.predict(net, single)[0]))
-    packed = pipeline.pack(found, 8)
+    packed = small_pack(found)
     together = np.asarray(programs.predict(net, packed)[0])
-    single = pipeline.pack(found[:1], 8)
+    single = small_pack(found[:1])
     assert packed.coords.shape == single.coords.shape and packed.point_row.shape == single.point_row.shape
     for values, own in zip(pipeline.unpack(packed, together), alone):
         np.testing.assert_allclose(values, own, rtol=1e-4, atol=1e-6)
@@ -127,7 +133,7 @@ def test_a_patch_gets_the_same_output_alone_or_packed_with_others(net):
 def test_points_of_one_voxel_can_get_different_outputs(net):
     xyz, _ = scene()
     patch = next(patches(xyz, Config(features=FEATURES)))
-    packed = pipeline.pack([patch], 8)
+    packed = small_pack([patch])
     prob = pipeline.unpack(packed, np.asarray(programs.predict(net, packed)[0]))[0]
     shared = np.flatnonzero(patch.central_counts() >= 2)
     assert len(shared)
@@ -345,13 +351,14 @@ def test_training_takes_the_points_of_a_cloud_the_filter_feeds_its_network(net):
 
 
 def test_a_pack_that_overflows_the_standard_plan_runs_again_with_a_grown_plan(net):
-    # a solid 48 x 48 x 16 block of voxels: 27 kernel-3 neighbours each, more than the
-    # standard plan's room, so the first run overflows
-    xyz = np.stack(np.meshgrid(np.arange(48), np.arange(48), np.arange(16), indexing="ij"), -1).reshape(-1, 3)
+    # a solid 24 x 24 x 12 block of voxels (a small pack's 8,192 rows hold its 6,912): 27
+    # kernel-3 neighbours each, more than the standard plan's room, so the first run overflows
+    xyz = np.stack(np.meshgrid(np.arange(24), np.arange(24), np.arange(12), indexing="ij"), -1).reshape(-1, 3)
     xyz = xyz * 0.5 + 0.25 + np.asarray([5e5, 5e6, 100.0])
     patch = next(patches(xyz, Config(features=FEATURES)))
     plans = {}
-    packed = pipeline.pack([patch], 8, plans)
+    packed = small_pack([patch], plans)
+    assert len(packed.coords) == pipeline.SMALL_PACK_VOXELS and len(patch.coords) == 24 * 24 * 12
     calls = []
 
     def run(packed):
@@ -363,7 +370,7 @@ def test_a_pack_that_overflows_the_standard_plan_runs_again_with_a_grown_plan(ne
     assert calls == [True, False]
     grown = plans[len(packed.coords)]
     assert grown == pipeline.grow_plan(packed).plan and grown != packed.plan
-    again = pipeline.run_with_room(run, pipeline.pack([patch], 8, plans), plans)
+    again = pipeline.run_with_room(run, small_pack([patch], plans), plans)
     assert calls[2:] == [False]
     np.testing.assert_array_equal(np.asarray(prob), np.asarray(again))
     values = pipeline.unpack(packed, np.asarray(prob))[0]
