@@ -86,7 +86,7 @@ def serial_rates(paths: list[Path], method: str) -> dict:
         n_points = sum(e.n_points for e in catalog.entries)
         out["index_points_per_s"] = n_points / out["index_s"]
 
-        def filter_fn(points, returns):
+        def filter_fn(points, returns, core=None):
             return module.filter(points, config=config, returns=returns)
 
         lattice = methods.lattice(module, config)

@@ -52,6 +52,9 @@ class Method:
       takes_terrain: `filter` takes `terrain=` (a `gfjax.adaptive.Terrain`), the terrain its values
         settle on in place of the cloud's own (the vote's voters): a survey passes its own, so
         every window is labelled with the values of the whole survey.
+      takes_core: `filter` takes `core=` (bool `(n,)`, the points whose labels the caller
+        keeps: a survey window's core, a file beside its halo) and spends less on the rest,
+        which only give context (`core_option`).
       survey_config: `survey_config(config, clouds, frame) -> Config`, the estimates made per
         cloud fixed once for a whole survey run in windows (DMF's voxel size, CSF's cloth start),
         from each file's points (`clouds`, float64 `(n_i, 3)` [m]) on the survey's `frame`, or None.
@@ -80,6 +83,7 @@ class Method:
     tile_labels: bool = False
     whole_cloud: bool = False
     takes_terrain: bool = False
+    takes_core: bool = False
     survey_config: Callable[..., Any] | None = None
     survey_halo: Callable[[Any], float] | None = None
     load_model: Callable[[Any], tuple[Any, Any]] | None = None
@@ -93,6 +97,11 @@ class Method:
         unknown = set(self.ranges) - _fields(self.Config) - _fields(self.Params)
         if unknown:
             raise ValueError(f"Method {self.name}: ranges of keys that are no field: {sorted(unknown)}")
+
+    def core_option(self, core) -> dict:
+        """The keyword arguments that give `filter` the core `core` (bool `(n,)` or None): none
+        for a method that does not take one."""
+        return {"core": core} if self.takes_core and core is not None else {}
 
     def __repr__(self) -> str:
         return f"Method({self.name!r})"

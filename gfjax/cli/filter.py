@@ -289,9 +289,10 @@ def _say_settled(args, what: str, settled) -> None:
         print(f"gfjax: {what}: {text}", file=sys.stderr)
 
 
-def _filter(setup, progress: bool, points, returns: str):
-    """`setup`'s filter on a survey's window (a module-level function: it travels to Dask workers)."""
-    return setup.filter(points, returns=returns, progress=progress)
+def _filter(setup, progress: bool, points, returns: str, core=None):
+    """`setup`'s filter on a survey's window, `core` the points whose labels are kept (a
+    module-level function: it travels to Dask workers)."""
+    return setup.filter(points, returns=returns, progress=progress, **setup.method.core_option(core))
 
 
 def _cluster(args: argparse.Namespace, points: int):

@@ -34,6 +34,14 @@ SMRF_OBJECT_PROBABILITY = 0.9
 # forest and the 25 points/m² St Barth tile fall outside (total error 8.7 -> 4.5 % and
 # 40.8 -> 43.8 %), at 1 also the Delft tile (1.4 -> 2.6 %), at 3 none.
 DENSITY_SLACK = 2.0
+# A survey window's points within this of its core are voted on by every patch that votes on
+# them in the whole cloud (`filter`'s `core`), so that the labels the core's read are the whole
+# cloud's too: a point's 8 nearest ground points, for the level test and then the spike guard
+# (8 points lie within 6.5 m at 0.06 ground points/m², the sparsest training file's density).
+# Farther halo points take SMRF's verdict. Two files of bcts_2 as a survey gave the same labels
+# with 0, 10 and 50 m, and 50 m cost 1.17x the time of 10 m
+# (`experiments/results/survey_scale.md`) [m].
+CORE_REACH_M = 20.0
 # How the mean votes become labels: settings of a run, not of a network. A model file does
 # not carry them (`filter.load_model`); they come from `Config`'s defaults or `--set`.
 DECISION_FIELDS = ("decision", "ground_probability", "smrf_ground_probability", "smrf_object_probability")

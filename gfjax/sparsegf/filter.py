@@ -16,10 +16,10 @@ from gfjax.errors import InputError
 from gfjax.io.cloud import CloudView, Frame
 from gfjax.result import Result
 from gfjax.sparsegf import checkpoint
-from gfjax.sparsegf.config import DECISION_FIELDS, DENSITY_SLACK, LEVEL_TOLERANCE_M, Config
+from gfjax.sparsegf.config import CORE_REACH_M, DECISION_FIELDS, DENSITY_SLACK, LEVEL_TOLERANCE_M, Config
 from gfjax.sparsegf.features import cloud_features, n_features
 from gfjax.sparsegf.model import Model
-from gfjax.sparsegf.partition import PartitionConfig, partition
+from gfjax.sparsegf.partition import PartitionConfig, cylinders
 from gfjax.sparsegf.pipeline import (
     PACK_SLOTS,
     WARM_KEPT,
@@ -53,28 +53,30 @@ class Diagnostics(NamedTuple):
 
 def patches(xyz_m: np.ndarray, config: Config, *, angle: float | Callable[[], float] = 0.0, seed: int = 0,
             shift_m=(0.0, 0.0), cloud_feats: np.ndarray | None = None, count: Callable[[int], None] | None = None,
-            frame: Frame | None = None):
-    """Every voxelized patch of a cloud, in partition order (`angle`: a rotation about z [rad]
-    for every patch, or a function drawing one per patch; `cloud_feats`: the cloud's
+            frame: Frame | None = None, core: np.ndarray | None = None):
+    """Every voxelized patch of a cloud, in the order of their cells (`angle`: a rotation about
+    z [rad] for every patch, or a function drawing one per patch; `cloud_feats`: the cloud's
     `features.cloud_features`, computed here when None and the feature set has some; `count`
     is told the number of patches once the partition is made, before the first is yielded).
+    Each patch's points are found as it is made (`partition.cylinders`).
 
     `frame` (filtering; `grid_frame`): the patch grid is laid on its box, and each patch's
-    context is thinned with the seed of its cell there (`Partition.cells`), so a patch whose
+    context is thinned with the seed of its cell there (`Cylinders.cells`), so a patch whose
     cylinder a window holds whole is the same patch in every window of that frame. Without
-    it (training), on the points' own box, thinned with the seed of its row."""
+    it (training), on the points' own box, thinned with the seed of its row. `core` bool
+    `(n,)`: only the patches that vote on points within `CORE_REACH_M` of these
+    (`partition.cylinders`)."""
     if cloud_feats is None:
         cloud_feats = cloud_features(xyz_m, config.features)
-    part = partition(xyz_m, PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m),
-                     shift_m=shift_m, box=None if frame is None else (frame.origin_m[:2], frame.upper_m))
+    found = cylinders(xyz_m, PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m),
+                      shift_m=shift_m, box=None if frame is None else (frame.origin_m[:2], frame.upper_m),
+                      core=core, core_reach_m=CORE_REACH_M)
     if count is not None:
-        count(sum(len(batch.patch_id) for batch in part.batches))
-    for batch in part.batches:
-        for row, pid in enumerate(batch.patch_id):
-            members = batch.index[row][batch.valid[row]]
-            name = int(pid) if frame is None else int(part.cells[pid])
-            yield prepare(xyz_m, members, part.centers_m[pid], name, config=config,
-                          angle=angle() if callable(angle) else angle, seed=seed, cloud_feats=cloud_feats)
+        count(len(found))
+    for p in range(len(found)):
+        name = p if frame is None else int(found.cells[p])
+        yield prepare(xyz_m, found.members(p), found.centers_m[p], name, config=config,
+                      angle=angle() if callable(angle) else angle, seed=seed, cloud_feats=cloud_feats)
 
 
 # Packs the network runs at once. One pack's program keeps about 1.6 of 2 cores busy (its
@@ -84,9 +86,11 @@ IN_FLIGHT = 2
 
 
 def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progress: bool = False,
-                       cloud_feats: np.ndarray | None = None, frame: Frame | None = None):
+                       cloud_feats: np.ndarray | None = None, frame: Frame | None = None,
+                       core: np.ndarray | None = None):
     """Soft-voted ground probability and vote count per point of `xyz_m` `(n, 3)` [m]
-    (`cloud_feats`, `frame`: as `patches`).
+    (`cloud_feats`, `frame`, `core`: as `patches`; with `core`, the points far from it have
+    no vote).
 
     Patches are prepared on the host while `IN_FLIGHT` packs run, each on a worker thread (a
     pack whose pyramid overflowed its plan runs again with a grown plan there). Packs are read
@@ -118,7 +122,8 @@ def ground_probability(model: Model, xyz_m: np.ndarray, config: Config, *, progr
             if bar is not None:
                 bar.reset(total=count)
 
-        for todo in group(patches(xyz_m, config, cloud_feats=cloud_feats, count=total, frame=frame), PACK_SLOTS):
+        for todo in group(patches(xyz_m, config, cloud_feats=cloud_feats, count=total, frame=frame, core=core),
+                          PACK_SLOTS):
             packed = pack(todo, PACK_SLOTS, plans,
                           min_capacity=min_capacity(todo, cloud_voxels_at_most=n_patches[0] * n))
             running.append((packed, pool.submit(run, packed)))
@@ -298,7 +303,7 @@ def grid_frame(cloud: CloudView, returns: str = "all") -> Frame | None:
 @cache.persistent
 def filter(cloud: CloudView, *, config: Config | None = None, params=None, returns: str = "all",
            progress: bool = False, model: Model | str | None = None,
-           terrain: adaptive.Terrain | None = None) -> Result:
+           terrain: adaptive.Terrain | None = None, core: np.ndarray | None = None) -> Result:
     """Classify ground points with SparseGF.
 
     Args:
@@ -313,6 +318,10 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
       terrain: the terrain (`gfjax.adaptive.Terrain`) its low-outlier test, density check and
         ground-spike guard read in place of the cloud's own: a survey's, so that each window
         is judged as the whole survey is (`gfjax.method.Method.takes_terrain`).
+      core: bool `(n,)`, the points whose labels the caller keeps (a survey window's core,
+        `gfjax.method.Method.takes_core`), or None for all. Only the patches that vote on
+        points within `config.CORE_REACH_M` of them run; a point no patch votes on takes
+        SMRF's verdict under the default decision, and is no ground under the paper's.
 
     Returns:
       `Result(ground, Diagnostics)`; ground by `config.decision` (`vote.decide`): by default
@@ -354,15 +363,24 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
         prepare_predict(model, tiny_pack(model.net.config.in_features))
     smrf = smrf_heights(xyz_m, cloud.frame) if config.reads_smrf else None
     smrf_ground = None if smrf is None else smrf[:, 1] >= 0
+    if core is not None:
+        core = np.asarray(core, bool)
+        if core.shape != (cloud.n_points,):
+            raise InputError(f"sparsegf: core must have shape ({cloud.n_points},), got {core.shape}")
+        core = core[used_index]
     prob, votes, n_patches = ground_probability(model, xyz_m, config, progress=progress,
-                                                cloud_feats=cloud_features(xyz_m, config.features, smrf=smrf), frame=frame)
+                                                cloud_feats=cloud_features(xyz_m, config.features, smrf=smrf), frame=frame,
+                                                core=core)
 
     def full(values, dtype):                     # per used point -> per point of the cloud (0 elsewhere)
         out = np.zeros(cloud.n_points, dtype)
         out[used_index] = values
         return out
 
-    ground = full(np.asarray(decide(prob, smrf_ground, config=config)), bool)
+    decided = np.asarray(decide(prob, smrf_ground, config=config))
+    if config.decision == "network+smrf" and core is not None:     # the points far from the core: no patch ran
+        decided = np.where(votes > 0, decided, smrf_ground)
+    ground = full(decided, bool)
     if config.decision == "network+smrf" and terrain is not None:   # the paper's bare decision stays bare
         ground = spikes.guard(cloud.xyz_m, cloud.filter_mask("all"),
                               level_ground_kept(cloud.xyz_m, ground, full(smrf_ground, bool)),

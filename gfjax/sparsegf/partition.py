@@ -11,11 +11,14 @@ corner or edge is central in up to four patches; `soft_vote` merges their predic
 
 Host code (numpy; runs once per cloud, outside jit). Points are bucketed by home cell, and
 each cylinder gathers the buckets its disc can reach and keeps the points within R_oo
-(distances in float64). Patches whose central region is empty are dropped. Patches are
-padded to a few capacity buckets (`2**j` and `1.5 * 2**j`, `gfjax.tiling.buckets.capacity_bucket`)
-with a `valid` mask and
-grouped by capacity, so one batch of each capacity runs under `jax.vmap` and only a
-handful of shapes ever compile (the jax-md pattern: allocate outside jit, compute inside).
+(distances in float64). Patches whose central region is empty are dropped, and, given the
+points whose labels are wanted (a survey window's core), those whose central region is far
+from them. `cylinders` finds a patch's points when it is asked for them: a filter holds one
+patch's memberships at a time, not the window's (each point lies in about 28 cylinders).
+`partition` finds them all and pads them to a few capacity buckets (`2**j` and
+`1.5 * 2**j`, `gfjax.tiling.buckets.capacity_bucket`) with a `valid` mask, grouped by
+capacity, so one batch of each capacity runs under `jax.vmap` and only a handful of shapes
+ever compile (the jax-md pattern: allocate outside jit, compute inside).
 """
 from __future__ import annotations
 
@@ -141,9 +144,58 @@ def _centers(origin: np.ndarray, shape: np.ndarray, step_m: float) -> np.ndarray
     return np.stack(np.meshgrid(cx, cy, indexing="xy"), axis=-1).reshape(-1, 2)
 
 
-def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift_m=(0.0, 0.0),
-              box: tuple[np.ndarray, np.ndarray] | None = None) -> Partition:
-    """Cut a cloud into cylinders of radius `r_oo_m` on a `step_m` grid of axes.
+class Cylinders:
+    """A cloud's cylinders (`cylinders`): their axes, and each one's points found when asked
+    for (`members`), so a cloud's patches cost one patch's memberships at a time, not the
+    whole cloud's (every point lies in about 28 cylinders of the default geometry).
+
+    Attributes:
+      centers_m: `(p, 2)` float64 patch axes in the input frame [m].
+      cells: `(p,)` int64, each patch's cell on the grid of the box it was laid on
+        (`partition`'s `box`, row-major), the same in every window laid on that box.
+      config: the geometry used.
+    """
+
+    def __init__(self, xyz_m: np.ndarray, order: np.ndarray, starts: np.ndarray, kept: np.ndarray, nx: int,
+                 ny: int, centers_m: np.ndarray, cells: np.ndarray, config: PartitionConfig):
+        self._xyz, self._order, self._starts, self._kept, self._nx, self._ny = xyz_m, order, starts, kept, nx, ny
+        self.centers_m, self.cells, self.config = centers_m, cells, config
+
+    def __len__(self) -> int:
+        return len(self.centers_m)
+
+    def members(self, p: int) -> np.ndarray:
+        """The points within `r_oo_m` of patch `p`'s axis, int32 `(k,)` cloud indices grouped
+        by the 50 m cell they lie in (`PatchBatch.index`'s order)."""
+        cand = _near(self._order, self._starts, int(self._kept[p]), self._nx, self._ny, self.config.step_m,
+                     self.config.r_oo_m)
+        d = self._xyz[cand, :2].astype(np.float64) - self.centers_m[p]
+        return cand[np.einsum("ij,ij->i", d, d) <= self.config.r_oo_m ** 2].astype(np.int32)
+
+
+def _near(order: np.ndarray, starts: np.ndarray, cell: int, nx: int, ny: int, step_m: float,
+          radius_m: float) -> np.ndarray:
+    """The points of the cells any part of which lies within `radius_m` of `cell`'s centre,
+    int64 `(k,)`, cell by cell in row-major order (`order[starts[c]:starts[c + 1]]`: cell `c`'s)."""
+    reach = math.floor(radius_m / step_m + 0.5)                # cells a disc can touch, per axis
+    iy, ix = divmod(cell, nx)
+    runs = []
+    for dy in range(-reach, reach + 1):
+        if not 0 <= iy + dy < ny:
+            continue
+        gap_y = max(abs(dy) - 0.5, 0.0) * step_m               # nearest distance to that row of cells [m]
+        for dx in range(-reach, reach + 1):
+            if 0 <= ix + dx < nx and math.hypot(max(abs(dx) - 0.5, 0.0) * step_m, gap_y) <= radius_m:
+                c = (iy + dy) * nx + ix + dx
+                runs.append(order[starts[c]:starts[c + 1]])
+    return np.concatenate(runs).astype(np.int64, copy=False) if runs else np.zeros(0, np.int64)
+
+
+def cylinders(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift_m=(0.0, 0.0),
+              box: tuple[np.ndarray, np.ndarray] | None = None, core: np.ndarray | None = None,
+              core_reach_m: float = 0.0) -> Cylinders:
+    """The cylinders of radius `r_oo_m` on a `step_m` grid of axes that a cloud's points need,
+    their members found one patch at a time (`Cylinders.members`).
 
     Args:
       xyz_m: points `(n, 3)` (or `(n, 2)`), metres; float64 absolute or float32 local.
@@ -155,10 +207,15 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
         of the points' own (a survey's frame: its windows then share the whole survey's
         patches where they hold their points, each patch listing its points in the order of
         their coordinates whatever the window's order); only the cells the points reach are made.
+      core: bool `(n,)`, the points whose labels are wanted (a survey window's core), or None
+        for all: only the patches whose central region lies within `core_reach_m` [m] of one
+        of them are made, so every point within `core_reach_m` of the core is voted on by
+        every patch the whole cloud would vote on it with, and the rest of the window gives
+        context only (`core_reach_m` is unused without `core`).
 
     Returns:
-      A `Partition`. Every point is within `r_in_m` of at least one kept axis. An empty
-      cloud gives no patches.
+      `Cylinders`, in increasing cell order. Every core point (every point, without `core`)
+      is within `r_in_m` of at least one kept axis. An empty cloud, or an empty core, gives none.
     """
     config = config or PartitionConfig()
     xyz_m = np.asarray(xyz_m)
@@ -167,10 +224,14 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
     xy = xyz_m[:, :2].astype(np.float64)
     if not np.all(np.isfinite(xy)):
         raise InputError("partition: xyz_m has non-finite x or y")
-    if len(xy) == 0:
-        return Partition(np.zeros((0, 2)), np.zeros(0, np.int64), (), config, np.zeros(0, np.int64))
+    if core is not None and np.shape(core) != (len(xy),):
+        raise InputError(f"partition: core must have shape ({len(xy)},), got {np.shape(core)}")
     if len(xy) >= 2 ** 31:
         raise InputError(f"partition: {len(xy)} points do not fit int32 indices; tile the cloud first")
+    none = Cylinders(xyz_m, np.zeros(0, np.int32), np.zeros(1, np.int64), np.zeros(0, np.int64), 1, 1,
+                     np.zeros((0, 2)), np.zeros(0, np.int64), config)
+    if len(xy) == 0 or (core is not None and not np.any(core)):
+        return none
 
     step = config.step_m
     lows, highs = xy.min(axis=0), xy.max(axis=0)
@@ -188,58 +249,76 @@ def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
     origin = origin + first * step
     nx, ny = (int(v) for v in last - first + 1)
     centers = _centers(origin, np.array([nx, ny]), step)
-    cell_ix = np.clip(np.floor((xy - origin) / step).astype(np.int64), 0, [nx - 1, ny - 1])
-    home = cell_ix[:, 1] * nx + cell_ix[:, 0]                  # home cell per point
+    home = np.clip(np.floor((xy[:, 1] - origin[1]) / step).astype(np.int64), 0, ny - 1) * nx
+    home += np.clip(np.floor((xy[:, 0] - origin[0]) / step).astype(np.int64), 0, nx - 1)
     if box is None:
         order = np.argsort(home, kind="stable")                # points grouped by cell
     else:       # ... and within a cell by coordinates: a patch lists its points alike in any window
         keys = (xy[:, 1], xy[:, 0], home) if xyz_m.shape[1] == 2 else (xyz_m[:, 2], xy[:, 1], xy[:, 0], home)
         order = np.lexsort(keys)                               # the last key sorts first
     starts = np.searchsorted(home[order], np.arange(nx * ny + 1))
+    order = order.astype(np.int32)
+    if core is None:
+        core_order, core_starts = order, starts
+    else:
+        mine = order[np.asarray(core, bool)[order]]            # the core's points, by cell as `order`
+        core_order, core_starts = mine, np.searchsorted(home[mine], np.arange(nx * ny + 1))
+    del home
 
-    reach = math.floor(config.r_oo_m / step + 0.5)             # cells a disc can touch, per axis
-    offsets = np.arange(-reach, reach + 1)
-    # nearest distance from a cell's centre to the cells at these offsets [m]
-    gap = np.maximum(np.abs(offsets) - 0.5, 0.0) * step
-    near = np.hypot(gap[:, None], gap[None, :]) <= config.r_oo_m   # (dy, dx)
+    # a cell is kept when a point lies within r_in of its centre (the patch votes on it) and a
+    # core point within r_in and the reach: such a point lies at most `reach` cells away, so
+    # only the core's cells' neighbourhoods are visited, never the empty box (a sparse cloud
+    # over a large extent costs its points)
+    r_in = config.r_in_m + CENTRAL_TOL_M
+    radius = r_in + (max(float(core_reach_m), 0.0) if core is not None else 0.0)
+    reach = math.floor(radius / step + 0.5)
 
-    r_oo_sq, r_in_sq = config.r_oo_m ** 2, (config.r_in_m + CENTRAL_TOL_M) ** 2
-    # only cells with a point within r_in of their centre are kept, and such a point lies at
-    # most `reach_in` cells away: the loop visits the occupied cells' neighbourhoods, never
-    # the empty box (a sparse cloud over a large extent costs its points, not its box)
-    occupied = np.unique(home)
+    def any_within(order, starts, cell: int, radius_m: float) -> bool:
+        """Whether a point of `order` lies within `radius_m` (at least r_in) of `cell`'s centre."""
+        if starts[cell + 1] > starts[cell]:                   # a cell's own points lie within r_in
+            return True
+        near = _near(order, starts, cell, nx, ny, step, radius_m)
+        d = xy[near] - centers[cell]
+        return bool(np.any(np.einsum("ij,ij->i", d, d) <= radius_m ** 2))
+
+    occupied = np.flatnonzero(np.diff(core_starts))
     oy, ox = np.divmod(occupied, nx)
     around = []
-    for dy in range(-reach_in, reach_in + 1):
-        for dx in range(-reach_in, reach_in + 1):
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
             y, x = oy + dy, ox + dx
             around.append((y * nx + x)[(y >= 0) & (y < ny) & (x >= 0) & (x < nx)])
-    candidates = np.unique(np.concatenate(around))
-    kept, members = [], []
-    for cell in candidates.tolist():
-        iy, ix = divmod(cell, nx)
-        cells = [(iy + dy) * nx + (ix + dx)
-                 for a, dy in enumerate(offsets) for b, dx in enumerate(offsets)
-                 if near[a, b] and 0 <= iy + dy < ny and 0 <= ix + dx < nx]
-        cand = np.concatenate([order[starts[c]:starts[c + 1]] for c in cells])
-        d = xy[cand] - centers[cell]
-        r_sq = np.einsum("ij,ij->i", d, d)
-        if not np.any(r_sq <= r_in_sq):
-            continue                                           # nothing to classify here
-        kept.append(cell)
-        members.append(cand[r_sq <= r_oo_sq].astype(np.int32))
-
+    kept = [cell for cell in np.unique(np.concatenate(around)).tolist()
+            if any_within(order, starts, cell, r_in) and (core is None or any_within(core_order, core_starts, cell, radius))]
     kept = np.asarray(kept, np.int64)
     cells = (kept // nx + first[1]) * whole_nx + kept % nx + first[0]
-    centers = centers[kept]
+    return Cylinders(xyz_m, order, starts, kept, nx, ny, centers[kept], cells, config)
+
+
+def partition(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift_m=(0.0, 0.0),
+              box: tuple[np.ndarray, np.ndarray] | None = None) -> Partition:
+    """Cut a cloud into cylinders of radius `r_oo_m` on a `step_m` grid of axes, every
+    patch's members found at once and padded into batches (`cylinders` finds them one patch
+    at a time).
+
+    Args:
+      xyz_m, config, shift_m, box: as `cylinders`.
+
+    Returns:
+      A `Partition`. Every point is within `r_in_m` of at least one kept axis. An empty
+      cloud gives no patches.
+    """
+    found = cylinders(xyz_m, config, shift_m=shift_m, box=box)
+    members = [found.members(p) for p in range(len(found))]
     n_points = np.array([len(m) for m in members], dtype=np.int64)
-    caps = np.array([capacity_bucket(int(n), minimum=config.min_capacity) for n in n_points])
+    caps = np.array([capacity_bucket(int(n), minimum=found.config.min_capacity) for n in n_points], dtype=np.int64)
     batches = []
     for cap in np.unique(caps):
         ids = np.flatnonzero(caps == cap)
         index = np.full((len(ids), int(cap)), -1, dtype=np.int32)
         for row, pid in enumerate(ids):
             index[row, :n_points[pid]] = members[pid]
-        batches.append(PatchBatch(patch_id=ids.astype(np.int32), center_m=centers[ids],
+        batches.append(PatchBatch(patch_id=ids.astype(np.int32), center_m=found.centers_m[ids],
                                   index=index, valid=index >= 0))
-    return Partition(centers_m=centers, n_points=n_points, batches=tuple(batches), config=config, cells=cells)
+    return Partition(centers_m=found.centers_m, n_points=n_points, batches=tuple(batches), config=found.config,
+                     cells=found.cells)

@@ -32,7 +32,7 @@ import numpy as np
 
 from gfjax.nn import sparse
 from gfjax.nn.sparse import keys as K
-from gfjax.sparsegf.partition import PartitionConfig, partition
+from gfjax.sparsegf.partition import PartitionConfig, cylinders
 from gfjax.sparsegf.programs import point_inputs
 from gfjax.tiling.buckets import power_bucket
 
@@ -237,8 +237,8 @@ def fits_tiny_pack(xyz_m: np.ndarray, config) -> bool:
     n = len(xyz_m)
     if not 0 < n <= TINY_PACK_VOXELS:
         return False
-    part = partition(xyz_m, PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m))
-    return sum(len(batch.patch_id) for batch in part.batches) * n <= TINY_PACK_VOXELS
+    return len(cylinders(xyz_m, PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m,
+                                                 r_in_m=config.r_in_m))) * n <= TINY_PACK_VOXELS
 
 
 def tiny_pack(n_features: int) -> Pack:

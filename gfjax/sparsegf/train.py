@@ -224,10 +224,10 @@ def init(model: Model):
 
 def count_patches(data: list[Labelled], config: Config, min_patches: int = 0, max_patches: int = 0) -> int:
     """Patches in an epoch of `training_batches` (about: the count varies with the grid shift)."""
-    from gfjax.sparsegf.partition import PartitionConfig, partition
+    from gfjax.sparsegf.partition import PartitionConfig, cylinders
 
     pc = PartitionConfig(step_m=config.step_m, r_oo_m=config.r_oo_m, r_in_m=config.r_in_m)
-    counts = [len(partition(d.xyz_m, pc).centers_m) for d in data]
+    counts = [len(cylinders(d.xyz_m, pc)) for d in data]
     capped = [max(c, min_patches) if c else 0 for c in counts]
     return sum(min(c, max_patches) if max_patches > 0 else c for c in capped)
 

@@ -277,8 +277,8 @@ def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, lat
       cells: `gfjax.dtm.build(context_xyz=...)`).
     """
     points = window(catalog, i, cloud, lattice, halo_m)
-    result = filter_fn(points, returns=returns)
     n = cloud.n_points
+    result = filter_fn(points, returns=returns, core=np.arange(points.n_points) < n)
     ground = np.asarray(result.ground)
     instance_id = None if result.instance_id is None else np.asarray(result.instance_id)[:n]
     return result._replace(ground=ground[:n], instance_id=instance_id), points.xyz_m[n:][ground[n:]]

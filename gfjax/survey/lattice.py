@@ -67,7 +67,8 @@ class TileLabels:
 
     Args:
       catalog: the survey (`gfjax.survey.index`; its frame is not None).
-      filter_fn: `filter_fn(points, returns) -> Result` on a `Points` window.
+      filter_fn: `filter_fn(points, returns, core) -> Result` on a `Points` window, `core` bool
+        `(n,)` the points whose labels are kept.
       lattice: the method's tiling at its cell (`gfjax.methods.lattice`), or the `Pieces` of a
         method that does not tile.
       folder: the catalog's private folder (the label stores go there).
@@ -288,7 +289,7 @@ def _core_labels(catalog: Catalog, filter_fn: Callable, lattice: Lattice | Piece
     in_core = in_tile(points.xyz_m, catalog, lattice, key)
     if not np.any(in_core & points.filter_mask(returns)):       # a tile of the files' boxes, not of their points
         return []
-    result: Result = filter_fn(points, returns=returns)
+    result: Result = filter_fn(points, returns=returns, core=in_core)
     ground = np.asarray(result.ground, bool)
     del points, result
     out, start = [], 0

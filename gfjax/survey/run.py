@@ -42,7 +42,8 @@ class Runner:
 
     Args:
       catalog: the survey (`gfjax.survey.index`).
-      filter_fn: `filter_fn(points, returns) -> Result`, the method with its settings.
+      filter_fn: `filter_fn(points, returns, core=None) -> Result`, the method with its settings
+        (`core`: the points whose labels are kept, `gfjax.method.Method.takes_core`).
       lattice: the method's tiling at its cell when it labels tile by tile (`gfjax.methods.lattice`;
         the survey then runs each tile once), else None (each file with its halo).
       folder: the catalog's private folder.
@@ -245,9 +246,10 @@ def filtered(paths: Sequence[str | Path], method: Method | ModuleType | str, fol
         yield cloud, run(i, cloud)[0]
 
 
-def _method_filter(method: Method, config, params, settled, options: dict, points: Points, returns: str) -> Result:
+def _method_filter(method: Method, config, params, settled, options: dict, points: Points, returns: str,
+                   core: np.ndarray | None = None) -> Result:
     return adaptive.run(method.filter, points, settled, config=config, params=params, returns=returns,
-                        hides_low_outliers=method.hides_low_outliers, **options)
+                        hides_low_outliers=method.hides_low_outliers, **options, **method.core_option(core))
 
 
 def filter(paths: Sequence[str | Path], out: str | Path, *, method: Method | ModuleType | str = methods.DEFAULT_METHOD,

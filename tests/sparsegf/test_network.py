@@ -229,6 +229,34 @@ def test_the_default_decision_arbitrates_smrfs_verdict(net):
     np.testing.assert_array_equal(alone.diagnostics.prob_ground, d.prob_ground)     # the network is unchanged
 
 
+def test_a_core_labels_as_the_whole_cloud_with_fewer_patches(net, monkeypatch):
+    # a quarter of the scene's points four times side by side (240 x 40 m, 5 patches), a pack
+    # per patch (the small packs' program): with the first scene as the core, its points and
+    # those within the reach have the whole cloud's votes and labels from fewer patches; the
+    # far points, no patch ran for, take SMRF's verdict
+    from gfjax.sparsegf.config import CORE_REACH_M
+
+    monkeypatch.setattr(sys.modules["gfjax.sparsegf.filter"], "group", lambda todo, slots: ([p] for p in todo))
+    parts = [scene(seed) for seed in range(4)]
+    xyz = np.concatenate([p[0][::4] + [60.0 * i, 0.0, 0.0] for i, p in enumerate(parts)])
+    cloud = Cloud.from_xyz(xyz, classification=np.concatenate([p[1][::4] for p in parts]))
+    config = Config(features=FEATURES)
+    whole = sparsegf.filter(cloud, model=net, config=config)
+    x = xyz[:, 0] - xyz[:, 0].min()
+    core = x < 60.0
+    cored = sparsegf.filter(cloud, model=net, config=config, core=core)
+    assert cored.diagnostics.n_patches < whole.diagnostics.n_patches
+    near = x < 60.0 + CORE_REACH_M
+    np.testing.assert_array_equal(cored.diagnostics.votes[near], whole.diagnostics.votes[near])
+    np.testing.assert_allclose(cored.diagnostics.prob_ground[near], whole.diagnostics.prob_ground[near], atol=1e-6)
+    np.testing.assert_array_equal(cored.ground[core], whole.ground[core])
+    far = cored.diagnostics.votes == 0
+    assert far.any() and not far[near].any()
+    assert (cored.ground[far] == cored.diagnostics.smrf_ground[far]).mean() > 0.95
+    with pytest.raises(InputError, match="core must have shape"):
+        sparsegf.filter(cloud, model=net, config=config, core=core[1:])
+
+
 def test_training_steps_lower_the_loss_and_keep_the_calibrated_statistics(net):
     """(That a run repeats to the bit: `test_a_short_training_run_twice_gives_the_same_weights_to_the_bit`.)"""
     xyz, cls = scene()

@@ -18,7 +18,7 @@ from gfjax.sparsegf import (
     partition,
     soft_vote,
 )
-from gfjax.sparsegf.partition import grid_centers
+from gfjax.sparsegf.partition import cylinders, grid_centers
 from gfjax.tiling.buckets import capacity_bucket
 
 UTM = np.array([512_345.678, 5_403_210.987, 0.0])   # far from the origin: float64 input
@@ -228,3 +228,34 @@ def test_config_that_leaves_gaps_raises():
         PartitionConfig(step_m=60.0)
     with pytest.raises(InputError, match="step_m"):
         PartitionConfig(step_m=0.0)
+
+
+@pytest.mark.parametrize("reach_m", [0.0, 20.0, 60.0])
+def test_a_core_keeps_exactly_the_patches_that_vote_near_it(reach_m):
+    # a core in the L's corner: the kept axes are those within r_in + reach of a core point
+    # (brute force), each patch has the members the whole partition gives its cell, and every
+    # point within the reach of the core is central in all the patches that vote on it in the
+    # whole cloud
+    xyz = l_shaped_cloud() + UTM
+    core = np.all(xyz[:, :2] - UTM[:2] < [90.0, 70.0], axis=1)
+    whole = partition(xyz)
+    found = cylinders(xyz, core=core, core_reach_m=reach_m)
+    d = np.hypot(*(whole.centers_m[:, None, :] - xyz[None, core, :2]).transpose(2, 0, 1))
+    want = np.flatnonzero((d <= R_IN_M + CENTRAL_TOL_M + reach_m).any(axis=1))
+    np.testing.assert_array_equal(found.cells, whole.cells[want])
+    np.testing.assert_array_equal(found.centers_m, whole.centers_m[want])
+    assert 0 < len(found) < len(whole.centers_m)
+    members = {int(pid): batch.index[row][batch.valid[row]]
+               for batch in whole.batches for row, pid in enumerate(batch.patch_id)}
+    for p, pid in enumerate(want):
+        np.testing.assert_array_equal(found.members(p), members[int(pid)])
+    near = np.hypot(*(xyz[:, None, :2] - xyz[None, core, :2]).transpose(2, 0, 1)).min(axis=1) <= reach_m
+    central = np.hypot(*(xyz[:, None, :2] - whole.centers_m[None]).transpose(2, 0, 1)) <= R_IN_M + CENTRAL_TOL_M
+    assert np.all(central[near][:, np.setdiff1d(np.arange(len(whole.centers_m)), want)] == 0)
+
+
+def test_no_core_point_no_patch():
+    xyz = l_shaped_cloud()
+    assert len(cylinders(xyz, core=np.zeros(len(xyz), bool))) == 0
+    with pytest.raises(InputError, match="core must have shape"):
+        cylinders(xyz, core=np.ones(3, bool))

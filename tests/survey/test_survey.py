@@ -12,6 +12,7 @@ from gfjax.csf.config import BUFFER_PX
 from gfjax.errors import InputError
 from gfjax.io import las as las_io
 from gfjax.io.cloud import Cloud, Frame
+from gfjax.result import Result
 from gfjax.survey import run as survey_run
 from gfjax.survey.halo import HALO_M
 from gfjax.tiling.tiles import Tiling, split
@@ -112,12 +113,13 @@ def test_a_tiled_method_runs_each_tile_of_the_survey_once(grid, method, tmp_path
     use = whole.filter_mask()
     occupied = {tile.key for tile in split(whole.xyz_m, tile_size_m=40.0, buffer_m=8.0, use=use)}
     catalog = survey.index(paths, tmp_path)
-    runs = []
+    runs, cores = [], []
 
-    def filter_fn(points, returns):
+    def filter_fn(points, returns, core=None):
         made = split(points.xyz_m, tile_size_m=40.0, buffer_m=8.0, use=points.filter_mask(returns),
                      frame=points.frame)
         runs.append([tile.key for tile in made])
+        cores.append(int(core.sum()))                    # the tile's core: its points and no other's
         return method.filter(points, config=method.Config(), tiling=SMALL_TILES, returns=returns)
 
     run = survey.Runner(catalog, filter_fn, SMALL_TILES.lattice(1.0), tmp_path, context=False)
@@ -128,7 +130,25 @@ def test_a_tiled_method_runs_each_tile_of_the_survey_once(grid, method, tmp_path
         assert near.shape == (0, 3)
     assert sorted(key for made in runs for key in made) == sorted(occupied)
     assert all(len(made) == 1 for made in runs)
+    assert sum(cores) == whole.n_points
     np.testing.assert_array_equal(got, method.filter(whole, config=method.Config(), tiling=SMALL_TILES).ground)
+
+
+def test_a_file_filtered_with_its_halo_names_its_own_points_the_core(grid, tmp_path):
+    paths, members, _ = grid
+    catalog = survey.index(paths, tmp_path)
+    seen = []
+
+    def filter_fn(points, returns, core=None):
+        seen.append((points.n_points, core))
+        return Result(ground=np.zeros(points.n_points, bool))
+
+    run = survey.Runner(catalog, filter_fn, None, tmp_path, context=False)
+    for i, path in enumerate(paths):
+        run(i, las_io.read(path))
+        n, core = seen[-1]
+        assert n > len(members[i])                                # the halo came along
+        np.testing.assert_array_equal(core, np.arange(n) < len(members[i]))
 
 
 def test_split_makes_only_the_tiles_its_frame_names():
