@@ -228,10 +228,9 @@ def cylinders(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
         raise InputError(f"partition: core must have shape ({len(xy)},), got {np.shape(core)}")
     if len(xy) >= 2 ** 31:
         raise InputError(f"partition: {len(xy)} points do not fit int32 indices; tile the cloud first")
-    none = Cylinders(xyz_m, np.zeros(0, np.int32), np.zeros(1, np.int64), np.zeros(0, np.int64), 1, 1,
-                     np.zeros((0, 2)), np.zeros(0, np.int64), config)
     if len(xy) == 0 or (core is not None and not np.any(core)):
-        return none
+        return Cylinders(xyz_m, np.zeros(0, np.int32), np.zeros(1, np.int64), np.zeros(0, np.int64), 1, 1,
+                         np.zeros((0, 2)), np.zeros(0, np.int64), config)
 
     step = config.step_m
     lows, highs = xy.min(axis=0), xy.max(axis=0)
@@ -289,7 +288,8 @@ def cylinders(xyz_m: np.ndarray, config: PartitionConfig | None = None, *, shift
             y, x = oy + dy, ox + dx
             around.append((y * nx + x)[(y >= 0) & (y < ny) & (x >= 0) & (x < nx)])
     kept = [cell for cell in np.unique(np.concatenate(around)).tolist()
-            if any_within(order, starts, cell, r_in) and (core is None or any_within(core_order, core_starts, cell, radius))]
+            if any_within(order, starts, cell, r_in)
+            and (core is None or any_within(core_order, core_starts, cell, radius))]
     kept = np.asarray(kept, np.int64)
     cells = (kept // nx + first[1]) * whole_nx + kept % nx + first[0]
     return Cylinders(xyz_m, order, starts, kept, nx, ny, centers[kept], cells, config)
