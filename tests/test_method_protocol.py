@@ -37,7 +37,8 @@ def test_filter_takes_the_common_arguments_and_exactly_its_options(name):
     assert list(parameters)[:len(FILTER_ARGS)] == FILTER_ARGS
     options = set(list(parameters)[len(FILTER_ARGS):])
     assert options == {key for key, taken in (("tiling", method.tiles), ("model", method.load_model),
-                                              ("terrain", method.takes_terrain)) if taken}
+                                              ("terrain", method.takes_terrain), ("core", method.takes_core))
+                       if taken}
     assert all(parameters[k].kind is inspect.Parameter.KEYWORD_ONLY for k in FILTER_ARGS[1:] + sorted(options))
 
 
