@@ -18,6 +18,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from gfjax import heap
 from gfjax.aot import build, store
 from gfjax.aot.folder import Refused, open_folder, private_folder, reason, warn_once
 from gfjax.aot.keys import cacheable, program_key
@@ -241,6 +242,7 @@ def _load_or_compile_in(fn, args, static, dir_fd: int, key: str, module: str):
         if _state.get("on_compile") is not None:
             _state["on_compile"](module)
         compiled, fresh = build.compile_fresh(fn, args, static)
+        heap.trim()                                         # the compiler's scratch, freed now
         if compiled is not None:
             program = compiled
             if fresh:                                       # else JAX's cache gave it: not stored

@@ -346,6 +346,10 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
         cloud.filter_mask(returns)
     except ValueError as err:
         raise InputError(f"{cloud.name}: --returns: {err}") from None
+    if core is not None:
+        core = np.asarray(core, bool)
+        if core.shape != (cloud.n_points,):
+            raise InputError(f"sparsegf: core must have shape ({cloud.n_points},), got {core.shape}")
     frame = grid_frame(cloud, returns)
     cloud, used_index, terrain = seen_points(cloud, config, returns=returns, terrain=terrain)
     xyz_m = cloud.xyz_m[used_index]
@@ -364,9 +368,6 @@ def filter(cloud: CloudView, *, config: Config | None = None, params=None, retur
     smrf = smrf_heights(xyz_m, cloud.frame) if config.reads_smrf else None
     smrf_ground = None if smrf is None else smrf[:, 1] >= 0
     if core is not None:
-        core = np.asarray(core, bool)
-        if core.shape != (cloud.n_points,):
-            raise InputError(f"sparsegf: core must have shape ({cloud.n_points},), got {core.shape}")
         core = core[used_index]
     prob, votes, n_patches = ground_probability(model, xyz_m, config, progress=progress,
                                                 cloud_feats=cloud_features(xyz_m, config.features, smrf=smrf), frame=frame,

@@ -24,7 +24,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from gfjax import adaptive, limits
+from gfjax import adaptive, heap, limits
 from gfjax.io import point_store
 from gfjax.io.cloud import Cloud, Frame, Points, use_mask
 from gfjax.method import Method
@@ -281,7 +281,13 @@ def filter_file(catalog: Catalog, i: int, cloud: Cloud, filter_fn: Callable, lat
     result = filter_fn(points, returns=returns, core=np.arange(points.n_points) < n)
     ground = np.asarray(result.ground)
     instance_id = None if result.instance_id is None else np.asarray(result.instance_id)[:n]
-    return result._replace(ground=ground[:n], instance_id=instance_id), points.xyz_m[n:][ground[n:]]
+    halo_ground_m = points.xyz_m[n:][ground[n:]]
+    del points
+    # the window's many small blocks are free now, and glibc would keep them for the next
+    # file's, scattered where that file's blocks fit only in part: each file would then add
+    # to a heap that grows with the survey (`gfjax.heap`)
+    heap.trim()
+    return result._replace(ground=ground[:n], instance_id=instance_id), halo_ground_m
 
 
 def fits_whole(method: Method, config, catalog: Catalog) -> bool:

@@ -253,6 +253,8 @@ def test_a_core_labels_as_the_whole_cloud_with_fewer_patches(net, monkeypatch):
     far = cored.diagnostics.votes == 0
     assert far.any() and not far[near].any()
     assert (cored.ground[far] == cored.diagnostics.smrf_ground[far]).mean() > 0.95
+    # a core of the wrong shape is refused before any work: SMRF's prior does not run
+    monkeypatch.setattr(sys.modules["gfjax.sparsegf.filter"], "smrf_heights", lambda *a: pytest.fail("the prior ran"))
     with pytest.raises(InputError, match="core must have shape"):
         sparsegf.filter(cloud, model=net, config=config, core=core[1:])
 

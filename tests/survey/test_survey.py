@@ -6,7 +6,7 @@ import shutil
 import numpy as np
 import pytest
 
-from gfjax import methods, pmf, smrf, survey
+from gfjax import heap, methods, pmf, smrf, survey
 from gfjax.cli.main import main
 from gfjax.csf.config import BUFFER_PX
 from gfjax.errors import InputError
@@ -134,21 +134,24 @@ def test_a_tiled_method_runs_each_tile_of_the_survey_once(grid, method, tmp_path
     np.testing.assert_array_equal(got, method.filter(whole, config=method.Config(), tiling=SMALL_TILES).ground)
 
 
-def test_a_file_filtered_with_its_halo_names_its_own_points_the_core(grid, tmp_path):
+def test_a_file_filtered_with_its_halo_names_its_own_points_the_core(grid, tmp_path, monkeypatch):
     paths, members, _ = grid
     catalog = survey.index(paths, tmp_path)
-    seen = []
+    seen, events = [], []
 
     def filter_fn(points, returns, core=None):
         seen.append((points.n_points, core))
+        events.append("filter")
         return Result(ground=np.zeros(points.n_points, bool))
 
+    monkeypatch.setattr(heap, "trim", lambda: events.append("trim"))
     run = survey.Runner(catalog, filter_fn, None, tmp_path, context=False)
     for i, path in enumerate(paths):
         run(i, las_io.read(path))
         n, core = seen[-1]
         assert n > len(members[i])                                # the halo came along
         np.testing.assert_array_equal(core, np.arange(n) < len(members[i]))
+        assert events[-2:] == ["filter", "trim"]                  # the window's heap given back
 
 
 def test_split_makes_only_the_tiles_its_frame_names():
