@@ -125,3 +125,32 @@ def test_a_seventh_method_is_its_package_and_one_registry_line(monkeypatch):
     assert config.threshold_m == 0.2
     with pytest.raises(InputError, match="unknown preset 'loose' for toy; choose from strict"):
         methods.make_config_and_params("toy", preset="loose")
+
+
+def test_a_method_imports_with_the_collector_paused_and_leaves_it_as_it_was(monkeypatch):
+    """The collector is off while a method's package imports, and after it as before: on, or
+    off where the caller had turned it off, also when the import fails."""
+    import gc
+
+    seen, real_import = [], importlib.import_module
+
+    def import_module(name):
+        seen.append(gc.isenabled())
+        if name == "missing_method":
+            raise ModuleNotFoundError(name=name)
+        return real_import(name)
+
+    monkeypatch.setattr(methods.importlib, "import_module", import_module)
+    monkeypatch.setitem(methods.PACKAGES, "missing", "missing_method")
+    assert gc.isenabled()
+    methods.get("smrf")
+    assert seen == [False] and gc.isenabled()
+    with pytest.raises(InputError, match="method 'missing' is not available in this build"):
+        methods.get("missing")
+    assert seen == [False, False] and gc.isenabled()
+    gc.disable()
+    try:
+        methods.get("smrf")
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
