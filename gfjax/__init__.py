@@ -17,6 +17,7 @@ import importlib
 
 from gfjax.io.cloud import Cloud
 from gfjax.methods import PACKAGES as _PACKAGES
+from gfjax.methods import collector_paused as _collector_paused
 from gfjax.result import Result
 
 __version__ = "0.1.0"
@@ -28,7 +29,8 @@ _LAZY_FUNCS = {"read": "gfjax.io.las", "write": "gfjax.io.las", "Tiling": "gfjax
 
 def __getattr__(name: str):
     if name in _LAZY:
-        return importlib.import_module(f"gfjax.{name}")
+        with _collector_paused():           # a method's import, as `gfjax.methods.get` does it
+            return importlib.import_module(f"gfjax.{name}")
     if name in _LAZY_FUNCS:
         return getattr(importlib.import_module(_LAZY_FUNCS[name]), name)
     raise AttributeError(f"module 'gfjax' has no attribute {name!r}")
