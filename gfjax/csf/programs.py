@@ -25,7 +25,7 @@ from gfjax.csf import cloth, stages
 from gfjax.csf.cloth import ClothState, simulate
 from gfjax.csf.config import BUFFER_PX, CLOTH_START_M, Config, Params
 from gfjax.csf.wavefront import layout
-from gfjax.tiling.buckets import canonical_capacity
+from gfjax.tiling.buckets import canonical_capacity, canonical_side
 
 __all__ = ["TileDiagnostics", "Anchor", "Surface", "WARM_SIDES", "CHUNK_SLOTS", "canonical_grid", "canonical_points",
            "grid_shape", "point_surface", "drop_cloth", "start_cloth", "advance_cloth", "finish_cloth", "chunk_blocks",
@@ -91,9 +91,8 @@ def canonical_grid(shape: tuple[int, int]) -> tuple[int, int]:
 
 
 def _canonical_side(side: int) -> int:
-    if side > WARM_SIDES[-1]:
-        return -(-side // _LARGE_STEP) * _LARGE_STEP
-    return next(s for s in WARM_SIDES if s >= side)
+    fitted = canonical_side(side, WARM_SIDES)
+    return -(-side // _LARGE_STEP) * _LARGE_STEP if fitted is None else fitted
 
 
 def canonical_points(n: int) -> int:

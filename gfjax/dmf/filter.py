@@ -205,11 +205,12 @@ def _voxels(local: np.ndarray, config: Config, tiling: Tiling, worker) -> tuple[
 def warm(config: Config | None = None, params: Params | None = None, *, progress: bool = False,
          tiling: Tiling | None = None) -> int:
     """Load, or compile and store (`gfjax.aot`), the programs `filter` runs on a cloud of any
-    size at W of `shapes.WARM_VOXELS_M` (1 and 2 m): the raster stages on every canonical
-    side of one tile and on a batch of the largest, the basal loop on every node capacity up to
-    `shapes.NODE_WARM_MAX_CAPACITY`, and the height rule on every side with every canonical
-    point capacity. Nothing runs; nothing is kept when the program cache is off. Returns the
-    number of programs prepared (`gfjax warmup`)."""
+    size at W of `shapes.WARM_VOXELS_M` (1 and 2 m) whose NGNEM is near square or tiled: the
+    raster stages on every shape of one tile near square (`shapes.warm_shapes`) and on a batch
+    of the largest side, the basal loop on every node capacity up to
+    `shapes.NODE_WARM_MAX_CAPACITY`, and the height rule on every such shape with every
+    canonical point capacity. Nothing runs; nothing is kept when the program cache is off.
+    Returns the number of programs prepared (`gfjax warmup`)."""
     from gfjax.tiling.buckets import canonical_capacities
 
     config, tiling = config or Config(), tiling or Tiling()
@@ -217,19 +218,20 @@ def warm(config: Config | None = None, params: Params | None = None, *, progress
     for cell_m in shapes.WARM_VOXELS_M:
         core = _tile_core_px(cell_m, tiling)
         sides = shapes.raster_sides(cell_m, tiling)
-        one_tile.update(s for s in sides if s <= shapes.raster_shape((core, core), cell_m, tiling)[0])
+        largest = shapes.raster_shape((core, core), cell_m, tiling)[0]
+        one_tile.update(shapes.warm_shapes(tuple(s for s in sides if s <= largest)))
         batched.add(sides[-1])
 
-    jobs = [functools.partial(programs.prefetch_raster, (s, s), config) for s in sorted(one_tile)]
+    jobs = [functools.partial(programs.prefetch_raster, shape, config) for shape in sorted(one_tile)]
     jobs += [functools.partial(programs.prefetch_raster, (s, s), config, batch=MAX_BATCH) for s in sorted(batched)]
     cap = shapes.NODE_MIN_CAPACITY
     while cap <= shapes.NODE_WARM_MAX_CAPACITY:
         jobs.append(functools.partial(programs.prefetch_basal, cap, config))
         cap *= 2
     if config.final_rule in ("height", "both"):
-        for side in sorted(one_tile):
+        for shape in sorted(one_tile):
             for n in canonical_capacities():
-                jobs.append(functools.partial(programs.prefetch_height_rule, n, (side, side)))
+                jobs.append(functools.partial(programs.prefetch_height_rule, n, shape))
     return aot.warm_all(jobs, progress=progress, desc="dmf programs")
 
 

@@ -115,8 +115,11 @@ def mark_ground(nearest: np.ndarray, node_ground: np.ndarray, taken: np.ndarray,
 def _fill_surface(surface: Float[Array, "h w"], valid: Bool[Array, "h w"], hw: Int[Array, " 2"]) -> Float[Array, "h w"]:
     """The support surface with its empty cells taken from the nearest node, on a raster padded
     to a canonical shape (the data in its south-west corner, `hw` rows and columns; the
-    padding repeats the data's edges, so that sampling clamps there as on the unpadded one)."""
-    return replicate_edges(inpaint_nearest(surface, valid), hw)
+    padding repeats the data's edges, so that sampling clamps there as on the unpadded one,
+    and costs no nearest-cell search)."""
+    h, w = surface.shape
+    data = (jnp.arange(h)[:, None] >= h - hw[0]) & (jnp.arange(w)[None, :] < hw[1])
+    return replicate_edges(inpaint_nearest(surface, valid, data), hw)
 
 
 @jax.jit

@@ -48,7 +48,8 @@ class RasterStages(NamedTuple):
     """Rasters of one tile, shape `(h, w)` each (row 0 = north).
 
     Attributes:
-      ngnem: near-ground node elevation model, empty cells filled from the nearest valid cell [m].
+      ngnem: near-ground node elevation model, empty cells filled from the nearest valid cell [m]
+        (0 outside `inside`).
       layer: voxel layer index k of each cell, filled likewise, int32.
       rhc: R_HC of Eq. 2 (the 5x5 max filter exceeds the cell by more than W).
       ngnem_bi: NGNEM_BI: cells covered by non-ground objects (Sec. 2.4).
@@ -68,11 +69,12 @@ class RasterStages(NamedTuple):
     converged: Bool[Array, ""]
 
 
-def fill_ngnem(z: Raster, layer: Labels, valid: Mask) -> tuple[Raster, Labels]:
-    """NGNEM and layer rasters with empty cells taken from the nearest valid cell (SPEC 3.4)."""
-    index, _ = nearest_valid_index(valid)
+def fill_ngnem(z: Raster, layer: Labels, valid: Mask, inside: Mask) -> tuple[Raster, Labels]:
+    """NGNEM and layer rasters with empty cells taken from the nearest valid cell (SPEC 3.4);
+    zero outside `inside` (the padding, which no stage reads, costs no search)."""
+    index, _ = nearest_valid_index(valid, inside)
     src = jnp.maximum(index, 0).reshape(-1)
-    has = index >= 0
+    has = (index >= 0) & inside
     zf = jnp.where(has, z.reshape(-1)[src].reshape(z.shape), jnp.zeros((), z.dtype))
     kf = jnp.where(has, layer.reshape(-1)[src].reshape(layer.shape), jnp.zeros((), layer.dtype))
     return zf, kf
@@ -328,7 +330,7 @@ def raster_stages(z: Raster, layer: Labels, valid: Mask, inside: Mask, cell_m: F
 
     Returns: `RasterStages`; vmap over a batch of padded tiles.
     """
-    ngnem, kf = fill_ngnem(z, layer, valid)
+    ngnem, kf = fill_ngnem(z, layer, valid, inside)
     r = rhc(ngnem, inside, cell_m, radius_px=max_filter_px)
     bi, conv_bi = coverage(ngnem, r, inside, max_close_px=max_close_px, border_patches=border_patches,
                            hole_test=hole_test, close_all=close_all)

@@ -25,11 +25,15 @@ __all__ = ["nearest_valid_index", "inpaint_nearest", "inpaint_harmonic", "solve_
 _FAR = 1 << 30                     # "no candidate" squared distance / index (int32)
 
 
-def nearest_valid_index(valid: Mask) -> tuple[Int[Array, "h w"], Int[Array, "h w"]]:
+def nearest_valid_index(valid: Mask, need: Mask | None = None) -> tuple[Int[Array, "h w"], Int[Array, "h w"]]:
     """Row-major index of the nearest valid cell of every cell, and the squared distance.
 
     Args:
       valid: bool `(h, w)`.
+      need: bool `(h, w)`, the cells whose nearest valid cell is wanted (None: every cell).
+        The search stops once each of them has its own, so its cost follows the largest
+        distance from a cell of `need`, not from padding far from the data; a cell outside
+        `need` holds some valid cell, not always its nearest, or none.
 
     Returns:
       `(index, dist2)`: int32 `(h, w)` each; `index = row * w + col` of the nearest valid cell
@@ -67,31 +71,34 @@ def nearest_valid_index(valid: Mask) -> tuple[Int[Array, "h w"], Int[Array, "h w
 
     def cond(state):
         dx, best_d2, _ = state
-        return (dx < w) & (dx * dx <= jnp.max(best_d2))
+        worst = jnp.max(best_d2 if need is None else jnp.where(need, best_d2, 0))
+        return (dx < w) & (dx * dx <= worst)
 
     _, dist2, index = lax.while_loop(cond, body, (jnp.int32(1), g2, src))
     found = dist2 < _FAR
     return jnp.where(found, index, -1), jnp.where(found, dist2, _FAR)
 
 
-def inpaint_nearest(z: Raster, valid: Mask) -> Raster:
+def inpaint_nearest(z: Raster, valid: Mask, need: Mask | None = None) -> Raster:
     """Every cell takes the value of its nearest valid cell (valid cells keep theirs).
 
     Args:
       z: raster `(h, w)`, e.g. elevations [m]; values where `~valid` are ignored.
       valid: bool `(h, w)`.
+      need: bool `(h, w)`, the cells to fill (None: every cell); the others hold some valid
+        cell's value or zero (`nearest_valid_index`).
 
     Returns:
       `(h, w)`, dtype of `z`. Ties between equally near cells go to the smallest row-major
       index. A raster with no valid cell gives zeros. Cost: O(h w (1 + D)) with D the largest
-      distance to a valid cell, in cells.
+      distance from a cell to fill to a valid cell, in cells.
 
     DMF fills the NGNEM from the nearest valid cell where a filter needs a value (SPEC section
     3, step 4).
     """
     if z.shape != valid.shape:
         raise ValueError(f"inpaint_nearest: z shape {z.shape} != valid shape {valid.shape}")
-    index, _ = nearest_valid_index(valid)
+    index, _ = nearest_valid_index(valid, need)
     values = z.reshape(-1)[jnp.maximum(index, 0)].reshape(z.shape)
     return jnp.where(index >= 0, values, jnp.zeros((), z.dtype))
 

@@ -25,7 +25,8 @@ import math
 from collections.abc import Sequence
 
 __all__ = ["capacity_bucket", "power_bucket", "canonical_capacity", "canonical_capacities", "tile_capacity",
-           "tile_capacities", "canonical_sides", "canonical_square", "shape_bucket", "max_window_px", "check_lattice"]
+           "tile_capacities", "canonical_sides", "canonical_side", "canonical_square", "canonical_rectangle",
+           "shape_bucket", "max_window_px", "check_lattice"]
 
 MIN_CAPACITY = 256
 SHAPE_QUANTUM_PX = 64
@@ -133,8 +134,19 @@ def tile_capacities() -> tuple[int, ...]:
     return tuple(cap for cap in canonical_capacities() if cap <= POINT_CHUNK)
 
 
+def canonical_side(n: int, sides: Sequence[int]) -> int | None:
+    """The smallest of `sides` (ascending) holding `n` cells, or None when none does."""
+    return next((s for s in sides if s >= n), None)
+
+
 def canonical_square(shape: tuple[int, int], sides: Sequence[int]) -> tuple[int, int] | None:
     """The smallest square of `sides` holding a raster of `shape`, or None when none does."""
-    need = max(shape)
-    side = next((s for s in sides if s >= need), None)
+    side = canonical_side(max(shape), sides)
     return None if side is None else (side, side)
+
+
+def canonical_rectangle(shape: tuple[int, int], sides: Sequence[int]) -> tuple[int, int] | None:
+    """Each axis of a raster of `shape` rounded up to the smallest of `sides` holding it, or
+    None when an axis is longer than every side."""
+    rows, cols = canonical_side(shape[0], sides), canonical_side(shape[1], sides)
+    return None if rows is None or cols is None else (rows, cols)

@@ -151,10 +151,13 @@ def test_paper_preset_on_the_box(box):
     assert result.ground[ground].mean() > 0.7
 
 
-def test_warm_prepares_every_program_filter_runs(monkeypatch):
+@pytest.mark.parametrize("copies", [1, 3], ids=["square", "rectangle"])
+def test_warm_prepares_every_program_filter_runs(monkeypatch, copies):
     """A cloud of a size never seen runs only programs `dmf.warm` prepares (canonical raster
-    sides, node and point capacities): after `gfjax warmup`, its first run compiles nothing.
-    The programs' keys are compared; nothing is compiled for `warm`."""
+    shapes, node and point capacities): after `gfjax warmup`, its first run compiles nothing.
+    Three copies of the box scene side by side make a 48 x 144 m cloud, whose NGNEM is padded
+    to 192 x 128 cells, not a square. The programs' keys are compared; nothing is compiled for
+    `warm`."""
     from gfjax import aot
 
     ran, prepared = set(), set()
@@ -163,7 +166,9 @@ def test_warm_prepares_every_program_filter_runs(monkeypatch):
     monkeypatch.setattr(aot, "prefetch", lambda fn, *specs, tag=None, **static: None)
     cloud, _, _ = scenes.box_scene()
     keep = np.random.default_rng(0).random(cloud.n_points) < 0.83          # another point count
-    dmf.filter(gfjax.Cloud.from_xyz(cloud.xyz_m[keep]))
+    xyz = np.vstack([cloud.xyz_m[keep] + [0.0, scenes.SIZE_M * i, 0.0] for i in range(copies)])
+    result = dmf.filter(gfjax.Cloud.from_xyz(xyz))
+    assert result.diagnostics.ngnem.shape == (48 * copies, 48)
     monkeypatch.setattr(aot, "prefetch", lambda fn, *specs, tag=None, **static: prepared.add(
         aot.program_key(fn, specs, static, tag)))
     assert dmf.warm() > 0

@@ -125,6 +125,58 @@ def test_nearest_padding_never_changes_valid_cells():
     np.testing.assert_array_equal(big[:32, :24], small)
 
 
+NEED_CASES = [Case("random", (32, 24), valid_fraction=0.6), Case("sparse", (32, 24), valid_fraction=0.03),
+              Case("all_empty", (32, 24), valid_fraction=0.0), Case("one_row", (1, 33), valid_fraction=0.15)]
+
+
+def _padded_with_need(case, seed):
+    """A raster in the south-west corner of a larger empty one, `need` = the raster's cells."""
+    z, valid = reference.random_raster(case, seed=seed)
+    h, w = z.shape
+    zp, vp, need = np.zeros((h + 30, w + 40), np.float32), np.zeros((h + 30, w + 40), bool), np.zeros((h + 30, w + 40), bool)
+    zp[30:, :w], vp[30:, :w], need[30:, :w] = z, valid, True
+    return zp, vp, need
+
+
+@pytest.mark.parametrize("case", NEED_CASES, ids=str)
+def test_nearest_with_need_matches_brute_force_on_needed_cells(case):
+    """With `need`, every needed cell still gets its exact nearest valid cell (ties: smallest
+    index) and value; the others hold a valid cell's index or -1."""
+    zp, vp, need = _padded_with_need(case, seed=4)
+    index, dist2 = jax.jit(raster.nearest_valid_index)(vp, need)
+    filled = jax.jit(raster.inpaint_nearest)(zp, vp, need)
+    want_index, want_dist2 = reference.nearest_index(vp)
+    index, dist2, filled = np.asarray(index), np.asarray(dist2), np.asarray(filled)
+    np.testing.assert_array_equal(index[need], want_index[need])
+    np.testing.assert_array_equal(dist2[need], want_dist2[need])
+    want = zp.ravel()[want_index] if vp.any() else np.zeros_like(zp.ravel())
+    np.testing.assert_array_equal(filled[need], want.reshape(zp.shape)[need])
+    other = index[~need]
+    assert np.all((other == -1) | vp.ravel()[np.maximum(other, 0)])
+
+
+def test_nearest_with_need_under_vmap_equals_each_tile():
+    tiles = [_padded_with_need(case, seed) for seed, case in enumerate(NEED_CASES[:3])]
+    zp, vp, need = (np.stack(x) for x in zip(*tiles))
+    batched = np.asarray(jax.jit(jax.vmap(raster.inpaint_nearest))(zp, vp, need))
+    for b in range(len(tiles)):
+        alone = np.asarray(jax.jit(raster.inpaint_nearest)(zp[b], vp[b], need[b]))
+        np.testing.assert_array_equal(batched[b][need[b]], alone[need[b]])
+
+
+def test_nearest_with_need_stops_sooner_than_without():
+    """The search goes only as far as the needed cells need: data in the first column, needed
+    cells in the first four, so a far cell is never reached (no candidate, distance 2^30)."""
+    valid = np.zeros((8, 200), bool)
+    valid[:, 0] = True
+    need = np.zeros((8, 200), bool)
+    need[:, :4] = True
+    _, with_need = raster.nearest_valid_index(jnp.asarray(valid), jnp.asarray(need))
+    _, without = raster.nearest_valid_index(jnp.asarray(valid))
+    assert int(np.asarray(without)[0, -1]) == 199 ** 2
+    assert int(np.asarray(with_need)[0, -1]) > 199 ** 2
+
+
 # ---- harmonic fill on a domain (a tile's own cells inside a padded raster) -------------------
 
 DOMAIN_SHAPE = (40, 40)

@@ -91,3 +91,13 @@ def test_canonical_square():
     assert buckets.canonical_square((100, 130), (128, 192)) == (192, 192)
     assert buckets.canonical_square((1, 1), (128, 192)) == (128, 128)
     assert buckets.canonical_square((100, 200), (128, 192)) is None
+
+
+def test_canonical_side_and_rectangle():
+    assert buckets.canonical_side(128, (128, 192)) == 128
+    assert buckets.canonical_side(129, (128, 192)) == 192
+    assert buckets.canonical_side(193, (128, 192)) is None
+    assert buckets.canonical_rectangle((300, 194), (128, 192, 256, 384)) == (384, 256)
+    assert buckets.canonical_rectangle((1, 130), (128, 192)) == (128, 192)
+    assert buckets.canonical_rectangle((100, 200), (128, 192)) is None
+    assert buckets.canonical_rectangle((200, 100), (128, 192)) is None
