@@ -24,7 +24,7 @@ from gfjax import aot
 from gfjax.dmf import basal as basal_lib
 from gfjax.dmf import stages
 from gfjax.dmf.config import Config
-from gfjax.raster import inpaint_nearest, replicate_edges, sample_bilinear
+from gfjax.raster import domain_mask, inpaint_nearest, replicate_edges, sample_bilinear
 from gfjax.tiling.buckets import canonical_capacity
 
 __all__ = ["stage_options", "batched_stages", "raster_tile", "raster_batch", "prefetch_raster", "basal_layer",
@@ -117,9 +117,7 @@ def _fill_surface(surface: Float[Array, "h w"], valid: Bool[Array, "h w"], hw: I
     to a canonical shape (the data in its south-west corner, `hw` rows and columns; the
     padding repeats the data's edges, so that sampling clamps there as on the unpadded one,
     and costs no nearest-cell search)."""
-    h, w = surface.shape
-    data = (jnp.arange(h)[:, None] >= h - hw[0]) & (jnp.arange(w)[None, :] < hw[1])
-    return replicate_edges(inpaint_nearest(surface, valid, data), hw)
+    return replicate_edges(inpaint_nearest(surface, valid, domain_mask(hw, surface.shape)), hw)
 
 
 @jax.jit
