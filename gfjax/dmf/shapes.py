@@ -8,7 +8,8 @@ canonical capacity (`canonical_capacity`), all of `gfjax.tiling.buckets`: a mach
 DMF's programs a handful of times in its life, not once per file size (`gfjax warmup` does it
 ahead for the shapes of tiles near square, `warm_shapes`; an elongated raster's compiles on
 its first run and is kept). The axes are padded apart because the raster stages cost every
-padded cell (bcts_2's 300 x 194 NGNEM: 384 x 256, 0.15 s, instead of 384 x 384, 0.30 s).
+padded cell (bcts_2's 300 x 194 NGNEM: 384 x 256, 0.14 s, against 384 x 384, 0.26 s;
+`experiments/dmf_raster_padding.py`).
 The stages are unchanged by the padding (padded cells lie outside `inside` or the data's
 extent, padded nodes have no neighbours, padded points are sliced off), so the labels are the
 same.
